@@ -1,0 +1,1 @@
+"""planners: the classical pilot (OMPL RRT* path, time-parameterised reference, CasADi MPC tracker)."""

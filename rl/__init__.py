@@ -1,0 +1,1 @@
+"""rl: the learned pilot (gymnasium environment, batched training env, SB3 PPO, shipped policy)."""

@@ -1,0 +1,63 @@
+"""The low-level velocity controller takes each preset from hover to a commanded velocity."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uam_fdm.model import hover_state
+
+# (rise time to 90 % [s], overshoot, settling time to ±5 % [s], altitude excursion [m]) bounds per preset.
+BOUNDS = {
+    "small_quad": (1.5, 0.10, 2.5, 0.25),
+    "uam_multicopter": (4.0, 0.10, 6.0, 1.0),
+}
+
+
+def _step_response(p, dyn, v_cmd, wind=(0.0, 0.0, 0.0), seconds=12.0):
+    x = hover_state(p, (0.0, 0.0, 60.0))
+    xi = np.zeros(3)
+    env = np.array([*wind, 1.0])
+    cmd = np.array([v_cmd, 0.0, 0.0, 0.0])
+    t, vx, z, u_all = [], [], [], []
+    for k in range(int(seconds * dyn.control_hz)):
+        r = dyn.period_velocity(x, xi, cmd, env)
+        x, xi = r.final_state, r.ctrl_state
+        t.append((k + 1) / dyn.control_hz)
+        vx.append(x[3])
+        z.append(x[2])
+        u_all.append(r.rotor_commands)
+    t, vx, z = np.array(t), np.array(vx), np.array(z)
+    rise = t[np.argmax(vx >= 0.9 * v_cmd)]
+    overshoot = max(0.0, (vx.max() - v_cmd) / v_cmd)
+    outside = np.nonzero(np.abs(vx - v_cmd) > 0.05 * v_cmd)[0]
+    settle = t[outside[-1]] if outside.size else 0.0
+    return rise, overshoot, settle, float(np.ptp(z)), x, np.concatenate(u_all)
+
+
+@pytest.mark.parametrize("name", sorted(BOUNDS))
+@pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (3.0, 2.0, 0.0)])
+def test_hover_to_5_m_s(name, wind, vehicles, compiled_dynamics):
+    p, dyn = vehicles[name], compiled_dynamics[name]
+    rise, overshoot, settle, dz, x_end, u = _step_response(p, dyn, 5.0, wind)
+    max_rise, max_over, max_settle, max_dz = BOUNDS[name]
+    assert rise <= max_rise, f"rise time {rise:.2f} s"
+    assert overshoot <= max_over, f"overshoot {overshoot:.1%}"
+    assert settle <= max_settle, f"settling time {settle:.2f} s"
+    assert dz <= max_dz, f"altitude excursion {dz:.2f} m"
+    assert abs(x_end[4]) < 0.05 and abs(x_end[5]) < 0.05   # no cross-track or vertical drift at the end
+    assert u.min() >= p.rotor_speed_min_rad_s - 1e-9 and u.max() <= p.rotor_speed_max_rad_s + 1e-9
+
+
+@pytest.mark.parametrize("name", sorted(BOUNDS))
+def test_climb_descend_and_yaw_commands_are_followed(name, vehicles, compiled_dynamics):
+    p, dyn = vehicles[name], compiled_dynamics[name]
+    x, xi = hover_state(p, (0.0, 0.0, 60.0)), np.zeros(3)
+    env = np.array([0.0, 0.0, 0.0, 1.0])
+    vz = p.controller.max_vertical_speed_m_s
+    for cmd, check in (([0, 0, 2 * vz, 0.0], lambda s: abs(s[5] - vz) < 0.1),     # saturated to the limit
+                       ([0, 0, -vz, 0.0], lambda s: abs(s[5] + vz) < 0.1),
+                       ([0, 0, 0, 1.0], lambda s: abs(2 * np.arctan2(s[9], s[6]) - 1.0) < 0.02)):
+        for _ in range(int(10 * dyn.control_hz)):
+            r = dyn.period_velocity(x, xi, np.array(cmd, float), env)
+            x, xi = r.final_state, r.ctrl_state
+        assert check(x), (cmd, x[:13])

@@ -1,0 +1,182 @@
+"""The multirotor flight-dynamics model, written once as a CasADi expression.
+
+Everything that needs the physics (the simulator, the batched training step, the MPC, any
+linearisation, the energy metric) uses Functions generated here; there is no second copy.
+
+State x (13 + n), world ENU / body FLU, SI units::
+
+    x[0:3]    position p [m], world ENU (z above the field)
+    x[3:6]    velocity v [m/s], world ENU
+    x[6:10]   attitude quaternion q = [w, x, y, z], body FLU -> world ENU
+    x[10:13]  body rates ω [rad/s], body FLU
+    x[13:]    rotor speeds Ω [rad/s] (non-negative)
+
+Input u (n): rotor-speed commands [rad/s], saturated to [Ω_min, Ω_max] by the motors.
+Environment e (4): wind [m/s] world ENU (e, n, u) and the air-density ratio σ = ρ/ρ0.
+
+Equations::
+
+    ṗ = v
+    m v̇ = R(q) (Σ kf σ Ω_i² ẑ + F_drag) − m g ẑ
+    F_drag = −D_lin ⊙ v_a − σ D_quad ⊙ |v_a| ⊙ v_a,   v_a = R(q)ᵀ (v − wind)      (body axes)
+    q̇ = ½ q ⊗ [0, ω]
+    J ω̇ = Σ r_i × (kf σ Ω_i² ẑ) − Σ s_i km σ Ω_i² ẑ − ω × J ω
+    Ω̇_i = (sat(u_i) − Ω_i) / τ_m
+    shaft power P = Σ km σ Ω_i³   (Q_i Ω_i, the energy metric's integrand)
+
+Not modelled (documented choices): rotor inertia and gyroscopic torques, blade flapping,
+ground effect, rotor-rotor and coaxial interference, angular (rotational) drag.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from uam_fdm.params import GRAVITY_M_S2, VehicleParams
+
+N_ENV = 4  # wind e, n, u [m/s] and density ratio σ
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Index ranges of the state vector for a vehicle with `n_rotors` rotors."""
+
+    n_rotors: int
+
+    pos = slice(0, 3)
+    vel = slice(3, 6)
+    quat = slice(6, 10)
+    rate = slice(10, 13)
+
+    @property
+    def rotor(self) -> slice:
+        return slice(13, 13 + self.n_rotors)
+
+    @property
+    def nx(self) -> int:
+        return 13 + self.n_rotors
+
+
+def quat_to_rotation(q: ca.SX) -> ca.SX:
+    """Rotation matrix (3, 3) body -> world of a unit quaternion [w, x, y, z]."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return ca.vertcat(
+        ca.horzcat(1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        ca.horzcat(2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        ca.horzcat(2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+    )
+
+
+def _quat_rate(q: ca.SX, w: ca.SX) -> ca.SX:
+    """q̇ = ½ q ⊗ [0, ω] for body rates ω."""
+    return 0.5 * ca.vertcat(
+        -q[1] * w[0] - q[2] * w[1] - q[3] * w[2],
+        q[0] * w[0] + q[2] * w[2] - q[3] * w[1],
+        q[0] * w[1] + q[3] * w[0] - q[1] * w[2],
+        q[0] * w[2] + q[1] * w[1] - q[2] * w[0],
+    )
+
+
+def dynamics_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """Continuous dynamics ẋ and shaft power P [W] as CasADi expressions (see module docstring)."""
+    lay = StateLayout(p.n_rotors)
+    v, q, w, omega = x[lay.vel], x[lay.quat], x[lay.rate], x[lay.rotor]
+    wind, sigma = env[0:3], env[3]
+    rot = quat_to_rotation(q)
+
+    omega_sq = omega * omega
+    thrust = p.thrust_coeff_N_s2 * sigma * omega_sq                 # (n,) N
+    drag_torque = p.torque_coeff_Nm_s2 * sigma * omega_sq           # (n,) N·m, opposes each rotor's spin
+
+    v_air_body = rot.T @ (v - wind)
+    d_lin = ca.DM(p.drag_linear_N_s_m)
+    d_quad = ca.DM(p.drag_quadratic_N_s2_m2)
+    f_drag = -d_lin * v_air_body - sigma * d_quad * ca.fabs(v_air_body) * v_air_body
+    f_body = ca.vertcat(0, 0, ca.sum1(thrust)) + f_drag
+    accel = rot @ f_body / p.mass_kg - ca.DM([0.0, 0.0, GRAVITY_M_S2])
+
+    r = p.rotor_positions
+    spins = ca.DM(np.array(p.rotor_spins, dtype=float))
+    torque = ca.vertcat(
+        ca.dot(ca.DM(r[:, 1]), thrust),
+        -ca.dot(ca.DM(r[:, 0]), thrust),
+        -ca.dot(spins, drag_torque),
+    )
+    inertia = ca.DM(p.inertia)
+    w_dot = ca.solve(inertia, torque - ca.cross(w, inertia @ w))
+
+    u_sat = ca.fmin(ca.fmax(u, p.rotor_speed_min_rad_s), p.rotor_speed_max_rad_s)
+    omega_dot = (u_sat - omega) / p.motor_time_constant_s
+
+    x_dot = ca.vertcat(v, accel, _quat_rate(q, w), w_dot, omega_dot)
+    power = ca.dot(drag_torque, omega)
+    return x_dot, power
+
+
+def rk4_step_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX, dt: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """One classical RK4 step of the state and of the shaft energy; quaternion renormalised.
+
+    Returns:
+        (x_next, energy_J) with the energy integrated by the same RK4 stages.
+    """
+    f = ca.Function("f_aug", [x, u, env], list(dynamics_expr(p, x, u, env)))
+    k1, e1 = f(x, u, env)
+    k2, e2 = f(x + 0.5 * dt * k1, u, env)
+    k3, e3 = f(x + 0.5 * dt * k2, u, env)
+    k4, e4 = f(x + dt * k3, u, env)
+    x_next = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    energy = dt / 6.0 * (e1 + 2 * e2 + 2 * e3 + e4)
+    lay = StateLayout(p.n_rotors)
+    q = x_next[lay.quat]
+    x_next[lay.quat] = q / ca.norm_2(q)
+    return x_next, energy
+
+
+@dataclass(frozen=True)
+class ModelFunctions:
+    """CasADi Functions generated from the one model expression (all SX, ready to compile).
+
+    Attributes:
+        dynamics: (x, u, env) -> x_dot.
+        shaft_power: (x, env) -> P [W].
+        rk4_step: (x, u, env, dt) -> (x_next, energy_J).
+        jacobians: (x, u, env) -> (A = ∂ẋ/∂x, B = ∂ẋ/∂u).
+    """
+
+    dynamics: ca.Function
+    shaft_power: ca.Function
+    rk4_step: ca.Function
+    jacobians: ca.Function
+
+
+def build_model_functions(p: VehicleParams) -> ModelFunctions:
+    """Generate the model's CasADi Functions for one vehicle."""
+    lay = StateLayout(p.n_rotors)
+    x = ca.SX.sym("x", lay.nx)
+    u = ca.SX.sym("u", p.n_rotors)
+    env = ca.SX.sym("env", N_ENV)
+    dt = ca.SX.sym("dt")
+    x_dot, power = dynamics_expr(p, x, u, env)
+    x_next, energy = rk4_step_expr(p, x, u, env, dt)
+    names_in = ["x", "u", "env"]
+    return ModelFunctions(
+        dynamics=ca.Function("dynamics", [x, u, env], [x_dot], names_in, ["x_dot"]),
+        shaft_power=ca.Function("shaft_power", [x, env], [power], ["x", "env"], ["power_W"]),
+        rk4_step=ca.Function("rk4_step", [x, u, env, dt], [x_next, energy],
+                             names_in + ["dt"], ["x_next", "energy_J"]),
+        jacobians=ca.Function("jacobians", [x, u, env],
+                              [ca.jacobian(x_dot, x), ca.jacobian(x_dot, u)], names_in, ["A", "B"]),
+    )
+
+
+def hover_state(p: VehicleParams, position_m=(0.0, 0.0, 0.0), yaw_rad: float = 0.0,
+                density_ratio: float = 1.0) -> np.ndarray:
+    """State (13 + n,) at rest at `position_m` (world ENU), heading `yaw_rad`, rotors at hover trim."""
+    lay = StateLayout(p.n_rotors)
+    x = np.zeros(lay.nx)
+    x[lay.pos] = position_m
+    x[lay.quat] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
+    x[lay.rotor] = p.hover_rotor_speeds_rad_s(density_ratio)
+    return x
