@@ -6,10 +6,16 @@ import pytest
 
 from uam_fdm.model import hover_state
 
-# (rise time to 90 % [s], overshoot, settling time to ±5 % [s], altitude excursion [m]) bounds per preset.
+# Bounds per (preset, wind): rise time to 90 % [s], overshoot, settling time to ±5 % [s], altitude
+# excursion [m]. Measured here: quad calm 0.82 s / 0.7 % / 0.94 s, wind 0.68 s / 8.3 % / 2.7 s;
+# UAM calm 2.1 s / 2.1 % / 2.3 s, wind 2.0 s / 2.9 % / 2.2 s. In wind the drag feed-forward (ground
+# speed: the autopilot does not sense the wind) is off and the integral term removes the difference.
+CALM, WIND = (0.0, 0.0, 0.0), (3.0, 2.0, 0.0)
 BOUNDS = {
-    "small_quad": (1.5, 0.10, 2.5, 0.25),
-    "uam_multicopter": (4.0, 0.10, 6.0, 1.0),
+    ("small_quad", CALM): (1.2, 0.03, 1.5, 0.15),
+    ("small_quad", WIND): (1.2, 0.10, 3.5, 0.15),
+    ("uam_multicopter", CALM): (3.0, 0.05, 3.5, 0.5),
+    ("uam_multicopter", WIND): (3.0, 0.06, 3.5, 1.0),
 }
 
 
@@ -34,12 +40,11 @@ def _step_response(p, dyn, v_cmd, wind=(0.0, 0.0, 0.0), seconds=12.0):
     return rise, overshoot, settle, float(np.ptp(z)), x, np.concatenate(u_all)
 
 
-@pytest.mark.parametrize("name", sorted(BOUNDS))
-@pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (3.0, 2.0, 0.0)])
+@pytest.mark.parametrize("name, wind", sorted(BOUNDS))
 def test_hover_to_5_m_s(name, wind, vehicles, compiled_dynamics):
     p, dyn = vehicles[name], compiled_dynamics[name]
     rise, overshoot, settle, dz, x_end, u = _step_response(p, dyn, 5.0, wind)
-    max_rise, max_over, max_settle, max_dz = BOUNDS[name]
+    max_rise, max_over, max_settle, max_dz = BOUNDS[(name, wind)]
     assert rise <= max_rise, f"rise time {rise:.2f} s"
     assert overshoot <= max_over, f"overshoot {overshoot:.1%}"
     assert settle <= max_settle, f"settling time {settle:.2f} s"
@@ -48,7 +53,7 @@ def test_hover_to_5_m_s(name, wind, vehicles, compiled_dynamics):
     assert u.min() >= p.rotor_speed_min_rad_s - 1e-9 and u.max() <= p.rotor_speed_max_rad_s + 1e-9
 
 
-@pytest.mark.parametrize("name", sorted(BOUNDS))
+@pytest.mark.parametrize("name", ["small_quad", "uam_multicopter"])
 def test_climb_descend_and_yaw_commands_are_followed(name, vehicles, compiled_dynamics):
     p, dyn = vehicles[name], compiled_dynamics[name]
     x, xi = hover_state(p, (0.0, 0.0, 60.0)), np.zeros(3)

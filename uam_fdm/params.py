@@ -36,9 +36,9 @@ class ControllerParams:
     max_vertical_speed_m_s: float
     max_tilt_deg: float
     velocity_gain_1_s: float = 2.5
-    velocity_integral_gain_1_s2: float = 0.8
+    velocity_integral_gain_1_s2: float = 1.2
     integral_limit_m_s2: float = 3.0
-    integral_window_m_s: float = 1.0
+    integral_window_m_s: float = 0.5
     attitude_natural_freq_rad_s: float = 14.0
     attitude_damping: float = 0.8
     yaw_natural_freq_rad_s: float = 3.0
@@ -55,6 +55,7 @@ class VehicleParams:
     inertia_kg_m2: tuple[tuple[float, float, float], ...]
     rotor_positions_m: tuple[tuple[float, float, float], ...]
     rotor_spins: tuple[int, ...]
+    rotor_diameter_m: float
     thrust_coeff_N_s2: float
     torque_coeff_Nm_s2: float
     motor_time_constant_s: float
@@ -88,6 +89,13 @@ class VehicleParams:
         """Total thrust with every rotor at its maximum speed [N]."""
         return self.n_rotors * self.thrust_coeff_N_s2 * density_ratio * self.rotor_speed_max_rad_s**2
 
+    def hover_figure_of_merit(self) -> float:
+        """Momentum-theory ideal hover power T^1.5/sqrt(2 ρ0 A) over the model's shaft power Σ km Ω³."""
+        disk_area = self.n_rotors * math.pi * self.rotor_diameter_m**2 / 4
+        ideal = self.weight_N**1.5 / math.sqrt(2 * 1.225 * disk_area)
+        shaft = float(np.sum(self.torque_coeff_Nm_s2 * self.hover_rotor_speeds_rad_s() ** 3))
+        return ideal / shaft
+
     def allocation_matrix(self, density_ratio: float = 1.0) -> np.ndarray:
         """Matrix A (4, n) with [T, Mx, My, Mz] = A @ Ω² (N, N·m; body FLU)."""
         kf = self.thrust_coeff_N_s2 * density_ratio
@@ -115,7 +123,7 @@ class VehicleParams:
 # ---------------------------------------------------------------------------------------------
 
 _TOP_KEYS = {
-    "name", "description", "mass_kg", "inertia_kg_m2", "rotors", "thrust_coeff_N_s2", "torque_coeff_Nm_s2",
+    "name", "description", "mass_kg", "inertia_kg_m2", "rotors", "rotor_diameter_m", "thrust_coeff_N_s2", "torque_coeff_Nm_s2",
     "motor_time_constant_s", "rotor_speed_min_rad_s", "rotor_speed_max_rad_s", "drag_linear_N_s_m",
     "drag_quadratic_N_s2_m2", "collision_radius_m", "controller",
 }
@@ -178,6 +186,7 @@ def vehicle_from_dict(data: Any, source: str = "<inline>") -> VehicleParams:
         inertia_kg_m2=_matrix3(data["inertia_kg_m2"], source, "inertia_kg_m2"),
         rotor_positions_m=tuple(positions),
         rotor_spins=tuple(spins),
+        rotor_diameter_m=_positive(data["rotor_diameter_m"], source, "rotor_diameter_m"),
         thrust_coeff_N_s2=_positive(data["thrust_coeff_N_s2"], source, "thrust_coeff_N_s2"),
         torque_coeff_Nm_s2=_positive(data["torque_coeff_Nm_s2"], source, "torque_coeff_Nm_s2"),
         motor_time_constant_s=_positive(data["motor_time_constant_s"], source, "motor_time_constant_s"),

@@ -4,7 +4,8 @@ Pure steps take the state and return the next one (`step`, `step_velocity`, batc
 `step_velocity_batch`); `reset`/`advance*` are a thin stateful shell over them. Over each control
 period the environment input (wind, density ratio) is held, sampled at the period's midpoint in
 time and at the vehicle's altitude at the start: within 20 ms the altitude changes by centimetres
-(Δσ ~ 1e-6), while JSBSim's turbulence is tabulated at 120 Hz.
+(Δσ ~ 1e-6), while JSBSim's turbulence is tabulated at 120 Hz. The wind field must cover the
+episode plus one control period.
 """
 from __future__ import annotations
 
@@ -17,6 +18,12 @@ from uam_fdm.atmosphere import Atmosphere
 from uam_fdm.control import N_CTRL_STATE
 from uam_fdm.dynamics import PeriodResult, VehicleDynamics
 from uam_fdm.wind import WindField
+
+
+def _clamp_to_table(atmosphere: Atmosphere, z_m):
+    # A vehicle that leaves the flight volume ends its episode on the runner's bounds check; the one
+    # period it may spend above the table sees the table's edge density rather than an exception.
+    return np.clip(z_m, atmosphere.z_min_m, atmosphere.z_max_m)
 
 
 @dataclass(frozen=True)
@@ -48,7 +55,7 @@ class Simulator:
     def env(self, x: np.ndarray, t_s: float) -> np.ndarray:
         """Environment input [wind_e, wind_n, wind_u (m/s), σ] held over the period starting at t_s."""
         wind = self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s)
-        sigma = self.atmosphere.density_ratio(float(x[2]))
+        sigma = self.atmosphere.density_ratio(_clamp_to_table(self.atmosphere, x[2]))
         return np.array([wind[0], wind[1], wind[2], sigma])
 
     def step(self, x: np.ndarray, u: np.ndarray, t_s: float) -> PeriodResult:
@@ -115,7 +122,7 @@ class BatchSimulator:
         env = np.empty((self.n, 4))
         for i, wind in enumerate(self.winds):
             env[i, :3] = wind.wind_enu_m_s(float(t_mid[i]))
-        env[:, 3] = self.atmosphere.density_ratio(x[:, 2])
+        env[:, 3] = self.atmosphere.density_ratio(_clamp_to_table(self.atmosphere, x[:, 2]))
         return env
 
     def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray) -> PeriodResult:

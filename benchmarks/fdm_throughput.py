@@ -1,0 +1,172 @@
+"""Flight-dynamics throughput: compiled vs CasADi VM vs plain NumPy, single and batched.
+
+Prints a table, then (last line) one JSON object of the figures. The NumPy implementation of the
+same equations lives only here, as a baseline, and is checked against the compiled model first.
+
+    python benchmarks/fdm_throughput.py [--vehicle small_quad] [--seconds 1.0]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from uam_fdm.dynamics import VehicleDynamics  # noqa: E402
+from uam_fdm.model import hover_state  # noqa: E402
+from uam_fdm.params import GRAVITY_M_S2, VehicleParams, load_vehicle  # noqa: E402
+
+
+class NumpyTwin:
+    """The model's equations in vectorised NumPy (benchmark baseline only), states (N, nx)."""
+
+    def __init__(self, p: VehicleParams) -> None:
+        self.p = p
+        self.r = p.rotor_positions
+        self.s = np.array(p.rotor_spins, float)
+        self.j = p.inertia
+        self.j_inv = np.linalg.inv(self.j)
+        self.dl = np.array(p.drag_linear_N_s_m)
+        self.dq = np.array(p.drag_quadratic_N_s2_m2)
+
+    def f(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = self.p
+        v, q, w, om = x[:, 3:6], x[:, 6:10], x[:, 10:13], x[:, 13:]
+        qw, qx, qy, qz = q.T
+        rot = np.stack([
+            np.stack([1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)], -1),
+            np.stack([2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)], -1),
+            np.stack([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)], -1),
+        ], 1)
+        sigma = env[:, 3:4]
+        om2 = om * om
+        thrust = p.thrust_coeff_N_s2 * sigma * om2
+        qdrag = p.torque_coeff_Nm_s2 * sigma * om2
+        va = np.einsum("nji,nj->ni", rot, v - env[:, :3])
+        fb = -self.dl * va - sigma * self.dq * np.abs(va) * va
+        fb[:, 2] += thrust.sum(1)
+        acc = np.einsum("nij,nj->ni", rot, fb) / p.mass_kg
+        acc[:, 2] -= GRAVITY_M_S2
+        tau = np.stack([thrust @ self.r[:, 1], -(thrust @ self.r[:, 0]), -(qdrag @ self.s)], 1)
+        jw = w @ self.j.T
+        wdot = (tau - np.cross(w, jw)) @ self.j_inv.T
+        qdot = 0.5 * np.stack([-qx * w[:, 0] - qy * w[:, 1] - qz * w[:, 2],
+                               qw * w[:, 0] + qy * w[:, 2] - qz * w[:, 1],
+                               qw * w[:, 1] + qz * w[:, 0] - qx * w[:, 2],
+                               qw * w[:, 2] + qx * w[:, 1] - qy * w[:, 0]], 1)
+        usat = np.clip(u, p.rotor_speed_min_rad_s, p.rotor_speed_max_rad_s)
+        omdot = (usat - om) / p.motor_time_constant_s
+        return np.hstack([v, acc, qdot, wdot, omdot]), np.sum(qdrag * om, 1)
+
+    def rk4(self, x: np.ndarray, u: np.ndarray, env: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        k1, e1 = self.f(x, u, env)
+        k2, e2 = self.f(x + 0.5 * dt * k1, u, env)
+        k3, e3 = self.f(x + 0.5 * dt * k2, u, env)
+        k4, e4 = self.f(x + dt * k3, u, env)
+        xn = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xn[:, 6:10] /= np.linalg.norm(xn[:, 6:10], axis=1, keepdims=True)
+        return xn, dt / 6 * (e1 + 2 * e2 + 2 * e3 + e4)
+
+
+def rate(fn, items_per_call: int, seconds: float) -> float:
+    """Items per second of `fn`, best of 3 timed blocks (shared machine: the best block is the least disturbed)."""
+    fn()
+    calls = 1
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < 0.05:
+        fn()
+        calls += 1
+    per_block = max(1, int(calls * seconds / 3 / 0.05))
+    best = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        for _ in range(per_block):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / per_block)
+    return items_per_call / best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--vehicle", default="small_quad")
+    ap.add_argument("--seconds", type=float, default=1.0, help="timing budget per figure")
+    args = ap.parse_args()
+
+    p = load_vehicle(args.vehicle)
+    comp = VehicleDynamics(p, physics_hz=500.0, control_hz=50.0, compiled=True)
+    vm = VehicleDynamics(p, physics_hz=500.0, control_hz=50.0, compiled=False)
+    twin = NumpyTwin(p)
+    n_sub = comp.n_substeps
+    rng = np.random.default_rng(0)
+
+    def inputs(n: int):
+        x = np.tile(hover_state(p, (0.0, 0.0, 50.0)), (n, 1))
+        x[:, 3:6] += rng.normal(size=(n, 3))
+        env = np.tile([1.0, 0.5, 0.0, 0.98], (n, 1))
+        cmd = np.tile([3.0, 1.0, 0.5, 0.2], (n, 1))
+        return x, np.zeros((n, 3)), cmd, env, x[:, 13:].copy()
+
+    x, xi, cmd, env, u = inputs(1)
+    # The baseline must compute the same thing before its speed means anything.
+    xn_twin, _ = twin.rk4(x, u, env, comp.dt_s)
+    xn_comp, _ = comp.physics_step(x[0], u[0], env[0])
+    assert np.abs(xn_twin[0] - xn_comp).max() < 1e-9, "NumPy twin disagrees with the compiled model"
+
+    rows: list[tuple[str, str, float, str]] = []
+    fig: dict[str, float | str] = {}
+
+    phys_c = rate(lambda: comp.physics_step(x[0], u[0], env[0]), 1, args.seconds)
+    rk4_vm = vm.functions["rk4_step"]
+    phys_vm = rate(lambda: rk4_vm(x[0], u[0], env[0], comp.dt_s), 1, args.seconds)
+    phys_np = rate(lambda: twin.rk4(x, u, env, comp.dt_s), 1, args.seconds)
+    rows += [("physics step, 1 vehicle", "compiled", phys_c, ""),
+             ("physics step, 1 vehicle", "CasADi VM", phys_vm, f"compiled x{phys_c / phys_vm:.1f}"),
+             ("physics step, 1 vehicle", "NumPy", phys_np, f"compiled x{phys_c / phys_np:.1f}")]
+    fig.update(phys_steps_per_s_compiled=phys_c, phys_steps_per_s_vm=phys_vm, phys_steps_per_s_numpy=phys_np)
+
+    ctrl_c = rate(lambda: comp.period_velocity(x[0], xi[0], cmd[0], env[0]), 1, args.seconds)
+    ctrl_vm = rate(lambda: vm.period_velocity(x[0], xi[0], cmd[0], env[0]), 1, args.seconds)
+    hold_c = rate(lambda: comp.period_rotor(x[0], u[0], env[0]), 1, args.seconds)
+    rows += [("control period (controller + 10 substeps)", "compiled", ctrl_c, ""),
+             ("control period (controller + 10 substeps)", "CasADi VM", ctrl_vm, f"compiled x{ctrl_c / ctrl_vm:.1f}"),
+             ("control period (rotor cmd held, 10 substeps)", "compiled", hold_c, "")]
+    fig.update(ctrl_steps_per_s=ctrl_c, ctrl_steps_per_s_vm=ctrl_vm, rotor_hold_steps_per_s=hold_c)
+
+    for n in (1, 64, 1024):
+        xb, xib, cmdb, envb, ub = inputs(n)
+        vel = rate(lambda: comp.period_velocity_batch(xb, xib, cmdb, envb), n * n_sub, args.seconds)
+        hold = rate(lambda: comp.period_rotor_batch(xb, ub, envb), n * n_sub, args.seconds)
+        rows += [(f"batched N={n}, with controller", "compiled", vel, "phys vehicle-steps/s"),
+                 (f"batched N={n}, rotor cmd held", "compiled", hold, "phys vehicle-steps/s")]
+        fig[f"batched_phys_vehicle_steps_per_s_n{n}"] = vel
+        fig[f"batched_hold_phys_vehicle_steps_per_s_n{n}"] = hold
+        if n == 1024:
+            vm_map = rate(lambda: vm.period_velocity_batch(xb, xib, cmdb, envb), n * n_sub, args.seconds)
+            npb = rate(lambda: twin.rk4(xb, ub, envb, comp.dt_s), n, args.seconds)
+            rows += [(f"batched N={n}, with controller", "CasADi VM map", vm_map, f"compiled x{vel / vm_map:.1f}"),
+                     (f"batched N={n}, one RK4 step", "NumPy vectorised", npb,
+                      f"compiled (held) x{hold / npb:.1f}")]
+            fig.update(batched_phys_vehicle_steps_per_s=vel, batched_vm_phys_vehicle_steps_per_s=vm_map,
+                       batched_numpy_phys_vehicle_steps_per_s=npb, batched_vs_numpy_ratio=hold / npb,
+                       batched_vs_vm_ratio=vel / vm_map)
+
+    print(f"uam_fdm throughput: vehicle {p.name} ({p.n_rotors} rotors), physics 500 Hz, control 50 Hz, "
+          f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, OMP_NUM_THREADS=1")
+    print(f"{'what':46s} {'path':18s} {'per second':>14s}  note")
+    for what, path, value, note in rows:
+        print(f"{what:46s} {path:18s} {value:14,.0f}  {note}")
+    targets = [("ctrl_steps_per_s >= 10,000", fig["ctrl_steps_per_s"] >= 1e4),
+               ("batched_phys_vehicle_steps_per_s (N=1024) >= 1,000,000", fig["batched_phys_vehicle_steps_per_s"] >= 1e6)]
+    for text, ok in targets:
+        print(f"target {text}: {'met' if ok else 'NOT met'}")
+    fig["vehicle"] = p.name
+    print(json.dumps({k: (round(v, 1) if isinstance(v, float) else v) for k, v in fig.items()}))
+
+
+if __name__ == "__main__":
+    main()
