@@ -21,8 +21,6 @@ import casadi as ca
 
 log = logging.getLogger(__name__)
 
-CFLAGS = ("-O3", "-march=native", "-fPIC", "-shared")
-
 # Appended to the generated source: evaluates one generated function for N vehicles in one C call.
 # Serial on purpose: on a shared 2-core machine threads spin against the other process (measured
 # 10x slower); parallelism belongs at process level. Input k of vehicle v starts at in[k] + v*in_stride[k]
@@ -85,9 +83,48 @@ class CompiledLibrary:
     functions: dict[str, ca.Function]
 
 
+def compile_source(source: bytes, name: str, cache_dir: Path | None = None,
+                   opt_flags: tuple[str, ...] = ("-O3", "-march=native")) -> Path | None:
+    """Compile C `source` into a shared library in the cache (or reuse the cached one).
+
+    Returns:
+        The library's path, or None when no compiler is available or compilation failed (logged).
+    """
+    cc = compiler_command()
+    if cc is None:
+        log.warning("no C compiler found ($CC, cc, gcc, clang): using CasADi's virtual machine (slower)")
+        return None
+    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    flags = (*opt_flags, "-fPIC", "-shared")
+    key = hashlib.sha256(source + repr((cc, flags, ca.__version__)).encode()).hexdigest()[:20]
+    lib_path = cache_dir / f"{name}_{key}.so"
+    if lib_path.exists():
+        return lib_path
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="uam_codegen_") as tmp:
+        source_path = Path(tmp) / f"{name}.c"
+        source_path.write_bytes(source)
+        tmp_lib = cache_dir / f".{lib_path.name}.{os.getpid()}.tmp"
+        cmd = [*cc, *flags, str(source_path), "-o", str(tmp_lib), "-lm"]
+        log.info("compiling %s (%d kB of C)", name, len(source) // 1024)
+        try:
+            result = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            log.warning("compiling %s failed (%s): using CasADi's virtual machine", name, exc)
+            return None
+        if result.returncode != 0:
+            log.warning("compiling %s failed: %s\n%s: using CasADi's virtual machine",
+                        name, " ".join(cmd), result.stderr[-2000:])
+            tmp_lib.unlink(missing_ok=True)
+            return None
+        os.replace(tmp_lib, lib_path)
+    log.info("compiled %s -> %s", name, lib_path)
+    return lib_path
+
+
 def compile_functions(functions: list[ca.Function], name: str,
                       cache_dir: Path | None = None) -> CompiledLibrary | None:
-    """Generate C for `functions`, compile (or reuse a cached build) and load them back.
+    """Generate C for `functions` (plus the batch driver), compile or reuse a cached build, load them back.
 
     Args:
         functions: CasADi Functions with distinct names.
@@ -95,38 +132,13 @@ def compile_functions(functions: list[ca.Function], name: str,
         cache_dir: where shared libraries are kept (default `default_cache_dir()`).
 
     Returns:
-        The library (path and ``{function name: external Function}``), or None if no compiler is available or the build
-        failed (logged as a warning; the caller then uses the VM Functions).
+        The library (path and ``{function name: external Function}``), or None if no compiler is
+        available or the build failed (logged as a warning; the caller then uses the VM Functions).
     """
-    cc = compiler_command()
-    if cc is None:
-        log.warning("no C compiler found ($CC, cc, gcc, clang): using CasADi's virtual machine (slower)")
+    gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
+    for f in functions:
+        gen.add(f)
+    lib_path = compile_source(gen.dump().encode() + BATCH_DRIVER_C.encode(), name, cache_dir)
+    if lib_path is None:
         return None
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    with tempfile.TemporaryDirectory(prefix="uam_codegen_") as tmp:
-        gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
-        for f in functions:
-            gen.add(f)
-        source_path = Path(gen.generate(tmp + os.sep))
-        source = source_path.read_bytes() + BATCH_DRIVER_C.encode()
-        source_path.write_bytes(source)
-        key = hashlib.sha256(
-            source + repr((cc, CFLAGS, ca.__version__)).encode()).hexdigest()[:20]
-        lib_path = cache_dir / f"{name}_{key}.so"
-        if not lib_path.exists():
-            cache_dir.mkdir(parents=True, exist_ok=True)
-            tmp_lib = cache_dir / f".{lib_path.name}.{os.getpid()}.tmp"
-            cmd = [*cc, *CFLAGS, str(source_path), "-o", str(tmp_lib), "-lm"]
-            try:
-                result = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-            except (OSError, subprocess.TimeoutExpired) as exc:
-                log.warning("compiling %s failed (%s): using CasADi's virtual machine", name, exc)
-                return None
-            if result.returncode != 0:
-                log.warning("compiling %s failed: %s\n%s: using CasADi's virtual machine",
-                            name, " ".join(cmd), result.stderr[-2000:])
-                tmp_lib.unlink(missing_ok=True)
-                return None
-            os.replace(tmp_lib, lib_path)
-            log.info("compiled %s -> %s", name, lib_path)
     return CompiledLibrary(lib_path, {f.name(): ca.external(f.name(), str(lib_path)) for f in functions})
