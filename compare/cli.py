@@ -25,6 +25,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_maps(args: argparse.Namespace) -> int:
+    from uam_fdm.city_plot import render_named_maps
+
+    for path in render_named_maps(args.out_dir):
+        print(path)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uam-compare", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO)")
@@ -34,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help=f"preset names or vehicle YAML paths (default: {' '.join(preset_names())})")
     demo.add_argument("--seed", type=int, default=0, help="turbulence seed")
     demo.set_defaults(func=_cmd_demo)
+    maps = sub.add_parser("maps", help="render the shipped maps (top-down and 3D) to PNG")
+    maps.add_argument("out_dir", nargs="?", default="maps_png", help="output folder (default: maps_png)")
+    maps.set_defaults(func=_cmd_maps)
     return parser
 
 

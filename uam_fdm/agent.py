@@ -1,0 +1,114 @@
+"""The boundary between a pilot and the simulator: what every agent is given and what it returns.
+
+Both pilots are complete autonomy stacks flying the same `uam_fdm` vehicle at the same physics
+rate. Each decision, an agent returns an `Actuation`:
+
+* `RotorCommand`: rotor-speed commands [rad/s], held for the decision period (what the MPC emits);
+* `VelocityCommand`: a world-frame velocity (and heading) setpoint for the vehicle's own low-level
+  controller (`uam_fdm.control`), which then computes rotor-speed commands at the physics rate
+  (what the learned pilot emits: policy -> velocity command -> low-level controller -> rotors).
+
+Either way the simulator applies rotor-speed commands at every physics step and records them.
+What both pilots know (the fairness statement): the vehicle's parameters, the building map, the
+air density, and the full vehicle state at each decision (perfect state estimation). Neither
+knows the wind or its gusts.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, Union, runtime_checkable
+
+import numpy as np
+
+from uam_fdm.atmosphere import Atmosphere
+from uam_fdm.dynamics import VehicleDynamics
+from uam_fdm.params import VehicleParams
+
+if TYPE_CHECKING:  # the city module is imported lazily by its users; only its type is named here
+    from uam_fdm.city import BuildingMap
+
+
+@dataclass(frozen=True)
+class Task:
+    """One flight: from `start_m` to within `goal_radius_m` of `goal_m` (world ENU, m) before `timeout_s`."""
+
+    start_m: tuple[float, float, float]
+    goal_m: tuple[float, float, float]
+    goal_radius_m: float = 2.0
+    timeout_s: float = 120.0
+    start_yaw_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class World:
+    """What an agent may know about the world it flies in (no wind: see the module docstring)."""
+
+    vehicle: VehicleParams
+    dynamics: VehicleDynamics
+    city: "BuildingMap"
+    atmosphere: Atmosphere
+
+    @property
+    def decision_period_s(self) -> float:
+        return 1.0 / self.dynamics.control_hz
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What the agent sees at a decision: time [s] and the full vehicle state (13 + n,)."""
+
+    t_s: float
+    x: np.ndarray
+
+
+@dataclass(frozen=True)
+class RotorCommand:
+    """Rotor-speed commands [rad/s] (n,), held over the decision period."""
+
+    rotor_speeds_rad_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    """Velocity setpoint [m/s] world ENU and heading [rad] for the low-level controller."""
+
+    velocity_enu_m_s: np.ndarray
+    yaw_rad: float = 0.0
+
+    def as_vector(self) -> np.ndarray:
+        return np.append(np.asarray(self.velocity_enu_m_s, float), self.yaw_rad)
+
+
+Actuation = Union[RotorCommand, VelocityCommand]
+
+
+@dataclass(frozen=True)
+class ResetInfo:
+    """What an agent reports after `reset`: whether it can fly the task, and why not.
+
+    Attributes:
+        ok: False when the agent has no way to fly the task (e.g. no path found in the budget).
+        status: a short machine-readable status ("ok", "planner_failure", "invalid_start", ...).
+        plan_time_s: wall time spent planning inside reset [s] (0 for agents that do not plan).
+        detail: human-readable detail.
+    """
+
+    ok: bool
+    status: str = "ok"
+    plan_time_s: float = 0.0
+    detail: str = ""
+
+
+@runtime_checkable
+class Agent(Protocol):
+    """A pilot. The runner calls `reset` once per episode, then `act` once per decision period."""
+
+    name: str
+
+    def reset(self, world: World, task: Task, seed: int) -> ResetInfo:
+        """Prepare for an episode (the classical pilot plans here; the runner times it)."""
+        ...
+
+    def act(self, obs: Observation) -> Actuation:
+        """Decide the actuation for the next decision period."""
+        ...
