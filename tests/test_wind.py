@@ -73,7 +73,7 @@ def test_bad_steady_wind_raises(steady: object, message: str) -> None:
         ({"seed": 2**31}, "seed must be in"),
         ({"seed": 1.5}, "seed must be an integer"),
         ({"airspeed_m_s": 0.0}, "airspeed_m_s=0.0 is outside"),
-        ({"duration_s": float("nan")}, "duration_s=nan is outside"),
+        ({"duration_s": float("nan")}, "duration_s must be finite"),
         ({"height_agl_m": -5.0}, "height_agl_m=-5.0 is outside"),
         ({"height_agl_m": 2.0, "dt_s": 0.1}, "too coarse for the Dryden time scale"),
     ],

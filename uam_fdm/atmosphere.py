@@ -104,11 +104,11 @@ class AtmosphereConditions:
         # Normalise to float so equal conditions compare and hash equal (1000 vs 1000.0).
         object.__setattr__(
             self, "elevation_m",
-            _checked_float("elevation_m", self.elevation_m, ELEVATION_RANGE_M, "m above mean sea level"),
+            checked_number("elevation_m", self.elevation_m, ELEVATION_RANGE_M, "m above mean sea level"),
         )
         object.__setattr__(
             self, "isa_offset_k",
-            _checked_float("isa_offset_k", self.isa_offset_k, ISA_OFFSET_RANGE_K, "K from the ISA day"),
+            checked_number("isa_offset_k", self.isa_offset_k, ISA_OFFSET_RANGE_K, "K from the ISA day"),
         )
 
 
@@ -487,8 +487,9 @@ def load_probe_model(fdm: Any) -> None:
         )
 
 
-def _checked_float(name: str, value: Any, bounds: tuple[float, float], unit: str) -> float:
-    """``value`` as a float, or a ValueError naming ``name`` if it is not a finite number in ``bounds``."""
+def checked_number(name: str, value: Any, bounds: tuple[float, float], unit: str, open_low: bool = False) -> float:
+    """``value`` as a float, or a ValueError naming ``name`` unless it is a finite number in ``bounds``
+    (``open_low``: the lower bound itself is excluded)."""
     # Strings and booleans convert to float silently; in a scenario they are mistakes.
     if isinstance(value, (str, bytes, bool)):
         raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
@@ -499,6 +500,6 @@ def _checked_float(name: str, value: Any, bounds: tuple[float, float], unit: str
     if not math.isfinite(v):
         raise ValueError(f"{name} must be finite ({unit}), got {value!r}")
     lo, hi = bounds
-    if not lo <= v <= hi:
-        raise ValueError(f"{name}={v} is outside the accepted range [{lo}, {hi}] {unit}")
+    if not ((lo < v if open_low else lo <= v) and v <= hi):
+        raise ValueError(f"{name}={v} is outside the accepted range {'(' if open_low else '['}{lo}, {hi}] {unit}")
     return v

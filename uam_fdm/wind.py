@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uam_fdm.atmosphere import FT_TO_M, jsbsim_exec, load_probe_model
+from uam_fdm.atmosphere import FT_TO_M, checked_number, jsbsim_exec, load_probe_model
 
 __all__ = [
     "TurbulenceLevel",
@@ -256,13 +256,13 @@ def gust_series(
         RuntimeError: If JSBSim fails to load the probe or produces non-finite values.
     """
     seed = _checked_seed(seed)
-    duration_s = _checked_number("duration_s", duration_s, (0.0, MAX_DURATION_S), "s", open_low=True)
-    height_agl_m = _checked_number("height_agl_m", height_agl_m, HEIGHT_RANGE_M, "m above the field")
-    airspeed_m_s = _checked_number("airspeed_m_s", airspeed_m_s, AIRSPEED_RANGE_M_S, "m/s")
-    dt_s = _checked_number("dt_s", dt_s, (0.0, MAX_DT_S), "s", open_low=True)
+    duration_s = checked_number("duration_s", duration_s, (0.0, MAX_DURATION_S), "s", open_low=True)
+    height_agl_m = checked_number("height_agl_m", height_agl_m, HEIGHT_RANGE_M, "m above the field")
+    airspeed_m_s = checked_number("airspeed_m_s", airspeed_m_s, AIRSPEED_RANGE_M_S, "m/s")
+    dt_s = checked_number("dt_s", dt_s, (0.0, MAX_DT_S), "s", open_low=True)
     if spinup_s is None:
         spinup_s = SPINUP_SCALE_LENGTHS * MAX_SCALE_LENGTH_M / airspeed_m_s
-    spinup_s = _checked_number("spinup_s", spinup_s, (0.0, 1e5), "s")
+    spinup_s = checked_number("spinup_s", spinup_s, (0.0, 1e5), "s")
     # JSBSim's discrete Dryden filters, x_k = (1 - 2 dt/tau) x_(k-1) + ..., need dt well below the
     # shortest time constant tau_w = L_w / V, where L_w >= min(max(h, 10 ft), 1000 ft) (MIL-F-8785C).
     tau_w_min_s = min(max(height_agl_m, 10.0 * FT_TO_M), 1000.0 * FT_TO_M) / airspeed_m_s
@@ -503,23 +503,6 @@ def _checked_vector3(name: str, value: Any) -> tuple[float, float, float]:
     if items is None or len(items) != 3 or not all(math.isfinite(v) for v in items):
         raise ValueError(f"{name} must be three finite numbers [east, north, up] in m/s, got {value!r}")
     return (items[0], items[1], items[2])
-
-
-def _checked_number(
-    name: str, value: Any, bounds: tuple[float, float], unit: str, open_low: bool = False
-) -> float:
-    if isinstance(value, (str, bytes, bool)):
-        raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number ({unit}), got {value!r}") from None
-    lo, hi = bounds
-    ok = (lo < v if open_low else lo <= v) and v <= hi  # NaN fails both comparisons
-    if not ok:
-        left = "(" if open_low else "["
-        raise ValueError(f"{name}={value!r} is outside {left}{lo}, {hi}] {unit}")
-    return v
 
 
 def _checked_seed(seed: Any) -> int:
