@@ -276,7 +276,7 @@ def main() -> None:
               f"min clearance {t['min_clearance_m']:.2f} m (margin {default.safety_margin_m} m)")
     timing = timings[args.vehicle]
 
-    print(f"\nMPC, closed loop on the simulator (50 Hz decisions, N = 20 x 50 ms), warm solves:")
+    print("\nMPC, closed loop on the simulator (50 Hz decisions; quad N = 15 x 50 ms, UAM N = 20 x 150 ms), warm solves:")
     print(f"{'vehicle':16s} {'solver':10s} {'inputs':7s} {'lag':4s} {'median ms':>9s} {'p95 ms':>7s} {'max ms':>7s} "
           f"{'iters':>5s} {'fail':>6s} {'RMS m':>6s}")
     mpc_rows = [measure_mpc("small_quad", s) for s in ("ipopt", "sqpmethod", "fatrop")]
