@@ -112,20 +112,17 @@ class ClassicalAgent:
     # -- flying ---------------------------------------------------------------------------------
     def act(self, obs: Observation) -> RotorCommand:
         """Track the reference with one MPC solve; hover in place if there is no plan."""
-        world, cfg = self._world, self.config
+        world = self._world
         if world is None:
             raise RuntimeError("act() before reset()")
         mpc = self._tracker
+        sigma = float(world.atmosphere.density_ratio_clamped(float(obs.x[2])))
         if self.reference is None:
-            sigma = float(world.atmosphere.density_ratio(np.clip(obs.x[2], world.atmosphere.z_min_m,
-                                                                  world.atmosphere.z_max_m)))
             return RotorCommand(world.vehicle.hover_rotor_speeds_rad_s(sigma))
         self._maybe_replan(obs)
         n_stages, h = mpc.config.horizon_steps, mpc.config.step_s
         ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
         normals, offsets = self._halfspaces(obs, ref_pos)
-        sigma = float(world.atmosphere.density_ratio(np.clip(obs.x[2], world.atmosphere.z_min_m,
-                                                              world.atmosphere.z_max_m)))
         elapsed = 0.0 if self._last_t is None else obs.t_s - self._last_t
         sol = mpc.solve(obs.x, ref_pos, ref_vel, self._task.start_yaw_rad, sigma, normals, offsets, elapsed)
         self._last_t = obs.t_s

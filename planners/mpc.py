@@ -375,7 +375,7 @@ class MPCTracker:
         self.n_solves = 0
         self.n_failures = 0
 
-    def _state_vector(self, x_full: np.ndarray, density_ratio: float) -> np.ndarray:
+    def _state_vector(self, x_full: np.ndarray) -> np.ndarray:
         x = np.asarray(x_full, float)
         if not self.motor_lag:
             return x[:13].copy()
@@ -431,7 +431,7 @@ class MPCTracker:
         """
         cfg, n = self.config, self.n_v
         big_n, k_h = cfg.horizon_steps, cfg.n_halfspaces
-        x0 = self._state_vector(x_full, density_ratio)
+        x0 = self._state_vector(x_full)
         ref = np.vstack([np.asarray(ref_pos_m, float).T, np.asarray(ref_vel_m_s, float).T])
         u_hover = self.hover_input(density_ratio)
         u_prev = self._last_u if self._last_u is not None else u_hover

@@ -349,6 +349,15 @@ class Atmosphere:
         """
         return self.density_kg_m3(z_m) / SEA_LEVEL_DENSITY_KG_M3
 
+    def density_ratio_clamped(self, z_m: ArrayLike) -> float | NDArray[np.float64]:
+        """`density_ratio` with heights outside the table held at its edge (for the physics loop).
+
+        A vehicle that leaves the flight volume ends its episode on the runner's bounds check; the one
+        control period it may spend beyond the table sees the edge density rather than an exception.
+        """
+        z = np.clip(z_m, self._z_min, self._z_max)
+        return self.density_ratio(float(z) if np.ndim(z) == 0 else z)
+
     def __reduce__(self) -> tuple[Any, ...]:
         # Pickle only the defining data; __init__ rebuilds the derived float lists.
         return (type(self), (self._conditions, self._z_min, self._dz, np.array(self._table)))

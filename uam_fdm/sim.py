@@ -20,12 +20,6 @@ from uam_fdm.dynamics import PeriodResult, VehicleDynamics
 from uam_fdm.wind import WindField
 
 
-def _clamp_to_table(atmosphere: Atmosphere, z_m):
-    # A vehicle that leaves the flight volume ends its episode on the runner's bounds check; the one
-    # period it may spend above the table sees the table's edge density rather than an exception.
-    return np.clip(z_m, atmosphere.z_min_m, atmosphere.z_max_m)
-
-
 @dataclass(frozen=True)
 class SimState:
     """Where one simulated vehicle is: time [s], state (13 + n,), controller integral (3,), energy [J]."""
@@ -55,7 +49,7 @@ class Simulator:
     def env(self, x: np.ndarray, t_s: float) -> np.ndarray:
         """Environment input [wind_e, wind_n, wind_u (m/s), σ] held over the period starting at t_s."""
         wind = self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s)
-        sigma = self.atmosphere.density_ratio(_clamp_to_table(self.atmosphere, x[2]))
+        sigma = self.atmosphere.density_ratio_clamped(float(x[2]))
         return np.array([wind[0], wind[1], wind[2], sigma])
 
     def step(self, x: np.ndarray, u: np.ndarray, t_s: float) -> PeriodResult:
@@ -122,7 +116,7 @@ class BatchSimulator:
         env = np.empty((self.n, 4))
         for i, wind in enumerate(self.winds):
             env[i, :3] = wind.wind_enu_m_s(float(t_mid[i]))
-        env[:, 3] = self.atmosphere.density_ratio(_clamp_to_table(self.atmosphere, x[:, 2]))
+        env[:, 3] = self.atmosphere.density_ratio_clamped(x[:, 2])
         return env
 
     def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray) -> PeriodResult:
