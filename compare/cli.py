@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from uam_fdm.params import preset_names
 
@@ -33,6 +34,115 @@ def _cmd_maps(args: argparse.Namespace) -> int:
     return 0
 
 
+def _csv_list(text: str, kind=str) -> tuple:
+    items = tuple(kind(v.strip()) for v in text.split(",") if v.strip())
+    if not items:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}")
+    return items
+
+
+def _default_run_dir(spec: str) -> Path:
+    from datetime import datetime
+
+    stem = Path(spec).stem if spec.endswith((".yaml", ".yml")) else Path(spec).name
+    base = Path("runs") / f"{datetime.now().strftime('%Y%m%d-%H%M%S')}-{stem}"
+    out, k = base, 1
+    while out.exists():
+        k += 1
+        out = base.with_name(f"{base.name}-{k}")
+    return out
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from compare.run import RunOptions, run_comparison
+    from compare.scenario import METHODS, resolve_scenarios
+
+    if args.methods is not None:
+        unknown = [m for m in args.methods if m not in METHODS]
+        if unknown:
+            raise ValueError(f"--methods: unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}")
+    scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
+    out = args.out if args.out is not None else _default_run_dir(args.scenario)
+    if out.exists() and any(out.iterdir()) and not args.resume:
+        raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
+    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policy=args.policy, jobs=args.jobs,
+                      resume=args.resume, progress=not args.no_progress,
+                      command="uam-compare " + " ".join(args.argv))
+    run_dir = run_comparison(scenarios, opts)
+    _print_summary(run_dir)
+    return 0
+
+
+def _print_summary(run_dir: Path) -> None:
+    import json
+
+    from compare.metrics import methods_table
+
+    summary = json.loads((run_dir / "summary.json").read_text())
+    full = methods_table(summary)
+    keep = [i for i, h in enumerate(full[0]) if h.split(" [")[0].split(" (")[0] in
+            ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")]
+    table = [[row[i] for i in keep] for row in full]
+    widths = [max(len(str(r[i])) for r in table) for i in range(len(table[0]))]
+    for row in table:
+        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)))
+    for name in ("report.pdf", "metrics.csv", "summary.json"):
+        if (run_dir / name).exists():
+            print(run_dir / name)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from compare.run import finalize
+
+    run_dir = finalize(args.run_dir)
+    _print_summary(run_dir)
+    return 0
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from compare.scenario import resolve_scenarios
+
+    for sc in resolve_scenarios(args.scenario):
+        print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
+              f"vehicle {sc.vehicle_name}, {len(sc.episodes)} episodes x {len(sc.seeds)} seeds, "
+              f"methods {', '.join(sc.methods)}, turbulence {sc.wind.turbulence.value})")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from rl.nav import NavConfig
+    from rl.train import TrainConfig, train
+
+    nav = replace(NavConfig(), city_pool_size=args.city_pool, turbulence=args.turbulence)
+    cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
+                      eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                      checkpoint_every=args.checkpoint_every)
+    res = train(cfg, args.out, resume=args.resume, progress=not args.no_progress,
+                command="uam-compare " + " ".join(args.argv))
+    print(f"policy written to {args.out}: held-out success {res.success_rate:.1%}, collisions {res.collision_rate:.1%} "
+          f"over {res.episodes} episodes")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    import json
+
+    from rl.agent import load_policy
+    from rl.train import evaluate, eval_config
+
+    policy = load_policy(args.policy)
+    nav = eval_config(policy.nav, args.episodes, turbulence=args.turbulence)
+    res = evaluate(policy.act_batch, nav, args.episodes, seed=args.seed)
+    print(f"{res.episodes} held-out episodes ({nav.turbulence} turbulence, {policy.nav.vehicle}): "
+          f"outcomes {res.outcomes}, mean flight time {res.mean_time_s:.1f} s")
+    print(json.dumps({"success_rate": res.success_rate, "collision_rate": res.collision_rate,
+                      "episodes": res.episodes, "outcomes": res.outcomes, "seed": args.seed,
+                      "turbulence": nav.turbulence, "policy": str(args.policy)}))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uam-compare", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO)")
@@ -45,15 +155,56 @@ def build_parser() -> argparse.ArgumentParser:
     maps = sub.add_parser("maps", help="render the shipped maps (top-down and 3D) to PNG")
     maps.add_argument("out_dir", nargs="?", default="maps_png", help="output folder (default: maps_png)")
     maps.set_defaults(func=_cmd_maps)
+    run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
+    run.add_argument("scenario", nargs="?", default="default",
+                     help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
+    run.add_argument("--methods", type=_csv_list, default=None, help="comma-separated subset of ppo,rrt_mpc")
+    run.add_argument("--policy", type=Path, default=None, help="policy folder for ppo (default: the shipped policy)")
+    run.add_argument("--seeds", type=lambda t: _csv_list(t, int), default=None,
+                     help="comma-separated seeds overriding the scenarios' own")
+    run.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
+    run.add_argument("--out", type=Path, default=None, help="run folder (default: runs/<time>-<scenario>)")
+    run.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.set_defaults(func=_cmd_run)
+    rep = sub.add_parser("report", help="rescore a run folder's saved episodes and rebuild its report (no simulation)")
+    rep.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
+    rep.set_defaults(func=_cmd_report)
+    val = sub.add_parser("validate", help="check scenario files strictly without flying anything")
+    val.add_argument("scenario", help="a built-in set, a scenario YAML or a folder of them")
+    val.set_defaults(func=_cmd_validate)
+    tr = sub.add_parser("train", help="train the learned pilot with PPO on the batched environment")
+    tr.add_argument("--preset", default="paper", help="PPO preset (paper: 2 x 128 units, clip 0.2)")
+    tr.add_argument("--timesteps", type=int, default=30_000_000, help="environment steps (default 30M)")
+    tr.add_argument("--envs", type=int, default=256, help="vehicles stepped together (default 256)")
+    tr.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
+    tr.add_argument("--city-pool", type=int, default=128, help="training cities (default 128)")
+    tr.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
+    tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between evaluations")
+    tr.add_argument("--eval-episodes", type=int, default=100, help="held-out episodes per evaluation")
+    tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
+    tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
+    tr.add_argument("--out", type=Path, default=Path("runs/policy"), help="policy folder to write")
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.set_defaults(func=_cmd_train)
+    ev = sub.add_parser("evaluate-policy", help="fly a policy on held-out cities; last line is JSON")
+    ev.add_argument("policy", nargs="?", type=Path, default=None, help="policy folder (default: the shipped policy)")
+    ev.add_argument("--episodes", type=int, default=200, help="episodes, one held-out city each (default 200)")
+    ev.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
+    ev.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
+    ev.set_defaults(func=_cmd_evaluate)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.argv = argv
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.command is None:
-        args = parser.parse_args(["demo", *(argv or [])])
+        parser.print_help()
+        return 0
     try:
         return args.func(args)
     except ValueError as exc:   # bad user input (ConfigError is a ValueError): one clear line, non-zero exit

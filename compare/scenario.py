@@ -1,0 +1,497 @@
+"""Scenario files: a strict loader that checks everything before anything flies.
+
+A scenario is one YAML file: a city, a vehicle, the air it flies in, and the episodes (start,
+goal) each pilot flies, once per seed.  World frame ENU (x east, y north, z up), metres above
+the field (ground at z = 0), seconds, SI units::
+
+    name: suburb-quad          # required. [A-Za-z0-9_.-]+, not "." or "..", no "__" (it separates
+                               #   the fields of output file names); names the results
+    description: "..."         # optional free text
+    map: {named: suburb}       # required. Anything `uam_fdm.mapfile.map_from_config` accepts:
+                               #   {named: suburb|downtown|canyon}, {buildings: [{center: [x, y] m,
+                               #   size: [w, d] m, height: h m, yaw_deg: a}, ...]}, {generator:
+                               #   {seed: N, ...}}, {geojson: file (relative to this file), ...},
+                               #   each with optional no_fly: [{center, size, z_range: [z0, z1] m}]
+    bounds: {min: [x, y, z], max: [x, y, z]}   # optional flight volume [m] (default: the map's
+                               #   own; required with map.buildings and map.geojson)
+    vehicle: small_quad        # required. A preset name (`uam_fdm.params.preset_names()`), a path
+                               #   to a vehicle YAML (relative to this file), or an inline mapping
+                               #   of vehicle parameters (the preset format)
+    atmosphere:                # optional; every key optional, defaults shown
+      elevation_m: 0.0         #   field elevation above mean sea level [m], in [-500, 9000]
+      isa_offset_k: 0.0        #   temperature offset from the ISA day [K], in [-50, 50]
+      wind_mps: [0, 0, 0]      #   steady wind, ENU [m/s] (where the air moves to), |w| <= 60
+      turbulence: none         #   Dryden turbulence: none | light | moderate | severe
+    episodes:                  # required, non-empty list; one task each
+      - start: [x, y, z]       #   required, ENU [m]
+        goal: [x, y, z]        #   required, ENU [m]
+        goal_radius_m: 3.0     #   optional, > 0 [m] (default: the top-level goal_radius_m)
+        timeout_s: 90.0        #   optional, in (0, 3600] [s] (default: the top-level timeout_s)
+    goal_radius_m: 3.0         # optional default for the episodes, > 0 [m]; default 3.0
+    timeout_s: null            # optional default for the episodes, in (0, 3600] [s], or null (the
+                               #   default): each episode then gets
+                               #   20 s + 2.5 * |goal - start| / vehicle.controller.max_speed_m_s,
+                               #   i.e. 2.5 times the straight-line flight time at the vehicle's
+                               #   top speed, plus 20 s to take off, turn and settle
+    seeds: [0]                 # optional, non-empty list of distinct integers in [0, 2**32 - 1];
+                               #   every episode is flown once per seed; default [0]
+    methods: [ppo, rrt_mpc]    # optional, non-empty subset of {ppo, rrt_mpc}; default both
+    physics_hz: 500            # optional physics rate [Hz], in (0, 10000]; default 500
+    control_hz: 50             # optional decision rate [Hz], > 0; default 50; physics_hz must be
+                               #   an integer multiple of it
+
+Every value is checked when the file is loaded, and the first problem raises
+`uam_fdm.errors.ConfigError` naming the file, the dotted key and the reason with the bad value,
+e.g. ``runs/x.yaml: episodes[2].start: [10.0, 20.0, 5.0] is inside building 3``.  Rejected:
+unknown keys at any level, duplicate keys, wrong types (booleans and strings are not numbers),
+non-finite numbers, out-of-range values; a start or goal whose collision sphere (the vehicle's
+`collision_radius_m`) leaves the bounds, touches a building or the ground (clearance <= radius),
+or overlaps a no-fly zone; a goal within the goal radius of its start; duplicate seeds; an
+unknown method; an unknown vehicle (the presets are listed); a vehicle that cannot hover (maximum
+thrust <= weight) at the highest start or goal in this atmosphere.
+
+Built-in scenario sets live in ``compare/scenarios/<set>/*.yaml`` (`builtin_sets()`);
+`resolve_scenarios` accepts a set name, a YAML file or a folder of YAML files.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from uam_fdm.agent import Task
+from uam_fdm.atmosphere import (
+    ELEVATION_RANGE_M,
+    ISA_OFFSET_RANGE_K,
+    Atmosphere,
+    AtmosphereConditions,
+    checked_number,
+)
+from uam_fdm.city import BuildingMap
+from uam_fdm.errors import ConfigError
+from uam_fdm.mapfile import map_from_config
+from uam_fdm.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
+from uam_fdm.wind import TurbulenceLevel, WindConditions
+
+SCENARIO_DIR = Path(__file__).parent / "scenarios"
+METHODS = ("ppo", "rrt_mpc")
+
+DEFAULT_GOAL_RADIUS_M = 3.0
+DEFAULT_SEEDS = (0,)
+DEFAULT_PHYSICS_HZ = 500.0
+DEFAULT_CONTROL_HZ = 50.0
+TIMEOUT_BASE_S = 20.0
+TIMEOUT_FLIGHT_TIME_FACTOR = 2.5
+MAX_TIMEOUT_S = 3600.0
+MAX_PHYSICS_HZ = 10000.0
+MAX_SEED = 2**32 - 1  # OMPL and most RNG seeding APIs take unsigned 32-bit seeds
+
+_TOP_KEYS = ("name", "description", "map", "bounds", "vehicle", "atmosphere", "episodes", "goal_radius_m",
+             "timeout_s", "seeds", "methods", "physics_hz", "control_hz")
+_REQUIRED_KEYS = ("name", "map", "vehicle", "episodes")
+_ATMOSPHERE_KEYS = ("elevation_m", "isa_offset_k", "wind_mps", "turbulence")
+_EPISODE_KEYS = ("start", "goal", "goal_radius_m", "timeout_s")
+_NAME_RE = re.compile(r"[A-Za-z0-9_.-]+")
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode of a scenario: its index in the file and the task to fly (ENU metres, seconds)."""
+
+    index: int
+    task: Task
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Scenario:
+    """A checked scenario, ready to run.
+
+    Attributes:
+        name: the scenario's name (used in output file names).
+        description: free text.
+        source: path of the file it came from (or the name given to `scenario_from_dict`).
+        vehicle: the vehicle's parameters.
+        vehicle_name: the preset name when the scenario names a preset, else `vehicle.name`.
+        city: the buildings, bounds and no-fly zones (ENU metres).
+        atmosphere: field elevation [m MSL] and ISA temperature offset [K].
+        wind: steady wind (ENU, m/s) and turbulence level.
+        episodes: the tasks, in file order.
+        seeds: the seeds each episode is flown with.
+        methods: the pilots to fly, in `METHODS` order.
+        physics_hz: physics rate [Hz].
+        control_hz: decision rate [Hz]; physics_hz is an integer multiple of it.
+        raw: a copy of the parsed YAML mapping, for provenance.
+    """
+
+    name: str
+    description: str
+    source: str
+    vehicle: VehicleParams
+    vehicle_name: str
+    city: BuildingMap
+    atmosphere: AtmosphereConditions
+    wind: WindConditions
+    episodes: tuple[EpisodeSpec, ...]
+    seeds: tuple[int, ...]
+    methods: tuple[str, ...]
+    physics_hz: float
+    control_hz: float
+    raw: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        return (f"Scenario({self.name!r}, {len(self.episodes)} episodes x {len(self.seeds)} seeds, "
+                f"vehicle={self.vehicle_name!r}, map={self.city.name!r}, methods={self.methods}, "
+                f"source={self.source!r})")
+
+
+# ---- public entry points -----------------------------------------------------------------------------
+def load_scenario(path: str | Path) -> Scenario:
+    """Load and check one scenario YAML file.
+
+    Args:
+        path: the file; relative paths inside it (vehicle, GeoJSON) resolve against its folder.
+
+    Raises:
+        ConfigError: naming the file, the key and the reason.
+    """
+    path = Path(path)
+    source = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(source, "<file>", f"cannot read: {exc}") from None
+    try:
+        data = yaml.load(text, Loader=_StrictSafeLoader)
+    except yaml.YAMLError as exc:
+        raise ConfigError(source, "<yaml>", f"not valid YAML: {exc}") from None
+    return scenario_from_dict(data, source, path.parent)
+
+
+def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
+    """Check a parsed scenario mapping and build the `Scenario`.
+
+    Args:
+        data: the parsed YAML (see the module docstring for the schema).
+        source: file name used in error messages and kept as `Scenario.source`.
+        base_dir: folder against which relative paths (vehicle file, GeoJSON) are resolved.
+
+    Raises:
+        ConfigError: naming the file, the key and the reason.
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError(source, "<root>", f"must be a mapping of scenario keys "
+                                            f"({', '.join(_TOP_KEYS)}), got {type(data).__name__}")
+    _reject_unknown(data, _TOP_KEYS, source, "")
+    for key in _REQUIRED_KEYS:
+        if key not in data:
+            raise ConfigError(source, key, "missing (required)")
+    name = _name(data["name"], source)
+    description = _optional(data, "description", "", source, _string)
+    vehicle, vehicle_name = _vehicle(data["vehicle"], source, Path(base_dir))
+    if "bounds" in data and data["bounds"] is None:
+        raise ConfigError(source, "bounds", "must be a mapping {min: [x, y, z], max: [x, y, z]}, got None")
+    city = map_from_config(data["map"], data.get("bounds"), source, Path(base_dir))
+    atmosphere, wind = _atmosphere(data.get("atmosphere", {}), source)
+    goal_radius = _optional(data, "goal_radius_m", DEFAULT_GOAL_RADIUS_M, source, _goal_radius)
+    timeout = None if data.get("timeout_s") is None else _timeout(data["timeout_s"], source, "timeout_s")
+    seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
+    methods = _optional(data, "methods", METHODS, source, _methods)
+    physics_hz, control_hz = _rates(data, source)
+    episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
+    _check_hover(episodes, vehicle, atmosphere, source)
+    return Scenario(name=name, description=description, source=source, vehicle=vehicle,
+                    vehicle_name=vehicle_name, city=city, atmosphere=atmosphere, wind=wind,
+                    episodes=episodes, seeds=seeds, methods=methods, physics_hz=physics_hz,
+                    control_hz=control_hz, raw=copy.deepcopy(dict(data)))
+
+
+def builtin_sets() -> list[str]:
+    """Names of the built-in scenario sets (folders of `compare/scenarios` holding YAML files), sorted."""
+    return sorted(p.name for p in SCENARIO_DIR.iterdir() if p.is_dir() and any(p.glob("*.yaml")))
+
+
+def resolve_scenarios(spec: str | Path) -> list[Scenario]:
+    """Load the scenarios named by `spec`.
+
+    Args:
+        spec: a built-in set name (`builtin_sets()`; it wins over a same-named folder, so write
+            ``./default`` for a local one), a scenario YAML file, or a folder whose ``*.yaml`` /
+            ``*.yml`` files are loaded in sorted file-name order.
+
+    Returns:
+        The scenarios, in order.
+
+    Raises:
+        ValueError: when `spec` is neither a set nor an existing file or folder (the message lists
+            the built-in sets), or the folder holds no YAML file.
+        ConfigError: for any bad scenario, or two scenarios with the same name.
+    """
+    text = str(spec)
+    if text in builtin_sets():
+        files = _yaml_files(SCENARIO_DIR / text)
+    else:
+        path = Path(spec)
+        if path.is_file():
+            files = [path]
+        elif path.is_dir():
+            files = _yaml_files(path)
+            if not files:
+                raise ValueError(f"scenario folder {text!r} holds no .yaml or .yml file")
+        else:
+            raise ValueError(f"{text!r} is neither a built-in scenario set ({', '.join(builtin_sets())}) "
+                             f"nor an existing scenario YAML file or folder")
+    scenarios: list[Scenario] = []
+    for f in files:
+        scenario = load_scenario(f)
+        for other in scenarios:
+            if other.name == scenario.name:
+                raise ConfigError(scenario.source, "name", f"duplicate scenario name {scenario.name!r} "
+                                                           f"(also in {other.source})")
+        scenarios.append(scenario)
+    return scenarios
+
+
+# ---- sections ----------------------------------------------------------------------------------------
+def _name(value: Any, source: str) -> str:
+    name = _string(value, source, "name")
+    if not _NAME_RE.fullmatch(name) or name in (".", "..") or "__" in name:
+        raise ConfigError(source, "name", f"must match [A-Za-z0-9_.-]+, not be '.' or '..' and not contain "
+                                          f"'__' (it is used in file names), got {value!r}")
+    return name
+
+
+def _vehicle(value: Any, source: str, base_dir: Path) -> tuple[VehicleParams, str]:
+    """The vehicle from a preset name, a vehicle file (relative to base_dir) or an inline mapping."""
+    presets = ", ".join(preset_names())
+    if isinstance(value, Mapping):
+        try:
+            params = vehicle_from_dict(value, source)
+        except ConfigError as exc:
+            key = "vehicle" if exc.key.startswith("<") else f"vehicle.{exc.key}"
+            raise ConfigError(source, key, exc.reason) from None
+        return params, params.name
+    if not isinstance(value, str) or not value:
+        raise ConfigError(source, "vehicle", f"must be a preset name ({presets}), a vehicle file path or a "
+                                             f"mapping of vehicle parameters, got {value!r}")
+    if value in preset_names():
+        return load_vehicle(value), value
+    path = Path(value)
+    path = path if path.is_absolute() else base_dir / path
+    if not path.is_file():
+        raise ConfigError(source, "vehicle", f"unknown vehicle {value!r}: not a preset ({presets}) "
+                                             f"and no vehicle file {path}")
+    try:
+        params = load_vehicle(path)
+    except ConfigError as exc:
+        raise ConfigError(source, "vehicle", f"in vehicle file {exc.source}: {exc.key}: {exc.reason}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(source, "vehicle", f"cannot read vehicle file {path}: {exc}") from None
+    return params, params.name
+
+
+def _atmosphere(value: Any, source: str) -> tuple[AtmosphereConditions, WindConditions]:
+    cfg = _mapping(value, _ATMOSPHERE_KEYS, source, "atmosphere")
+    elevation = _in_range(cfg.get("elevation_m", 0.0), ELEVATION_RANGE_M, "m above mean sea level", source,
+                          "atmosphere.elevation_m")
+    offset = _in_range(cfg.get("isa_offset_k", 0.0), ISA_OFFSET_RANGE_K, "K from the ISA day", source,
+                       "atmosphere.isa_offset_k")
+    wind = _vector3(cfg.get("wind_mps", [0.0, 0.0, 0.0]), source, "atmosphere.wind_mps", "m/s, ENU")
+    level = cfg.get("turbulence", "none")
+    if not isinstance(level, str):
+        raise ConfigError(source, "atmosphere.turbulence",
+                          f"must be one of {', '.join(t.value for t in TurbulenceLevel)}, got {level!r}")
+    try:
+        turbulence = TurbulenceLevel.parse(level)
+    except ValueError as exc:
+        raise ConfigError(source, "atmosphere.turbulence", str(exc)) from None
+    try:
+        steady = WindConditions(wind, turbulence)
+    except ValueError as exc:
+        raise ConfigError(source, "atmosphere.wind_mps", str(exc)) from None
+    return AtmosphereConditions(elevation, offset), steady
+
+
+def _seeds(value: Any, source: str, key: str) -> tuple[int, ...]:
+    if not isinstance(value, list) or not value:
+        raise ConfigError(source, key, f"must be a non-empty list of distinct integers, got {value!r}")
+    seen: dict[int, int] = {}
+    for i, s in enumerate(value):
+        if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED:
+            raise ConfigError(source, f"{key}[{i}]", f"must be an integer in [0, {MAX_SEED}], got {s!r}")
+        if s in seen:
+            raise ConfigError(source, f"{key}[{i}]", f"duplicate seed {s} (also {key}[{seen[s]}]); "
+                                                     f"seeds must be distinct")
+        seen[s] = i
+    return tuple(value)
+
+
+def _methods(value: Any, source: str, key: str) -> tuple[str, ...]:
+    if not isinstance(value, list) or not value:
+        raise ConfigError(source, key, f"must be a non-empty list drawn from {', '.join(METHODS)}, got {value!r}")
+    for i, m in enumerate(value):
+        if m not in METHODS:
+            raise ConfigError(source, f"{key}[{i}]", f"unknown method {m!r} (known: {', '.join(METHODS)})")
+        if m in value[:i]:
+            raise ConfigError(source, f"{key}[{i}]", f"duplicate method {m!r}")
+    return tuple(m for m in METHODS if m in value)
+
+
+def _rates(data: Mapping, source: str) -> tuple[float, float]:
+    physics = _optional(data, "physics_hz", DEFAULT_PHYSICS_HZ, source,
+                        lambda v, s, k: _in_range(v, (0.0, MAX_PHYSICS_HZ), "Hz", s, k, open_low=True))
+    control = _optional(data, "control_hz", DEFAULT_CONTROL_HZ, source,
+                        lambda v, s, k: _in_range(v, (0.0, physics), "Hz (at most physics_hz)", s, k,
+                                                  open_low=True))
+    ratio = physics / control
+    if abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise ConfigError(source, "physics_hz", f"must be an integer multiple of control_hz {control:g} Hz, "
+                                                f"got {physics:g} Hz (ratio {ratio:g})")
+    return physics, control
+
+
+def _episodes(value: Any, source: str, city: BuildingMap, vehicle: VehicleParams, goal_radius: float,
+              timeout: float | None) -> tuple[EpisodeSpec, ...]:
+    if not isinstance(value, list) or not value:
+        raise ConfigError(source, "episodes", f"must be a non-empty list of {{start: [x, y, z], goal: [x, y, z]}}, "
+                                              f"got {value!r}")
+    radius = vehicle.collision_radius_m
+    specs = []
+    for i, item in enumerate(value):
+        key = f"episodes[{i}]"
+        cfg = _mapping(item, _EPISODE_KEYS, source, key)
+        for k in ("start", "goal"):
+            if k not in cfg:
+                raise ConfigError(source, f"{key}.{k}", "missing (required)")
+        start = _vector3(cfg["start"], source, f"{key}.start", "m, ENU")
+        goal = _vector3(cfg["goal"], source, f"{key}.goal", "m, ENU")
+        _check_point(start, city, radius, source, f"{key}.start")
+        _check_point(goal, city, radius, source, f"{key}.goal")
+        r_goal = _goal_radius(cfg["goal_radius_m"], source, f"{key}.goal_radius_m") if "goal_radius_m" in cfg \
+            else goal_radius
+        distance = math.dist(start, goal)
+        if distance <= r_goal:
+            raise ConfigError(source, f"{key}.goal", f"{list(goal)} is {distance:.2f} m from the start, within the "
+                                                     f"goal radius {r_goal:g} m: nothing to fly")
+        if "timeout_s" in cfg:
+            t_max = _timeout(cfg["timeout_s"], source, f"{key}.timeout_s")
+        elif timeout is not None:
+            t_max = timeout
+        else:
+            t_max = TIMEOUT_BASE_S + TIMEOUT_FLIGHT_TIME_FACTOR * distance / vehicle.controller.max_speed_m_s
+        specs.append(EpisodeSpec(i, Task(start_m=start, goal_m=goal, goal_radius_m=r_goal, timeout_s=t_max)))
+    return tuple(specs)
+
+
+def _check_point(p: tuple[float, float, float], city: BuildingMap, radius: float, source: str, key: str) -> None:
+    """Raise unless the collision sphere at p is clear of buildings and ground, in bounds and outside no-fly zones."""
+    pts = np.array([p], dtype=float)
+    c = city.clearance(pts, radius)
+    if c.distance_m[0] <= 0.0:
+        bid = int(c.building_id[0])
+        what = "the ground" if bid < 0 else f"building {bid}"
+        gap = float(c.distance_m[0]) + radius  # centre-to-surface distance, negative inside
+        if gap >= 0.0:
+            where = f"is {gap:.2f} m from {what}"
+        else:
+            where = "is below the ground" if bid < 0 else f"is inside {what}"
+        raise ConfigError(source, key, f"{list(p)} {where}: must be more than the vehicle's collision radius "
+                                       f"{radius:g} m from every building and the ground")
+    if not city.in_bounds(pts, radius)[0]:
+        lo, hi = city.bounds_min_m + radius, city.bounds_max_m - radius
+        raise ConfigError(source, key, f"{list(p)} is out of bounds: with the vehicle's collision radius "
+                                       f"{radius:g} m it must lie in x [{lo[0]:g}, {hi[0]:g}], "
+                                       f"y [{lo[1]:g}, {hi[1]:g}], z [{lo[2]:g}, {hi[2]:g}] m")
+    if city.in_no_fly(pts, radius)[0]:
+        raise ConfigError(source, key, f"{list(p)} is in a no-fly zone (or within the vehicle's collision radius "
+                                       f"{radius:g} m of one)")
+
+
+def _check_hover(episodes: tuple[EpisodeSpec, ...], vehicle: VehicleParams, conditions: AtmosphereConditions,
+                 source: str) -> None:
+    """Raise when the vehicle's maximum thrust does not exceed its weight at the highest start or goal."""
+    z_top = max(max(e.task.start_m[2], e.task.goal_m[2]) for e in episodes)
+    sigma = float(Atmosphere.from_jsbsim(conditions, z_max_m=z_top + 10.0, z_min_m=0.0).density_ratio(z_top))
+    if vehicle.max_thrust_N(sigma) <= vehicle.weight_N:
+        raise ConfigError(source, "atmosphere", f"{vehicle.name} cannot hover at z = {z_top:g} m above a field at "
+                                                f"{conditions.elevation_m:g} m MSL, ISA{conditions.isa_offset_k:+g} K: "
+                                                f"density ratio {sigma:.3f} gives at most "
+                                                f"{vehicle.max_thrust_N(sigma):.1f} N of thrust for a weight of "
+                                                f"{vehicle.weight_N:.1f} N")
+
+
+# ---- value helpers -----------------------------------------------------------------------------------
+def _reject_unknown(cfg: Mapping, known: tuple[str, ...], source: str, prefix: str) -> None:
+    for k in cfg:
+        if k not in known:
+            key = f"{prefix}.{k}" if prefix else str(k)
+            raise ConfigError(source, key, f"unknown key (allowed: {', '.join(known)})")
+
+
+def _mapping(value: Any, known: tuple[str, ...], source: str, key: str) -> Mapping:
+    if not isinstance(value, Mapping):
+        raise ConfigError(source, key, f"must be a mapping with keys from {', '.join(known)}, got {value!r}")
+    _reject_unknown(value, known, source, key)
+    return value
+
+
+def _optional(data: Mapping, key: str, default: Any, source: str, parse: Any) -> Any:
+    """`parse(data[key], source, key)` when the key is present, else the default."""
+    return parse(data[key], source, key) if key in data else default
+
+
+def _string(value: Any, source: str, key: str) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(source, key, f"must be a string, got {value!r}")
+    return value
+
+
+def _in_range(value: Any, bounds: tuple[float, float], unit: str, source: str, key: str,
+              open_low: bool = False) -> float:
+    try:
+        return checked_number(key.rsplit(".", 1)[-1], value, bounds, unit, open_low=open_low)
+    except ValueError as exc:
+        raise ConfigError(source, key, str(exc)) from None
+
+
+def _goal_radius(value: Any, source: str, key: str) -> float:
+    return _in_range(value, (0.0, math.inf), "m", source, key, open_low=True)
+
+
+def _timeout(value: Any, source: str, key: str) -> float:
+    return _in_range(value, (0.0, MAX_TIMEOUT_S), "s", source, key, open_low=True)
+
+
+def _vector3(value: Any, source: str, key: str, unit: str) -> tuple[float, float, float]:
+    if not isinstance(value, list) or len(value) != 3 or not all(
+            not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in value):
+        raise ConfigError(source, key, f"must be 3 finite numbers [x, y, z] ({unit}), got {value!r}")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def _yaml_files(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir() if p.suffix in (".yaml", ".yml") and p.is_file()),
+                  key=lambda p: p.name)
+
+
+class _StrictSafeLoader(yaml.SafeLoader):
+    """`yaml.SafeLoader` that rejects a key repeated within one mapping (PyYAML keeps the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                duplicate = key in seen
+                seen.add(key)
+            except TypeError:  # an unhashable key: SafeLoader reports it below
+                continue
+            if duplicate:
+                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)

@@ -1,0 +1,127 @@
+"""The learned pilot's world distribution: procedurally generated cities and start/goal pairs.
+
+Every training or evaluation city is `uam_fdm.citygen.generate_city` with generator parameters
+drawn from one seed, so a city is named by an integer and the same seed gives the same city on
+any machine. Training draws from one seed range, evaluation from a disjoint one (held-out
+cities): `TRAIN_SEEDS` and `EVAL_SEEDS`.
+
+The parameter ranges span the shipped maps' styles (suburb: low, sparse; downtown: a tall core;
+canyon: long narrow blocks), at a smaller extent so that an episode crosses a few blocks.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uam_fdm.agent import Task
+from uam_fdm.city import Building, BuildingMap
+from uam_fdm.citygen import CityGenParams, generate_city
+
+TRAIN_SEEDS = range(0, 100_000)
+EVAL_SEEDS = range(1_000_000, 1_100_000)
+
+
+@dataclass(frozen=True)
+class CityDistribution:
+    """Ranges of the generator parameters of training/evaluation cities (metres, degrees).
+
+    Each city draws every parameter uniformly within its range from its own seed.
+    """
+
+    extent_m: tuple[float, float] = (260.0, 420.0)
+    ceiling_m: float = 120.0
+    margin_m: float = 20.0
+    block_size_m: tuple[float, float] = (35.0, 120.0)
+    street_width_m: tuple[float, float] = (12.0, 28.0)
+    lots_per_block: tuple[int, int] = (1, 3)
+    density: tuple[float, float] = (0.5, 0.95)
+    fill_low: tuple[float, float] = (0.45, 0.75)
+    height_median_m: tuple[float, float] = (12.0, 60.0)
+    height_sigma: tuple[float, float] = (0.2, 0.5)
+    height_range_m: tuple[float, float] = (8.0, 200.0)
+    core_probability: float = 0.4
+    core_height_factor: tuple[float, float] = (1.5, 3.5)
+    merge_prob: tuple[float, float] = (0.0, 0.2)
+    grid_yaw_deg: tuple[float, float] = (0.0, 90.0)
+    yaw_jitter_deg: tuple[float, float] = (0.0, 8.0)
+
+    def params(self, seed: int) -> CityGenParams:
+        """The generator parameters of city `seed` (its own PCG64 stream, separate from the layout's)."""
+        rng = np.random.Generator(np.random.PCG64([int(seed), 0x5EED]))
+        u = lambda r: float(rng.uniform(r[0], r[1]))  # noqa: E731 - one draw per range, fixed order
+        w, d = u(self.extent_m), u(self.extent_m)
+        lots = tuple(int(rng.integers(self.lots_per_block[0], self.lots_per_block[1] + 1)) for _ in range(2))
+        block = (u(self.block_size_m), u(self.block_size_m))
+        fill_lo = u(self.fill_low)
+        fill_hi = min(0.9, fill_lo + float(rng.uniform(0.05, 0.2)))
+        core = rng.random() < self.core_probability
+        core_factor = u(self.core_height_factor)
+        return CityGenParams(
+            extent_m=(round(w, 1), round(d, 1)), margin_m=self.margin_m, ceiling_m=self.ceiling_m,
+            block_size_m=(round(block[0], 1), round(block[1], 1)), street_width_m=round(u(self.street_width_m), 1),
+            lots_per_block=lots, density=round(u(self.density), 3), fill_range=(round(fill_lo, 3), round(fill_hi, 3)),
+            height_median_m=round(u(self.height_median_m), 1), height_sigma=round(u(self.height_sigma), 3),
+            height_range_m=self.height_range_m, core_radius_m=round(0.3 * min(w, d), 1) if core else 0.0,
+            core_height_factor=round(core_factor, 2) if core else 1.0, merge_prob=round(u(self.merge_prob), 3),
+            grid_yaw_deg=round(u(self.grid_yaw_deg), 2), yaw_jitter_deg=round(u(self.yaw_jitter_deg), 2))
+
+    def city(self, seed: int) -> BuildingMap:
+        """City `seed`: deterministic, named `gen-<seed>`."""
+        return generate_city(self.params(seed), int(seed), name=f"gen-{int(seed)}")
+
+
+@dataclass(frozen=True)
+class TaskDistribution:
+    """How start/goal pairs are drawn in free space of a city.
+
+    Attributes:
+        distance_m: straight-line start-goal distance range [m].
+        altitude_m: start and goal altitude range above the ground [m].
+        min_clearance_m: minimum clearance of start and goal from buildings and the ground [m]
+            (on top of the vehicle's collision radius).
+        bounds_margin_m: minimum distance of start and goal from the flight-volume sides [m].
+        goal_radius_m: success radius [m].
+        timeout_base_s, timeout_per_speed: timeout = base + factor × distance / max speed [s].
+    """
+
+    distance_m: tuple[float, float] = (40.0, 250.0)
+    altitude_m: tuple[float, float] = (5.0, 30.0)
+    min_clearance_m: float = 3.0
+    bounds_margin_m: float = 15.0
+    goal_radius_m: float = 3.0
+    timeout_base_s: float = 20.0
+    timeout_per_speed: float = 2.5
+
+    def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
+               attempts: int = 200) -> Task:
+        """A free start/goal pair in `city` drawn from `rng` (ENU metres).
+
+        Raises:
+            RuntimeError: no pair found within `attempts` draws (a city with no free space).
+        """
+        lo = np.asarray(city.bounds_min_m) + self.bounds_margin_m
+        hi = np.asarray(city.bounds_max_m) - self.bounds_margin_m
+        need = radius_m + self.min_clearance_m
+        for _ in range(attempts):
+            start = np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), rng.uniform(*self.altitude_m)])
+            dist = rng.uniform(*self.distance_m)
+            heading = rng.uniform(-math.pi, math.pi)
+            goal_alt = rng.uniform(*self.altitude_m)
+            dz = goal_alt - start[2]
+            horiz = math.sqrt(max(dist * dist - dz * dz, 1.0))
+            goal = np.array([start[0] + horiz * math.cos(heading), start[1] + horiz * math.sin(heading), goal_alt])
+            if not (np.all(goal[:2] >= lo[:2]) and np.all(goal[:2] <= hi[:2])):
+                continue
+            if city.clearance_one(*start, radius_m) < need or city.clearance_one(*goal, radius_m) < need:
+                continue
+            d = float(np.linalg.norm(goal - start))
+            timeout = self.timeout_base_s + self.timeout_per_speed * d / max_speed_m_s
+            return Task(tuple(map(float, start)), tuple(map(float, goal)), self.goal_radius_m, round(timeout, 2))
+        raise RuntimeError(f"no free start/goal pair in {city.name!r} after {attempts} draws")
+
+
+def boxes_only(city: BuildingMap) -> bool:
+    """Whether every obstacle of `city` is a box (`Building`), as the vectorised sensor requires."""
+    return all(isinstance(b, Building) for b in city.buildings)

@@ -1,0 +1,178 @@
+"""The learned pilot's environment: API checks, determinism, batched == single, sensing, outcomes."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import rl  # noqa: F401  (registers UAMNav-v0)
+from rl.cities import CityDistribution
+from rl.env import UAMNavEnv
+from rl.nav import FixedEpisodes, NavConfig, NavWorld
+from rl.observation import obs_size
+from rl.reward import TERMS
+from rl.sensor import BoxSensor
+from rl.vec_env import UAMNavVecEnv
+from uam_fdm.agent import Task
+from uam_fdm.city import Building, BuildingMap
+
+SMALL = NavConfig(city_pool_size=4, wind_pool_size=2, wind_series_s=150.0)
+
+
+@pytest.fixture(scope="module")
+def world() -> NavWorld:
+    return NavWorld(SMALL)
+
+
+def _actions(seed: int, n: int, k: int = 1) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-1, 1, size=(n, k, 3)).astype(np.float32)
+
+
+def test_registered_and_checkers_pass(world):
+    env = gym.make("UAMNav-v0", config=SMALL)
+    assert env.observation_space.shape == (obs_size(SMALL.k_buildings),)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(UAMNavEnv(world=world), warn=True)
+
+
+def test_seeded_rollout_repeats_exactly(world):
+    acts = _actions(1, 200)[:, 0]
+
+    def rollout():
+        env = UAMNavEnv(world=world)
+        obs, _ = env.reset(seed=123)
+        rows = [obs]
+        for a in acts:
+            obs, r, term, trunc, info = env.step(a)
+            rows.append(np.append(obs, [r, term, trunc]))
+            if term or trunc:
+                obs, _ = env.reset()
+        return rows
+
+    a, b = rollout(), rollout()
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_batched_equals_single_envs(world):
+    n, steps, seed = 4, 300, 40
+    acts = np.clip(_actions(2, steps, n) * 0.3 + np.array([0.5, 0.3, -0.9], dtype=np.float32), -1, 1)  # descend: ends
+    venv = UAMNavVecEnv(n, world=world, seed=seed)
+    singles = [UAMNavEnv(world=world) for _ in range(n)]
+    obs_v = venv.reset()
+    obs_s = np.stack([e.reset(seed=seed + i)[0] for i, e in enumerate(singles)])
+    assert np.array_equal(obs_v, obs_s)
+    dones = 0
+    for t in range(steps):
+        obs_v, rew_v, done_v, infos_v = venv.step(acts[t])
+        for i, e in enumerate(singles):
+            o, r, term, trunc, info = e.step(acts[t, i])
+            assert r == rew_v[i] and (term or trunc) == done_v[i]
+            if term or trunc:
+                dones += 1
+                assert np.array_equal(infos_v[i]["terminal_observation"], o)
+                assert infos_v[i]["outcome"] == info["outcome"]
+                o, _ = e.reset()
+            assert np.array_equal(o, obs_v[i])
+    assert dones > 0  # the comparison crossed automatic resets
+
+
+def test_reward_terms_sum_and_info(world):
+    env = UAMNavEnv(world=world)
+    env.reset(seed=5)
+    for a in _actions(3, 50)[:, 0]:
+        _, r, term, trunc, info = env.step(a)
+        assert set(info["reward_terms"]) == set(TERMS)
+        assert r == pytest.approx(sum(info["reward_terms"].values()), rel=1e-5, abs=1e-6)
+        if term or trunc:
+            assert info["outcome"] in ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
+            break
+
+
+def _box_world(tasks, timeout_s=30.0, turbulence="none"):
+    city = BuildingMap([Building(0, (60.0, 50.0), (20.0, 40.0), 40.0)], (0, 0, 0), (120, 100, 60), name="one-box")
+    cfg = NavConfig(city_pool_size=1, turbulence=turbulence, steady_wind_max_m_s=0.0)
+    fixed = FixedEpisodes((city,), tuple((0, Task(s, g, 3.0, timeout_s)) for s, g in tasks))
+    return NavWorld(cfg, fixed=fixed), city
+
+
+def test_outcomes_collision_arrival_truncation_bounds():
+    world, _ = _box_world([((20.0, 50.0, 10.0), (100.0, 50.0, 10.0))], timeout_s=4.0)
+    env = UAMNavEnv(world=world)
+    env.reset(seed=0)
+    info = {}
+    for _ in range(400):  # fly east into the building
+        _, r, term, trunc, info = env.step(np.array([1.0, 0.0, 0.0], dtype=np.float32))
+        if term or trunc:
+            break
+    assert term and info["outcome"] == "collision" and info["reward_terms"]["collision"] < 0
+    assert env.state[0] < 50.0 - 0.4 + 0.5  # stopped at the wall (x = 50), not beyond
+    # straight down: the ground is an obstacle too
+    env.reset(seed=0)
+    for _ in range(400):
+        _, _, term, trunc, info = env.step(np.array([0.0, 0.0, -1.0], dtype=np.float32))
+        if term or trunc:
+            break
+    assert info["outcome"] == "collision" and env.state[2] < 1.0
+    # hovering: truncated at the 4 s limit, 200 decisions at 50 Hz
+    env.reset(seed=0)
+    for k in range(1000):
+        _, _, term, trunc, info = env.step(np.zeros(3, dtype=np.float32))
+        if term or trunc:
+            break
+    assert trunc and not term and info["outcome"] == "timeout" and k + 1 == 200
+    # flying west leaves the flight volume
+    env.reset(seed=0)
+    for _ in range(400):
+        _, _, term, trunc, info = env.step(np.array([-1.0, 0.0, 0.0], dtype=np.float32))
+        if term or trunc:
+            break
+    assert info["outcome"] == "out_of_bounds"
+
+
+def test_arrival():
+    world, _ = _box_world([((20.0, 10.0, 10.0), (60.0, 10.0, 10.0))])
+    env = UAMNavEnv(world=world)
+    obs, _ = env.reset(seed=0)
+    for _ in range(1500):
+        obs, r, term, trunc, info = env.step(np.clip(obs[6:9] * np.array([1, 1, 3]), -1, 1).astype(np.float32))
+        if term or trunc:
+            break
+    assert info["outcome"] == "success" and info["is_success"] and info["reward_terms"]["arrival"] > 0
+
+
+def test_sensor_matches_fcl():
+    cities = [CityDistribution().city(s) for s in (3, 4)]
+    sensor = BoxSensor(cities, k=4, range_m=30.0, radius_m=0.42)
+    rng = np.random.default_rng(0)
+    for ci, city in enumerate(cities):
+        hi = np.asarray(city.bounds_max_m)
+        pts = rng.uniform([0, 0, 0.5], [hi[0], hi[1], 60.0], size=(150, 3))
+        r = sensor.query(pts, np.full(len(pts), ci))
+        ref = city.clearance(pts, 0.42, backend="fcl").distance_m
+        near = ref < 30.0
+        np.testing.assert_allclose(r.clearance_m[near], ref[near], atol=1e-9)
+        assert np.all(r.clearance_m[~near] >= 30.0 - 1e-9) or np.all(ref[~near] >= 30.0)
+        # the k nearest within range are the city's own k nearest
+        npts, dist, ids = city.nearest_obstacles_batch(pts, 4, 0.42)
+        inside = dist <= 30.0
+        assert np.array_equal(np.where(inside, ids, -1), r.building_id)
+        np.testing.assert_allclose(np.where(inside, dist, 30.0), r.distance_m, atol=1e-9)
+
+
+def test_render_rgb_array(world):
+    env = UAMNavEnv(world=world, render_mode="rgb_array")
+    env.reset(seed=1)
+    for _ in range(5):
+        env.step(np.zeros(3, dtype=np.float32))
+    img = env.render()
+    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8
+    assert (img < 200).any(axis=2).mean() > 0.02  # buildings and axes drawn, not a blank canvas
+
+
+def test_bad_config_rejected():
+    with pytest.raises(ValueError, match="city_split"):
+        NavConfig(city_split="test")
+    with pytest.raises(ValueError):
+        NavConfig(turbulence="hurricane")
