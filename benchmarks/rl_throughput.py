@@ -20,12 +20,12 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from rl.agent import DEFAULT_POLICY_DIR  # noqa: E402
-from rl.env import UAMNavEnv  # noqa: E402
-from rl.nav import NavConfig, NavWorld  # noqa: E402
-from rl.vec_env import UAMNavVecEnv  # noqa: E402
+from rl.agent import DEFAULT_POLICY_DIR
+from rl.env import UAMNavEnv
+from rl.nav import NavConfig, NavWorld
+from rl.vec_env import UAMNavVecEnv
 
 
 def single_rate(world: NavWorld, seconds: float) -> float:
@@ -59,12 +59,14 @@ def ppo_rate(world: NavWorld, n_envs: int, steps: int) -> float:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from rl.policy import TanhMeanPolicy
     from rl.train import PRESETS
 
     torch.set_num_threads(1)
     pr = PRESETS["paper"]
     venv = VecNormalize(UAMNavVecEnv(n_envs, world=world, seed=0), gamma=pr.gamma)
-    model = PPO("MlpPolicy", venv, learning_rate=pr.learning_rate, n_steps=pr.n_steps, batch_size=pr.batch_size,
+    model = PPO(TanhMeanPolicy, venv, learning_rate=pr.learning_rate, n_steps=pr.n_steps, batch_size=pr.batch_size,
                 n_epochs=pr.n_epochs, gamma=pr.gamma, gae_lambda=pr.gae_lambda, clip_range=pr.clip_range, seed=0,
                 device="cpu", policy_kwargs={"net_arch": {"pi": list(pr.net_arch), "vf": list(pr.net_arch)}})
     model.learn(total_timesteps=n_envs * pr.n_steps)  # warm-up rollout + update

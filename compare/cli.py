@@ -130,7 +130,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     import json
 
     from rl.agent import load_policy
-    from rl.train import evaluate, eval_config
+    from rl.train import eval_config, evaluate
 
     policy = load_policy(args.policy)
     nav = eval_config(policy.nav, args.episodes, turbulence=args.turbulence)

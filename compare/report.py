@@ -261,11 +261,16 @@ def format_ci(stat: object, scale: float = 1.0, digits: int = 2) -> str:
 # ---- 1. title -------------------------------------------------------------------------------------------
 def _planned_episodes(run: _Run) -> int:
     total = 0
-    for s in run.info.get("scenarios") or []:
+    for s in _scenario_entries(run):
         eps = s.get("episodes")
-        n_eps = len(eps) if isinstance(eps, list) else int(eps or 0)
-        total += n_eps * len(s.get("seeds") or [0]) * len(s.get("methods") or run.methods)
+        n_eps = len(eps) if isinstance(eps, list) else _float(eps)
+        total += int(n_eps if math.isfinite(n_eps) else 0) * len(s.get("seeds") or [0]) * len(
+            s.get("methods") or run.methods)
     return total
+
+
+def _scenario_entries(run: _Run) -> list[Mapping]:
+    return [s for s in run.info.get("scenarios") or [] if isinstance(s, Mapping)]
 
 
 def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
@@ -276,7 +281,7 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
         coverage += " The run is incomplete (interrupted): the report covers the episodes saved so far."
     blocks = [("p", f"Created {info.get('created_utc', 'n/a')} by: {info.get('command', 'n/a')}"),
               ("p", f"Run folder: {run.run_dir}"), ("p", coverage), ("h", "Scenarios")]
-    for s in info.get("scenarios") or []:
+    for s in _scenario_entries(run):
         atm, wind = s.get("atmosphere") or {}, s.get("wind") or {}
         seeds = s.get("seeds") or []
         eps = s.get("episodes")

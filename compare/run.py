@@ -25,16 +25,22 @@ import platform
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from compare.metrics import episode_metrics, read_metrics_csv, summarize, write_metrics_csv, write_summary_json
+from compare.metrics import (
+    episode_metrics,
+    read_metrics_csv,
+    summarize,
+    write_metrics_csv,
+    write_summary_json,
+)
 from compare.runner import run_episode
 from compare.scenario import Scenario
 from compare.seeding import cell_seed
@@ -233,10 +239,9 @@ def _write_text_atomic(path: Path, text: str) -> None:
 
 def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str]) -> None:
     """run.json and maps/*.yaml."""
+    from rl.agent import DEFAULT_POLICY_DIR
     from uam_fdm.atmosphere import Atmosphere
     from uam_fdm.citygen import map_yaml_text
-
-    from rl.agent import DEFAULT_POLICY_DIR
 
     out = opts.out_dir
     entries = []

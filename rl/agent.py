@@ -15,15 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from uam_fdm.agent import Observation, ResetInfo, Task, VelocityCommand, World
-from uam_fdm.city import BuildingMap
-from uam_fdm.params import load_vehicle
-
 from rl.cities import boxes_only
 from rl.nav import NavConfig
 from rl.observation import action_to_command, build_observations
 from rl.sensor import BoxSensor
 from rl.train import normalize_obs
+from uam_fdm.agent import Observation, ResetInfo, Task, VelocityCommand, World
+from uam_fdm.city import BuildingMap
+from uam_fdm.params import load_vehicle
 
 DEFAULT_POLICY_DIR = Path(__file__).parent / "policies" / "default"
 

@@ -19,7 +19,7 @@ from uam_fdm.agent import Task
 from uam_fdm.city import Building, BuildingMap
 from uam_fdm.citygen import CityGenParams, generate_city
 
-TRAIN_SEEDS = range(0, 100_000)
+TRAIN_SEEDS = range(100_000)
 EVAL_SEEDS = range(1_000_000, 1_100_000)
 
 
@@ -50,7 +50,7 @@ class CityDistribution:
     def params(self, seed: int) -> CityGenParams:
         """The generator parameters of city `seed` (its own PCG64 stream, separate from the layout's)."""
         rng = np.random.Generator(np.random.PCG64([int(seed), 0x5EED]))
-        u = lambda r: float(rng.uniform(r[0], r[1]))  # noqa: E731 - one draw per range, fixed order
+        u = lambda r: float(rng.uniform(r[0], r[1]))
         w, d = u(self.extent_m), u(self.extent_m)
         lots = tuple(int(rng.integers(self.lots_per_block[0], self.lots_per_block[1] + 1)) for _ in range(2))
         block = (u(self.block_size_m), u(self.block_size_m))

@@ -11,7 +11,7 @@ holds each reward term of the step; the final step's info has `outcome` and `is_
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -37,7 +37,7 @@ class UAMNavEnv(gym.Env):
         world: a prebuilt shared world (saves rebuilding cities and the compiled model).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, config: NavConfig | None = None, render_mode: str | None = None,
                  fixed: FixedEpisodes | None = None, world: NavWorld | None = None) -> None:
@@ -79,8 +79,9 @@ class UAMNavEnv(gym.Env):
             return None
         import matplotlib
         matplotlib.use("Agg")
-        from matplotlib.figure import Figure
         from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
         from uam_fdm.city_plot import draw_map_topdown
 
         city = self.world.cities[int(self.batch.city[0])]

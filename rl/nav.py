@@ -15,11 +15,15 @@ state, collision, out of bounds, arrival, then the time limit.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numpy as np
 
+from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
+from rl.observation import action_to_command, build_observations, obs_size
+from rl.reward import TERMS, RewardConfig, reward_terms
+from rl.sensor import BoxSensor
 from uam_fdm.agent import Task
 from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.city import BuildingMap
@@ -27,11 +31,6 @@ from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.model import hover_state
 from uam_fdm.params import VehicleParams, load_vehicle
 from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField, gust_series
-
-from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
-from rl.observation import action_to_command, build_observations, obs_size
-from rl.reward import TERMS, RewardConfig, reward_terms
-from rl.sensor import BoxSensor
 
 OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
 
@@ -92,7 +91,7 @@ class NavConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "NavConfig":
+    def from_dict(cls, d: dict) -> NavConfig:
         d = dict(d)
         d["cities"] = CityDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["cities"].items()})
         d["tasks"] = TaskDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["tasks"].items()})
@@ -203,7 +202,7 @@ class NavBatch:
             self.steady[i] = (speed * math.cos(heading), speed * math.sin(heading), 0.0)
             self.gust_idx[i] = int(rng.integers(w.gusts.shape[0]))
             if w.turbulent:
-                span = w.gusts.shape[1] - 2 - int(math.ceil((task.timeout_s + 1.0) / w.gust_dt))
+                span = w.gusts.shape[1] - 2 - math.ceil((task.timeout_s + 1.0) / w.gust_dt)
                 if span < 1:
                     raise ValueError(f"wind_series_s {cfg.wind_series_s} s is too short for a {task.timeout_s} s episode")
                 self.gust_k0[i] = int(rng.integers(span))

@@ -37,8 +37,8 @@ class RewardConfig:
     proximity_weight: float = 0.03
     safe_distance_m: float = 5.0
     time_penalty: float = 0.005
-    arrival_bonus: float = 50.0
-    collision_penalty: float = 100.0
+    arrival_bonus: float = 100.0
+    collision_penalty: float = 200.0
 
 
 def reward_terms(cfg: RewardConfig, d_before: np.ndarray, d_after: np.ndarray, clearance_m: np.ndarray,

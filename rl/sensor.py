@@ -15,8 +15,8 @@ point). Clearance beyond the range is reported as `range_m` at most (the ground 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

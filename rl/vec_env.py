@@ -8,7 +8,8 @@ compiled model at once. Slot i seeded with `seed + i` produces exactly the trans
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices

@@ -250,14 +250,17 @@ def test_nonfinite_and_planner_failure_episodes_draw(tmp_path: Path) -> None:
     clearance = broken.clearance_m.copy()
     clearance[400:] = np.nan
     broken = Trajectory(**{**broken.__dict__, "states": states, "clearance_m": clearance})
-    stub = _trajectory(1, 0.0, 0.0, 0.0, "planner_failure", 0)
+    two = _trajectory(2, 1.0, 0.0, 0.0, "planner_failure", 0)
+    first = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m")
+    stub = Trajectory(**{**two.__dict__, **{k: getattr(two, k)[:1] for k in first}})
     traces = []
     for method, traj in (("ppo", broken), ("rrt_mpc", stub)):
-        meta = EpisodeMeta(EpisodeKey(SCENARIO, 0, method, 0), "toy", "small_quad", START, GOAL, 3.0, 60.0, 0.42,
-                           4, 0.0, traj.outcome, 0.0, "", None)
+        meta = EpisodeMeta(EpisodeKey(SCENARIO, 0, method, 0), "toy", "small_quad", START, GOAL, 3.0, 60.0,
+                           0.42, 4, 0.0, traj.outcome, 0.0, "", None)
         traces.append(trace_from_episode(SavedEpisode(meta, traj), LABELS[method], METHOD_COLORS[method]))
     assert len(traces[0].t_s) == 400 and np.all(np.isfinite(traces[0].pos_m))
     assert len(traces[1].t_s) == 1
-    for fig in (episode_paths_figure("Episode x", traces, _toy_map()), episode_timeseries_figure("Episode x", traces),
+    for fig in (episode_paths_figure("Episode x", traces, _toy_map()),
+                episode_timeseries_figure("Episode x", traces),
                 episode_snapshots_figure("Episode x", traces, None)):
         fig.savefig(tmp_path / "f.png", dpi=40)

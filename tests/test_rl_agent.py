@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+
 import numpy as np
 import pytest
 
@@ -57,9 +58,9 @@ def test_agent_flies_exactly_like_the_environment(policy):
 
 
 def test_agent_refuses_other_vehicles(policy, compiled_dynamics):
+    from uam_fdm.agent import Task
     from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.city import load_named_map
-    from uam_fdm.agent import Task
 
     p = load_vehicle("uam_multicopter")
     world = World(p, compiled_dynamics["uam_multicopter"], load_named_map("suburb"),
