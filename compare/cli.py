@@ -74,18 +74,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _print_summary(run_dir: Path) -> None:
+    """Per scenario (vehicles differ between scenarios, so their energies do not average): one row per method."""
     import json
 
     from compare.metrics import methods_table
 
     summary = json.loads((run_dir / "summary.json").read_text())
-    full = methods_table(summary)
-    keep = [i for i, h in enumerate(full[0]) if h.split(" [")[0].split(" (")[0] in
-            ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")]
-    table = [[row[i] for i in keep] for row in full]
-    widths = [max(len(str(r[i])) for r in table) for i in range(len(table[0]))]
-    for row in table:
-        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)))
+    wanted = ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")
+    blocks = summary.get("by_scenario") or {"all": summary}
+    lines = []
+    for name, part in blocks.items():
+        full = methods_table(part)
+        keep = [i for i, h in enumerate(full[0]) if h.split(" [")[0].split(" (")[0] in wanted]
+        lines.append([f"{name}"] + [""] * (len(keep) - 1))
+        lines += [[row[i] for i in keep] for row in full]
+    widths = [max(len(str(r[i])) for r in lines) for i in range(len(lines[0]))]
+    for row in lines:
+        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip())
     for name in ("report.pdf", "metrics.csv", "summary.json"):
         if (run_dir / name).exists():
             print(run_dir / name)
@@ -139,7 +144,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
           f"outcomes {res.outcomes}, mean flight time {res.mean_time_s:.1f} s")
     print(json.dumps({"success_rate": res.success_rate, "collision_rate": res.collision_rate,
                       "episodes": res.episodes, "outcomes": res.outcomes, "seed": args.seed,
-                      "turbulence": nav.turbulence, "policy": str(args.policy)}))
+                      "turbulence": nav.turbulence, "policy": str(policy.folder)}))
     return 0
 
 

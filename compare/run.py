@@ -50,8 +50,10 @@ log = logging.getLogger(__name__)
 
 METHOD_LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
 METHOD_DESCRIPTIONS = {
-    "ppo": "Learned pilot: PPO policy (2 x 128 tanh units) -> 3D velocity command -> the vehicle's "
-           "low-level velocity/attitude controller -> rotor speeds; acts deterministically.",
+    "ppo": "Learned pilot: policy network (2 x 128 tanh units, trained with PPO; the shipped policy starts from "
+           "behaviour cloning of a reactive potential-field pilot and keeps a cloning term, see its provenance) "
+           "-> 3D velocity command -> the vehicle's low-level velocity/attitude controller -> rotor speeds; "
+           "sees only its local observation (30 m building sensing); acts deterministically.",
     "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
                "reference -> CasADi NMPC (ipopt) commanding rotor speeds, replanning on large tracking errors.",
 }
