@@ -12,8 +12,6 @@ import csv
 import io
 import json
 import math
-import os
-import tempfile
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import astuple, dataclass, fields
@@ -24,6 +22,7 @@ import numpy as np
 
 from compare.runner import OUTCOMES
 from compare.trajectory import SavedEpisode
+from uam_fdm.atomic import write_text_atomic
 
 CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 """Clearances [m] below which the time spent is counted (`time_below_2m_s`, `time_below_5m_s`)."""
@@ -204,7 +203,7 @@ def write_metrics_csv(rows: Iterable[EpisodeMetrics], path: Path) -> Path:
     writer.writerow(COLUMNS)
     for row in sorted(rows, key=_row_order):
         writer.writerow([_format_cell(_KINDS[name], value) for name, value in zip(COLUMNS, astuple(row))])
-    return _write_text_atomic(Path(path), buf.getvalue())
+    return write_text_atomic(Path(path), buf.getvalue())
 
 
 def read_metrics_csv(path: Path) -> list[EpisodeMetrics]:
@@ -258,20 +257,6 @@ def _parse_cell(kind: str, text: str, where: str) -> Any:
     except (KeyError, ValueError):
         raise ValueError(f"{where}: cannot read {text!r} as {kind}") from None
     return text
-
-
-def _write_text_atomic(path: Path, text: str) -> Path:
-    """Write `text` to `path` through a temporary file in the same folder and `os.replace`."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -406,7 +391,7 @@ def write_summary_json(summary: dict, path: Path) -> Path:
         The path written.
     """
     text = json.dumps(_json_ready(summary), indent=2, allow_nan=False) + "\n"
-    return _write_text_atomic(Path(path), text)
+    return write_text_atomic(Path(path), text)
 
 
 def _json_ready(value: Any) -> Any:

@@ -20,9 +20,7 @@ import csv
 import json
 import logging
 import math
-import os
 import re
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +35,7 @@ from compare.trajectory import episode_files, load_episode
 from uam_fdm.city import BuildingMap
 from uam_fdm.city_plot import save_figure
 from uam_fdm.mapfile import load_map_file
+from uam_fdm.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 
@@ -148,9 +147,7 @@ def build_report(run_dir: Path, out: Path | None = None) -> Path:
     out = Path(out) if out is not None else run_dir / "report.pdf"
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = _episode_groups(run)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".pdf.tmp", dir=out.parent)
-    os.close(fd)
-    try:
+    with atomic_path(out, suffix=".pdf.tmp") as tmp:
         # TrueType (Type 42) fonts: text stays searchable and journals accept the pages
         metadata = {"Title": "uam-compare report", "Creator": "uam-compare",
                     "Subject": str(run.info.get("command", "")), "CreationDate": None}
@@ -164,10 +161,6 @@ def build_report(run_dir: Path, out: Path | None = None) -> Path:
             failures, unreadable = _episode_pages(run, groups, pages)
             pages.add(_training_figure(run), "training_reward_curve")
             _failure_pages(run, failures, rows, unreadable, pages)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     logger.info("report %s: %d pages", out, pages.count)
     return out
 

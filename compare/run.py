@@ -23,7 +23,6 @@ import logging
 import os
 import platform
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -45,6 +44,7 @@ from compare.runner import run_episode
 from compare.scenario import Scenario
 from compare.seeding import cell_seed
 from compare.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
+from uam_fdm.atomic import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -227,18 +227,6 @@ def versions() -> dict[str, str]:
     return out
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str]) -> None:
     """run.json and maps/*.yaml."""
     from rl.agent import DEFAULT_POLICY_DIR
@@ -262,7 +250,7 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
             "episodes": len(sc.episodes), "seeds": seeds, "methods": methods,
             "physics_hz": sc.physics_hz, "control_hz": sc.control_hz,
         })
-        _write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
+        write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
     policy_dir = opts.policy if opts.policy is not None else DEFAULT_POLICY_DIR
     methods = sorted({c.method for c in cells})
     run = {
@@ -272,7 +260,7 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
                         **({"policy_dir": str(Path(policy_dir).resolve())} if m == "ppo" else {})} for m in methods},
         "versions": versions(), "fairness": FAIRNESS,
     }
-    _write_text_atomic(out / "run.json", json.dumps(run, indent=2) + "\n")
+    write_text_atomic(out / "run.json", json.dumps(run, indent=2) + "\n")
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:

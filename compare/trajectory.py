@@ -8,14 +8,13 @@ half-written episode: a file either exists complete or not at all.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from compare.runner import Trajectory
+from uam_fdm.atomic import atomic_open
 
 FORMAT_VERSION = 1
 _ARRAYS = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m", "decision_t_s", "compute_s")
@@ -85,14 +84,8 @@ def save_episode(path: Path, meta: EpisodeMeta, traj: Trajectory) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
     header = {"format_version": FORMAT_VERSION, "meta": asdict(meta)}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(path, "wb") as f:
+        np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)
     return path
 
 

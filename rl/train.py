@@ -22,12 +22,13 @@ import os
 import platform
 import shutil
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from uam_fdm.atomic import atomic_open, atomic_path, write_text_atomic
 
 from rl.nav import NavConfig, NavWorld
 from rl.policy import FrozenRunningMeanStd, TanhMeanPolicy
@@ -187,20 +188,14 @@ def _versions() -> dict[str, str]:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        json.dump(data, f, indent=2, sort_keys=True)
-        f.write("\n")
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
 def save_obs_norm(path: Path, venv_norm) -> None:
     """Write the observation statistics the policy agent needs (atomic)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".npz", dir=path.parent)
-    with os.fdopen(fd, "wb") as f:
+    with atomic_open(path, "wb") as f:
         np.savez(f, mean=venv_norm.obs_rms.mean, var=venv_norm.obs_rms.var, count=venv_norm.obs_rms.count,
                  epsilon=venv_norm.epsilon, clip_obs=venv_norm.clip_obs)
-    os.replace(tmp, path)
 
 
 def normalize_obs(obs: np.ndarray, stats: dict) -> np.ndarray:
@@ -263,10 +258,10 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
     def save_to(folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         _write_json(folder / "config.json", cfg.to_dict())
-        model.save(str(folder / ".model.tmp.zip"))
-        os.replace(folder / ".model.tmp.zip", folder / "model.zip")
-        venv.save(str(folder / ".vecnormalize.pkl.tmp"))
-        os.replace(folder / ".vecnormalize.pkl.tmp", folder / "vecnormalize.pkl")
+        with atomic_path(folder / "model.zip", suffix=".zip") as tmp:
+            model.save(str(tmp))
+        with atomic_path(folder / "vecnormalize.pkl") as tmp:
+            venv.save(str(tmp))
         save_obs_norm(folder / "obs_norm.npz", venv)
 
     state = {"next_eval": (model.num_timesteps // cfg.eval_every + 1) * cfg.eval_every,

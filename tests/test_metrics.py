@@ -24,6 +24,7 @@ from compare.metrics import (
 )
 from compare.runner import Trajectory
 from compare.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
+from uam_fdm import atomic
 
 N_ROTORS = 4
 DT = 0.002
@@ -216,7 +217,7 @@ def test_atomic_writes_leave_no_temporary_file(tmp_path, monkeypatch):
     def broken_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(M.os, "replace", broken_replace)
+    monkeypatch.setattr(atomic.os, "replace", broken_replace)  # the one atomic writer (uam_fdm.atomic)
     with pytest.raises(OSError, match="disk full"):
         write_metrics_csv([row(), row("rrt_mpc")], tmp_path / "metrics.csv")
     assert sorted(os.listdir(tmp_path)) == ["metrics.csv", "summary.json"]

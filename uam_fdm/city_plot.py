@@ -5,9 +5,7 @@ here touches pyplot's global state.  `python -m uam_fdm.city_plot OUT_DIR` rende
 """
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,6 +20,7 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 from uam_fdm.city import BuildingMap
+from uam_fdm.atomic import atomic_path
 
 _CMAP = "viridis"
 _LIGHT = np.array([-0.4, -0.6, 0.7]) / np.linalg.norm([-0.4, -0.6, 0.7])  # from the south-west, above
@@ -145,16 +144,8 @@ def map_figure(bmap: BuildingMap, title: str | None = None) -> Figure:
 def save_figure(fig: Figure, path: Path, dpi: int = 110) -> Path:
     """Save a figure atomically (temp file in the same folder, then os.replace); returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=path.suffix) as tmp:
         fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return path
 
 

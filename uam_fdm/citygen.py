@@ -17,9 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import os
 import sys
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from uam_fdm.atomic import write_text_atomic
 from uam_fdm.city import Building, BuildingMap
 from uam_fdm.errors import ConfigError
 
@@ -317,21 +316,9 @@ def write_shipped_maps(out_dir: Path = MAPS_DIR) -> list[Path]:
     written = []
     for name in sorted(SHIPPED_MAPS):
         path = out_dir / f"{name}.yaml"
-        _write_atomic(path, shipped_map_text(name))
+        write_text_atomic(path, shipped_map_text(name))
         written.append(path)
     return written
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def main(argv: Sequence[str] | None = None) -> int:
