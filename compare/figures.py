@@ -408,10 +408,12 @@ def episode_snapshots_figure(title: str, traces: Sequence[FlightTrace], bmap: Bu
 
 
 # ---- training and failures ------------------------------------------------------------------------------
-def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "") -> Figure:
+def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "",
+                        kept_timesteps: float | None = None) -> Figure:
     """Mean episode reward and (twin axis) evaluation success rate [%] against training timesteps.
 
-    With `curve` None the page only states `note` (why there is no curve).
+    With `curve` None the page only states `note` (why there is no curve); `kept_timesteps` marks the
+    checkpoint the policy folder ships (a training run may keep an earlier checkpoint than its last).
     """
     fig = Figure(figsize=PAGE_SIZE_IN, layout="constrained")
     fig.suptitle(title, fontsize=15, fontweight="bold")
@@ -435,6 +437,9 @@ def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "") -
                             label="evaluation success rate")
         ax2.set_ylabel("success rate [%]")
         ax2.set_ylim(-2.0, 102.0)
+    if kept_timesteps is not None:
+        handles.append(ax.axvline(kept_timesteps, color="tab:green", ls="--", lw=1.2,
+                                  label=f"shipped checkpoint ({kept_timesteps:,.0f} timesteps)"))
     ax.legend(handles=handles, loc="lower right")
     if note:
         ax.set_title(note, fontsize=9)

@@ -456,7 +456,12 @@ def _training_figure(run: _Run) -> Figure:
         return F.reward_curve_figure(title, None, f"The reward curve could not be read: {exc}")
     if curve is None:
         return F.reward_curve_figure(title, None, f"No reward curve: {path} does not exist.")
-    return F.reward_curve_figure(title, curve, f"from {path}")
+    kept = None
+    try:
+        kept = json.loads((Path(policy_dir) / "provenance.json").read_text()).get("kept_timesteps")
+    except (OSError, ValueError):
+        pass  # an older policy folder without provenance: no marker
+    return F.reward_curve_figure(title, curve, f"from {path}", kept_timesteps=kept)
 
 
 # ---- 5. failures ----------------------------------------------------------------------------------------
