@@ -32,10 +32,10 @@ from matplotlib.figure import Figure
 
 from compare import figures as F
 from compare.trajectory import episode_files, load_episode
+from uam_fdm.atomic import atomic_path
 from uam_fdm.city import BuildingMap
 from uam_fdm.city_plot import save_figure
 from uam_fdm.mapfile import load_map_file
-from uam_fdm.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 

@@ -305,8 +305,6 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
 
 
 def _policy_vehicle_fingerprint(policy: Path | None) -> str:
-    import json as _json
-
     from rl.agent import DEFAULT_POLICY_DIR
     from uam_fdm.params import load_vehicle
 
@@ -314,7 +312,7 @@ def _policy_vehicle_fingerprint(policy: Path | None) -> str:
     cfg_path = folder / "config.json"
     if not cfg_path.is_file():
         raise ValueError(f"{folder}: not a policy folder (config.json is missing)")
-    return load_vehicle(_json.loads(cfg_path.read_text())["nav"]["vehicle"]).fingerprint()
+    return load_vehicle(json.loads(cfg_path.read_text())["nav"]["vehicle"]).fingerprint()
 
 
 def finalize(run_dir: Path, report: bool = True) -> Path:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -30,7 +30,7 @@ from uam_fdm.city import BuildingMap
 from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.model import hover_state
 from uam_fdm.params import VehicleParams, load_vehicle
-from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField, gust_series
+from uam_fdm.wind import GustSeries, TurbulenceLevel, WindConditions, WindField, gust_series
 
 OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
 
@@ -87,7 +87,6 @@ class NavConfig:
 
     def to_dict(self) -> dict:
         """Plain-data form (for the policy's config file)."""
-        from dataclasses import asdict
         return asdict(self)
 
     @classmethod
@@ -234,7 +233,6 @@ class NavBatch:
             return WindField(self.steady[i])
         s = w.gust_series[int(self.gust_idx[i])]
         k0 = int(self.gust_k0[i])
-        from uam_fdm.wind import GustSeries
         g = GustSeries(s.t_s[: len(s.t_s) - k0], s.gust_enu_m_s[k0:], s.dt_s, s.turbulence, s.seed,
                        s.airspeed_m_s, s.height_agl_m)
         return WindField(self.steady[i], g)
@@ -333,7 +331,3 @@ class NavBatch:
             infos.append(info)
         return self._obs.copy(), reward.astype(np.float32), terminated, truncated, infos
 
-
-def with_overrides(config: NavConfig, **kw) -> NavConfig:
-    """A copy of `config` with fields replaced (validated)."""
-    return replace(config, **kw)

@@ -113,18 +113,13 @@ class BoxSensor:
             out[i, : len(p)] = p
         return out
 
-    @property
-    def candidates_max(self) -> int:
-        """The longest candidate list of any cell (the per-point work)."""
-        return self._cmax
-
-    def _box_rows(self, points: np.ndarray, city: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _box_rows(self, points: np.ndarray, city: np.ndarray) -> np.ndarray:
         """Flat indices into the box table of each point's candidates: (N, C)."""
         rel = (points[:, :2] - self._origin[city]) / self.cell_m
         ix = np.clip(rel[:, 0].astype(np.int64), 0, self._dims[city, 0] - 1)
         iy = np.clip(rel[:, 1].astype(np.int64), 0, self._dims[city, 1] - 1)
         rows = self._cand[city, iy * self._dims[city, 0] + ix]
-        return city[:, None] * self._nb1 + rows, rows
+        return city[:, None] * self._nb1 + rows
 
     def _box_frame(self, points: np.ndarray, flat: np.ndarray):
         """Points in the frames of boxes `flat` (N, C): local x, y, z (z from mid-height) and the box rows."""
@@ -160,7 +155,7 @@ class BoxSensor:
         city = np.asarray(city, dtype=np.int64).reshape(-1)
         if len(p) == 1:
             return self._query_one(p, int(city[0]))
-        flat, _ = self._box_rows(p, city)
+        flat = self._box_rows(p, city)
         dist = self._distances(p, flat) - self.radius_m
         k = self.k
         rows = np.arange(len(p))[:, None]
@@ -218,7 +213,7 @@ class BoxSensor:
         """Clearance (N,) [m] of spheres at points (N, 3) to buildings and the ground, capped at the range."""
         p = np.asarray(points_m, dtype=float).reshape(-1, 3)
         city = np.asarray(city, dtype=np.int64).reshape(-1)
-        flat, _ = self._box_rows(p, city)
+        flat = self._box_rows(p, city)
         dist = self._distances(p, flat)
         d = np.minimum(dist.min(axis=1) - self.radius_m, self.range_m)
         return np.minimum(d, p[:, 2] - self.radius_m)

@@ -28,11 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from uam_fdm.atomic import atomic_open, atomic_path, write_text_atomic
-
 from rl.nav import NavConfig, NavWorld
 from rl.policy import FrozenRunningMeanStd, TanhMeanPolicy
 from rl.vec_env import UAMNavVecEnv
+from uam_fdm.atomic import atomic_open, atomic_path, write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -419,9 +418,3 @@ def bc_anchor_step(model, data, weight: float, steps: int, gen) -> None:
         loss.backward()
         opt.step()
 
-
-def copy_policy(src: Path, dst: Path) -> None:
-    """Copy the files of a policy folder (not checkpoints or logs)."""
-    dst.mkdir(parents=True, exist_ok=True)
-    for name in ("model.zip", "obs_norm.npz", "vecnormalize.pkl", "config.json", "reward_curve.csv", "provenance.json"):
-        shutil.copy2(src / name, dst / name)
