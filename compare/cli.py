@@ -66,7 +66,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policy=args.policy, jobs=args.jobs,
-                      resume=args.resume, progress=not args.no_progress,
+                      resume=args.resume, progress=not args.no_progress, videos=args.videos,
                       command="uam-compare " + " ".join(args.argv))
     run_dir = run_comparison(scenarios, opts)
     _print_summary(run_dir)
@@ -91,9 +91,11 @@ def _print_summary(run_dir: Path) -> None:
     widths = [max(len(str(r[i])) for r in lines) for i in range(len(lines[0]))]
     for row in lines:
         print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip())
-    for name in ("report.pdf", "metrics.csv", "summary.json"):
+    for name in ("report.pdf", "viewer.html", "metrics.csv", "summary.json"):
         if (run_dir / name).exists():
             print(run_dir / name)
+    for video in sorted((run_dir / "videos").glob("[!.]*.*")):
+        print(video)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -101,6 +103,45 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     run_dir = finalize(args.run_dir)
     _print_summary(run_dir)
+    return 0
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 1280x720, got {text!r}") from None
+    return w, h
+
+
+def _cmd_animate(args: argparse.Namespace) -> int:
+    from compare.animate import AnimationOptions, render_animation, render_videos
+    from compare.flights import flight_groups, select_group
+    from compare.run import VIDEOS_DIR
+
+    w, h = args.size
+    opts = AnimationOptions(fps=args.fps, duration_s=args.duration, width_px=w, height_px=h, orbit_deg=args.orbit)
+    opts.validate()  # before loading anything
+    if args.all and args.episode is not None:
+        raise ValueError("--all and --episode: give one or the other")
+    groups = flight_groups(args.run_dir)
+    if args.all:
+        out_dir = args.out if args.out is not None else args.run_dir / VIDEOS_DIR
+        results = render_videos(groups, out_dir, "all", opts, progress=not args.no_progress, fmt=args.format)
+    else:
+        group = select_group(groups, args.episode) if args.episode is not None else groups[0]
+        out = args.out if args.out is not None else args.run_dir / VIDEOS_DIR / f"{group.stem}.{args.format}"
+        results = [render_animation(group, out, opts, progress=not args.no_progress)]
+    for r in results:
+        print(f"{r.path}  ({r.format}, {r.frames} frames {r.width_px}x{r.height_px} at {r.fps:g} fps, "
+              f"x{r.speedup:.2f} real time, rendered in {r.seconds:.1f} s)")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from compare.viewer import build_viewer
+
+    print(build_viewer(args.run_dir, args.out))
     return 0
 
 
@@ -170,11 +211,32 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     run.add_argument("--out", type=Path, default=None, help="run folder (default: runs/<time>-<scenario>)")
     run.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
+    run.add_argument("--videos", choices=("scenario", "all", "none"), default="scenario",
+                     help="cells to animate into RUN_DIR/videos/: the first of each scenario (default), all, none")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
     rep = sub.add_parser("report", help="rescore a run folder's saved episodes and rebuild its report (no simulation)")
     rep.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     rep.set_defaults(func=_cmd_report)
+    anim = sub.add_parser("animate", help="render both pilots flying one cell of a run to MP4 (GIF without ffmpeg)")
+    anim.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
+    anim.add_argument("--episode", default=None, metavar="SCENARIO:EPISODE[:SEED]",
+                      help="the cell to show, e.g. suburb-quad:0 (default: the run's first)")
+    anim.add_argument("--all", action="store_true", help="every cell of the run, one file each")
+    anim.add_argument("--out", type=Path, default=None,
+                      help="output file (.mp4 or .gif); with --all a folder (default: RUN_DIR/videos/)")
+    anim.add_argument("--format", choices=("mp4", "gif"), default="mp4", help="format of default file names")
+    anim.add_argument("--fps", type=float, default=20.0, help="frames per second (default 20)")
+    anim.add_argument("--duration", type=float, default=None,
+                      help="video length [s] (default: real time, sped up to fit 30 s)")
+    anim.add_argument("--size", type=_size, default=(1280, 720), help="WIDTHxHEIGHT in pixels (default 1280x720)")
+    anim.add_argument("--orbit", type=float, default=0.0, help="camera turn over the clip [deg] (default 0)")
+    anim.add_argument("--no-progress", action="store_true", help="no progress bar")
+    anim.set_defaults(func=_cmd_animate)
+    view = sub.add_parser("view", help="write a run folder's interactive 3D viewer (one self-contained HTML file)")
+    view.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
+    view.add_argument("--out", type=Path, default=None, help="HTML file to write (default: RUN_DIR/viewer.html)")
+    view.set_defaults(func=_cmd_view)
     val = sub.add_parser("validate", help="check scenario files strictly without flying anything")
     val.add_argument("scenario", help="a built-in set, a scenario YAML or a folder of them")
     val.set_defaults(func=_cmd_validate)

@@ -35,9 +35,9 @@ FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:b
 PAGE_SIZE_IN = (11.69, 8.27)  # A4 landscape
 MAX_PLOT_POINTS = 2000
 CROP_MARGIN_M = 30.0
-_START_STYLE = {"marker": "^", "color": "tab:green", "markeredgecolor": "k", "markersize": 9,
+START_STYLE = {"marker": "^", "color": "tab:green", "markeredgecolor": "k", "markersize": 9,
                 "linestyle": "none"}
-_GOAL_STYLE = {"marker": "*", "color": "gold", "markeredgecolor": "k", "markersize": 13, "linestyle": "none"}
+GOAL_STYLE = {"marker": "*", "color": "gold", "markeredgecolor": "k", "markersize": 13, "linestyle": "none"}
 
 
 def method_colors(methods: Iterable[str]) -> dict[str, str]:
@@ -324,10 +324,10 @@ def episode_paths_figure(title: str, traces: Sequence[FlightTrace], bmap: Buildi
         ax3.plot(*p[-1], marker=end, color=t.color, markeredgecolor="k", markersize=8, linestyle="none")
         ax2.plot(*p[-1, :2], marker=end, color=t.color, markeredgecolor="k", markersize=8, linestyle="none")
     s, g = np.asarray(meta.start_m), np.asarray(meta.goal_m)
-    ax3.plot(*s, **_START_STYLE, label="start")
-    ax3.plot(*g, **_GOAL_STYLE, label="goal")
-    ax2.plot(*s[:2], **_START_STYLE, label="start")
-    ax2.plot(*g[:2], **_GOAL_STYLE, label=f"goal (radius {meta.goal_radius_m:g} m)")
+    ax3.plot(*s, **START_STYLE, label="start")
+    ax3.plot(*g, **GOAL_STYLE, label="goal")
+    ax2.plot(*s[:2], **START_STYLE, label="start")
+    ax2.plot(*g[:2], **GOAL_STYLE, label=f"goal (radius {meta.goal_radius_m:g} m)")
     ax3.set_title("3D view (true scale)")
     ax2.set_title("top-down view")
     fig.legend(*ax2.get_legend_handles_labels(), loc="lower center", ncol=4, fontsize=9)
@@ -387,8 +387,8 @@ def episode_snapshots_figure(title: str, traces: Sequence[FlightTrace], bmap: Bu
         _draw_city_3d(ax, region, lo, hi)
         spans = [abs(b - a) for a, b in (ax.get_xlim(), ax.get_ylim(), ax.get_zlim())]
         ax.set_box_aspect(spans, zoom=1.05)  # true scale as drawn, a little larger in the small panels
-        ax.plot(*meta.start_m, **{**_START_STYLE, "markersize": 6})
-        ax.plot(*meta.goal_m, **{**_GOAL_STYLE, "markersize": 9})
+        ax.plot(*meta.start_m, **{**START_STYLE, "markersize": 6})
+        ax.plot(*meta.goal_m, **{**GOAL_STYLE, "markersize": 9})
         for t in traces:
             i = max(int(np.searchsorted(t.t_s, when, side="right")) - 1, 0)
             ended = when > t.end_t_s and t.episode.outcome != "success"
@@ -402,7 +402,7 @@ def episode_snapshots_figure(title: str, traces: Sequence[FlightTrace], bmap: Bu
             axis.label.set_size(6.5)
             axis.labelpad = -2
     handles = [Line2D([], [], color=t.color, marker="o", markeredgecolor="k", label=t.label) for t in traces]
-    handles += [Line2D([], [], **_START_STYLE, label="start"), Line2D([], [], **_GOAL_STYLE, label="goal")]
+    handles += [Line2D([], [], **START_STYLE, label="start"), Line2D([], [], **GOAL_STYLE, label="goal")]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9)
     return fig
 
@@ -466,8 +466,8 @@ def failure_paths_figure(title: str, items: Sequence[tuple[FlightTrace, Building
         ax.set_ylabel("y north [m]")
         m = t.episode
         ax.plot(t.pos_m[:, 0], t.pos_m[:, 1], color=t.color, lw=1.5, label=t.label)
-        ax.plot(*np.asarray(m.start_m)[:2], **_START_STYLE, label="start")
-        ax.plot(*np.asarray(m.goal_m)[:2], **_GOAL_STYLE, label="goal")
+        ax.plot(*np.asarray(m.start_m)[:2], **START_STYLE, label="start")
+        ax.plot(*np.asarray(m.goal_m)[:2], **GOAL_STYLE, label="goal")
         ax.plot(*t.pos_m[-1, :2], marker="X", color="tab:red", markeredgecolor="k", markersize=10,
                 linestyle="none", label=f"ended: {m.outcome} at {t.end_t_s:.1f} s")
         k_ = m.key

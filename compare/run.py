@@ -68,6 +68,7 @@ FAIRNESS = (
     "and commands a velocity that the vehicle's low-level controller turns into rotor speeds. Clearance is "
     "measured at every physics step from the vehicle's collision sphere to the buildings and the ground."
 )
+VIDEOS_DIR = "videos"  # the run's animations, one file per animated cell
 SOLVER_FAILURE_SHARE = 0.25  # a failed classical episode with >= this share of failed MPC solves: "solver_failure"
 
 
@@ -94,7 +95,9 @@ class RunOptions:
         resume: skip cells whose episode file already exists.
         progress: show a progress bar.
         command: the command line, for provenance.
-        report: build the PDF report at the end.
+        report: build the PDF report and the HTML viewer at the end.
+        videos: which cells to animate into `videos/` at the end: "scenario" (the first cell of each
+            scenario), "all" or "none" (see `compare.animate.render_videos`).
     """
 
     out_dir: Path
@@ -106,6 +109,7 @@ class RunOptions:
     progress: bool = True
     command: str = ""
     report: bool = True
+    videos: str = "scenario"
 
 
 def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions, policy_vehicle_fp: str | None) -> tuple[list[Cell], list[str]]:
@@ -301,6 +305,10 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
         bar.close()
     log.info("flew %d episodes in %.1f s", len(todo), time.perf_counter() - t0)
     finalize(out, report=opts.report)
+    if opts.videos != "none":
+        from compare.animate import render_videos
+        from compare.flights import flight_groups
+        render_videos(flight_groups(out), out / VIDEOS_DIR, opts.videos, progress=opts.progress)
     return out
 
 
@@ -316,7 +324,7 @@ def _policy_vehicle_fingerprint(policy: Path | None) -> str:
 
 
 def finalize(run_dir: Path, report: bool = True) -> Path:
-    """Score the saved episodes (metrics.csv, summary.json) and build the report; never simulates."""
+    """Score the saved episodes (metrics.csv, summary.json), build the report and the viewer; never simulates."""
     run_dir = Path(run_dir)
     if not (run_dir / "run.json").is_file():
         raise ValueError(f"{run_dir}: not a run folder (run.json is missing)")
@@ -333,5 +341,7 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
     write_summary_json(summary, run_dir / "summary.json")
     if report:
         from compare.report import build_report
+        from compare.viewer import build_viewer
         build_report(run_dir)
+        build_viewer(run_dir)
     return run_dir

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -38,8 +39,19 @@ def _deterministic(rows: list[dict]) -> list[dict]:
 
 
 def test_run_writes_every_output(tiny_run):
-    for name in ("run.json", "metrics.csv", "summary.json", "report.pdf", "maps/tiny.yaml"):
+    for name in ("run.json", "metrics.csv", "summary.json", "report.pdf", "viewer.html", "maps/tiny.yaml"):
         assert (tiny_run / name).is_file(), name
+    # one video per scenario by default: MP4 (a GIF where ffmpeg is missing), real time at 20 fps
+    videos = sorted((tiny_run / "videos").iterdir())
+    assert [v.stem for v in videos] == ["tiny__ep000__s0"] and videos[0].suffix in (".mp4", ".gif")
+    if videos[0].suffix == ".mp4" and shutil.which("ffprobe"):
+        probe = subprocess.run(["ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0", "-show_entries",
+                                "stream=nb_read_frames,width,height", "-of", "json", str(videos[0])],
+                               capture_output=True, text=True, check=True)
+        stream = json.loads(probe.stdout)["streams"][0]
+        duration = max(float(np.load(p)["t_s"][-1]) for p in (tiny_run / "episodes").glob("*.npz"))
+        assert (stream["width"], stream["height"]) == (1280, 720)
+        assert int(stream["nb_read_frames"]) == round(min(duration, 30.0) * 20)
     episodes = sorted(p.name for p in (tiny_run / "episodes").glob("*.npz"))
     assert episodes == ["tiny__ep000__ppo__s0.npz", "tiny__ep000__rrt_mpc__s0.npz"]
     assert list(tiny_run.rglob(".*tmp*")) == []  # no temporary files left behind
@@ -69,7 +81,7 @@ def test_report_pdf_has_the_expected_pages(tiny_run):
 
 def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path):
     out2 = tmp_path / "tiny-jobs2"
-    assert main(["run", str(TINY), "--out", str(out2), "--jobs", "2", "--no-progress"]) == 0
+    assert main(["run", str(TINY), "--out", str(out2), "--jobs", "2", "--no-progress", "--videos", "none"]) == 0
     a, b = _rows(tiny_run / "metrics.csv"), _rows(out2 / "metrics.csv")
     assert _deterministic(a) == _deterministic(b)
     # an interrupted run: one episode missing, no metrics or report yet -> `report` scores what exists
@@ -82,7 +94,7 @@ def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path):
     assert _deterministic(rows) == _deterministic([r for r in a if r["method"] == "rrt_mpc"])
     assert (out2 / "report.pdf").is_file()
     # --resume flies only the missing cell
-    assert main(["run", str(TINY), "--out", str(out2), "--resume", "--no-progress"]) == 0
+    assert main(["run", str(TINY), "--out", str(out2), "--resume", "--no-progress", "--videos", "none"]) == 0
     assert _deterministic(_rows(out2 / "metrics.csv")) == _deterministic(a)
 
 

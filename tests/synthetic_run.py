@@ -1,0 +1,113 @@
+"""A synthetic run folder (no simulation) for tests of what reads run folders: report, animation, viewer.
+
+Two methods x two episodes x one seed over a four-building map; PPO's episode 1 ends in a collision.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from compare.runner import Trajectory
+from compare.trajectory import EpisodeKey, EpisodeMeta, save_episode
+from uam_fdm.city import Building, BuildingMap
+from uam_fdm.citygen import map_yaml_text
+
+SCENARIO = "toy-quad"
+LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
+START, GOAL = (20.0, 20.0, 10.0), (170.0, 160.0, 20.0)
+METRIC_COLUMNS = ["scenario", "episode", "method", "seed", "map", "vehicle", "outcome", "success",
+                  "collision", "failure_reason", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
+                  "time_s", "path_length_m", "straight_line_m", "spl", "energy_kj", "compute_ms_mean",
+                  "compute_ms_max", "plan_time_s"]
+
+
+def toy_map() -> BuildingMap:
+    parts = [Building(0, (60.0, 60.0), (20.0, 15.0), 30.0, 0.2),
+             Building(1, (120.0, 70.0), (18.0, 18.0), 45.0),
+             Building(2, (80.0, 140.0), (25.0, 12.0), 20.0, -0.3),
+             Building(3, (190.0, 30.0), (16.0, 30.0), 25.0)]
+    return BuildingMap(parts, (0.0, 0.0, 0.0), (200.0, 200.0, 80.0), name="toy")
+
+
+def trajectory(n: int, duration_s: float, bend_m: float, stop_frac: float, outcome: str,
+                seed: int) -> Trajectory:
+    """A smooth synthetic flight from START towards GOAL (bent sideways by `bend_m`), cut at `stop_frac`."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, duration_s, n)
+    s = stop_frac * t / duration_s
+    a, b = np.array(START), np.array(GOAL)
+    side = np.array([-(b - a)[1], (b - a)[0], 0.0]) / np.linalg.norm((b - a)[:2])
+    pos = a + s[:, None] * (b - a) + (bend_m * np.sin(np.pi * s))[:, None] * side
+    vel = np.gradient(pos, t, axis=0)
+    rotors = 620.0 + 15.0 * rng.standard_normal((n, 4))
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    states = np.hstack([pos, vel, quat, np.zeros((n, 3)), rotors])
+    clearance = 8.0 + 6.0 * np.cos(3.0 * s) - (9.0 * s if outcome == "collision" else 0.0)
+    decisions = t[::10]
+    return Trajectory(t_s=t, states=states, rotor_commands=rotors,
+                      wind_enu_m_s=np.tile([2.0, 1.0, 0.0], (n, 1)), clearance_m=clearance,
+                      decision_t_s=decisions, compute_s=np.full(len(decisions), 2e-3),
+                      energy_J=1000.0 * duration_s, outcome=outcome, plan_time_s=0.3,
+                      detail=f"synthetic {outcome}")
+
+
+def write_run(run_dir: Path, policy_dir: Path | None) -> None:
+    """Two methods x two episodes x one seed; PPO's episode 1 ends in a collision."""
+    (run_dir / "maps").mkdir(parents=True)
+    (run_dir / "maps" / f"{SCENARIO}.yaml").write_text(map_yaml_text(toy_map()), encoding="utf-8")
+    # (episode, method): samples, duration [s], sideways bend [m], fraction of the way flown, outcome
+    cells = {(0, "ppo"): (3000, 30.0, 25.0, 1.0, "success"),
+             (0, "rrt_mpc"): (1500, 26.0, -10.0, 1.0, "success"),
+             (1, "ppo"): (800, 12.0, 5.0, 0.45, "collision"),
+             (1, "rrt_mpc"): (1200, 24.0, 15.0, 1.0, "success")}
+    rows = []
+    for (ep, method), (n, dur, bend, stop, outcome) in cells.items():
+        key = EpisodeKey(SCENARIO, ep, method, 0)
+        extra = {"torque_coeff_Nm_s2": 1.2e-7, "density_ratio": 0.95} if ep == 0 else {"mpc_failures": 0}
+        meta = EpisodeMeta(key, "toy", "small_quad", START, GOAL, 3.0, 60.0, 0.42, 4, 1000.0 * dur, outcome,
+                           0.3 if method == "rrt_mpc" else 0.0, f"synthetic {outcome}", extra)
+        traj = trajectory(n, dur, bend, stop, outcome, ep)
+        save_episode(run_dir / "episodes" / f"{key.stem}.npz", meta, traj)
+        ok = outcome == "success"
+        rows.append([SCENARIO, ep, method, 0, "toy", "small_quad", outcome, int(ok), int(not ok),
+                     "" if ok else "collision", 4.1, 0.0, 1.5, dur, 230.0, 206.2, 0.85 if ok else 0.0,
+                     dur, 2.0, 3.5, 0.3 if method == "rrt_mpc" else "nan"])
+    with (run_dir / "metrics.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(METRIC_COLUMNS)
+        w.writerows(rows)
+    stat = {"mean": 0.5, "ci_low": 0.0, "ci_high": 1.0, "n": 2}
+    summary = {"bootstrap": {"resamples": 1000, "seed": 0, "level": 0.95},
+               "metrics": ["success", "collision", "min_clearance_m", "time_s", "energy_kj"],
+               "methods": {"ppo": {"episodes": 2, "failure_reasons": {"collision": 1}, "success": stat,
+                                   "collision": stat, "min_clearance_m": {**stat, "mean": 4.1},
+                                   "time_s": {"mean": 21.0, "ci_low": None, "ci_high": None, "n": 2}},
+                           "rrt_mpc": {"episodes": 2, "failure_reasons": {}, "success": {**stat, "mean": 1.0},
+                                       "energy_kj": {**stat, "mean": 25.0}}},
+               "paired": {"ppo - rrt_mpc": {"episodes": 2, "time_s": {"mean_diff": -4.0, "ci_low": -8.0,
+                                                                      "ci_high": 1.0, "n": 2}}}}
+    (run_dir / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
+    if policy_dir is not None:
+        policy_dir.mkdir(parents=True, exist_ok=True)
+        steps = np.arange(1, 21) * 10_000
+        lines = ["timesteps,mean_episode_reward,success_rate"]
+        lines += [f"{s},{-50 + 60 * (1 - np.exp(-s / 6e4)):.3f},{'' if k % 4 else min(1.0, k / 16):}"
+                  for k, s in enumerate(steps)]
+        (policy_dir / "reward_curve.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    scenario = {"name": SCENARIO, "source": "/tmp/toy-quad.yaml", "description": "Synthetic test scenario.",
+                "map_name": "toy", "vehicle": "small_quad",
+                "vehicle_summary": "1.5 kg, 4 rotors, collision radius 0.42 m",
+                "atmosphere": {"elevation_m": 1500.0, "isa_offset_k": 15.0, "density_kg_m3": 0.999},
+                "wind": {"steady_enu_m_s": [2, 1, 0], "turbulence": "light"}, "episodes": 2, "seeds": [0],
+                "methods": ["ppo", "rrt_mpc"], "physics_hz": 500, "control_hz": 50}
+    run = {"format_version": 1, "created_utc": "2026-11-21T08:00:00Z", "command": "uam-compare run toy",
+           "scenarios": [scenario],
+           "methods": {"ppo": {"label": LABELS["ppo"], "policy_dir": str(policy_dir) if policy_dir else None,
+                               "description": "Learned pilot."},
+                       "rrt_mpc": {"label": LABELS["rrt_mpc"], "description": "Classical pilot."}},
+           "versions": {"uam-compare": "0.1.0", "python": "3.11.7", "numpy": np.__version__},
+           "fairness": "Both pilots know the map, the start and the goal. Neither knows the wind. " * 4}
+    (run_dir / "run.json").write_text(json.dumps(run), encoding="utf-8")
