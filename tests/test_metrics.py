@@ -212,6 +212,10 @@ def test_atomic_writes_leave_no_temporary_file(tmp_path, monkeypatch):
     write_metrics_csv([row()], tmp_path / "metrics.csv")
     write_summary_json(summarize([row()], resamples=50), tmp_path / "summary.json")
     assert sorted(os.listdir(tmp_path)) == ["metrics.csv", "summary.json"]
+    # outputs get the mode plain `open` would give (not mkstemp's private 0600): a run folder can be shared
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert (tmp_path / "metrics.csv").stat().st_mode & 0o777 == 0o666 & ~mask
     before = (tmp_path / "metrics.csv").read_text()
 
     def broken_replace(src, dst):
