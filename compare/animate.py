@@ -32,7 +32,7 @@ from matplotlib.text import Text
 from PIL import GifImagePlugin, Image
 from tqdm import tqdm
 
-from compare.figures import GOAL_STYLE, START_STYLE, crop_map, flight_region, trace_from_episode
+from compare.figures import GOAL_STYLE, START_STYLE, trace_from_episode
 from compare.flights import FlightGroup, Pilot, sample_flight
 from uam_fdm.atomic import atomic_path
 from uam_fdm.city import BuildingMap
@@ -257,9 +257,7 @@ class _Scene:
         if self.canvas.get_width_height() != (opts.width_px, opts.height_px):
             raise RuntimeError(f"figure is {self.canvas.get_width_height()} px, not "
                                f"{opts.width_px}x{opts.height_px}")  # _figure_inches failed: a bug
-        traces = [trace_from_episode(t.pilot.episode, t.pilot.label, t.pilot.color) for t in self.tracks]
-        lo, hi = flight_region(traces)
-        region = crop_map(group.city, lo, hi)
+        region, lo, hi = group.region()
         self._title(group)
         self.ax3 = fig.add_axes(self._box(0.0, _HEAD_IN, self.w_in - _SIDE_IN - 0.6, self.h_in - _HEAD_IN),
                                 projection="3d")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.figures import method_colors
+from compare.figures import crop_map, flight_region, method_colors, trace_from_episode
 from compare.report import load_run_info
 from compare.trajectory import SavedEpisode, episode_files, load_episode
 from uam_fdm.city import BuildingMap
@@ -83,6 +83,14 @@ class FlightGroup:
     def duration_s(self) -> float:
         """Time until the last pilot's flight ended [s]."""
         return max((p.end_t_s for p in self.pilots), default=0.0)
+
+    def region(self) -> tuple[BuildingMap, np.ndarray, np.ndarray]:
+        """The city cropped to the flights (start and goal included) plus a margin, and that box (lo, hi) ENU [m].
+
+        The same region as the report's episode pages (`compare.figures.flight_region`, `crop_map`).
+        """
+        lo, hi = flight_region([trace_from_episode(p.episode, p.label, p.color) for p in self.pilots])
+        return crop_map(self.city, lo, hi), lo, hi
 
     @property
     def meta(self):

@@ -26,7 +26,6 @@ import plotly.io as pio
 from matplotlib import colormaps
 from matplotlib.colors import to_hex
 
-from compare.figures import crop_map, flight_region, trace_from_episode
 from compare.flights import FlightGroup, flight_groups, sample_flight
 from compare.report import load_run_info
 from uam_fdm.atomic import write_text_atomic
@@ -101,9 +100,7 @@ def group_payload(group: FlightGroup, opts: ViewerOptions) -> dict:
 
     Trace order in the figure: 0 buildings, 1 start, 2 goal, then per pilot: path, trail, vehicle.
     """
-    traces = [trace_from_episode(p.episode, p.label, p.color) for p in group.pilots]
-    lo, hi = flight_region(traces)
-    city = crop_map(group.city, lo, hi)
+    city, lo, hi = group.region()
     meta = group.meta
     t = _time_grid(group, opts)
     fig = go.Figure()
