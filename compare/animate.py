@@ -43,6 +43,7 @@ _log = logging.getLogger(__name__)
 MIN_SIZE_PX, MAX_SIZE_PX = 160, 3840
 MAX_FPS = 120.0
 FORMATS = ("mp4", "gif")
+VIDEO_CHOICES = ("scenario", "all", "none")  # which cells of a run `render_videos` animates
 # The layout is in inches on a figure at least 12.8 x 7.2 in (scaled to the frame by the dpi): fonts are in
 # points, so this keeps text, panels and markers in the same proportions at any frame size.
 _MIN_FIG_IN = (12.8, 7.2)
@@ -480,8 +481,6 @@ def _changed_box(prev: np.ndarray, cur: np.ndarray) -> tuple[int, int, int, int]
         return (0, 0, 1, 1)
     return (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
 
-
-VIDEO_CHOICES = ("scenario", "all", "none")
 
 
 def render_videos(groups: list[FlightGroup], out_dir: Path, which: str = "scenario",

@@ -271,6 +271,10 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     """Fly every cell, then score and report (see the module docstring). Returns the run folder."""
     from tqdm import tqdm
 
+    from compare.animate import VIDEO_CHOICES
+
+    if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
+        raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
     scenarios = list(scenarios)
     policy_fp = None
     if any("ppo" in sc.methods for sc in scenarios) and (opts.methods is None or "ppo" in opts.methods):
