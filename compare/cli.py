@@ -159,33 +159,67 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from rl.nav import NavConfig
-    from rl.train import TrainConfig, train
+    from rl.train import Curriculum, TrainConfig, train
 
     nav = replace(NavConfig(), city_pool_size=args.city_pool, turbulence=args.turbulence)
+    cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
-                      eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                      curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                       checkpoint_every=args.checkpoint_every)
     res = train(cfg, args.out, resume=args.resume, progress=not args.no_progress,
                 command="uam-compare " + " ".join(args.argv))
-    print(f"policy written to {args.out}: held-out success {res.success_rate:.1%}, collisions {res.collision_rate:.1%} "
-          f"over {res.episodes} episodes")
+    print(f"policy written to {args.out}: validation success {res.success_rate:.1%}, collisions "
+          f"{res.collision_rate:.1%} over {res.episodes} episodes")
     return 0
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     import json
+    from dataclasses import replace
 
     from rl.agent import load_policy
-    from rl.train import eval_config, evaluate
+    from rl.evaluation import eval_config, evaluate, paired_counts
+    from rl.expert import PotentialFieldPilot
+    from rl.nav import NavWorld
 
+    if args.episodes < 1:
+        raise ValueError(f"--episodes {args.episodes}: must be >= 1")
     policy = load_policy(args.policy)
-    nav = eval_config(policy.nav, args.episodes, turbulence=args.turbulence)
-    res = evaluate(policy.act_batch, nav, args.episodes, seed=args.seed)
-    print(f"{res.episodes} held-out episodes ({nav.turbulence} turbulence, {policy.nav.vehicle}): "
-          f"outcomes {res.outcomes}, mean flight time {res.mean_time_s:.1f} s")
-    print(json.dumps({"success_rate": res.success_rate, "collision_rate": res.collision_rate,
-                      "episodes": res.episodes, "outcomes": res.outcomes, "seed": args.seed,
-                      "turbulence": nav.turbulence, "policy": str(policy.folder)}))
+    nav = eval_config(policy.nav, args.episodes, pool=args.pool, turbulence=args.turbulence)
+    world = NavWorld(nav)
+    res = evaluate(lambda obs, _batch: policy.act_batch(obs), nav, args.episodes, seed=args.seed, pool=args.pool,
+                   world=world)
+    out = {"pool": args.pool, "episodes": res.episodes, "seed": args.seed, "turbulence": nav.turbulence,
+           "steady_wind_max_m_s": nav.steady_wind_max_m_s, "policy": str(policy.folder),
+           "success_rate": res.success_rate, "success_ci95": res.success_ci95,
+           "collision_rate": res.collision_rate, "collision_ci95": res.collision_ci95, "outcomes": res.outcomes}
+    print(f"{res.episodes} {args.pool} episodes ({nav.turbulence} turbulence, steady wind up to "
+          f"{nav.steady_wind_max_m_s:g} m/s, {policy.nav.vehicle}), Wilson 95 % intervals:")
+    print(f"  ppo              success {res.success_rate:6.1%} [{res.success_ci95[0]:.1%}, {res.success_ci95[1]:.1%}]"
+          f"  collisions {res.collision_rate:5.1%} [{res.collision_ci95[0]:.1%}, {res.collision_ci95[1]:.1%}]"
+          f"  {res.outcomes}")
+    if not args.no_baseline:
+        # the same tasks (cities, legs, wind), the reactive pilot at the 50 Hz it was tuned for
+        base_nav = replace(nav, decision_hz=nav.control_hz)
+        base_world = NavWorld(base_nav, dynamics=world.dynamics, atmosphere=world.atmosphere)
+        holder: dict = {}
+
+        def potential_field(obs, batch):
+            if "pilot" not in holder:
+                holder["pilot"] = PotentialFieldPilot(batch)
+            return holder["pilot"](obs, batch)
+
+        ex = evaluate(potential_field, base_nav, args.episodes, seed=args.seed, pool=args.pool, world=base_world)
+        pairs = paired_counts(res, ex)
+        print(f"  potential field  success {ex.success_rate:6.1%} [{ex.success_ci95[0]:.1%}, {ex.success_ci95[1]:.1%}]"
+              f"  collisions {ex.collision_rate:5.1%} [{ex.collision_ci95[0]:.1%}, {ex.collision_ci95[1]:.1%}]"
+              f"  {ex.outcomes}")
+        print(f"  paired: only ppo succeeded {pairs['only_a']}, only the potential field {pairs['only_b']}, "
+              f"both {pairs['both']}, neither {pairs['neither']}")
+        out.update(expert_success_rate=ex.success_rate, expert_success_ci95=ex.success_ci95,
+                   expert_collision_rate=ex.collision_rate, expert_collision_ci95=ex.collision_ci95,
+                   paired=pairs)
+    print(json.dumps(out))
     return 0
 
 
@@ -240,25 +274,31 @@ def build_parser() -> argparse.ArgumentParser:
     val = sub.add_parser("validate", help="check scenario files strictly without flying anything")
     val.add_argument("scenario", help="a built-in set, a scenario YAML or a folder of them")
     val.set_defaults(func=_cmd_validate)
-    tr = sub.add_parser("train", help="train the learned pilot with PPO on the batched environment")
+    tr = sub.add_parser("train", help="train the learned pilot with PPO from scratch on the batched environment")
     tr.add_argument("--preset", default="paper", help="PPO preset (paper: 2 x 128 units, clip 0.2)")
-    tr.add_argument("--timesteps", type=int, default=30_000_000, help="environment steps (default 30M)")
+    tr.add_argument("--timesteps", type=int, default=20_000_000, help="decisions, all vehicles (default 20M)")
     tr.add_argument("--envs", type=int, default=256, help="vehicles stepped together (default 256)")
     tr.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
-    tr.add_argument("--city-pool", type=int, default=128, help="training cities (default 128)")
+    tr.add_argument("--city-pool", type=int, default=1024, help="training cities (default 1024)")
     tr.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
-    tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between evaluations")
-    tr.add_argument("--eval-episodes", type=int, default=100, help="held-out episodes per evaluation")
+    tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
+                    help="full-length legs from the start (default: success-gated curriculum)")
+    tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")
+    tr.add_argument("--eval-episodes", type=int, default=200, help="validation episodes per evaluation (default 200)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
     tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
     tr.add_argument("--out", type=Path, default=Path("runs/policy"), help="policy folder to write")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_cmd_train)
-    ev = sub.add_parser("evaluate-policy", help="fly a policy on held-out cities; last line is JSON")
+    ev = sub.add_parser("evaluate-policy", help="fly a policy (and the potential-field baseline) on held-out cities; "
+                        "last line is JSON")
     ev.add_argument("policy", nargs="?", type=Path, default=None, help="policy folder (default: the shipped policy)")
-    ev.add_argument("--episodes", type=int, default=200, help="episodes, one held-out city each (default 200)")
+    ev.add_argument("--episodes", type=int, default=1000, help="episodes, one held-out city each (default 1000)")
+    ev.add_argument("--pool", choices=("test", "validation"), default="test",
+                    help="held-out city pool (default test; validation is for choices made while developing)")
     ev.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
     ev.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
+    ev.add_argument("--no-baseline", action="store_true", help="skip the potential-field pilot on the same tasks")
     ev.set_defaults(func=_cmd_evaluate)
     return parser
 

@@ -1,11 +1,13 @@
 """THE episode loop: flies any agent through the same simulator and records what happened.
 
-The runner owns the clock: the agent decides once per decision period (timed with one
-stopwatch, `time.perf_counter`), the simulator advances that period at the physics rate, and
+The runner owns the clock: the agent decides once per decision (timed with one stopwatch,
+`time.perf_counter`; an actuation may be held for several control periods), the simulator
+advances each control period at the physics rate, and
 clearance to the city and the ground is checked at every physics step with the city's exact
 clearance (the same geometry FCL holds). The episode ends on success (inside the goal radius),
 collision, leaving the flight volume, a non-finite state or the timeout; an agent that cannot fly
-the task (e.g. no path found) ends it before the first step.
+the task (e.g. no path found) ends it before the first step. The end rules are `uam_fdm.episode`'s,
+the same the learned pilot's training environment applies.
 """
 from __future__ import annotations
 
@@ -14,12 +16,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uam_fdm import episode
 from uam_fdm.agent import Agent, Observation, RotorCommand, Task, VelocityCommand, World
 from uam_fdm.model import hover_state
 from uam_fdm.sim import Simulator
 from uam_fdm.wind import WindField
 
-OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout", "planner_failure")
+OUTCOMES = episode.OUTCOMES + ("planner_failure",)
 
 
 @dataclass(frozen=True)
@@ -76,13 +79,20 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
     outcome, detail = "timeout", f"not at the goal after {task.timeout_s:g} s"
     if not info.ok:
         outcome, detail = "planner_failure", f"{info.status}: {info.detail}"
-    while info.ok and sim.state.t_s < task.timeout_s - 1e-9:
+    lo, hi = np.asarray(city.bounds_min_m, float), np.asarray(city.bounds_max_m, float)
+    held = 0
+    while info.ok and not episode.timed_out(sim.state.t_s, task.timeout_s):
         s = sim.state
-        obs = Observation(s.t_s, s.x.copy())
-        t0 = time.perf_counter()
-        act = agent.act(obs)
-        compute.append(time.perf_counter() - t0)
-        decision_t.append(s.t_s)
+        if held <= 0:  # a decision (else the previous actuation is still held)
+            obs = Observation(s.t_s, s.x.copy())
+            t0 = time.perf_counter()
+            act = agent.act(obs)
+            compute.append(time.perf_counter() - t0)
+            decision_t.append(s.t_s)
+            held = int(getattr(act, "hold_periods", 1))
+            if held < 1:
+                raise ValueError(f"agent {agent.name!r} asked to hold its actuation for {held} periods")
+        held -= 1
         env = sim.env(s.x, s.t_s)
         if isinstance(act, RotorCommand):
             r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float))
@@ -91,33 +101,39 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         else:
             raise TypeError(f"agent {agent.name!r} returned {type(act).__name__}, not an Actuation")
         n_sub = r.states.shape[0]
-        times.append(s.t_s + dyn.dt_s * np.arange(1, n_sub + 1))
+        t_sub = s.t_s + dyn.dt_s * np.arange(1, n_sub + 1)
+        times.append(t_sub)
         states.append(r.states)
         cmds.append(r.rotor_commands)
         winds.append(np.tile(env[:3], (n_sub, 1)))
-        if not np.all(np.isfinite(r.states)):
-            clear.append(np.full(n_sub, np.nan))
-            outcome, detail = "nonfinite", f"state became non-finite at t = {s.t_s:.2f} s"
-            break
-        c = _clearance(city, r.states[:, 0:3], radius)
+        finite = bool(np.all(np.isfinite(r.states)))
+        c = _clearance(city, r.states[:, 0:3], radius) if finite else np.full(n_sub, np.nan)
         clear.append(c)
-        if np.any(c < 0.0):
-            k = int(np.argmax(c < 0.0))
-            outcome, detail = "collision", f"collision at t = {times[-1][k]:.3f} s, clearance {c[k]:.3f} m"
-            break
-        inside = city.in_bounds(r.states[:, 0:3])
-        if not np.all(inside):
-            k = int(np.argmin(inside))
-            outcome, detail = "out_of_bounds", f"left the flight volume at t = {times[-1][k]:.3f} s"
-            break
-        if np.linalg.norm(r.final_state[0:3] - goal) <= task.goal_radius_m:
-            outcome, detail = "success", f"within {task.goal_radius_m:g} m of the goal at t = {sim.state.t_s:.2f} s"
+        code = int(episode.period_outcome(r.states[None], episode.collided(c[None]), lo, hi, goal,
+                                          task.goal_radius_m)[0])
+        if code != episode.RUNNING:
+            outcome = episode.OUTCOME_OF_CODE[code]
+            detail = _detail(code, r.states, c, t_sub, s.t_s, sim.state.t_s, task, city)
             break
     return Trajectory(
         t_s=np.concatenate(times), states=np.concatenate(states), rotor_commands=np.concatenate(cmds),
         wind_enu_m_s=np.concatenate(winds), clearance_m=np.concatenate(clear),
         decision_t_s=np.array(decision_t), compute_s=np.array(compute), energy_J=sim.state.energy_J,
         outcome=outcome, plan_time_s=info.plan_time_s, detail=detail)
+
+
+def _detail(code: int, states: np.ndarray, clearance: np.ndarray, t_sub: np.ndarray, t_start_s: float,
+            t_end_s: float, task: Task, city) -> str:
+    """Why the period ended the episode, in words (the substep where it happened)."""
+    if code == episode.NONFINITE:
+        return f"state became non-finite at t = {t_start_s:.2f} s"
+    if code == episode.COLLISION:
+        k = int(np.argmax(clearance < 0.0))
+        return f"collision at t = {t_sub[k]:.3f} s, clearance {clearance[k]:.3f} m"
+    if code == episode.OUT_OF_BOUNDS:
+        k = int(np.argmin(city.in_bounds(states[:, 0:3])))
+        return f"left the flight volume at t = {t_sub[k]:.3f} s"
+    return f"within {task.goal_radius_m:g} m of the goal at t = {t_end_s:.2f} s"
 
 
 def _clearance(city, points: np.ndarray, radius: float) -> np.ndarray:

@@ -1,23 +1,28 @@
 """The learned pilot as an `Agent`: policy -> velocity command -> the vehicle's low-level controller.
 
 Loads a policy folder (the shipped `rl/policies/default` or one written by `uam-compare train`),
-builds the same observation the environment builds (`rl.observation`, `rl.sensor`), normalises
-it with the training statistics and acts deterministically. It returns a `VelocityCommand`, which
-the runner hands to the same low-level controller the environment uses, so the rotor-speed
-commands and the flight are those of the environment (tests/test_rl_agent.py flies one episode
-both ways and compares the trajectories).
+builds the same observation the environment builds (`rl.nav.observe_slots`: the same perception,
+route field and memory), normalises it with the training statistics and acts deterministically.
+At reset it computes the task's geodesic route field (timed, reported as planning time). It returns
+a `VelocityCommand` held for the policy's decision period (e.g. 5 control periods at 10 Hz), which
+the runner flies through the same low-level controller, period by period, with the same end
+rules the environment applies; so an episode flown through the runner is bit-identical to the
+environment's (tests/test_rl_agent.py).
 """
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rl.cities import boxes_only
-from rl.nav import NavConfig
-from rl.observation import action_to_command, build_observations
+from rl.nav import CLEARANCE_RANGE_M, NavConfig, observe_slots, route_for
+from rl.observation import PilotMemory, action_to_command, goal_heading
+from rl.perception import Perception
+from rl.route import RouteBank
 from rl.sensor import BoxSensor
 from rl.train import normalize_obs
 from uam_fdm.agent import Observation, ResetInfo, Task, VelocityCommand, World
@@ -64,20 +69,16 @@ def load_policy(folder: Path | str | None = None) -> Policy:
     return Policy(folder, model, stats, NavConfig.from_dict(cfg["nav"]))
 
 
-class _CitySensor:
-    """The environment's sensor for one city (boxes), or the city's own exact query for other shapes."""
+class _CitySenses:
+    """The environment's sensors for one city (box buildings): clearance and perception."""
 
-    def __init__(self, city: BuildingMap, k: int, range_m: float, radius_m: float) -> None:
-        self.city, self.k, self.range_m, self.radius_m = city, k, range_m, radius_m
-        self.boxes = BoxSensor([city], k, range_m, radius_m) if boxes_only(city) else None
-
-    def read(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.boxes is not None:
-            r = self.boxes.query(p[None], np.zeros(1, dtype=np.int64))
-            return r.nearest_m, r.distance_m
-        near, dist, ids = self.city.nearest_obstacles_batch(p[None], self.k, self.radius_m)
-        far = (dist > self.range_m) | (ids < 0)
-        return np.where(far[..., None], p[None, None, :], near), np.where(far, self.range_m, dist)
+    def __init__(self, city: BuildingMap, nav: NavConfig, radius_m: float) -> None:
+        self.city = city
+        self.clearance = BoxSensor([city], 1, CLEARANCE_RANGE_M, radius_m)
+        self.perception = Perception([city], radius_m, nav.perception)
+        cell = nav.route.cell_m
+        lo, hi = np.asarray(city.bounds_min_m), np.asarray(city.bounds_max_m)
+        self.route_cells = (int(np.ceil((hi[1] - lo[1]) / cell)) + 1, int(np.ceil((hi[0] - lo[0]) / cell)) + 1)
 
 
 class PolicyAgent:
@@ -88,37 +89,68 @@ class PolicyAgent:
     """
 
     name = "ppo"
+    _SLOT = np.zeros(1, dtype=np.int64)
+    _CITY = np.zeros(1, dtype=np.int64)
 
     def __init__(self, policy: Policy | Path | str | None = None) -> None:
         self.policy = policy if isinstance(policy, Policy) else load_policy(policy)
-        self._sensor: _CitySensor | None = None
+        self._senses: _CitySenses | None = None
         self._world: World | None = None
         self._trained_fingerprint = load_vehicle(self.policy.nav.vehicle).fingerprint()
 
     def reset(self, world: World, task: Task, seed: int) -> ResetInfo:
-        """Prepare the observation for `task` (no planning; deterministic, so `seed` is unused)."""
+        """Prepare for `task`: sensors for the city, the route field (timed), fresh memory.
+
+        Deterministic, so `seed` is unused. Refuses (ResetInfo not ok) a vehicle or control rate
+        other than the policy's, and maps with non-box obstacles (the perception needs boxes).
+        """
         nav = self.policy.nav
         p = world.vehicle
         if p.fingerprint() != self._trained_fingerprint:
             return ResetInfo(False, "unsupported_vehicle", 0.0,
                              f"the policy was trained for {nav.vehicle!r}; {p.name!r} has other parameters")
-        if self._world is None or self._world.city is not world.city:
-            self._sensor = _CitySensor(world.city, nav.k_buildings, nav.sensing_range_m, p.collision_radius_m)
+        if abs(world.dynamics.control_hz - nav.control_hz) > 1e-9:
+            return ResetInfo(False, "unsupported_rate", 0.0,
+                             f"the policy was trained with a {nav.control_hz:g} Hz control period; "
+                             f"this world runs {world.dynamics.control_hz:g} Hz")
+        if not boxes_only(world.city):
+            return ResetInfo(False, "unsupported_map", 0.0,
+                             f"map {world.city.name!r} has non-box obstacles; the learned pilot's perception needs boxes")
+        t0 = time.perf_counter()
+        radius = p.collision_radius_m
+        if self._senses is None or self._senses.city is not world.city:
+            self._senses = _CitySenses(world.city, nav, radius)
         self._world = world
+        self._task = task
         self._goal = np.asarray(task.goal_m, dtype=float)[None]
-        self._lo = np.asarray(world.city.bounds_min_m, dtype=float)[None]
-        self._hi = np.asarray(world.city.bounds_max_m, dtype=float)[None]
-        self._yaw = float(task.start_yaw_rad)
-        return ResetInfo(True)
+        self._routes = RouteBank(1, self._senses.route_cells)
+        self._routes.set(0, route_for(world.city, task, radius, nav.route))
+        self._memory = PilotMemory.empty(1, nav.decision_hz)
+        start = np.asarray(task.start_m, dtype=float)[None]
+        self._memory.start(self._SLOT, start, self._goal, self._routes.potential(start, self._SLOT))
+        self._last_action: np.ndarray | None = None
+        return ResetInfo(True, plan_time_s=time.perf_counter() - t0)
 
-    def observe(self, x: np.ndarray) -> np.ndarray:
-        """The raw observation (1, obs) for state x (what the environment would return)."""
-        nav = self.policy.nav
-        near, dist = self._sensor.read(np.asarray(x[0:3], dtype=float))
-        return build_observations(np.asarray(x, dtype=float)[None], self._goal, self._lo, self._hi, near, dist,
-                                  nav.sensing_range_m, self._world.vehicle.controller.max_speed_m_s)
+    def observe(self, t_s: float, x: np.ndarray) -> np.ndarray:
+        """The raw observation (1, obs) at time t_s [s] in state x (what the environment would return).
+
+        Advances the memory first when a previous decision exists (as the environment does after a step).
+        """
+        nav, m = self.policy.nav, self._memory
+        xs = np.asarray(x, dtype=float)[None]
+        pos = xs[:, 0:3]
+        route = self._routes.potential(pos, self._SLOT)
+        if self._last_action is not None:
+            m.record(self._SLOT, self._last_action, route)
+            m.heading_rad[:] = goal_heading(pos, self._goal, m.heading_rad)
+        clear = self._senses.clearance.clearance(pos, self._CITY)
+        t_frac = np.array([t_s / self._task.timeout_s])
+        return observe_slots(self._SLOT, xs, self._goal, route, clear, t_frac, self._CITY, self._senses.perception,
+                             self._routes, m, nav, self._world.vehicle)
 
     def act(self, obs: Observation) -> VelocityCommand:
-        action = self.policy.act_batch(self.observe(obs.x))
-        cmd = action_to_command(action, self._world.vehicle, self._yaw)[0]
-        return VelocityCommand(cmd[0:3], float(cmd[3]))
+        nav = self.policy.nav
+        action = self.policy.act_batch(self.observe(obs.t_s, obs.x))
+        self._last_action = np.clip(action, -1.0, 1.0)
+        cmd = action_to_command(action, self._memory.heading_rad, self._world.vehicle, self._task.start_yaw_rad)[0]
+        return VelocityCommand(cmd[0:3], float(cmd[3]), hold_periods=nav.action_repeat)

@@ -95,8 +95,12 @@ class TaskDistribution:
     timeout_per_speed: float = 2.5
 
     def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
-               attempts: int = 200) -> Task:
+               attempts: int = 200, difficulty: float = 1.0) -> Task:
         """A free start/goal pair in `city` drawn from `rng` (ENU metres).
+
+        `difficulty` in (0, 1] (the training curriculum) shrinks the distance range's upper end
+        towards its lower end: d ~ U(d_min, d_min + difficulty x (d_max - d_min)). The draws from
+        `rng` are the same whatever the difficulty.
 
         Raises:
             RuntimeError: no pair found within `attempts` draws (a city with no free space).
@@ -106,7 +110,8 @@ class TaskDistribution:
         need = radius_m + self.min_clearance_m
         for _ in range(attempts):
             start = np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), rng.uniform(*self.altitude_m)])
-            dist = rng.uniform(*self.distance_m)
+            d_lo, d_hi = self.distance_m
+            dist = rng.uniform(d_lo, d_lo + difficulty * (d_hi - d_lo))
             heading = rng.uniform(-math.pi, math.pi)
             goal_alt = rng.uniform(*self.altitude_m)
             dz = goal_alt - start[2]

@@ -1,38 +1,46 @@
 """N vehicles navigating cities, stepped together: the engine under `UAMNavEnv` and `UAMNavVecEnv`.
 
 Each of the N slots is an independent episode with its own random generator, so slot i of a batch
-seeded with s behaves exactly like a single environment seeded with s + i (tested). A step is one
-control period: actions -> velocity commands -> one batched call into the compiled model (the
-low-level controller and 10 RK4 physics substeps for every vehicle) -> collision, bounds and goal
-checks -> sensing -> observations and rewards.
+seeded with s behaves exactly like a single environment seeded with s + i (tested).
 
-Collision is checked at every physics substep: the clearance field is 1-Lipschitz, so a vehicle
-whose clearance at the start of the period exceeds its largest displacement within the period
-cannot have touched anything; only the others are measured substep by substep (exactly, with the
-sensor's box distances). The outcome of a step follows the comparison runner's order: non-finite
-state, collision, out of bounds, arrival, then the time limit.
+A step is one **decision** (10 Hz by default): the action becomes a velocity command that is held
+for `control_hz / decision_hz` control periods; each control period is one batched call into the
+compiled model through `uam_fdm.sim.BatchSimulator` (the low-level controller and the RK4 physics
+substeps for every vehicle), followed by the episode rules of `uam_fdm.episode` (the comparison
+runner's own): collision at every physics substep, bounds, arrival, then the time limit. A vehicle
+whose episode ends inside a decision stops there; the others fly the rest of the decision. The
+learned pilot in the runner (`rl.agent.PolicyAgent`) holds its command the same way, so an episode
+flown through the env and through the runner is bit-identical (tested).
+
+Collision at every substep is exact and cheap: the clearance field is 1-Lipschitz, so a vehicle
+whose clearance at the start of a period exceeds its largest displacement within the period
+cannot have touched anything; only the others are measured substep by substep.
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
 from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
-from rl.observation import action_to_command, build_observations, obs_size
+from rl.observation import PilotMemory, action_to_command, build_observations, goal_heading, obs_size
+from rl.perception import Perception, PerceptionConfig
 from rl.reward import TERMS, RewardConfig, reward_terms
+from rl.route import RouteBank, RouteConfig, route_field
 from rl.sensor import BoxSensor
+from uam_fdm import episode
 from uam_fdm.agent import Task
 from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.city import BuildingMap
 from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.model import hover_state
 from uam_fdm.params import VehicleParams, load_vehicle
-from uam_fdm.wind import GustSeries, TurbulenceLevel, WindConditions, WindField, gust_series
+from uam_fdm.sim import BatchSimulator
+from uam_fdm.wind import TurbulenceLevel, WindBank, WindConditions, WindField, gust_series
 
-OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
+OUTCOMES = episode.OUTCOMES
+CLEARANCE_RANGE_M = 30.0  # clearance is measured exactly up to this, and reported capped there
 
 
 @dataclass(frozen=True)
@@ -41,9 +49,10 @@ class NavConfig:
 
     Attributes:
         vehicle: preset name or vehicle YAML path.
-        physics_hz, control_hz: physics and decision rates [Hz].
-        k_buildings: buildings in the observation.
-        sensing_range_m: range of the building sensing [m].
+        physics_hz, control_hz: physics and low-level control period rates [Hz].
+        decision_hz: the policy's decision rate [Hz] (must divide control_hz); the command is held
+            between decisions.
+        perception: rays and height map (`rl.perception`); route: the geodesic potential (`rl.route`).
         city_split: "train" or "eval": which seed range the city pool comes from.
         city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
         cities: city generator parameter ranges; tasks: start/goal distribution.
@@ -57,10 +66,11 @@ class NavConfig:
     vehicle: str = "small_quad"
     physics_hz: float = 500.0
     control_hz: float = 50.0
-    k_buildings: int = 5
-    sensing_range_m: float = 30.0
+    decision_hz: float = 10.0
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    route: RouteConfig = field(default_factory=RouteConfig)
     city_split: str = "train"
-    city_pool_size: int = 128
+    city_pool_size: int = 1024
     city_pool_offset: int = 0
     cities: CityDistribution = field(default_factory=CityDistribution)
     tasks: TaskDistribution = field(default_factory=TaskDistribution)
@@ -74,8 +84,16 @@ class NavConfig:
         if self.city_split not in ("train", "eval"):
             raise ValueError(f"city_split must be 'train' or 'eval', got {self.city_split!r}")
         TurbulenceLevel.parse(self.turbulence)
-        if self.k_buildings < 1 or self.sensing_range_m <= 0 or self.city_pool_size < 1 or self.wind_pool_size < 1:
-            raise ValueError("k_buildings, sensing_range_m, city_pool_size and wind_pool_size must be positive")
+        if self.city_pool_size < 1 or self.wind_pool_size < 1:
+            raise ValueError("city_pool_size and wind_pool_size must be positive")
+        ratio = self.control_hz / self.decision_hz if self.decision_hz > 0 else 0.0
+        if self.decision_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(f"decision_hz {self.decision_hz} must divide control_hz {self.control_hz}")
+
+    @property
+    def action_repeat(self) -> int:
+        """Control periods per decision."""
+        return int(round(self.control_hz / self.decision_hz))
 
     def city_seeds(self) -> list[int]:
         """The pool's city seeds."""
@@ -91,10 +109,26 @@ class NavConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> NavConfig:
+        """The inverse of `to_dict`.
+
+        Raises:
+            ValueError: a key this version does not know (e.g. a policy written by an older
+                version), naming it.
+        """
         d = dict(d)
-        d["cities"] = CityDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["cities"].items()})
-        d["tasks"] = TaskDistribution(**{k: tuple(v) if isinstance(v, list) else v for k, v in d["tasks"].items()})
-        d["reward"] = RewardConfig(**d["reward"])
+        nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
+                  "perception": PerceptionConfig, "route": RouteConfig}
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown navigation settings {unknown} (written by another version?)")
+        for key, typ in nested.items():
+            if key in d:
+                sub = d[key]
+                bad = sorted(set(sub) - {f.name for f in fields(typ)})
+                if bad:
+                    raise ValueError(f"unknown {key} settings {bad} (written by another version?)")
+                d[key] = typ(**{k: tuple(v) if isinstance(v, list) else v for k, v in sub.items()})
         return cls(**d)
 
 
@@ -107,37 +141,38 @@ class FixedEpisodes:
 
 
 class NavWorld:
-    """What the slots share (built once): vehicle, compiled dynamics, atmosphere, cities, sensor, wind pool."""
+    """What the slots share (built once): vehicle, compiled dynamics, atmosphere, cities, sensors, wind pool."""
 
     def __init__(self, config: NavConfig, fixed: FixedEpisodes | None = None,
                  dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | None = None) -> None:
         self.config = config
         self.vehicle: VehicleParams = dynamics.params if dynamics is not None else load_vehicle(config.vehicle)
         self.dynamics = dynamics or VehicleDynamics(self.vehicle, config.physics_hz, config.control_hz)
+        if abs(self.dynamics.control_hz - config.control_hz) > 1e-9:
+            raise ValueError(f"dynamics run at {self.dynamics.control_hz} Hz control, the task at {config.control_hz}")
         self.atmosphere = atmosphere or Atmosphere.from_jsbsim(AtmosphereConditions(0.0, 0.0), z_max_m=400.0)
         self.fixed = fixed
         if fixed is not None:
             self.cities = list(fixed.cities)
         else:
             self.cities = [config.cities.city(s) for s in config.city_seeds()]
-        self.sensor = BoxSensor(self.cities, config.k_buildings, config.sensing_range_m,
-                                self.vehicle.collision_radius_m)
+        radius = self.vehicle.collision_radius_m
+        self.clearance_sensor = BoxSensor(self.cities, 1, CLEARANCE_RANGE_M, radius)
+        self.perception = Perception(self.cities, radius, config.perception)
         self.lo = np.array([c.bounds_min_m for c in self.cities])
         self.hi = np.array([c.bounds_max_m for c in self.cities])
+        cell = config.route.cell_m
+        self.route_cells = (int(np.ceil(((self.hi - self.lo)[:, 1] / cell).max())) + 1,
+                            int(np.ceil(((self.hi - self.lo)[:, 0] / cell).max())) + 1)
         level = TurbulenceLevel.parse(config.turbulence)
         self.turbulent = level is not TurbulenceLevel.NONE
+        self.gust_series = []
         if self.turbulent:
             cond = WindConditions((0.0, 0.0, 0.0), level)
-            series = [gust_series(cond, 7919 * (j + 1), config.wind_series_s, 20.0,
-                                  self.vehicle.controller.max_speed_m_s) for j in range(config.wind_pool_size)]
-            self.gusts = np.stack([s.gust_enu_m_s for s in series])
-            self.gust_dt = series[0].dt_s
-            self.gust_series = series
-        else:
-            self.gusts = np.zeros((1, 2, 3))
-            self.gust_dt = math.inf
-            self.gust_series = []
-        self.obs_size = obs_size(config.k_buildings)
+            self.gust_series = [gust_series(cond, 7919 * (j + 1), config.wind_series_s, 20.0,
+                                            self.vehicle.controller.max_speed_m_s)
+                                for j in range(config.wind_pool_size)]
+        self.obs_size = obs_size(config.perception)
 
 
 class NavBatch:
@@ -150,7 +185,7 @@ class NavBatch:
 
     def __init__(self, world: NavWorld, n: int) -> None:
         self.world, self.n = world, int(n)
-        p = world.vehicle
+        cfg = world.config
         nx = world.dynamics.layout.nx
         self.x = np.zeros((n, nx))
         self.xi = np.zeros((n, 3))
@@ -161,21 +196,23 @@ class NavBatch:
         self.goal_radius = np.ones(n)
         self.timeout = np.ones(n)
         self.yaw = np.zeros(n)
-        self.steady = np.zeros((n, 3))
-        self.gust_idx = np.zeros(n, dtype=np.int64)
-        self.gust_k0 = np.zeros(n, dtype=np.int64)
-        self.dist = np.zeros(n)
+        self.route_m = np.zeros(n)
         self.clear = np.zeros(n)
         self.episode_return = np.zeros(n)
         self.episode_len = np.zeros(n, dtype=np.int64)
         self.episode_count = np.zeros(n, dtype=np.int64)
         self.rngs: list[np.random.Generator] = [np.random.Generator(np.random.PCG64(i)) for i in range(n)]
+        self.winds = WindBank(world.gust_series, n)
+        self.sim = BatchSimulator(world.dynamics, world.atmosphere, self.winds)
+        self.routes = RouteBank(n, world.route_cells)
+        self.memory = PilotMemory.empty(n, cfg.decision_hz)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
-        self._radius = p.collision_radius_m
+        self._radius = world.vehicle.collision_radius_m
         self.lo = np.zeros((n, 3))
         self.hi = np.zeros((n, 3))
         self._period = 1.0 / world.dynamics.control_hz
         self.city_of_slot: np.ndarray | None = None  # evaluation: slot i always flies in city city_of_slot[i]
+        self.difficulty = 1.0  # the training curriculum's task difficulty (see TaskDistribution.sample)
 
     # -- episodes ----------------------------------------------------------------------------------
     def seed(self, seeds: Sequence[int]) -> None:
@@ -195,16 +232,18 @@ class NavBatch:
                 ci = int(rng.integers(len(w.cities)))
                 if self.city_of_slot is not None:
                     ci = int(self.city_of_slot[i])
-                task = cfg.tasks.sample(w.cities[ci], rng, p.collision_radius_m, p.controller.max_speed_m_s)
+                task = cfg.tasks.sample(w.cities[ci], rng, p.collision_radius_m, p.controller.max_speed_m_s,
+                                        difficulty=self.difficulty)
             speed = rng.uniform(0.0, cfg.steady_wind_max_m_s)
-            heading = rng.uniform(-math.pi, math.pi)
-            self.steady[i] = (speed * math.cos(heading), speed * math.sin(heading), 0.0)
-            self.gust_idx[i] = int(rng.integers(w.gusts.shape[0]))
+            heading = rng.uniform(-np.pi, np.pi)
+            series = int(rng.integers(max(1, len(w.gust_series))))
+            start = 0
             if w.turbulent:
-                span = w.gusts.shape[1] - 2 - math.ceil((task.timeout_s + 1.0) / w.gust_dt)
+                span = self.winds.samples - 2 - int(np.ceil((task.timeout_s + 1.0) / self.winds.dt_s))
                 if span < 1:
                     raise ValueError(f"wind_series_s {cfg.wind_series_s} s is too short for a {task.timeout_s} s episode")
-                self.gust_k0[i] = int(rng.integers(span))
+                start = int(rng.integers(span))
+            self.winds.assign(i, (speed * np.cos(heading), speed * np.sin(heading), 0.0), series, start)
             self.city[i] = ci
             self.lo[i], self.hi[i] = w.lo[ci], w.hi[ci]
             self.start[i], self.goal[i] = task.start_m, task.goal_m
@@ -213,13 +252,17 @@ class NavBatch:
                                     density_ratio=w.atmosphere.density_ratio(task.start_m[2]))
             self.xi[i] = 0.0
             self.t[i] = 0.0
-            self.dist[i] = float(np.linalg.norm(self.goal[i] - self.start[i]))
+            self.routes.set(i, route_for(w.cities[ci], task, p.collision_radius_m, cfg.route))
             self.episode_return[i] = 0.0
             self.episode_len[i] = 0
             self.episode_count[i] += 1
         idx = np.asarray(idx, dtype=np.int64)
         if len(idx):
-            self._sense(idx)
+            pos = self.x[idx, 0:3]
+            self.route_m[idx] = self.routes.potential(pos, idx)
+            self.clear[idx] = w.clearance_sensor.clearance(pos, self.city[idx])
+            self.memory.start(idx, pos, self.goal[idx], self.route_m[idx])
+            self._observe(idx)
 
     def task(self, i: int) -> Task:
         """Slot i's current task."""
@@ -228,106 +271,113 @@ class NavBatch:
 
     def wind_field(self, i: int) -> WindField:
         """Slot i's wind as a `WindField` (the same numbers the batch uses), for flying the episode elsewhere."""
-        w = self.world
-        if not w.turbulent:
-            return WindField(self.steady[i])
-        s = w.gust_series[int(self.gust_idx[i])]
-        k0 = int(self.gust_k0[i])
-        g = GustSeries(s.t_s[: len(s.t_s) - k0], s.gust_enu_m_s[k0:], s.dt_s, s.turbulence, s.seed,
-                       s.airspeed_m_s, s.height_agl_m)
-        return WindField(self.steady[i], g)
+        return self.winds.field(i)
 
     @property
     def observations(self) -> np.ndarray:
         return self._obs
 
     # -- stepping ----------------------------------------------------------------------------------
-    def _wind(self, t_mid: np.ndarray) -> np.ndarray:
+    def _observe(self, idx: np.ndarray) -> None:
+        """Recompute the observations of slots idx from their current state and memory."""
         w = self.world
-        if not w.turbulent:
-            return self.steady.copy()
-        # Same arithmetic as WindField.wind_enu_m_s on the series started at sample k0.
-        s = t_mid / w.gust_dt
-        i = s.astype(np.int64)
-        f = (s - i)[:, None]
-        row = self.gust_k0 + i
-        lo = w.gusts[self.gust_idx, row] + self.steady
-        hi = w.gusts[self.gust_idx, row + 1] + self.steady
-        return lo + f * (hi - lo)
+        self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
+                                       self.t[idx] / self.timeout[idx], self.city[idx], w.perception, self.routes,
+                                       self.memory, w.config, w.vehicle)
 
-    def _sense(self, idx: np.ndarray) -> None:
-        w = self.world
-        r = w.sensor.query(self.x[idx, 0:3], self.city[idx])
-        self.clear[idx] = r.clearance_m
-        self._obs[idx] = build_observations(
-            self.x[idx], self.goal[idx], self.lo[idx], self.hi[idx], r.nearest_m, r.distance_m,
-            w.config.sensing_range_m, w.vehicle.controller.max_speed_m_s)
+    def _collided(self, idx: np.ndarray, states: np.ndarray, finite: np.ndarray) -> np.ndarray:
+        """Collision at any substep (M,) of slots idx with substep states (M, S, nx)."""
+        pos = states[:, :, 0:3]
+        rel = pos - self.x[idx, None, 0:3]
+        disp = np.sqrt(np.einsum("nki,nki->nk", rel, rel).max(axis=1))
+        disp = np.where(finite, disp, 0.0)
+        near = np.flatnonzero(finite & (self.clear[idx] - disp <= 0.0))
+        hit = np.zeros(len(idx), dtype=bool)
+        if len(near):
+            nsub = pos.shape[1]
+            c = self.world.clearance_sensor.clearance(pos[near].reshape(-1, 3), np.repeat(self.city[idx[near]], nsub))
+            hit[near] = episode.collided(c.reshape(len(near), nsub))
+        return hit
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
-        """Advance every slot one decision period.
+        """Advance every slot one decision.
 
         Returns:
             observations (N, obs) after the step (before any reset), rewards (N,), terminated (N,),
             truncated (N,), infos (per slot: `reward_terms`, `outcome` when the episode ended,
-            `clearance_m`, `distance_to_goal_m`, `t_s`).
+            `clearance_m`, `distance_to_goal_m`, `route_m`, `t_s`).
         """
-        w = self.world
-        dyn, p = w.dynamics, w.vehicle
-        cmd = action_to_command(actions, p, self.yaw)
-        env = np.empty((self.n, 4))
-        env[:, 0:3] = self._wind(self.t + 0.5 * self._period)
-        if self.n == 1:  # the scalar lookup (same arithmetic) is much cheaper for one vehicle
-            env[0, 3] = w.atmosphere.density_ratio_clamped(float(self.x[0, 2]))
-        else:
-            env[:, 3] = w.atmosphere.density_ratio_clamped(self.x[:, 2])
-        r = dyn.period_velocity_batch(self.x, self.xi, cmd, env)
-        states = r.states  # (N, nsub, nx)
-        pos = states[:, :, 0:3]
-        finite = np.isfinite(states).all(axis=(1, 2))
-        all_finite = bool(finite.all())
-        # Collision at every substep: skip vehicles that provably cannot have reached an obstacle.
-        rel = pos - self.x[:, None, 0:3]
-        disp = np.sqrt(np.einsum("nki,nki->nk", rel, rel).max(axis=1))
-        if not all_finite:
-            disp = np.where(finite, disp, 0.0)
-        near = np.flatnonzero(finite & (self.clear - disp <= 0.0))
-        collided = np.zeros(self.n, dtype=bool)
-        if len(near):
-            nsub = pos.shape[1]
-            c = w.sensor.clearance(pos[near].reshape(-1, 3), np.repeat(self.city[near], nsub))
-            collided[near] = np.any(c.reshape(len(near), nsub) < 0.0, axis=1)
-        inside = ((pos >= self.lo[:, None, :]) & (pos <= self.hi[:, None, :])).all(axis=(1, 2))
-        self.t = self.t + self._period
-        if all_finite:
-            self.x, self.xi = r.final_state, r.ctrl_state
-        else:
-            self.x = np.where(finite[:, None], r.final_state, self.x)
-            self.xi = np.where(finite[:, None], r.ctrl_state, self.xi)
-        nonfinite = ~finite
-        collision = finite & collided
-        out = finite & ~collided & ~inside
-        g = self.x[:, 0:3] - self.goal
-        d_after = np.sqrt(np.add.reduce(g * g, axis=1))
-        arrived = finite & ~collided & inside & (d_after <= self.goal_radius)
-        self._sense(np.arange(self.n))
-        crashed = nonfinite | collision | out
-        terms = reward_terms(w.config.reward, self.dist, d_after, self.clear, arrived, crashed)
-        terms["progress"] = np.where(finite, terms["progress"], 0.0)
-        reward = sum(terms[k] for k in TERMS)
-        self.dist = d_after
-        terminated = crashed | arrived
-        truncated = ~terminated & (self.t >= self.timeout - 1e-9)
+        w, cfg = self.world, self.world.config
+        act = np.minimum(np.maximum(np.asarray(actions, dtype=np.float64).reshape(self.n, 3), -1.0), 1.0)
+        cmd = action_to_command(act, self.memory.heading_rad, w.vehicle, self.yaw)
+        code = np.full(self.n, episode.RUNNING, dtype=np.int64)
+        elapsed = np.zeros(self.n)
+        route_before, clear_before = self.route_m.copy(), self.clear.copy()
+        for _ in range(cfg.action_repeat):
+            idx = np.flatnonzero(code == episode.RUNNING)
+            if not len(idx):
+                break
+            r = self.sim.step_velocity_batch(self.x[idx], self.xi[idx], cmd[idx], self.t[idx], idx)
+            finite = np.isfinite(r.states).all(axis=(1, 2))
+            hit = self._collided(idx, r.states, finite)
+            c = episode.period_outcome(r.states, hit, self.lo[idx], self.hi[idx], self.goal[idx], self.goal_radius[idx])
+            self.t[idx] = self.t[idx] + self._period
+            elapsed[idx] += self._period
+            ok = idx[finite]
+            self.x[ok], self.xi[ok] = r.final_state[finite], r.ctrl_state[finite]
+            c[(c == episode.RUNNING) & episode.timed_out(self.t[idx], self.timeout[idx])] = episode.TIMEOUT
+            code[idx] = c
+            self.clear[ok] = w.clearance_sensor.clearance(self.x[ok, 0:3], self.city[ok])
+        everyone = np.arange(self.n)
+        pos = self.x[:, 0:3]
+        self.route_m = self.routes.potential(pos, everyone)
+        arrived = code == episode.SUCCESS
+        crashed = (code == episode.COLLISION) | (code == episode.OUT_OF_BOUNDS) | (code == episode.NONFINITE)
+        terms = reward_terms(cfg.reward, route_before, self.route_m, clear_before, self.clear, elapsed, arrived, crashed)
+        reward = terms[TERMS[0]].copy()
+        for k in TERMS[1:]:
+            reward += terms[k]
+        m = self.memory
+        m.record(everyone, act, self.route_m)
+        m.heading_rad[:] = goal_heading(pos, self.goal, m.heading_rad)
+        self._observe(everyone)
+        terminated = arrived | crashed
+        truncated = code == episode.TIMEOUT
         self.episode_return += reward
         self.episode_len += 1
+        g = self.goal - pos
+        dist = np.sqrt(np.add.reduce(g * g, axis=1))
         infos = []
         for i in range(self.n):
             info = {"reward_terms": {k: float(terms[k][i]) for k in TERMS}, "clearance_m": float(self.clear[i]),
-                    "distance_to_goal_m": float(d_after[i]), "t_s": float(self.t[i])}
-            if terminated[i] or truncated[i]:
-                info["outcome"] = ("nonfinite" if nonfinite[i] else "collision" if collision[i] else
-                                   "out_of_bounds" if out[i] else "success" if arrived[i] else "timeout")
+                    "distance_to_goal_m": float(dist[i]), "route_m": float(self.route_m[i]), "t_s": float(self.t[i])}
+            if code[i] != episode.RUNNING:
+                info["outcome"] = episode.OUTCOME_OF_CODE[int(code[i])]
                 info["is_success"] = bool(arrived[i])
                 info["city"] = w.cities[int(self.city[i])].name
             infos.append(info)
         return self._obs.copy(), reward.astype(np.float32), terminated, truncated, infos
 
+
+def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig):
+    """The geodesic route field of a task: around buildings taller than the higher of start and goal."""
+    ref_alt = max(task.start_m[2], task.goal_m[2])
+    return route_field(city, task.goal_m, ref_alt, radius_m, config)
+
+
+def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
+                  t_frac: np.ndarray, city: np.ndarray, perception: Perception, routes: RouteBank,
+                  memory: PilotMemory, config: NavConfig, vehicle: VehicleParams) -> np.ndarray:
+    """Observations (M, obs) of slots idx (the env's batch, or the policy agent's single slot).
+
+    Args:
+        idx: (M,) slots of `routes` and `memory`; x: (M, nx) states; goal_m: (M, 3) [m];
+        route_m: (M,) Φ [m]; clearance_m: (M,) [m]; t_frac: (M,) time used / limit;
+        city: (M,) city indices of `perception`.
+    """
+    pos = x[:, 0:3]
+    heading = memory.heading_rad[idx]
+    reading = perception.observe(pos, heading, city)
+    return build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m,
+                              memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
+                              config.perception, vehicle, config.decision_hz)

@@ -1,87 +1,181 @@
-"""The learned pilot's observation and action, shared by the environment and the policy agent.
+"""The learned pilot's observation, action and short memory, shared by the environment and the agent.
 
-Observation (float32, `obs_size(k)` = 16 + 4k elements), element by element, for one vehicle at a
-decision (world ENU, body-independent; every element roughly within [-1, 1] in normal flight and
-clipped to ±OBS_CLIP):
+Everything is expressed in the **goal frame**: a horizontal frame whose x' axis points from the
+vehicle towards the goal (y' to its left, z up). The policy never sees absolute position or the
+city's size, so what it learns transfers between cities, headings and map extents. The frame's
+heading is held while the goal is within `HEADING_HOLD_M` horizontally (there the bearing is
+ill-defined and would spin the whole observation).
 
-====================  =====  =======================================================================
-elements              count  meaning
-====================  =====  =======================================================================
-0:3   position          3    position in the flight volume, 2(p - lo)/(hi - lo) - 1 (±1 at the sides)
-3:6   goal vector       3    (goal - p) / GOAL_SCALE_M (100 m)
-6:9   goal direction    3    (goal - p) / |goal - p| (zero at the goal)
-9:12  velocity          3    world velocity / the vehicle's max horizontal speed
-12:15 angular velocity  3    body rates / RATE_SCALE_RAD_S (3 rad/s)
-15    altitude          1    z / ALTITUDE_SCALE_M (100 m)
-16:   buildings        4k    for each of the k nearest buildings within the sensing range, nearest
-                             first: (nearest surface point - p) / range (3) and the sphere's signed
-                             clearance / range (1); rows beyond the range are (0, 0, 0, 1)
-====================  =====  =======================================================================
+Observation (float32, `obs_size(perception)` = 15 + n_rays + grid_cells² elements):
 
-Action: a = (a_e, a_n, a_u) in [-1, 1]^3, scaled to the vehicle's limits: horizontal velocity
-command (a_e, a_n) × max horizontal speed (its norm clipped to the max speed), vertical a_u × max
-vertical speed. The heading is held at the episode's start yaw. The low-level controller
-(`uam_fdm.control`) turns the velocity command into rotor speeds at the physics rate.
+=====================  =====  ==================================================================
+elements               count  meaning
+=====================  =====  ==================================================================
+0   goal distance        1    horizontal distance to the goal / 100 m
+1   goal height          1    (goal z - z) / 20 m
+2   route distance       1    geodesic distance-to-go Φ (`rl.route`, around the buildings) / 100 m
+3:5 route direction      2    the route's horizontal direction (steepest descent of Φ), goal frame
+5:8 velocity             3    (v_x', v_y') / max horizontal speed, v_z / max vertical speed
+8   altitude             1    z / 50 m
+9   clearance            1    signed clearance of the collision sphere to buildings or the ground
+                              / 30 m (capped at 1)
+10:13 previous action    3    the action of the previous decision (memory)
+13  progress stall       1    (Φ now - Φ 2 s ago) / (max speed x 2 s): about -1 at full progress,
+                              0 when stuck (memory)
+14  time used            1    t / time limit (the time limit is part of the task)
+15: rays              n_rays  horizontal sphere-cast distances / range, ray j at bearing 2πj/n
+                              counter-clockwise from x' (`rl.perception`)
+ .. height map        g²     (roof height - z) / 20 m, clipped to [-1, 1], of a g x g grid of
+                              cells around the vehicle in the goal frame (x' index slow)
+=====================  =====  ==================================================================
+
+Action: a = (a_x', a_y', a_z) in [-1, 1]³ in the goal frame: horizontal velocity command
+(a_x', a_y') x max horizontal speed (its norm clipped to the max speed) rotated to the world, and
+vertical a_z x max vertical speed. The heading is held at the episode's start yaw. The low-level
+controller (`uam_fdm.control`) turns the velocity command into rotor speeds at the physics rate;
+the command is held for the whole decision period (several control periods).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from rl.perception import PerceptionConfig, PerceptionReading
 from uam_fdm.params import VehicleParams
 
-GOAL_SCALE_M = 100.0
-RATE_SCALE_RAD_S = 3.0
-ALTITUDE_SCALE_M = 100.0
+N_BASE = 15
 OBS_CLIP = 10.0
-N_BASE = 16
+GOAL_SCALE_M = 100.0
+HEIGHT_SCALE_M = 20.0
+ALTITUDE_SCALE_M = 50.0
+CLEARANCE_SCALE_M = 30.0
+HEADING_HOLD_M = 1.0
+STALL_WINDOW_S = 2.0
 
 
-def obs_size(k: int) -> int:
-    """Observation length for k buildings."""
-    return N_BASE + 4 * k
+def obs_size(perception: PerceptionConfig) -> int:
+    """Observation length for a perception configuration."""
+    return N_BASE + perception.n_rays + perception.grid_cells ** 2
 
 
-def build_observations(x: np.ndarray, goal: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                       nearest_m: np.ndarray, clearance_k_m: np.ndarray, range_m: float,
-                       max_speed_m_s: float) -> np.ndarray:
-    """Observations (N, 16 + 4k) float32.
+def goal_heading(p_m: np.ndarray, goal_m: np.ndarray, held_rad: np.ndarray) -> np.ndarray:
+    """Goal-frame headings (N,) [rad, CCW from east]: the bearing to the goal, or `held_rad` within HEADING_HOLD_M."""
+    d = goal_m[:, 0:2] - p_m[:, 0:2]
+    far = np.sqrt(np.add.reduce(d * d, axis=1)) > HEADING_HOLD_M
+    return np.where(far, np.arctan2(d[:, 1], d[:, 0]), held_rad)
+
+
+def to_goal_frame(v_world: np.ndarray, heading_rad: np.ndarray) -> np.ndarray:
+    """Rotate horizontal world vectors (N, 2) into the goal frame (x' along heading)."""
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    return np.stack([c * v_world[:, 0] + s * v_world[:, 1], c * v_world[:, 1] - s * v_world[:, 0]], axis=1)
+
+
+def to_world_frame(v_goal: np.ndarray, heading_rad: np.ndarray) -> np.ndarray:
+    """Rotate horizontal goal-frame vectors (N, 2) into the world (ENU)."""
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    return np.stack([c * v_goal[:, 0] - s * v_goal[:, 1], s * v_goal[:, 0] + c * v_goal[:, 1]], axis=1)
+
+
+@dataclass
+class PilotMemory:
+    """What the observation remembers between decisions, for N vehicles (the env's slots or one agent).
+
+    Attributes:
+        heading_rad: (N,) goal-frame heading.
+        prev_action: (N, 3) previous action.
+        route_history_m: (N, H) route distance Φ at the last H decisions (newest last).
+    """
+
+    heading_rad: np.ndarray
+    prev_action: np.ndarray
+    route_history_m: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int, decision_hz: float) -> PilotMemory:
+        h = max(1, int(round(STALL_WINDOW_S * decision_hz)))
+        return cls(np.zeros(n), np.zeros((n, 3)), np.zeros((n, h)))
+
+    def start(self, idx: np.ndarray, p_m: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray) -> None:
+        """New episodes in slots idx: positions, goals (M, 3) [m] and route distances (M,) [m]."""
+        d = goal_m[:, 0:2] - p_m[:, 0:2]
+        self.heading_rad[idx] = np.arctan2(d[:, 1], d[:, 0])
+        self.prev_action[idx] = 0.0
+        self.route_history_m[idx] = route_m[:, None]
+
+    def record(self, idx: np.ndarray, action: np.ndarray, route_m: np.ndarray) -> None:
+        """After a decision in slots idx: the action taken (M, 3) and the route distance now (M,)."""
+        self.prev_action[idx] = action
+        hist = self.route_history_m[idx]
+        hist[:, :-1] = hist[:, 1:]
+        hist[:, -1] = route_m
+        self.route_history_m[idx] = hist
+
+
+def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarray, route_m: np.ndarray,
+                       route_dir: np.ndarray, clearance_m: np.ndarray, prev_action: np.ndarray,
+                       route_history_m: np.ndarray, t_frac: np.ndarray, reading: PerceptionReading,
+                       perception: PerceptionConfig, vehicle: VehicleParams, decision_hz: float) -> np.ndarray:
+    """Observations (N, obs_size) float32 (see the module table).
 
     Args:
         x: states (N, 13 + n) (see `uam_fdm.model`).
-        goal: goals (N, 3) ENU [m].
-        lo, hi: flight-volume corners (N, 3) [m].
-        nearest_m: nearest building points (N, k, 3) [m] (the query point itself for empty rows).
-        clearance_k_m: signed clearances (N, k) [m], `range_m` for empty rows.
-        range_m: sensing range [m].
-        max_speed_m_s: the vehicle's max horizontal speed [m/s].
+        goal_m: goals (N, 3) ENU [m].
+        heading_rad: goal-frame headings (N,) [rad].
+        route_m: geodesic distance-to-go Φ (N,) [m]; route_dir: its world direction (N, 2).
+        clearance_m: clearance (N,) [m].
+        prev_action: (N, 3); route_history_m: (N, H) Φ at the last H decisions [m].
+        t_frac: time used / time limit (N,).
+        reading: the perception (rays, roof heights) in the goal frame.
+        perception: its configuration; vehicle: the vehicle (speed limits).
+        decision_hz: decision rate [Hz] (scales the stall window).
     """
-    n = x.shape[0]
-    k = nearest_m.shape[1]
     p = x[:, 0:3]
-    g = goal - p
-    dist = np.sqrt(np.add.reduce(g * g, axis=1))[:, None]
-    rel = nearest_m - p[:, None, :]
-    out = np.concatenate([
-        2.0 * (p - lo) / (hi - lo) - 1.0,
-        g / GOAL_SCALE_M,
-        g / np.maximum(dist, 1e-9),
-        x[:, 3:6] / max_speed_m_s,
-        x[:, 10:13] / RATE_SCALE_RAD_S,
-        p[:, 2:3] / ALTITUDE_SCALE_M,
-        np.concatenate([rel, clearance_k_m[:, :, None]], axis=2).reshape(n, 4 * k) / range_m,
+    c = vehicle.controller
+    g = goal_m - p
+    d_h = np.sqrt(g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1])
+    v_goal = to_goal_frame(x[:, 3:5], heading_rad)
+    window_s = route_history_m.shape[1] / decision_hz
+    stall = (route_m - route_history_m[:, 0]) / (c.max_speed_m_s * window_s)
+    base = np.stack([
+        d_h / GOAL_SCALE_M,
+        g[:, 2] / HEIGHT_SCALE_M,
+        route_m / GOAL_SCALE_M,
+        *to_goal_frame(route_dir, heading_rad).T,
+        v_goal[:, 0] / c.max_speed_m_s,
+        v_goal[:, 1] / c.max_speed_m_s,
+        x[:, 5] / c.max_vertical_speed_m_s,
+        p[:, 2] / ALTITUDE_SCALE_M,
+        np.minimum(clearance_m / CLEARANCE_SCALE_M, 1.0),
+        *prev_action.T,
+        stall,
+        t_frac,
     ], axis=1)
+    roofs = np.clip((reading.roof_m - p[:, 2:3]) / HEIGHT_SCALE_M, -1.0, 1.0)
+    out = np.concatenate([base, reading.ray_m / perception.ray_range_m, roofs], axis=1)
     np.minimum(np.maximum(out, -OBS_CLIP, out=out), OBS_CLIP, out=out)
     return out.astype(np.float32)
 
 
-def action_to_command(action: np.ndarray, p: VehicleParams, yaw_rad: np.ndarray | float) -> np.ndarray:
-    """Velocity commands (N, 4) = [v_e, v_n, v_u (m/s), yaw (rad)] from actions (N, 3) in [-1, 1]."""
+def action_to_command(action: np.ndarray, heading_rad: np.ndarray, p: VehicleParams,
+                      yaw_rad: np.ndarray | float) -> np.ndarray:
+    """Velocity commands (N, 4) = [v_e, v_n, v_u (m/s), yaw (rad)] from goal-frame actions (N, 3) in [-1, 1]."""
     a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64).reshape(-1, 3), -1.0), 1.0)
     c = p.controller
-    horiz = a[:, 0:2] * c.max_speed_m_s
+    horiz = to_world_frame(a[:, 0:2], heading_rad) * c.max_speed_m_s
     norm = np.sqrt(np.add.reduce(horiz * horiz, axis=1))
     cmd = np.empty((a.shape[0], 4))
     cmd[:, 0:2] = horiz * np.minimum(1.0, c.max_speed_m_s / np.maximum(norm, 1e-12))[:, None]
     cmd[:, 2] = a[:, 2] * c.max_vertical_speed_m_s
     cmd[:, 3] = yaw_rad
     return cmd
+
+
+def world_velocity_to_action(v_frac: np.ndarray, heading_rad: np.ndarray) -> np.ndarray:
+    """Goal-frame actions (N, 3) for world velocity commands given as fractions of the limits (N, 3)."""
+    out = np.empty((len(v_frac), 3))
+    out[:, 0:2] = to_goal_frame(v_frac[:, 0:2], heading_rad)
+    out[:, 2] = v_frac[:, 2]
+    return np.clip(out, -1.0, 1.0)
+

@@ -9,7 +9,6 @@ action box, where the velocity command responds to it; exploration noise is unch
 from __future__ import annotations
 
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.running_mean_std import RunningMeanStd
 from torch import nn
 
 
@@ -20,18 +19,3 @@ class TanhMeanPolicy(ActorCriticPolicy):
         super()._build(lr_schedule)
         # Same Linear (and parameters, already in the optimizer), followed by tanh.
         self.action_net = nn.Sequential(self.action_net, nn.Tanh())
-
-
-class FrozenRunningMeanStd(RunningMeanStd):
-    """Observation statistics that no longer update (SB3's `RunningMeanStd`, `update` disabled).
-
-    Installed in `VecNormalize` after behaviour cloning: the cloned network was fitted to these
-    statistics, and letting them drift with the PPO rollouts shifts every input of the network.
-    """
-
-    def __init__(self, mean, var, count: float) -> None:
-        super().__init__(shape=mean.shape)
-        self.mean, self.var, self.count = mean.copy(), var.copy(), count
-
-    def update(self, arr) -> None:  # the statistics stay as cloned
-        return None

@@ -1,16 +1,21 @@
-"""The learned pilot's reward, term by term (as in the original demo, with its terms made explicit).
+"""The learned pilot's reward, term by term; every weight is per metre or per second, not per step.
 
-Per decision (one control period, 20 ms at 50 Hz), summed into `total`; each term is also
-reported separately in the environment's `info["reward_terms"]`:
+Per decision (whatever the decision rate), summed into the reward; each term is also reported in
+the environment's `info["reward_terms"]`. Δt is the flight time the decision covered (shorter when
+the episode ended inside it), Φ the geodesic distance-to-go around the buildings (`rl.route`):
 
 ===========  ==================================================================================
 term         value
 ===========  ==================================================================================
-progress     progress_per_m × (d_before - d_after): positive when approaching the goal, negative
-             when moving away (d = distance to the goal [m])
-proximity    -proximity_weight × max(0, 1 - clearance / safe_distance_m)²: grows as the vehicle's
-             collision sphere gets closer than safe_distance_m to a building or the ground
-time         -time_penalty per decision (flying slowly costs)
+progress     progress_per_m x (Φ_before - Φ_after). A potential-based shaping term (Ng et al.
+             1999): it sums to Φ(start) - Φ(end) along any path, so it cannot be farmed, and
+             since Φ goes around buildings it has no local minima behind them (Euclidean
+             progress does: the old pilot's every time-out was stuck behind a building)
+time         -time_per_s x Δt (flying slowly costs)
+danger       -danger_per_s x Δt x max(0, 1 - TTC / ttc_horizon_s)², TTC = clearance / closing
+             speed (the clearance's rate of decrease over the decision): grows with closing speed,
+             not only with closeness, so braking before a wall pays and crashing fast does not
+proximity    -proximity_per_s x Δt x max(0, 1 - clearance / proximity_m)²: discourages grazing
 arrival      +arrival_bonus on reaching the goal radius
 collision    -collision_penalty on a collision, leaving the flight volume or a non-finite state
 ===========  ==================================================================================
@@ -21,36 +26,53 @@ from dataclasses import dataclass
 
 import numpy as np
 
-TERMS = ("progress", "proximity", "time", "arrival", "collision")
+TERMS = ("progress", "time", "danger", "proximity", "arrival", "collision")
 
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """Reward weights (see the module table).
-
-    The proximity and time terms are per decision (50 per second), so they are kept small: with a
-    per-step proximity cost comparable to the collision penalty over a few seconds, crashing fast
-    pays better than flying carefully past a building (measured: the policy then never brakes).
-    """
+    """Reward weights (see the module table; per metre, per second or per event)."""
 
     progress_per_m: float = 1.0
-    proximity_weight: float = 0.03
-    safe_distance_m: float = 5.0
-    time_penalty: float = 0.005
-    arrival_bonus: float = 100.0
-    collision_penalty: float = 200.0
+    time_per_s: float = 0.5
+    danger_per_s: float = 4.0
+    ttc_horizon_s: float = 1.5
+    proximity_per_s: float = 2.0
+    proximity_m: float = 2.0
+    arrival_bonus: float = 50.0
+    collision_penalty: float = 100.0
+
+    def __post_init__(self) -> None:
+        for k, v in self.__dict__.items():
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"reward.{k} must be a finite number >= 0, got {v!r}")
+        if self.ttc_horizon_s <= 0 or self.proximity_m <= 0:
+            raise ValueError("reward.ttc_horizon_s and reward.proximity_m must be > 0")
 
 
-def reward_terms(cfg: RewardConfig, d_before: np.ndarray, d_after: np.ndarray, clearance_m: np.ndarray,
+def reward_terms(cfg: RewardConfig, route_before_m: np.ndarray, route_after_m: np.ndarray,
+                 clear_before_m: np.ndarray, clear_after_m: np.ndarray, elapsed_s: np.ndarray,
                  arrived: np.ndarray, crashed: np.ndarray) -> dict[str, np.ndarray]:
-    """Each reward term (N,) for N vehicles; `crashed` = collision, out of bounds or non-finite."""
-    closeness = np.minimum(np.maximum(1.0 - clearance_m / cfg.safe_distance_m, 0.0), 1.0)  # NaN -> 0 or 1
-    closeness = np.where(np.isnan(closeness), 1.0, closeness)
-    progress = cfg.progress_per_m * (d_before - d_after)
+    """Each reward term (N,) for N vehicles over one decision (see the module table).
+
+    Args:
+        route_before_m, route_after_m: Φ at the decision's start and end [m].
+        clear_before_m, clear_after_m: clearance at the decision's start and end [m].
+        elapsed_s: flight time the decision covered [s] (> 0).
+        arrived: reached the goal; crashed: collision, out of bounds or non-finite.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        progress = cfg.progress_per_m * (route_before_m - route_after_m)
+        closing = (clear_before_m - clear_after_m) / elapsed_s
+        ttc = np.where(closing > 0.0, np.maximum(clear_after_m, 0.0) / closing, np.inf)
+        danger = np.maximum(0.0, 1.0 - ttc / cfg.ttc_horizon_s) ** 2
+        near = np.maximum(0.0, 1.0 - clear_after_m / cfg.proximity_m) ** 2
+    ok = ~crashed
     return {
-        "progress": np.where(np.isfinite(progress), progress, 0.0),
-        "proximity": -cfg.proximity_weight * closeness ** 2,
-        "time": np.full(d_before.shape, -cfg.time_penalty),
+        "progress": np.where(ok & np.isfinite(progress), progress, 0.0),
+        "time": -cfg.time_per_s * elapsed_s,
+        "danger": np.where(ok & np.isfinite(danger), -cfg.danger_per_s * elapsed_s * danger, 0.0),
+        "proximity": np.where(ok & np.isfinite(near), -cfg.proximity_per_s * elapsed_s * np.minimum(near, 1.0), 0.0),
         "arrival": np.where(arrived, cfg.arrival_bonus, 0.0),
         "collision": np.where(crashed, -cfg.collision_penalty, 0.0),
     }

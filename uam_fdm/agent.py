@@ -9,6 +9,9 @@ rate. Each decision, an agent returns an `Actuation`:
   (what the learned pilot emits: policy -> velocity command -> low-level controller -> rotors).
 
 Either way the simulator applies rotor-speed commands at every physics step and records them.
+An actuation may be held for several control periods (`hold_periods`): the learned pilot decides
+at 10 Hz over a 50 Hz low-level controller. The runner then flies the held command period by
+period, checking the episode's end rules after each, and counts one decision.
 What both pilots know (the fairness statement): the vehicle's parameters, the building map, the
 air density, and the full vehicle state at each decision (perfect state estimation). Neither
 knows the wind or its gusts.
@@ -63,17 +66,20 @@ class Observation:
 
 @dataclass(frozen=True)
 class RotorCommand:
-    """Rotor-speed commands [rad/s] (n,), held over the decision period."""
+    """Rotor-speed commands [rad/s] (n,), held over `hold_periods` control periods."""
 
     rotor_speeds_rad_s: np.ndarray
+    hold_periods: int = 1
 
 
 @dataclass(frozen=True)
 class VelocityCommand:
-    """Velocity setpoint [m/s] world ENU and heading [rad] for the low-level controller."""
+    """Velocity setpoint [m/s] world ENU and heading [rad] for the low-level controller, held over
+    `hold_periods` control periods."""
 
     velocity_enu_m_s: np.ndarray
     yaw_rad: float = 0.0
+    hold_periods: int = 1
 
     def as_vector(self) -> np.ndarray:
         return np.append(np.asarray(self.velocity_enu_m_s, float), self.yaw_rad)
@@ -101,7 +107,8 @@ class ResetInfo:
 
 @runtime_checkable
 class Agent(Protocol):
-    """A pilot. The runner calls `reset` once per episode, then `act` once per decision period."""
+    """A pilot. The runner calls `reset` once per episode, then `act` once per decision (every
+    control period, or every `hold_periods` of the previous actuation)."""
 
     name: str
 

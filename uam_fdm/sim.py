@@ -9,15 +9,39 @@ episode plus one control period.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from uam_fdm.atmosphere import Atmosphere
 from uam_fdm.control import N_CTRL_STATE
 from uam_fdm.dynamics import PeriodResult, VehicleDynamics
-from uam_fdm.wind import WindField
+from uam_fdm.wind import WindBank, WindField
+
+
+def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray | float) -> np.ndarray:
+    """The environment input [wind_e, wind_n, wind_u (m/s), σ] held over a control period.
+
+    The one rule every flight uses (the runner's `Simulator` and the learned pilot's batched
+    environment alike): the wind sampled at the period's midpoint in time (the caller passes it)
+    and the density ratio at the vehicle's altitude at the period's start (clamped to the table).
+
+    Args:
+        atmosphere: the density table.
+        wind_enu_m_s: (3,) or (N, 3) wind at the period's midpoint [m/s, world ENU].
+        z_m: altitude(s) at the period's start [m], scalar or (N,).
+
+    Returns:
+        (4,) for a scalar altitude, else (N, 4).
+    """
+    if np.ndim(z_m) == 0:  # the scalar lookup (same arithmetic) is much cheaper for one vehicle
+        w = np.asarray(wind_enu_m_s, dtype=float).reshape(3)
+        return np.array([w[0], w[1], w[2], atmosphere.density_ratio_clamped(float(z_m))])
+    env = np.empty((len(z_m), 4))
+    env[:, 0:3] = wind_enu_m_s
+    env[:, 3] = atmosphere.density_ratio_clamped(np.asarray(z_m, dtype=float))
+    return env
 
 
 @dataclass(frozen=True)
@@ -48,9 +72,7 @@ class Simulator:
 
     def env(self, x: np.ndarray, t_s: float) -> np.ndarray:
         """Environment input [wind_e, wind_n, wind_u (m/s), σ] held over the period starting at t_s."""
-        wind = self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s)
-        sigma = self.atmosphere.density_ratio_clamped(float(x[2]))
-        return np.array([wind[0], wind[1], wind[2], sigma])
+        return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s), float(x[2]))
 
     def step(self, x: np.ndarray, u: np.ndarray, t_s: float) -> PeriodResult:
         """One control period from state x at time t_s with rotor-speed commands u [rad/s] held."""
@@ -92,38 +114,43 @@ class Simulator:
 
 
 class BatchSimulator:
-    """N vehicles of one type, each with its own wind field, stepped in one compiled call.
+    """N vehicles of one type, each with its own wind, stepped in one compiled call.
 
     Args:
         dynamics: the compiled vehicle.
         atmosphere: shared atmosphere.
-        winds: one wind field per vehicle (N of them).
+        winds: one wind field per vehicle, or a `WindBank` of N vehicles.
     """
 
-    def __init__(self, dynamics: VehicleDynamics, atmosphere: Atmosphere, winds: Sequence[WindField]) -> None:
+    def __init__(self, dynamics: VehicleDynamics, atmosphere: Atmosphere,
+                 winds: Sequence[WindField] | WindBank) -> None:
         self.dynamics = dynamics
         self.atmosphere = atmosphere
-        self.winds = list(winds)
+        self.winds = winds if isinstance(winds, WindBank) else list(winds)
         self.control_period_s = 1.0 / dynamics.control_hz
 
     @property
     def n(self) -> int:
-        return len(self.winds)
+        return len(self.winds.steady) if isinstance(self.winds, WindBank) else len(self.winds)
 
-    def env(self, x: np.ndarray, t_s: np.ndarray) -> np.ndarray:
-        """Environment inputs (N, 4) for states x (N, nx) at times t_s (N,) [s]."""
-        t_mid = np.broadcast_to(np.asarray(t_s, float), (self.n,)) + 0.5 * self.control_period_s
-        env = np.empty((self.n, 4))
-        for i, wind in enumerate(self.winds):
-            env[i, :3] = wind.wind_enu_m_s(float(t_mid[i]))
-        env[:, 3] = self.atmosphere.density_ratio_clamped(x[:, 2])
-        return env
+    def env(self, x: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
+        """Environment inputs (M, 4) for vehicles `idx` (default all) in states x (M, nx) at times t_s (M,) [s]."""
+        m = x.shape[0]
+        t_mid = np.broadcast_to(np.asarray(t_s, float), (m,)) + 0.5 * self.control_period_s
+        if isinstance(self.winds, WindBank):
+            wind = self.winds.wind_enu_m_s(t_mid, idx)
+        else:
+            which = range(m) if idx is None else idx
+            wind = np.array([self.winds[int(i)].wind_enu_m_s(float(t)) for i, t in zip(which, t_mid)]).reshape(m, 3)
+        if m == 1:  # the scalar density lookup: the same numbers, cheaper
+            return period_env(self.atmosphere, wind[0], float(x[0, 2]))[None]
+        return period_env(self.atmosphere, wind, x[:, 2])
 
-    def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray) -> PeriodResult:
-        """One control period for every vehicle, rotor commands u (N, n) [rad/s] held."""
-        return self.dynamics.period_rotor_batch(x, u, self.env(x, t_s))
+    def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None) -> PeriodResult:
+        """One control period for vehicles `idx` (default all), rotor commands u (M, n) [rad/s] held."""
+        return self.dynamics.period_rotor_batch(x, u, self.env(x, t_s, idx))
 
     def step_velocity_batch(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray,
-                            t_s: np.ndarray) -> PeriodResult:
-        """One control period for every vehicle under the velocity controller; cmd (N, 4)."""
-        return self.dynamics.period_velocity_batch(x, ctrl_state, cmd, self.env(x, t_s))
+                            t_s: np.ndarray, idx: np.ndarray | None = None) -> PeriodResult:
+        """One control period for vehicles `idx` (default all) under the velocity controller; cmd (M, 4)."""
+        return self.dynamics.period_velocity_batch(x, ctrl_state, cmd, self.env(x, t_s, idx))

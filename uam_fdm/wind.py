@@ -67,6 +67,7 @@ import logging
 import math
 import operator
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -492,6 +493,71 @@ class WindField:
             f"wind queried at t={t!r} s, outside [0, {self._t_end}] s; build the WindField with "
             "duration_s >= the last time you will query (e.g. the episode timeout)"
         )
+
+
+class WindBank:
+    """The winds of N vehicles, looked up in one call (the learned pilot's batched environment).
+
+    Vehicle i flies a steady wind plus one of a few shared gust series, started `start` samples
+    in, so thousands of episodes reuse a handful of tabulated JSBSim series. Vehicle i's wind is
+    exactly (bit for bit) that of `field(i)`, the `WindField` the comparison runner flies: the same
+    pre-added rows and the same interpolation.
+
+    Args:
+        series: the shared gust series (all with the same dt_s); empty for steady wind only.
+        n: number of vehicles.
+    """
+
+    def __init__(self, series: Sequence[GustSeries], n: int) -> None:
+        self.series = list(series)
+        if self.series and len({s.dt_s for s in self.series}) != 1:
+            raise ValueError("the gust series of a WindBank must share one dt_s")
+        self._gusts = np.stack([s.gust_enu_m_s for s in self.series]) if self.series else np.zeros((1, 2, 3))
+        self._dt = self.series[0].dt_s if self.series else math.inf
+        self.steady = np.zeros((n, 3))
+        self.series_index = np.zeros(n, dtype=np.int64)
+        self.start = np.zeros(n, dtype=np.int64)
+
+    @property
+    def samples(self) -> int:
+        """Samples per gust series."""
+        return self._gusts.shape[1]
+
+    @property
+    def dt_s(self) -> float:
+        """Gust sample spacing, seconds (inf without gusts)."""
+        return self._dt
+
+    def assign(self, i: int, steady_enu_m_s: ArrayLike, series_index: int = 0, start: int = 0) -> None:
+        """Give vehicle i a steady wind [m/s, ENU] and gust series `series_index` from sample `start` on."""
+        self.steady[i] = _checked_vector3("steady_enu_m_s", steady_enu_m_s)
+        self.series_index[i] = int(series_index)
+        self.start[i] = int(start)
+
+    def wind_enu_m_s(self, t_s: ArrayLike, idx: ArrayLike | None = None) -> NDArray[np.float64]:
+        """Wind (M, 3) [m/s, ENU] of vehicles `idx` (default all) at their times t_s (M,) [s]."""
+        sel = slice(None) if idx is None else np.asarray(idx, dtype=np.int64)
+        steady = self.steady[sel]
+        if not self.series:
+            return steady.copy()
+        t = np.asarray(t_s, dtype=np.float64)
+        start, series = self.start[sel], self.series_index[sel]
+        s = t / self._dt
+        # WindField's clamp: the last interval of the series as seen from `start`
+        i = np.minimum(s.astype(np.int64), self._gusts.shape[1] - start - 2)
+        f = (s - i)[:, None]
+        lo = self._gusts[series, start + i] + steady
+        hi = self._gusts[series, start + i + 1] + steady
+        return lo + f * (hi - lo)
+
+    def field(self, i: int) -> WindField:
+        """Vehicle i's wind as a `WindField` (the same numbers), for flying its episode elsewhere."""
+        if not self.series:
+            return WindField(self.steady[i])
+        s, k0 = self.series[int(self.series_index[i])], int(self.start[i])
+        g = GustSeries(s.t_s[: len(s.t_s) - k0], s.gust_enu_m_s[k0:], s.dt_s, s.turbulence, s.seed,
+                       s.airspeed_m_s, s.height_agl_m)
+        return WindField(self.steady[i], g)
 
 
 # ------------------------------------------------------------------------------------ checks

@@ -1,0 +1,119 @@
+"""Held-out evaluation of a pilot on the navigation task: outcome counts with Wilson 95 % intervals.
+
+Three disjoint city pools (seed ranges of `rl.cities`): training (0 on), validation (1,050,000
+on: every choice made during training, e.g. which checkpoint ships) and test (1,000,000 on:
+touched only to report). `eval_config(nav, n, pool)` gives the task on one of the held-out pools,
+one city per episode; episode i of an evaluation seeded s is the same task (city, start, goal,
+wind) for every pilot, whatever its decision rate, so pilots are compared on paired tasks.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from rl.nav import NavBatch, NavConfig, NavWorld
+from rl.vec_env import UAMNavVecEnv
+
+VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
+POOLS = ("test", "validation")
+
+Pilot = Callable[[np.ndarray, NavBatch], np.ndarray]
+"""A pilot for evaluation: (raw observations (N, obs), the batch) -> actions (N, 3) in [-1, 1]."""
+
+
+def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval (95 % by default) for k successes in n trials."""
+    if n <= 0:
+        return (float("nan"), float("nan"))
+    p = k / n
+    den = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Outcomes of an evaluation on held-out cities.
+
+    Attributes:
+        episodes: number of episodes; outcomes: count per outcome.
+        success_rate, collision_rate: fractions; *_ci95: their Wilson 95 % intervals.
+        mean_return: mean episode return; mean_time_s: mean flight time [s].
+        per_episode: each episode's outcome, in episode order (for paired comparisons).
+        pool: "test" or "validation"; seed: the evaluation seed.
+    """
+
+    episodes: int
+    success_rate: float
+    collision_rate: float
+    success_ci95: tuple[float, float]
+    collision_ci95: tuple[float, float]
+    outcomes: dict[str, int]
+    mean_return: float
+    mean_time_s: float
+    per_episode: tuple[str, ...]
+    pool: str
+    seed: int
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("per_episode")
+        return d
+
+
+def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None,
+                decision_hz: float | None = None) -> NavConfig:
+    """The task on a held-out pool ("test" or "validation"), one city per episode."""
+    if pool not in POOLS:
+        raise ValueError(f"pool must be one of {POOLS}, got {pool!r}")
+    return replace(nav, city_split="eval", city_pool_size=episodes,
+                   city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0,
+                   turbulence=turbulence or nav.turbulence, decision_hz=decision_hz or nav.decision_hz)
+
+
+def evaluate(pilot: Pilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
+             world: NavWorld | None = None) -> EvalResult:
+    """Fly `episodes` held-out episodes at once (episode i in pool city i), deterministically.
+
+    Args:
+        pilot: (observations, batch) -> actions.
+        nav: the task definition; flown on `eval_config(nav, episodes, pool)` unless `world` is given.
+        episodes: number of episodes.
+        seed: slot i is seeded with seed + i.
+        pool: "test" or "validation" (recorded in the result).
+        world: a prebuilt world (its cities are used in order).
+    """
+    world = world or NavWorld(eval_config(nav, episodes, pool))
+    venv = UAMNavVecEnv(episodes, world=world, seed=seed)
+    venv.batch.city_of_slot = np.arange(episodes) % len(world.cities)
+    obs = venv.reset()
+    done = np.zeros(episodes, dtype=bool)
+    outcomes: list[str] = [""] * episodes
+    returns = np.zeros(episodes)
+    times = np.zeros(episodes)
+    while not done.all():
+        obs, _, d, infos = venv.step(pilot(obs, venv.batch))
+        for i in np.flatnonzero(d & ~done):
+            outcomes[i] = infos[i]["outcome"]
+            returns[i] = infos[i]["episode"]["r"]
+            times[i] = infos[i]["t_s"]
+        done |= d
+    counts = {k: outcomes.count(k) for k in sorted(set(outcomes))}
+    ns, nc = counts.get("success", 0), counts.get("collision", 0)
+    return EvalResult(episodes, ns / episodes, nc / episodes, wilson_interval(ns, episodes),
+                      wilson_interval(nc, episodes), counts, float(returns.mean()), float(times.mean()),
+                      tuple(outcomes), pool, int(seed))
+
+
+def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
+    """On the same episodes: how many only `a` succeeded, only `b`, both, neither."""
+    if a.episodes != b.episodes or a.seed != b.seed or a.pool != b.pool:
+        raise ValueError("paired counts need evaluations of the same episodes (count, seed and pool)")
+    sa = np.array([o == "success" for o in a.per_episode])
+    sb = np.array([o == "success" for o in b.per_episode])
+    return {"only_a": int((sa & ~sb).sum()), "only_b": int((~sa & sb).sum()), "both": int((sa & sb).sum()),
+            "neither": int((~sa & ~sb).sum())}

@@ -1,0 +1,74 @@
+"""The rules that end an episode, written once for every place that flies one.
+
+The comparison runner (`compare.runner`, one vehicle) and the learned pilot's environment
+(`rl.nav`, N vehicles) both call these after every control period, so an episode flown through
+either ends at the same physics substep for the same reason (tests/test_rl_agent.py flies one
+episode both ways and compares the states bit for bit).
+
+After a control period of S physics substeps, in this order (the first that applies wins):
+
+==============  =================================================================================
+outcome         rule
+==============  =================================================================================
+nonfinite       any state element of any substep is NaN or infinite
+collision       the collision sphere's signed clearance to a building or the ground is < 0 at
+                any substep (the caller measures the clearance; see `collided`)
+out_of_bounds   any substep's position lies outside the flight volume [lo, hi] (closed box)
+success         the position at the end of the period is within the goal radius
+timeout         none of the above and the clock has reached the task's time limit
+==============  =================================================================================
+"""
+from __future__ import annotations
+
+import numpy as np
+
+OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
+RUNNING, SUCCESS, COLLISION, OUT_OF_BOUNDS, NONFINITE, TIMEOUT = range(6)
+OUTCOME_OF_CODE = (None, "success", "collision", "out_of_bounds", "nonfinite", "timeout")
+
+# Clocks accumulate a period of 1/control_hz at a time; a limit of e.g. 25.0 s is reached when the
+# accumulated time is within this of it (rounding of the repeated addition).
+TIME_EPS_S = 1e-9
+
+
+def collided(clearance_m: np.ndarray) -> np.ndarray:
+    """Whether each vehicle touched an obstacle: clearance (N, S) [m] per substep -> (N,) bool."""
+    return np.any(np.asarray(clearance_m) < 0.0, axis=-1)
+
+
+def period_outcome(states: np.ndarray, hit: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray,
+                   goal_m: np.ndarray, goal_radius_m: np.ndarray) -> np.ndarray:
+    """The outcome code (N,) of one control period for N vehicles (see the module table).
+
+    Args:
+        states: (N, S, nx) state after each substep (position first, world ENU [m]).
+        hit: (N,) whether the vehicle collided during the period (`collided`); ignored where
+            the state is non-finite.
+        lo_m, hi_m: (N, 3) or (3,) flight-volume corners [m].
+        goal_m: (N, 3) or (3,) goals [m]; goal_radius_m: (N,) or scalar [m].
+
+    Returns:
+        int codes: RUNNING, SUCCESS, COLLISION, OUT_OF_BOUNDS or NONFINITE (never TIMEOUT; see
+        `timed_out`).
+    """
+    states = np.asarray(states)
+    n = states.shape[0]
+    finite = np.isfinite(states).all(axis=(1, 2))
+    pos = states[:, :, 0:3]
+    lo = np.asarray(lo_m, dtype=float).reshape(-1, 1, 3)
+    hi = np.asarray(hi_m, dtype=float).reshape(-1, 1, 3)
+    with np.errstate(invalid="ignore"):
+        inside = ((pos >= lo) & (pos <= hi)).all(axis=(1, 2))
+        g = pos[:, -1, :] - np.asarray(goal_m, dtype=float).reshape(-1, 3)
+        arrived = np.sqrt(np.add.reduce(g * g, axis=1)) <= np.asarray(goal_radius_m, dtype=float)
+    code = np.full(n, RUNNING, dtype=np.int64)
+    code[arrived] = SUCCESS
+    code[~inside] = OUT_OF_BOUNDS
+    code[np.asarray(hit, dtype=bool)] = COLLISION
+    code[~finite] = NONFINITE
+    return code
+
+
+def timed_out(t_s: np.ndarray | float, timeout_s: np.ndarray | float) -> np.ndarray | bool:
+    """Whether the clock t_s [s] (after a period) has reached the time limit timeout_s [s]."""
+    return np.asarray(t_s) >= np.asarray(timeout_s) - TIME_EPS_S
