@@ -126,13 +126,101 @@ def trace_from_episode(ep: SavedEpisode, label: str, color: str,
         bbox_min_m=ends.min(axis=0), bbox_max_m=ends.max(axis=0))
 
 
+# reward_curve.csv columns beyond timesteps, mean_episode_reward and success_rate (rl.train.CURVE_COLUMNS)
+CURVE_FIELDS: tuple[str, ...] = ("train_success_rate", "train_collision_rate", "train_timeout_rate",
+                                 "train_episodes", "difficulty", "collision_rate", "eval_episodes", "wall_s")
+SMOOTH_FRACTION = 0.02
+
+
 @dataclass(frozen=True)
 class RewardCurve:
-    """PPO training progress: (N,) timesteps, mean episode reward, success rate (fraction; NaN: no eval)."""
+    """PPO training progress, one entry per PPO update (a policy folder's `reward_curve.csv`).
+
+    All arrays have shape (N,); NaN marks a value the row does not have (an update in which no
+    training episode ended, a row without a validation evaluation, or a column an older file lacks).
+
+    Attributes:
+        timesteps: training timesteps (decisions, all vehicles) at the end of the update.
+        mean_episode_reward: mean raw return of the training episodes that ended in the update.
+        success_rate: held-out validation success rate (fraction), on rows where an evaluation ran.
+        train_success_rate, train_collision_rate, train_timeout_rate: outcome fractions of those
+            training episodes; train_episodes: how many ended.
+        difficulty: the curriculum's task difficulty in (0, 1] during the update.
+        collision_rate: validation collision rate (fraction); eval_episodes: validation episodes.
+        wall_s: wall time since the run started [s].
+    """
 
     timesteps: np.ndarray
     mean_episode_reward: np.ndarray
     success_rate: np.ndarray
+    train_success_rate: np.ndarray | None = None
+    train_collision_rate: np.ndarray | None = None
+    train_timeout_rate: np.ndarray | None = None
+    train_episodes: np.ndarray | None = None
+    difficulty: np.ndarray | None = None
+    collision_rate: np.ndarray | None = None
+    eval_episodes: np.ndarray | None = None
+    wall_s: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.timesteps)
+        for name in ("timesteps", "mean_episode_reward", "success_rate", *CURVE_FIELDS):
+            v = getattr(self, name)
+            arr = np.full(n, np.nan) if v is None else np.asarray(v, dtype=float).reshape(-1)
+            if len(arr) != n:
+                raise ValueError(f"RewardCurve.{name} has {len(arr)} entries, timesteps {n}")
+            object.__setattr__(self, name, arr)
+
+    @property
+    def has_validation(self) -> np.ndarray:
+        """(N,) bool: rows with a validation success rate."""
+        return np.isfinite(self.success_rate)
+
+    def smoothed(self, name: str = "mean_episode_reward", fraction: float = SMOOTH_FRACTION) -> np.ndarray:
+        """`moving_average` of one column over `smoothing_window(len, fraction)` updates."""
+        return moving_average(getattr(self, name), smoothing_window(len(self.timesteps), fraction))
+
+
+def smoothing_window(n: int, fraction: float = SMOOTH_FRACTION) -> int:
+    """Window of the training-curve moving average: `fraction` of the n updates, odd, at least 1."""
+    w = max(1, int(round(fraction * n)))
+    return w + 1 - w % 2
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average over `window` entries (odd), ignoring NaN.
+
+    Each entry becomes the mean of the finite values among itself and its (window - 1) / 2
+    neighbours on each side; near the ends the window is cut short (fewer neighbours, never
+    padded). An entry with no finite value in its window stays NaN.
+    """
+    v = np.asarray(values, dtype=float)
+    half = max(int(window), 1) // 2
+    ok = np.isfinite(v)
+    csum = np.concatenate([[0.0], np.cumsum(np.where(ok, v, 0.0))])
+    ccount = np.concatenate([[0], np.cumsum(ok)])
+    idx = np.arange(len(v))
+    lo, hi = np.maximum(idx - half, 0), np.minimum(idx + half + 1, len(v))
+    count = ccount[hi] - ccount[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, (csum[hi] - csum[lo]) / np.maximum(count, 1), np.nan)
+
+
+def curriculum_stages(curve: RewardCurve) -> list[tuple[float, float, float]]:
+    """(start, end, difficulty) of each run of updates at one curriculum difficulty, in order.
+
+    A stage starts where the previous one's last update ended (the first at timestep 0) and ends at
+    its own last update, so the stages tile the run. Empty when the curve has no difficulty column.
+    """
+    d, t = curve.difficulty, curve.timesteps
+    stages: list[tuple[float, float, float]] = []
+    for i in np.flatnonzero(np.isfinite(d) & np.isfinite(t)):
+        if stages and abs(stages[-1][2] - d[i]) < 1e-9:
+            stages[-1] = (stages[-1][0], float(t[i]), stages[-1][2])
+        else:
+            start = stages[-1][1] if stages else min(0.0, float(t[i]))
+            stages.append((start, float(t[i]), float(d[i])))
+    return stages
 
 
 # ---- the region around some flights ---------------------------------------------------------------------
@@ -408,41 +496,199 @@ def episode_snapshots_figure(title: str, traces: Sequence[FlightTrace], bmap: Bu
 
 
 # ---- training and failures ------------------------------------------------------------------------------
-def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "",
-                        kept_timesteps: float | None = None) -> Figure:
-    """Mean episode reward and (twin axis) evaluation success rate [%] against training timesteps.
+RETURN_COLOR = "tab:orange"
+SUCCESS_COLOR = "tab:blue"
+KEPT_COLOR = "tab:green"
+STAGE_LABEL_PT = 10.0  # height of a row of curriculum-stage labels [points]
 
-    With `curve` None the page only states `note` (why there is no curve); `kept_timesteps` marks the
-    checkpoint the policy folder ships (a training run may keep an earlier checkpoint than its last).
+
+def _pct(rate: np.ndarray) -> np.ndarray:
+    """Rates as percentages (a column already in percent, i.e. above 1 somewhere, is left as is)."""
+    ok = np.isfinite(rate)
+    return rate * 100.0 if not np.any(ok) or np.nanmax(rate[ok]) <= 1.0 else rate
+
+
+def _draw_stages(ax: Axes, curve: RewardCurve) -> int:
+    """Curriculum stages: faint bands (darker for easier stages, none at full difficulty) and "difficulty d"
+    above the axes at each stage's start.
+
+    Labels of stages too short to hold them are stacked; returns the number of label rows (0: no
+    curriculum to mark, i.e. one stage at full difficulty).
+    """
+    stages = curriculum_stages(curve)
+    if len(stages) < 2 and not (stages and stages[0][2] < 1.0):
+        return 0
+    x_end = max(s[1] for s in stages) / 1e6
+    prev_frac, level, rows = -1.0, 0, 1
+    for k, (start, end, d) in enumerate(stages):
+        x0, x1 = start / 1e6, end / 1e6
+        if d < 1.0:  # easier stages darker; full difficulty unshaded
+            ax.axvspan(x0, x1, color="0.5", alpha=0.03 + 0.1 * (1.0 - d), lw=0, zorder=0)
+        if k:
+            ax.axvline(x0, color="0.55", lw=0.6, ls=":", zorder=0.5)
+        frac = x0 / x_end if x_end > 0 else 0.0
+        level = level + 1 if k and frac - prev_frac < 0.1 else 0
+        prev_frac = frac if level == 0 else prev_frac
+        rows = max(rows, level + 1)
+        ax.annotate(f"difficulty {d:.2f}", (x0, 1.0), xycoords=ax.get_xaxis_transform(),
+                    xytext=(2, 2 + STAGE_LABEL_PT * level), textcoords="offset points", fontsize=7.5,
+                    color="0.35", ha="left", va="bottom", annotation_clip=False)
+    return rows
+
+
+def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "",
+                        kept_timesteps: float | None = None, subtitle: str = "",
+                        smooth_fraction: float = SMOOTH_FRACTION) -> Figure:
+    """PPO's own training return rising and levelling off, with success rates, against timesteps [millions].
+
+    Left axis: the mean return of the training episodes that ended in each PPO update (faint) and its
+    centred moving average over `smooth_fraction` of the updates (`smoothing_window`, `moving_average`).
+    Right axis [%]: held-out validation success (markers, only rows with an evaluation) and the
+    training episodes' success rate (moving average, thinner). Curriculum stages are banded and
+    labelled "difficulty d" above the axes; `kept_timesteps` marks the checkpoint the policy folder
+    ships (a run may keep an earlier checkpoint than its last).
+
+    Args:
+        title: page title; subtitle: what was trained and on what (first line under it).
+        curve: the curve; None draws a page stating `note` (why there is no curve).
+        note: the curve's source and run facts (second line), or the reason there is no curve.
     """
     fig = Figure(figsize=PAGE_SIZE_IN, layout="constrained")
     fig.suptitle(title, fontsize=15, fontweight="bold")
-    if curve is None:
+    if curve is None or not np.any(np.isfinite(curve.timesteps)):
         fig.text(0.5, 0.5, note or "No reward curve available.", ha="center", va="center", fontsize=12,
                  wrap=True)
         return fig
     ax = fig.add_subplot(1, 1, 1)
-    ax.plot(curve.timesteps, curve.mean_episode_reward, color="tab:orange", lw=1.6,
-            label="mean episode reward")
-    ax.set_xlabel("training timesteps [-]")
-    ax.set_ylabel("mean episode reward [-]")
+    ax2 = ax.twinx()  # success rates; drawn below `ax` (see the end), so it holds the stage bands too
+    x = curve.timesteps / 1e6
+    window = smoothing_window(len(x), smooth_fraction)
+    stage_rows = _draw_stages(ax2, curve)
+    handles: list = []
+    raw = np.isfinite(curve.mean_episode_reward)
+    if np.any(raw):
+        if window == 1:  # too few rows to smooth (e.g. an older file with a row per evaluation only)
+            handles += ax.plot(x[raw], curve.mean_episode_reward[raw], color=RETURN_COLOR, lw=1.8, marker=".",
+                               label="training return (not smoothed: too few rows)")
+        else:
+            handles += ax.plot(x[raw], curve.mean_episode_reward[raw], color=RETURN_COLOR, lw=0.7, alpha=0.35,
+                               label="training return, per update")
+            smooth = moving_average(curve.mean_episode_reward, window)
+            ok = np.isfinite(smooth)
+            handles += ax.plot(x[ok], smooth[ok], color=RETURN_COLOR, lw=2.2,
+                               label=f"training return, moving average ({window} updates ≈ "
+                                     f"{100 * smooth_fraction:g} % of the run)")
+        if np.nanmin(curve.mean_episode_reward) < 0 < np.nanmax(curve.mean_episode_reward):
+            ax.axhline(0.0, color="0.6", lw=0.6, zorder=0.5)
+    ax.set_xlabel("training timesteps [millions of decisions, all vehicles together]")
+    ax.set_ylabel("training return per episode (mean over each update) [-]", color="#b35900")
     ax.grid(alpha=0.3)
-    handles = ax.get_lines()[:]
-    ok = np.isfinite(curve.success_rate)
-    if np.any(ok):
-        rate = curve.success_rate[ok]
-        pct = rate * 100.0 if np.nanmax(rate) <= 1.0 else rate
-        ax2 = ax.twinx()
-        handles += ax2.plot(curve.timesteps[ok], pct, color="0.2", marker="o", ms=4, lw=1.2,
-                            label="evaluation success rate")
-        ax2.set_ylabel("success rate [%]")
-        ax2.set_ylim(-2.0, 102.0)
+    ax.set_xlim(min(0.0, float(np.nanmin(x))), float(np.nanmax(x)) * 1.01 if np.nanmax(x) > 0 else 1.0)
+    ax2.set_ylim(-2.0, 102.0)
+    ax2.set_ylabel("success rate [%]", color=SUCCESS_COLOR)
+    train_ok = np.isfinite(curve.train_success_rate)
+    if np.any(train_ok):
+        ts = moving_average(_pct(curve.train_success_rate), window)
+        ok = np.isfinite(ts)
+        handles += ax2.plot(x[ok], ts[ok], color=SUCCESS_COLOR, lw=1.0, alpha=0.6,
+                            label="training success rate, moving average (at the curriculum's difficulty)")
+    val = curve.has_validation
+    if np.any(val):
+        handles += ax2.plot(x[val], _pct(curve.success_rate)[val], color=SUCCESS_COLOR, marker="o", ms=4.5,
+                            lw=1.5, markeredgecolor="white", markeredgewidth=0.6,
+                            label="validation success rate (held-out cities, full difficulty)")
     if kept_timesteps is not None:
-        handles.append(ax.axvline(kept_timesteps, color="tab:green", ls="--", lw=1.2,
-                                  label=f"shipped checkpoint ({kept_timesteps:,.0f} timesteps)"))
-    ax.legend(handles=handles, loc="lower right")
-    if note:
-        ax.set_title(note, fontsize=9)
+        handles.append(ax.axvline(kept_timesteps / 1e6, color=KEPT_COLOR, ls="--", lw=1.3,
+                                  label=f"kept checkpoint ({kept_timesteps / 1e6:.2f} M timesteps)"))
+    if stage_rows:
+        handles.append(Rectangle((0, 0), 1, 1, color="0.5", alpha=0.15,
+                                 label="curriculum stages below full difficulty (shorter legs; darker: easier)"))
+    ax.set_zorder(ax2.get_zorder() + 1)  # the return lines over the success lines, ...
+    ax.patch.set_visible(False)          # ... without hiding them
+    fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=9, frameon=False)
+    head = "\n".join(t for t in (subtitle, note) if t)
+    if head:
+        ax.set_title(head, fontsize=9.5, pad=8 + STAGE_LABEL_PT * stage_rows)
+    return fig
+
+
+SEED_GRID_POINTS = 400
+
+
+def _common_grid(series: Sequence[tuple[np.ndarray, np.ndarray]], points: int = SEED_GRID_POINTS
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(grid, values (series, points)): each non-empty (x, y) series interpolated linearly on an even grid over
+    the x range every one of them covers; None when all are empty or they share no range."""
+    usable = [(x, y) for x, y in series if len(x)]
+    if not usable:
+        return None
+    lo, hi = max(float(x[0]) for x, _ in usable), min(float(x[-1]) for x, _ in usable)
+    if not hi > lo:
+        return None
+    grid = np.linspace(lo, hi, points)
+    return grid, np.array([np.interp(grid, x, y) for x, y in usable])
+
+
+def _finite_series(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ok = np.isfinite(x) & np.isfinite(y)
+    order = np.argsort(x[ok], kind="stable")
+    return x[ok][order], y[ok][order]
+
+
+def seed_curves_figure(curves: Sequence[RewardCurve], labels: Sequence[str], *,
+                       title: str = "Learned pilot: plain PPO from scratch across seeds",
+                       smooth_fraction: float = SMOOTH_FRACTION) -> Figure:
+    """Training runs of several seeds: (a) the smoothed training return, (b) the validation success rate.
+
+    Each seed is a thin line; the thick line is the mean across seeds and the band spans the minimum
+    to the maximum, both on a common grid of timesteps (each seed's curve interpolated linearly; the
+    grid covers the range every seed covers). The return is each seed's centred moving average over
+    `smooth_fraction` of its updates (`RewardCurve.smoothed`); the validation success rate is taken
+    at the rows where a validation evaluation ran.
+
+    Args:
+        curves: one `RewardCurve` per seed; labels: their legend labels (same length).
+
+    Raises:
+        ValueError: no curves, or labels of another length.
+    """
+    if not curves:
+        raise ValueError("seed_curves_figure needs at least one curve")
+    if len(labels) != len(curves):
+        raise ValueError(f"{len(curves)} curves but {len(labels)} labels")
+    fig = Figure(figsize=(12.0, 5.2), layout="constrained")
+    fig.suptitle(title, fontsize=14, fontweight="bold")
+    ax_r, ax_s = fig.subplots(1, 2)
+    palette = FALLBACK_COLORS  # not the mean lines' orange and blue
+    returns = [_finite_series(c.timesteps / 1e6, c.smoothed("mean_episode_reward", smooth_fraction)) for c in curves]
+    success = [_finite_series(c.timesteps / 1e6, _pct(c.success_rate)) for c in curves]
+    panels = ((ax_r, RETURN_COLOR, returns), (ax_s, SUCCESS_COLOR, success))
+    for ax, color, series in panels:
+        for k, ((x, y), label) in enumerate(zip(series, labels, strict=True)):
+            if len(x):
+                ax.plot(x, y, color=palette[k % len(palette)], lw=0.9, alpha=0.75, label=label,
+                        marker="." if ax is ax_s else None, ms=3)
+        common = _common_grid(series)
+        if common is not None:
+            grid, values = common
+            n = len(values)
+            seeds = f"{n} seed{'s' if n > 1 else ''}"
+            ax.fill_between(grid, values.min(axis=0), values.max(axis=0), color=color, alpha=0.18, lw=0,
+                            label=f"min–max across {seeds}")
+            ax.plot(grid, values.mean(axis=0), color=color, lw=2.4, label=f"mean of {seeds}")
+        else:
+            ax.text(0.5, 0.5, "no range common to the seeds", transform=ax.transAxes, ha="center", color="0.4")
+        ax.set_xlabel("training timesteps [millions]")
+        ax.grid(alpha=0.3)
+        ax.set_xlim(left=0.0)
+    ax_r.set_ylabel("training return per episode [-]")
+    ax_r.set_title(f"(a) training return, moving average over {100 * smooth_fraction:g} % of the updates",
+                   fontsize=10)
+    ax_s.set_ylabel("validation success rate [%]")
+    ax_s.set_ylim(-2.0, 102.0)
+    ax_s.set_title("(b) success on held-out validation cities (full difficulty)", fontsize=10)
+    ax_r.legend(fontsize=8, loc="lower right")
+    ax_s.legend(fontsize=8, loc="lower right")
     return fig
 
 

@@ -60,7 +60,8 @@ class EpisodeMetrics:
         spl: success weighted by path length, success × straight / max(path, straight) [-].
         energy_kj: rotor shaft energy [kJ].
         compute_ms_mean, compute_ms_max: wall time per decision [ms] (NaN without decisions).
-        plan_time_s: planning time at reset [s] (NaN for the PPO pilot, which does not plan).
+        plan_time_s: planning time at reset [s] (for the PPO pilot: computing its route field, the
+            geodesic distance-to-go its observation uses; NaN for a pilot that reports none).
     """
 
     scenario: str

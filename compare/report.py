@@ -113,10 +113,17 @@ def read_metrics_csv(path: Path) -> list[dict[str, str]] | None:
 
 
 def read_reward_curve(path: Path) -> F.RewardCurve | None:
-    """A policy's `reward_curve.csv` (timesteps, mean_episode_reward, success_rate), or None if absent.
+    """A policy's `reward_curve.csv` as a `RewardCurve`, or None if the file is absent.
+
+    Reads `rl.train`'s format (one row per PPO update: timesteps, mean_episode_reward,
+    train_success_rate, train_collision_rate, train_timeout_rate, train_episodes, difficulty,
+    success_rate, collision_rate, eval_episodes, wall_s; the validation columns empty on rows without
+    an evaluation) and older files with only some of these columns: an absent column or an empty or
+    unreadable cell is NaN. Rows without a timestep (e.g. a half-written last line) are left out.
 
     Raises:
-        ValueError: the file exists but lacks the columns, naming the file.
+        ValueError: the file exists but lacks `timesteps` or `mean_episode_reward`, or has no rows,
+            naming the file.
     """
     path = Path(path)
     if not path.is_file():
@@ -125,8 +132,12 @@ def read_reward_curve(path: Path) -> F.RewardCurve | None:
     need = ("timesteps", "mean_episode_reward")
     if not rows or any(k not in rows[0] for k in need):
         raise ValueError(f"{path}: needs columns {', '.join(need)} and at least one row")
-    col = {k: np.array([_float(r.get(k)) for r in rows]) for k in (*need, "success_rate")}
-    return F.RewardCurve(col["timesteps"], col["mean_episode_reward"], col["success_rate"])
+    names = (*need, "success_rate", *F.CURVE_FIELDS)
+    col = {k: np.array([_float(r.get(k)) for r in rows]) for k in names}
+    keep = np.isfinite(col["timesteps"])
+    if not np.any(keep):
+        raise ValueError(f"{path}: no row has a timestep")
+    return F.RewardCurve(**{k: v[keep] for k, v in col.items()})
 
 
 def build_report(run_dir: Path, out: Path | None = None) -> Path:
@@ -456,12 +467,49 @@ def _training_figure(run: _Run) -> Figure:
         return F.reward_curve_figure(title, None, f"The reward curve could not be read: {exc}")
     if curve is None:
         return F.reward_curve_figure(title, None, f"No reward curve: {path} does not exist.")
-    kept = None
+    prov: dict = {}
     try:
-        kept = json.loads((Path(policy_dir) / "provenance.json").read_text()).get("kept_timesteps")
+        loaded = json.loads((Path(policy_dir) / "provenance.json").read_text(encoding="utf-8"))
+        prov = loaded if isinstance(loaded, dict) else {}
     except (OSError, ValueError):
         pass  # an older policy folder without provenance: no marker
-    return F.reward_curve_figure(title, curve, f"from {path}", kept_timesteps=kept)
+    kept = _float(prov.get("kept_timesteps"))
+    return F.reward_curve_figure(title, curve, _training_note(path, curve, prov),
+                                 kept_timesteps=kept if math.isfinite(kept) else None,
+                                 subtitle=_training_subtitle(prov, curve))
+
+
+def _training_subtitle(prov: Mapping, curve: F.RewardCurve) -> str:
+    method = str(prov.get("method") or "")
+    # a run still training has no provenance yet; its per-update columns say rl.train wrote it (plain PPO)
+    per_update = not prov and bool(np.any(np.isfinite(curve.difficulty)))
+    if method.lower() == "ppo from scratch" or per_update:
+        what = "Plain PPO from scratch (no demonstrations, no pre-trained weights)"
+    elif method:
+        what = f"Training method: {method}"
+    elif prov.get("preset"):
+        what = f"Training preset {prov['preset']!r} (an older policy folder: method not recorded)"
+    else:
+        what = "Training method not recorded (an older policy folder)"
+    return (f"{what}.\nTraining episodes (training cities, at the curriculum's difficulty) vs. "
+            "validation (held-out cities, full difficulty).")
+
+
+def _training_note(path: Path, curve: F.RewardCurve, prov: Mapping) -> str:
+    parts = [f"from {path}"]
+    steps = _float(prov.get("timesteps"))
+    wall = _float(prov.get("wall_time_s"))
+    if not math.isfinite(steps):  # no provenance (a run still in progress): its last row
+        steps = float(curve.timesteps[-1])
+        wall = float(curve.wall_s[-1])
+        parts.append("no provenance.json (run in progress?)")
+    if math.isfinite(steps):
+        parts.append(f"{steps / 1e6:.1f} M timesteps"
+                     + (f" in {wall / 60:.0f} min" if math.isfinite(wall) else ""))
+    seed = prov.get("seed")
+    if seed is not None:
+        parts.append(f"seed {seed}")
+    return " · ".join(parts)
 
 
 # ---- 5. failures ----------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from rl.cities import boxes_only
-from rl.nav import CLEARANCE_RANGE_M, NavConfig, observe_slots, route_for
+from rl.nav import CLEARANCE_RANGE_M, NavConfig, nearest_surface, observe_slots, route_for
 from rl.observation import PilotMemory, action_to_command, goal_heading
 from rl.perception import Perception
 from rl.route import RouteBank
@@ -143,9 +143,9 @@ class PolicyAgent:
         if self._last_action is not None:
             m.record(self._SLOT, self._last_action, route)
             m.heading_rad[:] = goal_heading(pos, self._goal, m.heading_rad)
-        clear = self._senses.clearance.clearance(pos, self._CITY)
+        clear, nearest = nearest_surface(self._senses.clearance, pos, self._CITY)
         t_frac = np.array([t_s / self._task.timeout_s])
-        return observe_slots(self._SLOT, xs, self._goal, route, clear, t_frac, self._CITY, self._senses.perception,
+        return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY, self._senses.perception,
                              self._routes, m, nav, self._world.vehicle)
 
     def act(self, obs: Observation) -> VelocityCommand:

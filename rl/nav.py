@@ -14,7 +14,9 @@ flown through the env and through the runner is bit-identical (tested).
 
 Collision at every substep is exact and cheap: the clearance field is 1-Lipschitz, so a vehicle
 whose clearance at the start of a period exceeds its largest displacement within the period
-cannot have touched anything; only the others are measured substep by substep.
+cannot have touched anything; only the others are measured substep by substep. Within a decision
+the clearance is carried as that lower bound (clearance minus displacement) and measured exactly
+once per decision, for the observation and the reward.
 """
 from __future__ import annotations
 
@@ -198,6 +200,7 @@ class NavBatch:
         self.yaw = np.zeros(n)
         self.route_m = np.zeros(n)
         self.clear = np.zeros(n)
+        self.nearest = np.zeros((n, 3))
         self.episode_return = np.zeros(n)
         self.episode_len = np.zeros(n, dtype=np.int64)
         self.episode_count = np.zeros(n, dtype=np.int64)
@@ -260,7 +263,7 @@ class NavBatch:
         if len(idx):
             pos = self.x[idx, 0:3]
             self.route_m[idx] = self.routes.potential(pos, idx)
-            self.clear[idx] = w.clearance_sensor.clearance(pos, self.city[idx])
+            self.clear[idx], self.nearest[idx] = nearest_surface(w.clearance_sensor, pos, self.city[idx])
             self.memory.start(idx, pos, self.goal[idx], self.route_m[idx])
             self._observe(idx)
 
@@ -282,22 +285,35 @@ class NavBatch:
         """Recompute the observations of slots idx from their current state and memory."""
         w = self.world
         self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
-                                       self.t[idx] / self.timeout[idx], self.city[idx], w.perception, self.routes,
+                                       self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception, self.routes,
                                        self.memory, w.config, w.vehicle)
 
-    def _collided(self, idx: np.ndarray, states: np.ndarray, finite: np.ndarray) -> np.ndarray:
-        """Collision at any substep (M,) of slots idx with substep states (M, S, nx)."""
+    def _collided(self, idx: np.ndarray, sel, states: np.ndarray, finite: np.ndarray,
+                  clear_lb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Collision at any substep of slots idx, and a lower bound of their clearance after the period.
+
+        Args:
+            idx: (M,) the slots; sel: the same as an index (idx, or a full slice when M = N).
+            states: (M, S, nx) substep states; finite: (M,) all finite.
+            clear_lb: (M,) a lower bound of the clearance at the period's start [m].
+
+        Returns:
+            (hit (M,), the clearance's lower bound at the period's end (M,) [m]).
+        """
         pos = states[:, :, 0:3]
-        rel = pos - self.x[idx, None, 0:3]
+        rel = pos - self.x[sel, None, 0:3]
         disp = np.sqrt(np.einsum("nki,nki->nk", rel, rel).max(axis=1))
         disp = np.where(finite, disp, 0.0)
-        near = np.flatnonzero(finite & (self.clear[idx] - disp <= 0.0))
+        lb = clear_lb - disp  # 1-Lipschitz: no substep can be closer than this
+        near = np.flatnonzero(finite & (lb <= 0.0))
         hit = np.zeros(len(idx), dtype=bool)
         if len(near):
             nsub = pos.shape[1]
             c = self.world.clearance_sensor.clearance(pos[near].reshape(-1, 3), np.repeat(self.city[idx[near]], nsub))
-            hit[near] = episode.collided(c.reshape(len(near), nsub))
-        return hit
+            c = c.reshape(len(near), nsub)
+            hit[near] = episode.collided(c)
+            lb[near] = c[:, -1]
+        return hit, lb
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         """Advance every slot one decision.
@@ -313,23 +329,30 @@ class NavBatch:
         code = np.full(self.n, episode.RUNNING, dtype=np.int64)
         elapsed = np.zeros(self.n)
         route_before, clear_before = self.route_m.copy(), self.clear.copy()
+        clear_lb = self.clear.copy()
         for _ in range(cfg.action_repeat):
             idx = np.flatnonzero(code == episode.RUNNING)
             if not len(idx):
                 break
-            r = self.sim.step_velocity_batch(self.x[idx], self.xi[idx], cmd[idx], self.t[idx], idx)
+            # every slot still flying (the common case): plain slices instead of gathers, same numbers
+            sel = slice(None) if len(idx) == self.n else idx
+            r = self.sim.step_velocity_batch(self.x[sel], self.xi[sel], cmd[sel], self.t[sel],
+                                             None if len(idx) == self.n else idx)
             finite = np.isfinite(r.states).all(axis=(1, 2))
-            hit = self._collided(idx, r.states, finite)
-            c = episode.period_outcome(r.states, hit, self.lo[idx], self.hi[idx], self.goal[idx], self.goal_radius[idx])
-            self.t[idx] = self.t[idx] + self._period
-            elapsed[idx] += self._period
-            ok = idx[finite]
-            self.x[ok], self.xi[ok] = r.final_state[finite], r.ctrl_state[finite]
-            c[(c == episode.RUNNING) & episode.timed_out(self.t[idx], self.timeout[idx])] = episode.TIMEOUT
-            code[idx] = c
-            self.clear[ok] = w.clearance_sensor.clearance(self.x[ok, 0:3], self.city[ok])
+            hit, clear_lb[sel] = self._collided(idx, sel, r.states, finite, clear_lb[sel])
+            c = episode.period_outcome(r.states, hit, self.lo[sel], self.hi[sel], self.goal[sel], self.goal_radius[sel])
+            self.t[sel] = self.t[sel] + self._period
+            elapsed[sel] += self._period
+            if finite.all():
+                self.x[sel], self.xi[sel] = r.final_state, r.ctrl_state
+            else:
+                ok = idx[finite]
+                self.x[ok], self.xi[ok] = r.final_state[finite], r.ctrl_state[finite]
+            c[(c == episode.RUNNING) & episode.timed_out(self.t[sel], self.timeout[sel])] = episode.TIMEOUT
+            code[sel] = c
         everyone = np.arange(self.n)
         pos = self.x[:, 0:3]
+        self.clear, self.nearest = nearest_surface(w.clearance_sensor, pos, self.city)
         self.route_m = self.routes.potential(pos, everyone)
         arrived = code == episode.SUCCESS
         crashed = (code == episode.COLLISION) | (code == episode.OUT_OF_BOUNDS) | (code == episode.NONFINITE)
@@ -365,19 +388,31 @@ def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfi
     return route_field(city, task.goal_m, ref_alt, radius_m, config)
 
 
+def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Clearance (N,) [m] and the vector (N, 3) [m, world] to the nearest surface point (a building
+    within the sensor's range, or the ground; zero when neither is within range)."""
+    r = sensor.query(points_m, city)
+    vec = r.nearest_m[:, 0, :] - points_m  # zero for an empty row (the nearest point is the query point)
+    ground = (points_m[:, 2] - sensor.radius_m < r.distance_m[:, 0]) & (points_m[:, 2] - sensor.radius_m < sensor.range_m)
+    vec[ground] = 0.0
+    vec[ground, 2] = -points_m[ground, 2]
+    return r.clearance_m, vec
+
+
 def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
-                  t_frac: np.ndarray, city: np.ndarray, perception: Perception, routes: RouteBank,
+                  nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception, routes: RouteBank,
                   memory: PilotMemory, config: NavConfig, vehicle: VehicleParams) -> np.ndarray:
     """Observations (M, obs) of slots idx (the env's batch, or the policy agent's single slot).
 
     Args:
         idx: (M,) slots of `routes` and `memory`; x: (M, nx) states; goal_m: (M, 3) [m];
-        route_m: (M,) Φ [m]; clearance_m: (M,) [m]; t_frac: (M,) time used / limit;
+        route_m: (M,) Φ [m]; clearance_m: (M,) [m]; nearest_m: (M, 3) vector to the nearest surface [m];
+        t_frac: (M,) time used / limit;
         city: (M,) city indices of `perception`.
     """
     pos = x[:, 0:3]
     heading = memory.heading_rad[idx]
     reading = perception.observe(pos, heading, city)
-    return build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m,
+    return build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m, nearest_m,
                               memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
                               config.perception, vehicle, config.decision_hz)

@@ -6,7 +6,7 @@ city's size, so what it learns transfers between cities, headings and map extent
 heading is held while the goal is within `HEADING_HOLD_M` horizontally (there the bearing is
 ill-defined and would spin the whole observation).
 
-Observation (float32, `obs_size(perception)` = 15 + n_rays + grid_cells² elements):
+Observation (float32, `obs_size(perception)` = 18 + n_rays + grid_cells² elements):
 
 =====================  =====  ==================================================================
 elements               count  meaning
@@ -23,7 +23,9 @@ elements               count  meaning
 13  progress stall       1    (Φ now - Φ 2 s ago) / (max speed x 2 s): about -1 at full progress,
                               0 when stuck (memory)
 14  time used            1    t / time limit (the time limit is part of the task)
-15: rays              n_rays  horizontal sphere-cast distances / range, ray j at bearing 2πj/n
+15:18 nearest surface     3    vector to the nearest point of a building or the ground, goal frame,
+                              / 30 m (zero when nothing is within 30 m): where the clearance is
+18: rays              n_rays  horizontal sphere-cast distances / range, ray j at bearing 2πj/n
                               counter-clockwise from x' (`rl.perception`)
  .. height map        g²     (roof height - z) / 20 m, clipped to [-1, 1], of a g x g grid of
                               cells around the vehicle in the goal frame (x' index slow)
@@ -37,6 +39,7 @@ the command is held for the whole decision period (several control periods).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +47,7 @@ import numpy as np
 from rl.perception import PerceptionConfig, PerceptionReading
 from uam_fdm.params import VehicleParams
 
-N_BASE = 15
+N_BASE = 18
 OBS_CLIP = 10.0
 GOAL_SCALE_M = 100.0
 HEIGHT_SCALE_M = 20.0
@@ -114,7 +117,7 @@ class PilotMemory:
 
 
 def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarray, route_m: np.ndarray,
-                       route_dir: np.ndarray, clearance_m: np.ndarray, prev_action: np.ndarray,
+                       route_dir: np.ndarray, clearance_m: np.ndarray, nearest_m: np.ndarray, prev_action: np.ndarray,
                        route_history_m: np.ndarray, t_frac: np.ndarray, reading: PerceptionReading,
                        perception: PerceptionConfig, vehicle: VehicleParams, decision_hz: float) -> np.ndarray:
     """Observations (N, obs_size) float32 (see the module table).
@@ -124,13 +127,17 @@ def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarra
         goal_m: goals (N, 3) ENU [m].
         heading_rad: goal-frame headings (N,) [rad].
         route_m: geodesic distance-to-go Φ (N,) [m]; route_dir: its world direction (N, 2).
-        clearance_m: clearance (N,) [m].
+        clearance_m: clearance (N,) [m]; nearest_m: vector to the nearest surface point (N, 3) [m, world].
         prev_action: (N, 3); route_history_m: (N, H) Φ at the last H decisions [m].
         t_frac: time used / time limit (N,).
         reading: the perception (rays, roof heights) in the goal frame.
         perception: its configuration; vehicle: the vehicle (speed limits).
         decision_hz: decision rate [Hz] (scales the stall window).
     """
+    if len(x) == 1:
+        return _build_observation_one(x, goal_m, heading_rad, route_m, route_dir, clearance_m, nearest_m,
+                                      prev_action, route_history_m, t_frac, reading, perception, vehicle,
+                                      decision_hz)
     p = x[:, 0:3]
     c = vehicle.controller
     g = goal_m - p
@@ -151,9 +158,52 @@ def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarra
         *prev_action.T,
         stall,
         t_frac,
+        *(to_goal_frame(nearest_m[:, 0:2], heading_rad) / CLEARANCE_SCALE_M).T,
+        nearest_m[:, 2] / CLEARANCE_SCALE_M,
     ], axis=1)
     roofs = np.clip((reading.roof_m - p[:, 2:3]) / HEIGHT_SCALE_M, -1.0, 1.0)
     out = np.concatenate([base, reading.ray_m / perception.ray_range_m, roofs], axis=1)
+    np.minimum(np.maximum(out, -OBS_CLIP, out=out), OBS_CLIP, out=out)
+    return out.astype(np.float32)
+
+
+def _build_observation_one(x, goal_m, heading_rad, route_m, route_dir, clearance_m, nearest_m, prev_action,
+                           route_history_m, t_frac, reading, perception, vehicle, decision_hz) -> np.ndarray:
+    """`build_observations` (1, obs_size) of one vehicle: the 18 base elements in plain Python (NumPy's
+    per-call overhead on one row dominated a single vehicle's step), the same operations on the same
+    doubles (cos and sin of the heading from NumPy, as `to_goal_frame` takes them); the perception
+    part and the final clip are the same NumPy calls on a row of the same shape."""
+    px, py, pz, vx, vy, vz = x[0, 0:6].tolist()
+    gx, gy, gz = goal_m[0].tolist()
+    heading = np.asarray(heading_rad).reshape(-1)
+    c, s = float(np.cos(heading)[0]), float(np.sin(heading)[0])
+    ctl = vehicle.controller
+    dx, dy, dz = gx - px, gy - py, gz - pz
+    route = float(route_m[0])
+    rdx, rdy = route_dir[0].tolist()
+    nx, ny, nz = nearest_m[0].tolist()
+    window_s = route_history_m.shape[1] / decision_hz
+    out = np.empty((1, N_BASE + perception.n_rays + perception.grid_cells ** 2))
+    out[0, 0:N_BASE] = (
+        math.sqrt(dx * dx + dy * dy) / GOAL_SCALE_M,
+        dz / HEIGHT_SCALE_M,
+        route / GOAL_SCALE_M,
+        c * rdx + s * rdy, c * rdy - s * rdx,
+        (c * vx + s * vy) / ctl.max_speed_m_s,
+        (c * vy - s * vx) / ctl.max_speed_m_s,
+        vz / ctl.max_vertical_speed_m_s,
+        pz / ALTITUDE_SCALE_M,
+        min(float(clearance_m[0]) / CLEARANCE_SCALE_M, 1.0),  # np.minimum: NaN stays NaN
+        *prev_action[0].tolist(),
+        (route - float(route_history_m[0, 0])) / (ctl.max_speed_m_s * window_s),
+        float(t_frac[0]),
+        (c * nx + s * ny) / CLEARANCE_SCALE_M,
+        (c * ny - s * nx) / CLEARANCE_SCALE_M,
+        nz / CLEARANCE_SCALE_M,
+    )
+    n_rays = perception.n_rays
+    out[:, N_BASE:N_BASE + n_rays] = reading.ray_m / perception.ray_range_m
+    out[:, N_BASE + n_rays:] = np.clip((reading.roof_m - pz) / HEIGHT_SCALE_M, -1.0, 1.0)
     np.minimum(np.maximum(out, -OBS_CLIP, out=out), OBS_CLIP, out=out)
     return out.astype(np.float32)
 

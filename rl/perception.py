@@ -143,6 +143,8 @@ class Perception:
         np.cumsum(np.concatenate(counts + [np.zeros(0, dtype=np.int64)]), out=self._cell_start[1:])
 
         # Height map: per city a k x k block-max table of the conservative roof raster, stacked flat.
+        # local cell-centre offsets [raster cells]
+        self._offsets = (np.arange(cfg.grid_cells) - cfg.grid_cells // 2) * (cfg.cell_m / cfg.raster_m)
         self._k = max(1, math.ceil(cfg.cell_m / cfg.raster_m - 1e-9))
         # most raster cells an AABB touches along an axis, in n_look blocks of k (k <= the fewest)
         span = math.ceil(cfg.cell_m * math.sqrt(2.0) / cfg.raster_m + 1e-9) + 1
@@ -265,6 +267,8 @@ class Perception:
     def _rays(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray) -> np.ndarray:
         """Ray distances (N, n_rays) [m]; headings given by their cos, sin (N,)."""
         n, rng_m = len(p), self.config.ray_range_m
+        if n == 1:
+            return self._rays_one(p, ch, sh, ci)
         out = np.full((n, self.config.n_rays), rng_m)
         if n == 0:
             return out
@@ -280,20 +284,52 @@ class Perception:
         m = int(lens.sum())
         if m == 0:
             return out
-        if n == 1:
-            pt = np.zeros(m, dtype=np.int64)
-            cand = self._cand[start[0]:stop[0]]
-        else:
-            pt = np.repeat(np.arange(n), lens)
-            seg = np.cumsum(lens) - lens
-            cand = self._cand[np.arange(m) + np.repeat(start - seg, lens)]
+        pt = np.repeat(np.arange(n), lens)
+        seg = np.cumsum(lens) - lens
+        cand = self._cand[np.arange(m) + np.repeat(start - seg, lens)]
         b = self._tab[cand]  # (M, 7)
         co, si = b[:, 2], b[:, 3]
         dx, dy = p[pt, 0] - b[:, 0], p[pt, 1] - b[:, 1]
-        lx, ly = dx * co + dy * si, dy * co - dx * si  # ray origin in the box frame
         hc, hs = ch[pt], sh[pt]
-        c_rel, s_rel = hc * co + hs * si, hs * co - hc * si  # heading in the box frame
-        low = p[pt, 2] >= b[:, 6]  # roof + r at or below the ray: not an obstacle
+        near = self._entries(b, dx * co + dy * si, dy * co - dx * si, hc * co + hs * si, hs * co - hc * si,
+                             p[pt, 2] >= b[:, 6])
+        has = lens > 0
+        out[has] = np.minimum(np.minimum.reduceat(near, seg[has], axis=0), rng_m)
+        return out
+
+    def _rays_one(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray) -> np.ndarray:
+        """`_rays` of one point (1, n_rays): the candidate lookup in plain Python (NumPy's per-call
+        overhead on one row dominated a single vehicle's step), then the same array operations on
+        the same candidates as `_rays`, so the same numbers (tested)."""
+        out = np.full((1, self.config.n_rays), self.config.ray_range_m)
+        x, y, z = p[0].tolist()
+        c = int(ci[0])
+        ox, oy = self._g_origin[c].tolist()
+        gx, gy = self._g_dims[c].tolist()
+        # `_rays`' floor(clip(., 0, 1e9)), capped at the last cell (int() is floor on [0, 1e9])
+        ix = min(int(min(max((x - ox) / self.ray_cell_m, 0.0), 1e9)), gx - 1)
+        iy = min(int(min(max((y - oy) / self.ray_cell_m, 0.0), 1e9)), gy - 1)
+        cell = int(self._g_cell0[c]) + iy * gx + ix
+        start, stop = self._cell_start[cell:cell + 2].tolist()
+        if start == stop:
+            return out
+        b = self._tab[self._cand[start:stop]]  # (M, 7)
+        co, si = b[:, 2], b[:, 3]
+        dx, dy = x - b[:, 0], y - b[:, 1]
+        hc, hs = float(ch[0]), float(sh[0])
+        near = self._entries(b, dx * co + dy * si, dy * co - dx * si, hc * co + hs * si, hs * co - hc * si,
+                             z >= b[:, 6])
+        np.minimum(out, near.min(axis=0, keepdims=True), out=out)
+        return out
+
+    def _entries(self, b: np.ndarray, lx: np.ndarray, ly: np.ndarray, c_rel: np.ndarray, s_rel: np.ndarray,
+                 low: np.ndarray) -> np.ndarray:
+        """Entry distances (M, n_rays) [m] of the rays into candidate boxes b (M, 7) (inf: no hit).
+
+        Args:
+            lx, ly: (M,) the ray origin in each box's frame; c_rel, s_rel: (M,) cos, sin of the heading
+                in the box's frame; low: (M,) the box's roof + r is at or below the ray (no obstacle).
+        """
         hx = np.where(low, -1.0, b[:, 4])[:, None]  # a negative half-extent never hits
         hy = np.where(low, -1.0, b[:, 5])[:, None]
         rc, rs = self._ray_cos, self._ray_sin
@@ -317,20 +353,17 @@ class Perception:
         np.negative(near, out=near)
         np.maximum(near, 0.0, out=near)
         near[~hit] = np.inf
-        if n == 1:
-            np.minimum(out, near.min(axis=0, keepdims=True), out=out)
-            return out
-        has = lens > 0
-        out[has] = np.minimum(np.minimum.reduceat(near, seg[has], axis=0), rng_m)
-        return out
+        return near
 
     def _roofs(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray) -> np.ndarray:
         """Height maps (N, grid_cells**2) [m]; headings given by their cos, sin (N,)."""
         cfg, k, nl = self.config, self._k, self._n_look
         g = cfg.grid_cells
         n = len(p)
+        if n == 1:
+            return self._roofs_one(p, ch, sh, ci)
         rho = cfg.raster_m
-        o = (np.arange(g) - g // 2) * (cfg.cell_m / rho)  # local cell-centre offsets [raster cells]
+        o = self._offsets
         org = self._r_origin[ci]
         w, h = self._r_dims[ci, 0], self._r_dims[ci, 1]
         xr = (p[:, 0] - org[:, 0]) / rho
@@ -353,6 +386,27 @@ class Perception:
             np.maximum(best, v[i], out=best)
         return best.reshape(n, g * g).astype(float)
 
+    def _roofs_one(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray) -> np.ndarray:
+        """`_roofs` of one point (1, grid_cells**2) with fewer NumPy calls (their per-call overhead
+        dominated a single vehicle's step): the x and y cell centres stacked as two rows of one
+        `_positions` call. The same operations on the same doubles and integers, so the same numbers."""
+        cfg, k, nl = self.config, self._k, self._n_look
+        g, rho, o = cfg.grid_cells, cfg.raster_m, self._offsets
+        c = int(ci[0])
+        ox, oy = self._r_origin[c].tolist()
+        x, y, _ = p[0].tolist()
+        hc, hs = float(ch[0]), float(sh[0])
+        xr, yr = (x - ox) / rho, (y - oy) / rho
+        half = (0.5 * cfg.cell_m / rho) * (abs(hc) + abs(hs)) - _TOL_M / rho
+        centres = np.empty((2, g, g))  # x, y in raster units, as in `_roofs`
+        np.subtract((xr + o * hc)[:, None], (o * hs)[None, :], out=centres[0])
+        np.add((yr + o * hs)[:, None], (o * hc)[None, :], out=centres[1])
+        dims = self._r_dims[c]
+        pos = self._positions(centres, np.array([half, half]), dims, k, nl)  # (nl, 2, g, g): columns, rows
+        rows = pos[:, 1] * (int(dims[0]) + k + 1) + int(self._r_off[c])
+        idx = rows[:, None] + pos[None, :, 0]  # (nl, nl, g, g)
+        return self._table.take(idx.reshape(nl * nl, -1)).max(axis=0).reshape(1, g * g).astype(float)
+
     @staticmethod
     def _positions(c: np.ndarray, half: np.ndarray, size: np.ndarray, k: int, nl: int) -> np.ndarray:
         """Block starts (nl, N, g, g) (+k, clipped to the table) covering the raster cells touched by
@@ -364,7 +418,8 @@ class Perception:
         if nl == 1:
             pos = lo[None]
         elif nl == 2:
-            pos = np.stack([lo, last])
+            pos = np.empty((2,) + lo.shape, dtype=np.int64)  # (np.stack, without its Python overhead)
+            pos[0], pos[1] = lo, last
         else:
             t = np.arange(nl)[:, None, None, None]
             pos = lo[None] + ((last - lo)[None] * t) // (nl - 1)

@@ -37,8 +37,8 @@ class RewardConfig:
     time_per_s: float = 0.5
     danger_per_s: float = 4.0
     ttc_horizon_s: float = 1.5
-    proximity_per_s: float = 2.0
-    proximity_m: float = 2.0
+    proximity_per_s: float = 5.0
+    proximity_m: float = 4.0
     arrival_bonus: float = 50.0
     collision_penalty: float = 100.0
 

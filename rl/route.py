@@ -66,7 +66,7 @@ class RouteConfig:
     """
 
     cell_m: float = 4.0
-    margin_m: float = 1.5
+    margin_m: float = 3.0
     blocked_speed: float = 0.1
 
     def __post_init__(self) -> None:
@@ -368,6 +368,68 @@ class RouteBank:
             out[nan] = np.nan
         return out
 
+    def _sample_one(self, x: float, y: float, s: int, grad: bool) -> np.ndarray | None:
+        """`_sample` of one point, (1,) or (1, 3), or None for a NaN coordinate: the cell lookup and the
+        weights in plain Python (NumPy's per-call overhead on one row dominated a single vehicle's
+        step), the same operations on the same doubles; the weighted sum is `_sample`'s own einsum on
+        operands of the same shapes and types, so the summation order is the same too."""
+        ox, oy = self._origin[s].tolist()
+        inv = float(self._inv_cell[s])
+        fx, fy = (x - ox) * inv, (y - oy) * inv
+        if fx != fx or fy != fy:
+            return None
+        lx, ly = self._last[s].tolist()
+        # np.clip(f, 0, last) with array bounds: the bound where f is not beyond it (-0.0 -> 0.0)
+        fx = lx if fx >= lx else (fx if fx > 0.0 else 0.0)
+        fy = ly if fy >= ly else (fy if fy > 0.0 else 0.0)
+        ix, iy = min(int(fx), int(lx) - 1), min(int(fy), int(ly) - 1)
+        tx, ty = fx - ix, fy - iy
+        base = s * self._block + iy * self._stride + ix
+        idx = np.array([[base, base + 1, base + self._stride, base + self._stride + 1]])
+        w = np.array([[(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty]])
+        if grad:
+            return np.einsum("mk,mkc->mc", w, self._data[idx])
+        return np.einsum("mk,mk->m", w, self._data[idx, 0])
+
+    def _near_goal_one(self, x: float, y: float, s: int) -> tuple[float, float, float, float]:
+        """`_near_goal` of one point in plain Python: (to-goal x, y, length, weight); np.hypot as there."""
+        gx, gy = self._goal[s, :2].tolist()
+        tx, ty = gx - x, gy - y
+        dn = float(np.hypot(tx, ty))
+        clear = float(self._clear[s])
+        v = 2.0 - 2.0 * dn / (clear if clear > 0 else 1.0)
+        v = 0.0 if v < 0.0 else (1.0 if v > 1.0 else v)  # np.clip with scalar bounds (NaN stays NaN)
+        return tx, ty, dn, v * (clear > 0)
+
+    def _potential_one(self, p: np.ndarray, s: int) -> np.ndarray:
+        """`potential` (1,) of one point (see `_sample_one`)."""
+        x, y, z = p.tolist()
+        sample = self._sample_one(x, y, s, grad=False)
+        if sample is None:
+            return np.array([math.nan])
+        _, _, dn, w = self._near_goal_one(x, y, s)
+        g = w * dn + (1.0 - w) * float(sample[0])
+        dz = z - float(self._goal[s, 2])
+        return np.array([math.sqrt(g * g + dz * dz)])
+
+    def _direction_one(self, p: np.ndarray, s: int) -> np.ndarray:
+        """`direction` (1, 2) of one point (see `_sample_one`)."""
+        x, y, _ = p.tolist()
+        sample = self._sample_one(x, y, s, grad=True)
+        if sample is None:
+            return np.full((1, 2), math.nan)
+        gx, gy = (-sample[0, 1:3]).tolist()
+        gn = float(np.hypot(gx, gy))
+        gn = gn if gn > 1e-12 else math.inf
+        gx, gy = gx / gn, gy / gn
+        tx, ty, dn, w = self._near_goal_one(x, y, s)
+        dn = dn if dn > 1e-9 else math.inf
+        tx, ty = tx / dn, ty / dn
+        dx, dy = w * tx + (1.0 - w) * gx, w * ty + (1.0 - w) * gy
+        n = float(np.hypot(dx, dy))
+        n = n if n > 1e-12 else math.inf
+        return np.array([[dx / n, dy / n]])
+
     def _near_goal(self, p: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Horizontal offsets to the goal (M, 2) [m], their lengths (M,) [m] and the weight (M,) of the exact
         straight-line answer: 1 within half the clear radius, falling linearly to 0 at the clear radius."""
@@ -394,6 +456,8 @@ class RouteBank:
     def potential(self, points_m: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
         """3-D potential sqrt(G² + (z - z_goal)²) [m] (M,) of points (M, 3) ENU metres."""
         p, s = self._slots(points_m, slots)
+        if len(s) == 1:
+            return self._potential_one(p[0], int(s[0]))
         g = self._distance(p, s)
         dz = p[:, 2] - self._goal[s, 2]
         return np.sqrt(g * g + dz * dz)
@@ -407,6 +471,8 @@ class RouteBank:
         vanishes.
         """
         p, s = self._slots(points_m, slots)
+        if len(s) == 1:
+            return self._direction_one(p[0], int(s[0]))
         g = -self._sample(p, s, grad=True)[:, 1:3]
         gn = np.hypot(g[:, 0], g[:, 1])
         g /= np.where(gn > 1e-12, gn, np.inf)[:, None]

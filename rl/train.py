@@ -54,6 +54,7 @@ class PPOPreset:
     net_arch: tuple[int, ...] = (128, 128)
     clip_range: float = 0.2
     learning_rate: float = 3e-4
+    learning_rate_end: float | None = None  # linear decay to this over the run (None: constant)
     n_steps: int = 64
     batch_size: int = 4096
     n_epochs: int = 5
@@ -161,10 +162,22 @@ def normalize_obs(obs: np.ndarray, stats: dict) -> np.ndarray:
     return np.clip(z, -stats["clip_obs"], stats["clip_obs"]).astype(np.float32)
 
 
+class LinearSchedule:
+    """Learning rate falling linearly from `start` to `end` over the run (SB3 passes the fraction left)."""
+
+    def __init__(self, start: float, end: float) -> None:
+        self.start, self.end = float(start), float(end)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return self.end + (self.start - self.end) * progress_remaining
+
+
 def _make_model(preset: PPOPreset, venv, seed: int, tb: Path):
     from stable_baselines3 import PPO
+    lr = preset.learning_rate if preset.learning_rate_end is None else \
+        LinearSchedule(preset.learning_rate, preset.learning_rate_end)
     return PPO(
-        TanhMeanPolicy, venv, learning_rate=preset.learning_rate, n_steps=preset.n_steps,
+        TanhMeanPolicy, venv, learning_rate=lr, n_steps=preset.n_steps,
         batch_size=preset.batch_size, n_epochs=preset.n_epochs, gamma=preset.gamma,
         gae_lambda=preset.gae_lambda, clip_range=preset.clip_range, ent_coef=preset.ent_coef,
         vf_coef=preset.vf_coef, max_grad_norm=preset.max_grad_norm, target_kl=preset.target_kl, seed=seed,
@@ -174,8 +187,10 @@ def _make_model(preset: PPOPreset, venv, seed: int, tb: Path):
 
 
 def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress: bool = True,
-          command: str | None = None, log=print) -> EvalResult:
+          command: str | None = None, log=print, world: NavWorld | None = None) -> EvalResult:
     """Train (or resume) a PPO policy and write the policy folder `out_dir` (see the module docstring).
+
+    `world` replaces the training world built from `cfg.nav` (e.g. fixed episodes for a test).
 
     Returns:
         The kept model's evaluation on `cfg.eval_episodes` validation episodes.
@@ -192,7 +207,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
     preset = PRESETS[cfg.preset]
     t_start = time.perf_counter()
     log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
-    base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed)
+    base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
     eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"), dynamics=base.world.dynamics,
                           atmosphere=base.world.atmosphere)
     curve_path = out_dir / "reward_curve.csv"

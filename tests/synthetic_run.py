@@ -18,6 +18,11 @@ from uam_fdm.citygen import map_yaml_text
 SCENARIO = "toy-quad"
 LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
 START, GOAL = (20.0, 20.0, 10.0), (170.0, 160.0, 20.0)
+# rl.train.CURVE_COLUMNS (tests/test_report.py checks they agree)
+CURVE_COLUMNS = ["timesteps", "mean_episode_reward", "train_success_rate", "train_collision_rate",
+                 "train_timeout_rate", "train_episodes", "difficulty", "success_rate", "collision_rate",
+                 "eval_episodes", "wall_s"]
+UPDATE_STEPS = 16_384  # timesteps per PPO update (256 vehicles x 64 steps)
 METRIC_COLUMNS = ["scenario", "episode", "method", "seed", "map", "vehicle", "outcome", "success",
                   "collision", "failure_reason", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
                   "time_s", "path_length_m", "straight_line_m", "spl", "energy_kj", "compute_ms_mean",
@@ -91,12 +96,7 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
                                                                       "ci_high": 1.0, "n": 2}}}}
     (run_dir / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
     if policy_dir is not None:
-        policy_dir.mkdir(parents=True, exist_ok=True)
-        steps = np.arange(1, 21) * 10_000
-        lines = ["timesteps,mean_episode_reward,success_rate"]
-        lines += [f"{s},{-50 + 60 * (1 - np.exp(-s / 6e4)):.3f},{'' if k % 4 else min(1.0, k / 16):}"
-                  for k, s in enumerate(steps)]
-        (policy_dir / "reward_curve.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+        write_reward_curve(policy_dir)
     scenario = {"name": SCENARIO, "source": "/tmp/toy-quad.yaml", "description": "Synthetic test scenario.",
                 "map_name": "toy", "vehicle": "small_quad",
                 "vehicle_summary": "1.5 kg, 4 rotors, collision radius 0.42 m",
@@ -111,3 +111,46 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
            "versions": {"uam-compare": "0.1.0", "python": "3.11.7", "numpy": np.__version__},
            "fairness": "Both pilots know the map, the start and the goal. Neither knows the wind. " * 4}
     (run_dir / "run.json").write_text(json.dumps(run), encoding="utf-8")
+
+
+def write_reward_curve(policy_dir: Path, updates: int = 240, seed: int = 0, eval_every: int = 30,
+                       kept_update: int | None = 210, rate: float = 1.0) -> dict:
+    """A policy folder's `reward_curve.csv` in `rl.train`'s format (one row per update) and provenance.json.
+
+    The return rises from about -110 and levels off near 160 (`rate` scales how fast); the curriculum
+    goes 0.25 -> 0.5 -> 0.75 -> 1 at 30 %, 38 % and 45 % of the run; validation runs every
+    `eval_every` updates; the update 20 % into the run has no training episode (empty cells).
+
+    Returns:
+        {"validation_rows": row indices with a validation evaluation, "kept_timesteps": ...}.
+    """
+    rng = np.random.default_rng(seed)
+    policy_dir.mkdir(parents=True, exist_ok=True)
+    rows, val_rows = [], []
+    for k in range(1, updates + 1):
+        t = k * UPDATE_STEPS
+        progress = 1.0 - np.exp(-rate * 5.0 * k / updates)
+        frac = k / updates
+        difficulty = 0.25 if frac < 0.3 else 0.5 if frac < 0.38 else 0.75 if frac < 0.45 else 1.0
+        succ = float(np.clip(progress + 0.05 * rng.standard_normal(), 0, 1))
+        coll = float(np.clip(0.8 * (1 - progress) + 0.02 * rng.standard_normal(), 0, 1 - succ))
+        n_eps = int(rng.integers(50, 100))
+        train = [f"{-110 + 270 * progress + 12 * rng.standard_normal():.4f}", f"{succ:.4f}", f"{coll:.4f}",
+                 f"{1 - succ - coll:.4f}", n_eps]
+        if k == max(1, updates // 5):
+            train = ["", "", "", "", 0]
+        val = ["", "", ""]
+        if k % eval_every == 0 or k == updates:
+            val = [f"{min(1.0, 0.97 * progress):.4f}", f"{0.3 * (1 - progress):.4f}", 200]
+            val_rows.append(k - 1)
+        rows.append([t, *train, f"{difficulty:.3f}", *val, f"{30 + t / 12_000:.1f}"])
+    with (policy_dir / "reward_curve.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(CURVE_COLUMNS)
+        w.writerows(rows)
+    kept = None if kept_update is None else kept_update * UPDATE_STEPS
+    prov = {"command": "uam-compare train (synthetic)", "seed": seed, "method": "PPO from scratch",
+            "timesteps": updates * UPDATE_STEPS, "wall_time_s": 40 + updates * UPDATE_STEPS / 12_000,
+            "kept_timesteps": kept}
+    (policy_dir / "provenance.json").write_text(json.dumps(prov), encoding="utf-8")
+    return {"validation_rows": val_rows, "kept_timesteps": kept}

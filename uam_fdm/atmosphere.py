@@ -355,6 +355,8 @@ class Atmosphere:
         A vehicle that leaves the flight volume ends its episode on the runner's bounds check; the one
         control period it may spend beyond the table sees the edge density rather than an exception.
         """
+        if isinstance(z_m, float):  # the physics loop's scalar: plain Python (np.clip costs ~10 µs here)
+            return self.density_ratio(min(max(z_m, self._z_min), self._z_max))
         z = np.clip(z_m, self._z_min, self._z_max)
         return self.density_ratio(float(z) if np.ndim(z) == 0 else z)
 

@@ -20,6 +20,8 @@ timeout         none of the above and the clock has reached the task's time limi
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
@@ -53,6 +55,9 @@ def period_outcome(states: np.ndarray, hit: np.ndarray, lo_m: np.ndarray, hi_m: 
     """
     states = np.asarray(states)
     n = states.shape[0]
+    if n == 1:
+        code = _period_outcome_one(states[0], hit, lo_m, hi_m, goal_m, goal_radius_m)
+        return np.array([code], dtype=np.int64)
     finite = np.isfinite(states).all(axis=(1, 2))
     pos = states[:, :, 0:3]
     lo = np.asarray(lo_m, dtype=float).reshape(-1, 1, 3)
@@ -67,6 +72,28 @@ def period_outcome(states: np.ndarray, hit: np.ndarray, lo_m: np.ndarray, hi_m: 
     code[np.asarray(hit, dtype=bool)] = COLLISION
     code[~finite] = NONFINITE
     return code
+
+
+def _period_outcome_one(states: np.ndarray, hit, lo_m, hi_m, goal_m, goal_radius_m) -> int:
+    """`period_outcome` of one vehicle (states (S, nx)) in plain Python: a single vehicle's env calls
+    it every control period, where NumPy's per-call overhead dominated. The same comparisons and the
+    same arrival distance (sqrt((dx² + dy²) + dz²), correctly rounded either way), so the same code."""
+    if not np.isfinite(states).all():
+        return NONFINITE
+    if bool(np.asarray(hit, dtype=bool).reshape(-1)[0]):
+        return COLLISION
+    lx, ly, lz = np.asarray(lo_m, dtype=float).reshape(3).tolist()
+    hx, hy, hz = np.asarray(hi_m, dtype=float).reshape(3).tolist()
+    pos = states[:, 0:3].tolist()
+    for x, y, z in pos:
+        if not (lx <= x <= hx and ly <= y <= hy and lz <= z <= hz):
+            return OUT_OF_BOUNDS
+    x, y, z = pos[-1]
+    gx, gy, gz = np.asarray(goal_m, dtype=float).reshape(3).tolist()
+    dx, dy, dz = x - gx, y - gy, z - gz
+    if math.sqrt(dx * dx + dy * dy + dz * dz) <= float(np.asarray(goal_radius_m, dtype=float).reshape(-1)[0]):
+        return SUCCESS
+    return RUNNING
 
 
 def timed_out(t_s: np.ndarray | float, timeout_s: np.ndarray | float) -> np.ndarray | bool:

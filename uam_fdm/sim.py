@@ -136,7 +136,10 @@ class BatchSimulator:
     def env(self, x: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
         """Environment inputs (M, 4) for vehicles `idx` (default all) in states x (M, nx) at times t_s (M,) [s]."""
         m = x.shape[0]
-        t_mid = np.broadcast_to(np.asarray(t_s, float), (m,)) + 0.5 * self.control_period_s
+        if m == 1 and isinstance(self.winds, WindBank):
+            return self._env_one(x, t_s, 0 if idx is None else int(np.asarray(idx).reshape(-1)[0]))
+        t = np.asarray(t_s, dtype=float)
+        t_mid = (t if t.shape == (m,) else np.broadcast_to(t, (m,))) + 0.5 * self.control_period_s
         if isinstance(self.winds, WindBank):
             wind = self.winds.wind_enu_m_s(t_mid, idx)
         else:
@@ -145,6 +148,13 @@ class BatchSimulator:
         if m == 1:  # the scalar density lookup: the same numbers, cheaper
             return period_env(self.atmosphere, wind[0], float(x[0, 2]))[None]
         return period_env(self.atmosphere, wind, x[:, 2])
+
+    def _env_one(self, x: np.ndarray, t_s: np.ndarray | float, i: int) -> np.ndarray:
+        """`env` (1, 4) of vehicle i alone, in plain Python (the same numbers: `WindBank._wind_one` and
+        the scalar density lookup); NumPy's per-call overhead on one row dominated a single vehicle."""
+        t_mid = float(np.asarray(t_s, dtype=float).reshape(-1)[0]) + 0.5 * self.control_period_s
+        we, wn, wu = self.winds._wind_one(i, t_mid)
+        return np.array([[we, wn, wu, self.atmosphere.density_ratio_clamped(float(x[0, 2]))]])
 
     def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None) -> PeriodResult:
         """One control period for vehicles `idx` (default all), rotor commands u (M, n) [rad/s] held."""

@@ -550,6 +550,23 @@ class WindBank:
         hi = self._gusts[series, start + i + 1] + steady
         return lo + f * (hi - lo)
 
+    def _wind_one(self, i: int, t_s: float) -> tuple[float, float, float]:
+        """`wind_enu_m_s` of vehicle i at one time, in plain Python (a single vehicle's environment
+        calls this every control period, where NumPy's per-call overhead on one row dominated): the
+        same operations in the same order on the same doubles, so the same numbers (tested)."""
+        steady = self.steady[i].tolist()
+        if not self.series:
+            return steady[0], steady[1], steady[2]
+        start, series = int(self.start[i]), int(self.series_index[i])
+        s = t_s / self._dt
+        k = min(int(s), self._gusts.shape[1] - start - 2)
+        f = s - k
+        g0 = self._gusts[series, start + k].tolist()
+        g1 = self._gusts[series, start + k + 1].tolist()
+        lo = [a + b for a, b in zip(g0, steady)]
+        hi = [a + b for a, b in zip(g1, steady)]
+        return lo[0] + f * (hi[0] - lo[0]), lo[1] + f * (hi[1] - lo[1]), lo[2] + f * (hi[2] - lo[2])
+
     def field(self, i: int) -> WindField:
         """Vehicle i's wind as a `WindField` (the same numbers), for flying its episode elsewhere."""
         if not self.series:
