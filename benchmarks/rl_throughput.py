@@ -141,8 +141,7 @@ def test_evaluation(episodes: int, seed: int = EVAL_SEED) -> dict:
     `NavConfig()`'s task on the test pool.
     """
     from rl.agent import load_policy
-    from rl.evaluation import eval_config, evaluate, paired_counts
-    from rl.expert import PotentialFieldPilot
+    from rl.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
 
     out: dict = {"test_episodes": episodes, "test_success_rate": None, "test_success_ci95": None,
                  "test_collision_rate": None, "test_collision_ci95": None, "expert_success_rate": None,
@@ -169,16 +168,7 @@ def test_evaluation(episodes: int, seed: int = EVAL_SEED) -> dict:
             out.update(test_success_rate=res.success_rate, test_success_ci95=res.success_ci95,
                        test_collision_rate=res.collision_rate, test_collision_ci95=res.collision_ci95,
                        test_outcomes=res.outcomes)
-    base_nav = replace(nav, decision_hz=nav.control_hz)
-    base_world = NavWorld(base_nav, dynamics=world.dynamics, atmosphere=world.atmosphere)
-    holder: dict = {}
-
-    def potential_field(obs, batch):
-        if "pilot" not in holder:
-            holder["pilot"] = PotentialFieldPilot(batch)
-        return holder["pilot"](obs, batch)
-
-    ex = evaluate(potential_field, base_nav, episodes, seed=seed, pool="test", world=base_world)
+    ex = evaluate_potential_field(nav, episodes, seed=seed, pool="test", world=world)
     out.update(expert_success_rate=ex.success_rate, expert_success_ci95=ex.success_ci95,
                expert_collision_rate=ex.collision_rate, expert_collision_ci95=ex.collision_ci95,
                expert_outcomes=ex.outcomes, eval_wall_s=time.perf_counter() - t0)

@@ -175,11 +175,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     import json
-    from dataclasses import replace
 
     from rl.agent import load_policy
-    from rl.evaluation import eval_config, evaluate, paired_counts
-    from rl.expert import PotentialFieldPilot
+    from rl.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
     from rl.nav import NavWorld
 
     if args.episodes < 1:
@@ -200,16 +198,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
           f"  {res.outcomes}")
     if not args.no_baseline:
         # the same tasks (cities, legs, wind), the reactive pilot at the 50 Hz it was tuned for
-        base_nav = replace(nav, decision_hz=nav.control_hz)
-        base_world = NavWorld(base_nav, dynamics=world.dynamics, atmosphere=world.atmosphere)
-        holder: dict = {}
-
-        def potential_field(obs, batch):
-            if "pilot" not in holder:
-                holder["pilot"] = PotentialFieldPilot(batch)
-            return holder["pilot"](obs, batch)
-
-        ex = evaluate(potential_field, base_nav, args.episodes, seed=args.seed, pool=args.pool, world=base_world)
+        ex = evaluate_potential_field(policy.nav, args.episodes, seed=args.seed, pool=args.pool, world=world)
         pairs = paired_counts(res, ex)
         print(f"  potential field  success {ex.success_rate:6.1%} [{ex.success_ci95[0]:.1%}, {ex.success_ci95[1]:.1%}]"
               f"  collisions {ex.collision_rate:5.1%} [{ex.collision_ci95[0]:.1%}, {ex.collision_ci95[1]:.1%}]"

@@ -120,3 +120,27 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
     sb = np.array([o == "success" for o in b.per_episode])
     return {"only_a": int((sa & ~sb).sum()), "only_b": int((~sa & sb).sum()), "both": int((sa & sb).sum()),
             "neither": int((~sa & ~sb).sum())}
+
+
+def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
+                             world: NavWorld | None = None) -> EvalResult:
+    """The reactive potential-field pilot (`rl.expert`) on the same tasks as `evaluate(..., nav, episodes,
+    seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the tasks do not depend on it).
+
+    Args:
+        world: a world whose dynamics and atmosphere to reuse (e.g. the policy's evaluation world).
+    """
+    from rl.expert import PotentialFieldPilot
+
+    base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
+                       decision_hz=nav.control_hz)
+    base_world = NavWorld(base_nav, dynamics=world.dynamics if world else None,
+                          atmosphere=world.atmosphere if world else None)
+    holder: dict[str, PotentialFieldPilot] = {}
+
+    def potential_field(obs: np.ndarray, batch: NavBatch) -> np.ndarray:
+        if "pilot" not in holder:  # its sensor is built on the batch's cities
+            holder["pilot"] = PotentialFieldPilot(batch)
+        return holder["pilot"](obs, batch)
+
+    return evaluate(potential_field, base_nav, episodes, seed=seed, pool=pool, world=base_world)
