@@ -82,3 +82,16 @@ def test_agent_refuses_other_vehicles(policy, compiled_dynamics):
 def test_load_policy_names_missing_folder(tmp_path):
     with pytest.raises(ValueError, match="model.zip"):
         load_policy(tmp_path)
+
+
+def test_evaluate_policy_cli_prints_both_pilots_and_json(capsys):
+    from compare.cli import main
+
+    assert main(["evaluate-policy", "--episodes", "3", "--pool", "validation"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(out[-1])
+    assert last["pool"] == "validation" and last["episodes"] == 3
+    assert 0.0 <= last["success_rate"] <= 1.0 and len(last["success_ci95"]) == 2
+    assert 0.0 <= last["expert_success_rate"] <= 1.0 and sum(last["paired"].values()) == 3
+    assert any("potential field" in line for line in out)
+    assert main(["evaluate-policy", "--episodes", "0"]) == 2
