@@ -22,7 +22,7 @@ from rl.cities import boxes_only
 from rl.nav import CLEARANCE_RANGE_M, NavConfig, nearest_surface, observe_slots, route_for
 from rl.observation import PilotMemory, action_to_command, goal_heading
 from rl.perception import Perception
-from rl.route import RouteBank
+from rl.route import RouteBank, grid_shape
 from rl.sensor import BoxSensor
 from rl.train import normalize_obs
 from uam_fdm.agent import Observation, ResetInfo, Task, VelocityCommand, World
@@ -76,9 +76,7 @@ class _CitySenses:
         self.city = city
         self.clearance = BoxSensor([city], 1, CLEARANCE_RANGE_M, radius_m)
         self.perception = Perception([city], radius_m, nav.perception)
-        cell = nav.route.cell_m
-        lo, hi = np.asarray(city.bounds_min_m), np.asarray(city.bounds_max_m)
-        self.route_cells = (int(np.ceil((hi[1] - lo[1]) / cell)) + 1, int(np.ceil((hi[0] - lo[0]) / cell)) + 1)
+        self.route_cells = grid_shape(city, nav.route.cell_m)
 
 
 class PolicyAgent:

@@ -68,14 +68,13 @@ class EvalResult:
         return d
 
 
-def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None,
-                decision_hz: float | None = None) -> NavConfig:
+def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None) -> NavConfig:
     """The task on a held-out pool ("test" or "validation"), one city per episode."""
     if pool not in POOLS:
         raise ValueError(f"pool must be one of {POOLS}, got {pool!r}")
     return replace(nav, city_split="eval", city_pool_size=episodes,
                    city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0,
-                   turbulence=turbulence or nav.turbulence, decision_hz=decision_hz or nav.decision_hz)
+                   turbulence=turbulence or nav.turbulence)
 
 
 def evaluate(pilot: Pilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",

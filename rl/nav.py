@@ -29,7 +29,7 @@ from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistributio
 from rl.observation import PilotMemory, action_to_command, build_observations, goal_heading, obs_size
 from rl.perception import Perception, PerceptionConfig
 from rl.reward import TERMS, RewardConfig, reward_terms
-from rl.route import RouteBank, RouteConfig, route_field
+from rl.route import RouteBank, RouteConfig, grid_shape, route_field
 from rl.sensor import BoxSensor
 from uam_fdm import episode
 from uam_fdm.agent import Task
@@ -163,9 +163,8 @@ class NavWorld:
         self.perception = Perception(self.cities, radius, config.perception)
         self.lo = np.array([c.bounds_min_m for c in self.cities])
         self.hi = np.array([c.bounds_max_m for c in self.cities])
-        cell = config.route.cell_m
-        self.route_cells = (int(np.ceil(((self.hi - self.lo)[:, 1] / cell).max())) + 1,
-                            int(np.ceil(((self.hi - self.lo)[:, 0] / cell).max())) + 1)
+        shapes = np.array([grid_shape(c, config.route.cell_m) for c in self.cities])
+        self.route_cells = (int(shapes[:, 0].max()), int(shapes[:, 1].max()))  # the largest city's route grid
         level = TurbulenceLevel.parse(config.turbulence)
         self.turbulent = level is not TurbulenceLevel.NONE
         self.gust_series = []
