@@ -76,22 +76,14 @@ def vec_rate(venv, n_envs: int, seconds: float) -> float:
 def ppo_rate(world: NavWorld, n_envs: int, steps: int) -> float:
     """PPO (paper preset, as `rl.train` builds it) training timesteps/s on the batched env, after a warm-up."""
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
 
-    from rl.policy import TanhMeanPolicy
-    from rl.train import PRESETS
+    from rl.train import PRESETS, make_model, normalized_env
 
     torch.set_num_threads(1)
     pr = PRESETS["paper"]
-    venv = VecNormalize(UAMNavVecEnv(n_envs, world=world, seed=0), norm_obs=True, norm_reward=True,
-                        clip_obs=10.0, gamma=pr.gamma)
-    arch = {"pi": list(pr.net_arch), "vf": list(pr.net_arch)}
-    model = PPO(TanhMeanPolicy, venv, learning_rate=pr.learning_rate, n_steps=pr.n_steps,
-                batch_size=pr.batch_size, n_epochs=pr.n_epochs, gamma=pr.gamma, gae_lambda=pr.gae_lambda,
-                clip_range=pr.clip_range, ent_coef=pr.ent_coef, vf_coef=pr.vf_coef,
-                max_grad_norm=pr.max_grad_norm, target_kl=pr.target_kl, seed=0, device="cpu",
-                policy_kwargs={"net_arch": arch, "log_std_init": pr.log_std_init})
+    decision_hz = world.config.decision_hz
+    venv = normalized_env(UAMNavVecEnv(n_envs, world=world, seed=0), pr, decision_hz)
+    model = make_model(pr, venv, 0, decision_hz)
     model.learn(total_timesteps=n_envs * pr.n_steps)  # warm-up rollout + update
     t0 = time.perf_counter()
     model.learn(total_timesteps=steps, reset_num_timesteps=False)

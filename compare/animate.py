@@ -42,6 +42,7 @@ _log = logging.getLogger(__name__)
 
 MIN_SIZE_PX, MAX_SIZE_PX = 160, 3840
 MAX_FPS = 120.0
+MAX_DURATION_S = 600.0  # video length: 12,000 frames at 20 fps already take minutes to render
 FORMATS = ("mp4", "gif")
 VIDEO_CHOICES = ("scenario", "all", "none")  # which cells of a run `render_videos` animates
 # The layout is in inches on a figure at least 12.8 x 7.2 in (scaled to the frame by the dpi): fonts are in
@@ -59,8 +60,8 @@ class AnimationOptions:
 
     Attributes:
         fps: frames per second of the video [1/s].
-        duration_s: video length [s]; None: the flight's own length (real time), capped at
-            `max_auto_duration_s` (longer flights play faster).
+        duration_s: video length [s], at most MAX_DURATION_S; None: the flight's own length (real
+            time), capped at `max_auto_duration_s` (longer flights play faster).
         max_auto_duration_s: cap of the automatic video length [s].
         width_px, height_px: frame size [px]; even (H.264 with yuv420p needs even sizes).
         orbit_deg: camera azimuth swept over the clip [deg] (0: fixed camera, much faster to render).
@@ -81,8 +82,11 @@ class AnimationOptions:
             raise ValueError(f"--fps {self.fps:g}: must be at most {MAX_FPS:g}")
         if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
             raise ValueError(f"--duration {self.duration_s:g}: must be > 0 seconds")
-        if not (math.isfinite(self.max_auto_duration_s) and self.max_auto_duration_s > 0):
-            raise ValueError(f"max_auto_duration_s {self.max_auto_duration_s:g}: must be > 0 seconds")
+        if self.duration_s is not None and self.duration_s > MAX_DURATION_S:
+            raise ValueError(f"--duration {self.duration_s:g}: must be at most {MAX_DURATION_S:g} seconds")
+        if not (math.isfinite(self.max_auto_duration_s) and 0 < self.max_auto_duration_s <= MAX_DURATION_S):
+            raise ValueError(f"max_auto_duration_s {self.max_auto_duration_s:g}: must be in (0, {MAX_DURATION_S:g}] "
+                             f"seconds")
         size = f"--size {self.width_px}x{self.height_px}"
         if not all(MIN_SIZE_PX <= s <= MAX_SIZE_PX for s in (self.width_px, self.height_px)):
             raise ValueError(f"{size}: width and height must be between {MIN_SIZE_PX} and {MAX_SIZE_PX} px")

@@ -3,10 +3,15 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from uam_fdm.params import preset_names
+
+INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -27,8 +32,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_maps(args: argparse.Namespace) -> int:
+    from compare.outputs import check_output_dir
     from uam_fdm.city_plot import render_named_maps
 
+    check_output_dir(Path(args.out_dir), "OUT_DIR")
     for path in render_named_maps(args.out_dir):
         print(path)
     return 0
@@ -39,6 +46,14 @@ def _csv_list(text: str, kind=str) -> tuple:
     if not items:
         raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}")
     return items
+
+
+def _seed_list(text: str) -> tuple[int, ...]:
+    """`--seeds`: comma-separated integers (their range and distinctness are checked with the scenarios' rule)."""
+    try:
+        return _csv_list(text, int)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, e.g. 0,1,2, got {text!r}") from None
 
 
 def _default_run_dir(spec: str) -> Path:
@@ -54,21 +69,46 @@ def _default_run_dir(spec: str) -> Path:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from compare.run import RunOptions, run_comparison
-    from compare.scenario import METHODS, resolve_scenarios
+    import os
+
+    from compare.outputs import check_output_dir
+    from compare.run import RunInterrupted, RunOptions, estimate_run, run_comparison
+    from compare.scenario import METHODS, resolve_scenarios, seeds_problem
 
     if args.methods is not None:
         unknown = [m for m in args.methods if m not in METHODS]
         if unknown:
             raise ValueError(f"--methods: unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}")
-    scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
+    if args.seeds is not None and (problem := seeds_problem(list(args.seeds))) is not None:
+        index, reason = problem  # the same limits as a scenario's `seeds`
+        where = "" if index is None else f" (index {index})"
+        raise ValueError(f"--seeds {','.join(map(str, args.seeds))}{where}: {reason}")
+    if args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs}: must be >= 1")
+    if args.jobs > (os.cpu_count() or 1):
+        print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
+              f"processes only compete for them", file=sys.stderr)
     out = args.out if args.out is not None else _default_run_dir(args.scenario)
+    check_output_dir(out, "--out")
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
+    scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policy=args.policy, jobs=args.jobs,
                       resume=args.resume, progress=not args.no_progress, videos=args.videos,
                       command="uam-compare " + " ".join(args.argv))
-    run_dir = run_comparison(scenarios, opts)
+    est = estimate_run(scenarios, opts)
+    if est.large:
+        print(f"uam-compare: warning: {est.cells} episodes may take up to {est.wall_h:.1f} h with --jobs {opts.jobs} "
+              f"and {est.disk_gb:.1f} GB of episode files in {out} (every episode flown to its timeout)",
+              file=sys.stderr)
+    try:
+        run_dir = run_comparison(scenarios, opts)
+    except RunInterrupted as stop:
+        again = ["uam-compare", *args.argv] + (["--out", str(out)] if args.out is None else [])
+        again += [] if args.resume else ["--resume"]
+        print(f"uam-compare: interrupted: {stop.kept} of {stop.cells} episodes kept in {stop.out_dir}; "
+              f"to fly the rest: {shlex.join(again)}", file=sys.stderr)
+        return INTERRUPTED_EXIT
     _print_summary(run_dir)
     return 0
 
@@ -117,6 +157,7 @@ def _size(text: str) -> tuple[int, int]:
 def _cmd_animate(args: argparse.Namespace) -> int:
     from compare.animate import AnimationOptions, render_animation, render_videos
     from compare.flights import flight_groups, select_group
+    from compare.outputs import check_output_dir, check_output_file
     from compare.run import VIDEOS_DIR
 
     w, h = args.size
@@ -127,10 +168,12 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     groups = flight_groups(args.run_dir)
     if args.all:
         out_dir = args.out if args.out is not None else args.run_dir / VIDEOS_DIR
+        check_output_dir(out_dir, "--out")
         results = render_videos(groups, out_dir, "all", opts, progress=not args.no_progress, fmt=args.format)
     else:
         group = select_group(groups, args.episode) if args.episode is not None else groups[0]
         out = args.out if args.out is not None else args.run_dir / VIDEOS_DIR / f"{group.stem}.{args.format}"
+        check_output_file(out, "--out")
         results = [render_animation(group, out, opts, progress=not args.no_progress)]
     for r in results:
         print(f"{r.path}  ({r.format}, {r.frames} frames {r.width_px}x{r.height_px} at {r.fps:g} fps, "
@@ -139,8 +182,10 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from compare.viewer import build_viewer
+    from compare.outputs import check_output_file
+    from compare.viewer import VIEWER_NAME, build_viewer
 
+    check_output_file(args.out if args.out is not None else args.run_dir / VIEWER_NAME, "--out")
     print(build_viewer(args.run_dir, args.out))
     return 0
 
@@ -229,8 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
     run.add_argument("--methods", type=_csv_list, default=None, help="comma-separated subset of ppo,rrt_mpc")
     run.add_argument("--policy", type=Path, default=None, help="policy folder for ppo (default: the shipped policy)")
-    run.add_argument("--seeds", type=lambda t: _csv_list(t, int), default=None,
-                     help="comma-separated seeds overriding the scenarios' own")
+    run.add_argument("--seeds", type=_seed_list, default=None,
+                     help="comma-separated seeds overriding the scenarios' own (distinct, 0 to 2**32 - 1)")
     run.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     run.add_argument("--out", type=Path, default=None, help="run folder (default: runs/<time>-<scenario>)")
     run.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
@@ -265,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     val.set_defaults(func=_cmd_validate)
     tr = sub.add_parser("train", help="train the learned pilot with PPO from scratch on the batched environment")
     tr.add_argument("--preset", default="paper", help="PPO preset (paper: 2 x 128 units, clip 0.2)")
-    tr.add_argument("--timesteps", type=int, default=20_000_000, help="decisions, all vehicles (default 20M)")
+    tr.add_argument("--timesteps", type=int, default=10_000_000, help="decisions, all vehicles (default 10M)")
     tr.add_argument("--envs", type=int, default=256, help="vehicles stepped together (default 256)")
     tr.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
     tr.add_argument("--city-pool", type=int, default=1024, help="training cities (default 1024)")
@@ -273,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
     tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")
-    tr.add_argument("--eval-episodes", type=int, default=200, help="validation episodes per evaluation (default 200)")
+    tr.add_argument("--eval-episodes", type=int, default=500, help="validation episodes per evaluation (default 500)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
     tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
     tr.add_argument("--out", type=Path, default=Path("runs/policy"), help="policy folder to write")
@@ -292,20 +337,54 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _CliFormatter(logging.Formatter):
+    """Log records as the CLI's own lines: "uam-compare: warning: <message>"."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"uam-compare: {record.levelname.lower()}: {record.getMessage()}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     args.argv = argv
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler()  # a no-op where the caller configured logging already (basicConfig)
+    # without -v a user sees the same "uam-compare: warning: ..." lines as the CLI's own warnings
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s") if args.verbose else _CliFormatter())
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, handlers=[handler])
     if args.command is None:
         parser.print_help()
         return 0
+    # SIGTERM stops a command the way Ctrl-C does (a run keeps its finished episodes and says how to resume);
+    # only the main thread may set handlers, and the previous one comes back for library callers.
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler) if in_main else None
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print(f"uam-compare: interrupted ({args.command}); its outputs are written whole or not at all",
+              file=sys.stderr)
+        return INTERRUPTED_EXIT
     except ValueError as exc:   # bad user input (ConfigError is a ValueError): one clear line, non-zero exit
         print(f"uam-compare: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:      # the file system said no (disk full, permissions): which file, and why
+        print(f"uam-compare: error: {_os_error_message(exc)}", file=sys.stderr)
+        return 2
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _os_error_message(exc: OSError) -> str:
+    """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept."""
+    import errno
+
+    text = f"{exc.filename}: {exc.strerror or exc}" if exc.filename is not None else str(exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        text += ": the disk is full; the file was not written (no partial file is left)"
+    return text
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ flight on a shared time grid (`sample_flight`), holding a pilot that has already
 """
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,8 @@ from compare.report import load_run_info
 from compare.trajectory import SavedEpisode, episode_files, load_episode
 from uam_fdm.city import BuildingMap
 from uam_fdm.mapfile import load_map_file
+
+logger = logging.getLogger(__name__)
 
 # Words for an ended flight, by outcome (compare.runner.OUTCOMES).
 OUTCOME_WORDS: dict[str, str] = {
@@ -98,12 +101,15 @@ class FlightGroup:
         return self.pilots[0].episode.meta
 
 
-def flight_groups(run_dir: Path) -> list[FlightGroup]:
+def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[FlightGroup]:
     """Load every saved episode of a run folder, grouped by (scenario, episode, seed), in run order.
 
+    An unreadable (corrupt, truncated) episode file is left out and logged, as a warning unless
+    `warn_unreadable` is False (the caller has already warned about it).
+
     Raises:
-        ValueError: not a run folder, no saved episodes, or a scenario's map is missing or unreadable,
-            naming the folder or file.
+        ValueError: not a run folder, no readable saved episodes, or a scenario's map is missing or
+            unreadable, naming the folder or file.
     """
     run_dir = Path(run_dir)
     info = load_run_info(run_dir)
@@ -115,10 +121,19 @@ def flight_groups(run_dir: Path) -> list[FlightGroup]:
     scen_order = {name: i for i, name in enumerate(scen_info)}
     method_order = {m: i for i, m in enumerate(methods_info)}
     by_cell: dict[tuple[str, int, int], list[SavedEpisode]] = {}
+    unreadable = []
     for f in files:
-        ep = load_episode(f)
+        try:
+            ep = load_episode(f)
+        except ValueError as exc:  # one bad file must not cost the flights of the rest
+            logger.log(logging.WARNING if warn_unreadable else logging.INFO,
+                       "skipping unreadable episode file %s", exc)  # the message names the file
+            unreadable.append(f.name)
+            continue
         k = ep.meta.key
         by_cell.setdefault((k.scenario, k.episode, k.seed), []).append(ep)
+    if not by_cell:
+        raise ValueError(f"{run_dir}: no readable saved episodes to show (unreadable: {', '.join(unreadable)})")
     all_methods = sorted({ep.meta.key.method for eps in by_cell.values() for ep in eps},
                          key=lambda m: (method_order.get(m, len(method_order)), m))
     colors = method_colors(all_methods)

@@ -70,6 +70,14 @@ class _Run:
     colors: dict[str, str]
     scenarios: list[str]
     maps: dict[str, BuildingMap | None] = field(default_factory=dict)
+    unreadable: list[str] = field(default_factory=list)  # episode files skipped, for the failures page
+    skip_log_level: int = logging.WARNING  # INFO when the caller has already warned about them
+
+    def skip(self, path: Path, exc: Exception) -> None:
+        """Leave out an unreadable episode file: log why (the message names it) and list it."""
+        logger.log(self.skip_log_level, "skipping unreadable episode file %s", exc)
+        if path.name not in self.unreadable:
+            self.unreadable.append(path.name)
 
     def label(self, method: str) -> str:
         return self.labels.get(method, method)
@@ -140,12 +148,15 @@ def read_reward_curve(path: Path) -> F.RewardCurve | None:
     return F.RewardCurve(**{k: v[keep] for k, v in col.items()})
 
 
-def build_report(run_dir: Path, out: Path | None = None) -> Path:
+def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: bool = True) -> Path:
     """Write the run's PDF report (and its pages as PNGs under RUN_DIR/figures/).
+
+    An unreadable (corrupt, truncated) episode file is left out, logged and listed on the failures page.
 
     Args:
         run_dir: the run folder.
         out: the PDF path (default RUN_DIR/report.pdf); written atomically.
+        warn_unreadable: log skipped episode files as warnings (False: at INFO, the caller has warned).
 
     Returns:
         The PDF path.
@@ -155,6 +166,7 @@ def build_report(run_dir: Path, out: Path | None = None) -> Path:
     """
     run_dir = Path(run_dir)
     run = _make_run(run_dir, load_run_info(run_dir))
+    run.skip_log_level = logging.WARNING if warn_unreadable else logging.INFO
     out = Path(out) if out is not None else run_dir / "report.pdf"
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = _episode_groups(run)
@@ -169,9 +181,9 @@ def build_report(run_dir: Path, out: Path | None = None) -> Path:
             rows = read_metrics_csv(run_dir / "metrics.csv")
             for name, figs in _metrics_pages(run, rows):
                 pages.add_all(figs, name)
-            failures, unreadable = _episode_pages(run, groups, pages)
+            failures = _episode_pages(run, groups, pages)
             pages.add(_training_figure(run), "training_reward_curve")
-            _failure_pages(run, failures, rows, unreadable, pages)
+            _failure_pages(run, failures, rows, run.unreadable, pages)
     logger.info("report %s: %d pages", out, pages.count)
     return out
 
@@ -215,7 +227,7 @@ def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[Path]]:
             try:
                 k = load_episode(path).meta.key
             except ValueError as exc:
-                logger.warning("skipping %s", exc)
+                run.skip(path, exc)
                 continue
             scenario, episode, method, seed = k.scenario, k.episode, k.method, k.seed
         if method not in run.methods:  # a method run.json does not list still gets its own colour
@@ -307,7 +319,12 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
     for m, cfg in (info.get("methods") or {}).items():
         cfg = cfg or {}
         extra = f" (policy: {cfg['policy_dir']})" if cfg.get("policy_dir") else ""
+        if cfg.get("decision_hz"):
+            extra += f"; decides at {cfg['decision_hz']:g} Hz"
         blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.get('description', '')}{extra}"))
+    run_notes = [str(n) for n in info.get("notes") or []]
+    if run_notes:  # e.g. cells left out, the pilots' decision rates
+        blocks += [("h", "Notes"), *(("p", n) for n in run_notes)]
     versions = info.get("versions") or {}
     blocks += [("h", "Software versions"),
                ("p", " · ".join(f"{k} {v}" for k, v in versions.items()) or "n/a"),
@@ -422,18 +439,16 @@ def _episode_table_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
 
 # ---- 3. episodes ----------------------------------------------------------------------------------------
 def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
-                   pages: _PageWriter) -> tuple[list[F.FlightTrace], list[str]]:
-    """Three pages per (scenario, episode, seed); returns the failed flights' traces and unreadable files."""
+                   pages: _PageWriter) -> list[F.FlightTrace]:
+    """Three pages per (scenario, episode, seed); returns the failed flights' traces (unreadable files: `run.skip`)."""
     failures: list[F.FlightTrace] = []
-    unreadable: list[str] = []
     for (scenario, ep, seed), paths in groups.items():
         traces = []
         for path in paths:
             try:
                 saved = load_episode(path)
             except ValueError as exc:
-                logger.warning("skipping %s", exc)
-                unreadable.append(path.name)
+                run.skip(path, exc)
                 continue
             m = saved.meta.key.method
             traces.append(F.trace_from_episode(saved, run.label(m), run.colors.get(m, "0.3")))
@@ -449,7 +464,7 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
                   f"{name}_timeseries")
         pages.add(F.episode_snapshots_figure(f"{title}: snapshots over time", traces, bmap),
                   f"{name}_snapshots")
-    return failures, unreadable
+    return failures
 
 
 # ---- 4. training ----------------------------------------------------------------------------------------

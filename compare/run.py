@@ -13,8 +13,9 @@ RUN_DIR/report.pdf      the report (`compare.report`); RUN_DIR/figures/*.png its
 
 Cells are independent and seeded from the cell alone (`compare.seeding`), so they run in any order
 in any number of processes (`jobs`) with the same results. An interrupted run keeps every episode
-finished so far; `finalize(RUN_DIR)` (the `report` command) rescores and reports them, and
-`resume=True` flies only the missing cells.
+finished so far; `finalize(RUN_DIR)` (the `report` command) rescores and reports them (an unreadable
+episode file is skipped with a warning and listed in the report), and `resume=True` flies only the
+missing cells, after checking that the folder is a run saved from the same inputs (`compare.fingerprint`).
 """
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ import platform
 import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib import metadata
@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compare.fingerprint import check_resume, run_fingerprints
 from compare.metrics import (
     episode_metrics,
     read_metrics_csv,
@@ -50,25 +51,33 @@ log = logging.getLogger(__name__)
 
 METHOD_LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
 METHOD_DESCRIPTIONS = {
-    "ppo": "Learned pilot: policy network (2 x 128 tanh units, trained with PPO; the shipped policy starts from "
-           "behaviour cloning of a reactive potential-field pilot and keeps a cloning term, see its provenance) "
-           "-> 3D velocity command -> the vehicle's low-level velocity/attitude controller -> rotor speeds; "
-           "sees only its local observation (30 m building sensing); acts deterministically.",
+    "ppo": "Learned pilot: policy network (2 x 128 tanh units, trained from scratch with PPO, no demonstrations; "
+           "see its provenance) choosing a 3D velocity command at its decision rate (held between decisions) "
+           "-> the vehicle's low-level velocity/attitude controller -> rotor speeds; sees only its local "
+           "observation (goal frame, 40 m rays, roof-height map, the route around the buildings); "
+           "acts deterministically.",
     "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
                "reference -> CasADi NMPC (ipopt) commanding rotor speeds, replanning on large tracking errors.",
 }
 FAIRNESS = (
-    "Both pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics rate "
-    "and decide at the same rate; each decision is timed with the same stopwatch. Both know the vehicle's "
-    "parameters, the building map, the air density and the full vehicle state at each decision (perfect state "
-    "estimation). Neither knows the wind: both fly the same seeded steady wind and turbulence realisation in "
-    "each episode. The classical pilot plans on the whole map before take-off (its planning time is reported "
-    "separately) and commands rotor speeds through its MPC; the learned pilot sees only its observation "
-    "(position, goal vector, velocity, body rates, altitude and the nearest buildings within its sensing range) "
-    "and commands a velocity that the vehicle's low-level controller turns into rotor speeds. Clearance is "
-    "measured at every physics step from the vehicle's collision sphere to the buildings and the ground."
+    "Both pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics rate; "
+    "the classical pilot decides at the scenario's control rate, the learned pilot at its policy's decision rate "
+    "(its command held by the same low-level controller in between; both rates are in run.json), and each "
+    "decision is timed with the same stopwatch. Both know the vehicle's parameters, the building map, the air "
+    "density and the full vehicle state at each decision (perfect state estimation). Neither knows the wind: both "
+    "fly the same seeded steady wind and turbulence realisation in each episode. The classical pilot plans on the "
+    "whole map before take-off (its planning time is reported separately) and commands rotor speeds through its "
+    "MPC; the learned pilot sees only its observation (goal, a route around the buildings computed from the map "
+    "at take-off, velocity, altitude, rays and a roof-height map of the buildings near it) and commands a "
+    "velocity that the vehicle's low-level controller turns into rotor speeds. Clearance is measured at every "
+    "physics step from the vehicle's collision sphere to the buildings and the ground."
 )
 VIDEOS_DIR = "videos"  # the run's animations, one file per animated cell
+# Upper-bound planning figures for `estimate_run` [wall s per simulated s, one process]: the tests'
+# tiny run flies at 0.15 (ppo) and 0.35 (rrt_mpc, small quad); the UAM's MPC is slower than real time.
+WALL_S_PER_FLIGHT_S = {"ppo": 0.2, "rrt_mpc": 1.0}
+WARN_RUN_HOURS = 3.0  # the CLI warns above these estimates before flying
+WARN_RUN_GB = 3.0
 SOLVER_FAILURE_SHARE = 0.25  # a failed classical episode with >= this share of failed MPC solves: "solver_failure"
 
 
@@ -92,7 +101,8 @@ class RunOptions:
         seeds: override every scenario's seeds (None: the scenarios' own).
         policy: the learned pilot's policy folder (None: the shipped policy).
         jobs: parallel processes (1: in this process).
-        resume: skip cells whose episode file already exists.
+        resume: skip cells whose episode file already exists; refuse a folder that is not a run of this
+            tool or was saved from other inputs (`compare.fingerprint.check_resume`).
         progress: show a progress bar.
         command: the command line, for provenance.
         report: build the PDF report and the HTML viewer at the end.
@@ -112,20 +122,85 @@ class RunOptions:
     videos: str = "scenario"
 
 
-def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions, policy_vehicle_fp: str | None) -> tuple[list[Cell], list[str]]:
-    """The cells to fly, in a fixed order, and notes on cells left out (e.g. no policy for a vehicle)."""
+@dataclass(frozen=True)
+class PolicyFacts:
+    """What a run needs to know of the learned pilot's policy before flying.
+
+    Attributes:
+        folder: the policy folder.
+        vehicle_fingerprint: `VehicleParams.fingerprint()` of the vehicle it was trained for.
+        control_hz: the low-level controller rate it was trained with [Hz].
+        decision_hz: the rate at which it chooses a command [Hz] (held for the control periods between).
+    """
+
+    folder: Path
+    vehicle_fingerprint: str
+    control_hz: float
+    decision_hz: float
+
+
+def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
+               policy: PolicyFacts | None) -> tuple[list[Cell], list[str]]:
+    """The cells to fly, in a fixed order, and notes on cells left out (e.g. no policy for a vehicle).
+
+    Raises:
+        ValueError: a scenario that flies the learned pilot runs its controller at another rate than
+            the policy was trained with (the policy's decisions would be held for the wrong time).
+    """
     cells, notes = [], []
     for si, sc in enumerate(scenarios):
         methods = [m for m in sc.methods if opts.methods is None or m in opts.methods]
-        if "ppo" in methods and policy_vehicle_fp is not None and sc.vehicle.fingerprint() != policy_vehicle_fp:
+        if "ppo" in methods and policy is not None and sc.vehicle.fingerprint() != policy.vehicle_fingerprint:
             methods.remove("ppo")
             notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r}; ppo not flown")
+        if "ppo" in methods and policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
+            raise ValueError(
+                f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
+                f"{policy.control_hz:g} Hz controller (its config.json, nav.control_hz); fly this scenario at "
+                f"{policy.control_hz:g} Hz, without ppo (--methods rrt_mpc), or with a policy trained for it")
         seeds = opts.seeds if opts.seeds is not None else sc.seeds
         for ep in sc.episodes:
             for seed in seeds:
                 for m in methods:
                     cells.append(Cell(si, ep.index, int(seed), m))
     return cells, notes
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """Upper bounds of what a run costs, every episode flown to its timeout.
+
+    Attributes:
+        cells: episodes to fly (scenario x episode x seed x method).
+        flight_s: simulated flight time of all cells [s].
+        wall_h: wall time with `jobs` processes [h] (WALL_S_PER_FLIGHT_S per simulated second).
+        disk_gb: episode files, uncompressed [GB] (float64 time, state, commands, wind, clearance per physics step).
+    """
+
+    cells: int
+    flight_s: float
+    wall_h: float
+    disk_gb: float
+
+    @property
+    def large(self) -> bool:
+        """More than WARN_RUN_HOURS or WARN_RUN_GB."""
+        return self.wall_h > WARN_RUN_HOURS or self.disk_gb > WARN_RUN_GB
+
+
+def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate:
+    """Estimate a run's time and disk from its scenarios and options, without flying or loading a policy."""
+    cells, _ = plan_cells(scenarios, opts, None)
+    flight_s = wall_s = n_bytes = 0.0
+    for c in cells:
+        sc = scenarios[c.scenario]
+        t = sc.episodes[c.episode].task.timeout_s
+        flight_s += t
+        wall_s += t * WALL_S_PER_FLIGHT_S.get(c.method, max(WALL_S_PER_FLIGHT_S.values()))
+        n = sc.vehicle.n_rotors
+        n_bytes += t * sc.physics_hz * 8 * (1 + (13 + n) + n + 3 + 1)  # t, state, commands, wind, clearance
+    workers = max(1, min(opts.jobs, os.cpu_count() or 1))
+    return RunEstimate(len(cells), flight_s, wall_s / workers / 3600.0, n_bytes / 1e9)
 
 
 def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
@@ -205,11 +280,49 @@ class CellRunner:
         return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta, traj)
 
 
+class RunInterrupted(Exception):
+    """Ctrl-C or SIGTERM stopped a run; the episodes finished so far are kept.
+
+    Attributes:
+        out_dir: the run folder.
+        kept: episode files in it.
+        cells: episodes the run asked for.
+    """
+
+    def __init__(self, out_dir: Path, kept: int, cells: int) -> None:
+        super().__init__(f"{out_dir}: interrupted with {kept} of {cells} episodes kept")
+        self.out_dir, self.kept, self.cells = out_dir, kept, cells
+
+
+def _fly_in_processes(scenarios: Sequence[Scenario], out: Path, policy: Path | None, jobs: int,
+                      todo: Sequence[Cell], bar) -> None:
+    """Fly `todo` in `jobs` worker processes. On any exception here (an interrupt included) the workers are
+    terminated at once: an episode in flight is not written (its temporary file, if any, goes next run)."""
+    import multiprocessing as mp
+
+    # spawn: a fresh interpreter per worker (no copied casadi/ompl/torch state from this process)
+    pool = mp.get_context("spawn").Pool(jobs, initializer=_init_worker, initargs=(list(scenarios), out, policy))
+    try:
+        for _ in pool.imap_unordered(_run_in_worker, todo):
+            bar.update(1)
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
+
+
 _WORKER: CellRunner | None = None
 
 
 def _init_worker(scenarios: list[Scenario], out_dir: Path, policy: Path | None) -> None:
+    import signal
+
     global _WORKER
+    # Ctrl-C reaches the whole process group: the parent alone decides (it terminates the workers), so a
+    # worker neither prints its own traceback nor dies half-way through telling the parent.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     _WORKER = CellRunner(scenarios, out_dir, policy)
 
@@ -219,11 +332,32 @@ def _run_in_worker(c: Cell) -> Path:
     return _WORKER.run(c)
 
 
+def _episode_kept(path: Path) -> bool:
+    """On resume: the cell's episode file exists and reads; an unreadable one is flown again (and replaced)."""
+    if not path.exists():
+        return False
+    try:
+        load_episode(path)
+    except ValueError as exc:
+        log.warning("flying again: %s", exc)  # the message names the file
+        return False
+    return True
+
+
+def _remove_stale_temporaries(run_dir: Path) -> None:
+    from uam_fdm.atomic import remove_stale_temporaries
+
+    stale = remove_stale_temporaries(run_dir)
+    if stale:
+        log.info("removed %d temporary files left by an interrupted write: %s", len(stale),
+                 ", ".join(str(p.relative_to(run_dir)) for p in stale))
+
+
 def versions() -> dict[str, str]:
     """Versions of the software that produced a run."""
     out = {"python": platform.python_version()}
-    for dist in ("uam-compare", "numpy", "casadi", "ompl", "jsbsim", "python-fcl", "torch", "stable-baselines3",
-                 "gymnasium", "matplotlib"):
+    for dist in ("uam-compare", "numpy", "casadi", "ompl", "jsbsim", "python-fcl", "shapely", "torch",
+                 "stable-baselines3", "gymnasium", "matplotlib"):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
@@ -231,9 +365,10 @@ def versions() -> dict[str, str]:
     return out
 
 
-def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str]) -> None:
-    """run.json and maps/*.yaml."""
-    from rl.agent import DEFAULT_POLICY_DIR
+def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str],
+                    fingerprints: dict, policy: PolicyFacts | None = None) -> None:
+    """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, and the learned pilot's
+    policy folder and decision rate) and maps/*.yaml."""
     from uam_fdm.atmosphere import Atmosphere
     from uam_fdm.citygen import map_yaml_text
 
@@ -255,14 +390,18 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
             "physics_hz": sc.physics_hz, "control_hz": sc.control_hz,
         })
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
-    policy_dir = opts.policy if opts.policy is not None else DEFAULT_POLICY_DIR
     methods = sorted({c.method for c in cells})
+    if "ppo" in methods and policy is not None:
+        notes = [*notes, f"ppo decides at {policy.decision_hz:g} Hz (its policy's rate, each command held for "
+                         f"{policy.control_hz / policy.decision_hz:g} control periods); "
+                         f"rrt_mpc at each scenario's control rate"]
+    ppo_cfg = ({"policy_dir": str(policy.folder), "decision_hz": policy.decision_hz} if policy is not None else {})
     run = {
         "format_version": 1, "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "command": opts.command, "scenarios": entries, "notes": list(notes),
         "methods": {m: {"label": METHOD_LABELS.get(m, m), "description": METHOD_DESCRIPTIONS.get(m, ""),
-                        **({"policy_dir": str(Path(policy_dir).resolve())} if m == "ppo" else {})} for m in methods},
-        "versions": versions(), "fairness": FAIRNESS,
+                        **(ppo_cfg if m == "ppo" else {})} for m in methods},
+        "versions": versions(), "fairness": FAIRNESS, "fingerprints": fingerprints,
     }
     write_text_atomic(out / "run.json", json.dumps(run, indent=2) + "\n")
 
@@ -272,23 +411,29 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     from tqdm import tqdm
 
     from compare.animate import VIDEO_CHOICES
+    from rl.agent import DEFAULT_POLICY_DIR
 
     if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
         raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
     scenarios = list(scenarios)
-    policy_fp = None
+    policy = None
     if any("ppo" in sc.methods for sc in scenarios) and (opts.methods is None or "ppo" in opts.methods):
-        policy_fp = _policy_vehicle_fingerprint(opts.policy)
-    cells, notes = plan_cells(scenarios, opts, policy_fp)
+        policy = policy_facts(opts.policy)
+    cells, notes = plan_cells(scenarios, opts, policy)
     if not cells:
         raise ValueError("nothing to fly: no (scenario, method) left after --methods")
     out = Path(opts.out_dir)
+    fingerprints = run_fingerprints(scenarios, any(c.method == "ppo" for c in cells),
+                                    opts.policy if opts.policy is not None else DEFAULT_POLICY_DIR)
+    if opts.resume:  # before anything is written: a refused folder stays as it was
+        fingerprints = check_resume(out, fingerprints)
     out.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temporaries(out)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
-    write_run_files(scenarios, opts, cells, notes)
+    write_run_files(scenarios, opts, cells, notes, fingerprints, policy)
     todo = [c for c in cells
-            if not (opts.resume and (out / "episodes" / f"{cell_key(scenarios, c).stem}.npz").exists())]
+            if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]
     t0 = time.perf_counter()
     bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
     try:
@@ -298,13 +443,9 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
                 runner.run(c)
                 bar.update(1)
         else:
-            import multiprocessing as mp
-            with ProcessPoolExecutor(max_workers=opts.jobs, mp_context=mp.get_context("spawn"),
-                                     initializer=_init_worker, initargs=(scenarios, out, opts.policy)) as pool:
-                futures = [pool.submit(_run_in_worker, c) for c in todo]
-                for f in as_completed(futures):
-                    f.result()
-                    bar.update(1)
+            _fly_in_processes(scenarios, out, opts.policy, opts.jobs, todo, bar)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
+        raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
     finally:
         bar.close()
     log.info("flew %d episodes in %.1f s", len(todo), time.perf_counter() - t0)
@@ -312,19 +453,20 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     if opts.videos != "none":
         from compare.animate import render_videos
         from compare.flights import flight_groups
-        render_videos(flight_groups(out), out / VIDEOS_DIR, opts.videos, progress=opts.progress)
+        groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
+        render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress)
     return out
 
 
-def _policy_vehicle_fingerprint(policy: Path | None) -> str:
-    from rl.agent import DEFAULT_POLICY_DIR
+def policy_facts(policy: Path | None) -> PolicyFacts:
+    """Load the whole policy folder (network, statistics, config) as plain data and return what a run
+    needs of it: a broken or foreign policy is an error before the run folder exists."""
+    from rl.agent import DEFAULT_POLICY_DIR, load_policy
     from uam_fdm.params import load_vehicle
 
-    folder = Path(policy) if policy is not None else DEFAULT_POLICY_DIR
-    cfg_path = folder / "config.json"
-    if not cfg_path.is_file():
-        raise ValueError(f"{folder}: not a policy folder (config.json is missing)")
-    return load_vehicle(json.loads(cfg_path.read_text())["nav"]["vehicle"]).fingerprint()
+    nav = load_policy(policy).nav
+    return PolicyFacts(Path(policy if policy is not None else DEFAULT_POLICY_DIR).resolve(),
+                       load_vehicle(nav.vehicle).fingerprint(), float(nav.control_hz), float(nav.decision_hz))
 
 
 def finalize(run_dir: Path, report: bool = True) -> Path:
@@ -332,10 +474,21 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
     run_dir = Path(run_dir)
     if not (run_dir / "run.json").is_file():
         raise ValueError(f"{run_dir}: not a run folder (run.json is missing)")
+    _remove_stale_temporaries(run_dir)
     files = episode_files(run_dir)
     if not files:
         raise ValueError(f"{run_dir}: no saved episodes to report")
-    rows = [episode_metrics(load_episode(f)) for f in files]
+    rows, unreadable = [], []
+    for f in files:
+        try:
+            saved = load_episode(f)
+        except ValueError as exc:  # one corrupt or truncated file must not cost the report of the rest
+            log.warning("skipping unreadable episode file %s", exc)  # the message names the file
+            unreadable.append(f.name)
+            continue
+        rows.append(episode_metrics(saved))
+    if not rows:
+        raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")
     write_metrics_csv(rows, run_dir / "metrics.csv")
     rows = read_metrics_csv(run_dir / "metrics.csv")
     summary = summarize(rows)
@@ -346,6 +499,7 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
     if report:
         from compare.report import build_report
         from compare.viewer import build_viewer
-        build_report(run_dir)
-        build_viewer(run_dir)
+        # the skipped files were named above: the report lists them on its failures page without a second warning
+        build_report(run_dir, warn_unreadable=False)
+        build_viewer(run_dir, warn_unreadable=False)
     return run_dir

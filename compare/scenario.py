@@ -4,8 +4,8 @@ A scenario is one YAML file: a city, a vehicle, the air it flies in, and the epi
 goal) each pilot flies, once per seed.  World frame ENU (x east, y north, z up), metres above
 the field (ground at z = 0), seconds, SI units::
 
-    name: suburb-quad          # required. [A-Za-z0-9_.-]+, not "." or "..", no "__" (it separates
-                               #   the fields of output file names); names the results
+    name: suburb-quad          # required. [A-Za-z0-9_.-]+, at most 100 characters, not "." or "..",
+                               #   no "__" (it separates the fields of output file names); names the results
     description: "..."         # optional free text
     map: {named: suburb}       # required. Anything `uam_fdm.mapfile.map_from_config` accepts:
                                #   {named: suburb|downtown|canyon}, {buildings: [{center: [x, y] m,
@@ -32,13 +32,14 @@ the field (ground at z = 0), seconds, SI units::
                                #   default): each episode then gets
                                #   20 s + 2.5 * |goal - start| / vehicle.controller.max_speed_m_s,
                                #   i.e. 2.5 times the straight-line flight time at the vehicle's
-                               #   top speed, plus 20 s to take off, turn and settle
+                               #   top speed, plus 20 s to take off, turn and settle (at most 3600 s)
     seeds: [0]                 # optional, non-empty list of distinct integers in [0, 2**32 - 1];
                                #   every episode is flown once per seed; default [0]
     methods: [ppo, rrt_mpc]    # optional, non-empty subset of {ppo, rrt_mpc}; default both
-    physics_hz: 500            # optional physics rate [Hz], in (0, 10000]; default 500
+    physics_hz: 500            # optional physics rate [Hz], in (0, 10000]; default 500; the
+                               #   vehicle's motor_time_constant_s must span >= 2 physics steps
     control_hz: 50             # optional decision rate [Hz], > 0; default 50; physics_hz must be
-                               #   an integer multiple of it
+                               #   an integer multiple of it, at most 100 times it
 
 Every value is checked when the file is loaded, and the first problem raises
 `uam_fdm.errors.ConfigError` naming the file, the dotted key and the reason with the bad value,
@@ -64,7 +65,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from uam_fdm.agent import Task
 from uam_fdm.atmosphere import (
@@ -75,10 +75,12 @@ from uam_fdm.atmosphere import (
     checked_number,
 )
 from uam_fdm.city import BuildingMap
+from uam_fdm.dynamics import control_ratio_problem, motor_lag_problem
 from uam_fdm.errors import ConfigError
 from uam_fdm.mapfile import map_from_config
 from uam_fdm.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 from uam_fdm.wind import TurbulenceLevel, WindConditions
+from uam_fdm.yamlfile import load_yaml_file
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 METHODS = ("ppo", "rrt_mpc")
@@ -92,6 +94,9 @@ TIMEOUT_FLIGHT_TIME_FACTOR = 2.5
 MAX_TIMEOUT_S = 3600.0
 MAX_PHYSICS_HZ = 10000.0
 MAX_SEED = 2**32 - 1  # OMPL and most RNG seeding APIs take unsigned 32-bit seeds
+# The name starts every output file name ("<name>__ep000__rrt_mpc__s4294967295.npz"); file systems
+# allow 255 bytes per name, so this leaves room for the rest.
+MAX_NAME_CHARS = 100
 
 _TOP_KEYS = ("name", "description", "map", "bounds", "vehicle", "atmosphere", "episodes", "goal_radius_m",
              "timeout_s", "seeds", "methods", "physics_hz", "control_hz")
@@ -162,16 +167,8 @@ def load_scenario(path: str | Path) -> Scenario:
         ConfigError: naming the file, the key and the reason.
     """
     path = Path(path)
-    source = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(source, "<file>", f"cannot read: {exc}") from None
-    try:
-        data = yaml.load(text, Loader=_StrictSafeLoader)
-    except yaml.YAMLError as exc:
-        raise ConfigError(source, "<yaml>", f"not valid YAML: {exc}") from None
-    return scenario_from_dict(data, source, path.parent)
+    data = load_yaml_file(path)
+    return scenario_from_dict(data, str(path), path.parent)
 
 
 def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
@@ -203,7 +200,7 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     timeout = None if data.get("timeout_s") is None else _timeout(data["timeout_s"], source, "timeout_s")
     seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
     methods = _optional(data, "methods", METHODS, source, _methods)
-    physics_hz, control_hz = _rates(data, source)
+    physics_hz, control_hz = _rates(data, source, vehicle)
     episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
     _check_hover(episodes, vehicle, atmosphere, source)
     return Scenario(name=name, description=description, source=source, vehicle=vehicle,
@@ -264,6 +261,9 @@ def _name(value: Any, source: str) -> str:
     if not _NAME_RE.fullmatch(name) or name in (".", "..") or "__" in name:
         raise ConfigError(source, "name", f"must match [A-Za-z0-9_.-]+, not be '.' or '..' and not contain "
                                           f"'__' (it is used in file names), got {value!r}")
+    if len(name) > MAX_NAME_CHARS:
+        raise ConfigError(source, "name", f"{len(name)} characters long, {name[:20]!r}...; at most {MAX_NAME_CHARS} "
+                                          f"(it starts the run's file names)")
     return name
 
 
@@ -318,17 +318,28 @@ def _atmosphere(value: Any, source: str) -> tuple[AtmosphereConditions, WindCond
     return AtmosphereConditions(elevation, offset), steady
 
 
-def _seeds(value: Any, source: str, key: str) -> tuple[int, ...]:
-    if not isinstance(value, list) or not value:
-        raise ConfigError(source, key, f"must be a non-empty list of distinct integers, got {value!r}")
+def seeds_problem(values: Any) -> tuple[int | None, str] | None:
+    """Why `values` is not a non-empty list of distinct integers in [0, MAX_SEED]: (index or None, reason), or None.
+
+    Shared by the scenario key `seeds` and the command line's `--seeds`, so both take the same seeds.
+    """
+    if not isinstance(values, (list, tuple)) or not values:
+        return None, f"must be a non-empty list of distinct integers, got {values!r}"
     seen: dict[int, int] = {}
-    for i, s in enumerate(value):
+    for i, s in enumerate(values):
         if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SEED:
-            raise ConfigError(source, f"{key}[{i}]", f"must be an integer in [0, {MAX_SEED}], got {s!r}")
+            return i, f"must be an integer in [0, {MAX_SEED}], got {s!r}"
         if s in seen:
-            raise ConfigError(source, f"{key}[{i}]", f"duplicate seed {s} (also {key}[{seen[s]}]); "
-                                                     f"seeds must be distinct")
+            return i, f"duplicate seed {s} (also at index {seen[s]}); seeds must be distinct"
         seen[s] = i
+    return None
+
+
+def _seeds(value: Any, source: str, key: str) -> tuple[int, ...]:
+    problem = seeds_problem(value)
+    if problem is not None:
+        index, reason = problem
+        raise ConfigError(source, key if index is None else f"{key}[{index}]", reason)
     return tuple(value)
 
 
@@ -343,7 +354,7 @@ def _methods(value: Any, source: str, key: str) -> tuple[str, ...]:
     return tuple(m for m in METHODS if m in value)
 
 
-def _rates(data: Mapping, source: str) -> tuple[float, float]:
+def _rates(data: Mapping, source: str, vehicle: VehicleParams) -> tuple[float, float]:
     physics = _optional(data, "physics_hz", DEFAULT_PHYSICS_HZ, source,
                         lambda v, s, k: _in_range(v, (0.0, MAX_PHYSICS_HZ), "Hz", s, k, open_low=True))
     control = _optional(data, "control_hz", DEFAULT_CONTROL_HZ, source,
@@ -353,6 +364,12 @@ def _rates(data: Mapping, source: str) -> tuple[float, float]:
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise ConfigError(source, "physics_hz", f"must be an integer multiple of control_hz {control:g} Hz, "
                                                 f"got {physics:g} Hz (ratio {ratio:g})")
+    problem = control_ratio_problem(physics, control)
+    if problem is not None:
+        raise ConfigError(source, "control_hz", problem)
+    problem = motor_lag_problem(vehicle, physics)
+    if problem is not None:
+        raise ConfigError(source, "physics_hz", f"too slow for vehicle {vehicle.name}: {problem}")
     return physics, control
 
 
@@ -385,6 +402,12 @@ def _episodes(value: Any, source: str, city: BuildingMap, vehicle: VehicleParams
             t_max = timeout
         else:
             t_max = TIMEOUT_BASE_S + TIMEOUT_FLIGHT_TIME_FACTOR * distance / vehicle.controller.max_speed_m_s
+            if t_max > MAX_TIMEOUT_S:
+                raise ConfigError(source, key, f"the default timeout, {TIMEOUT_BASE_S:g} s + "
+                                               f"{TIMEOUT_FLIGHT_TIME_FACTOR:g} x {distance:.0f} m / "
+                                               f"{vehicle.controller.max_speed_m_s:g} m/s (the vehicle's "
+                                               f"max_speed_m_s) = {t_max:.0f} s, exceeds {MAX_TIMEOUT_S:g} s: "
+                                               f"set timeout_s or shorten the flight")
         specs.append(EpisodeSpec(i, Task(start_m=start, goal_m=goal, goal_radius_m=r_goal, timeout_s=t_max)))
     return tuple(specs)
 
@@ -478,20 +501,3 @@ def _vector3(value: Any, source: str, key: str, unit: str) -> tuple[float, float
 def _yaml_files(folder: Path) -> list[Path]:
     return sorted((p for p in folder.iterdir() if p.suffix in (".yaml", ".yml") and p.is_file()),
                   key=lambda p: p.name)
-
-
-class _StrictSafeLoader(yaml.SafeLoader):
-    """`yaml.SafeLoader` that rejects a key repeated within one mapping (PyYAML keeps the last silently)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
-        seen: set = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            try:
-                duplicate = key in seen
-                seen.add(key)
-            except TypeError:  # an unhashable key: SafeLoader reports it below
-                continue
-            if duplicate:
-                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
-        return super().construct_mapping(node, deep=deep)

@@ -8,6 +8,8 @@ half-written episode: a file either exists complete or not at all.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -93,22 +95,31 @@ def load_episode(path: Path) -> SavedEpisode:
     """Read an episode written by `save_episode`.
 
     Raises:
-        ValueError: the file is not a saved episode (or of a newer format), naming the file.
+        ValueError: the file is not a saved episode (or of a newer format), is truncated or corrupt,
+            naming the file.
     """
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["meta_json"]))
             arrays = {name: np.array(z[name]) for name in _ARRAYS}
-    except (OSError, KeyError, ValueError) as exc:
-        raise ValueError(f"{path}: not a saved episode ({exc})") from exc
-    if header.get("format_version") != FORMAT_VERSION:
-        raise ValueError(f"{path}: episode format {header.get('format_version')!r}, expected {FORMAT_VERSION}")
-    m = dict(header["meta"])
-    m["key"] = EpisodeKey(**m["key"])
-    for k in ("start_m", "goal_m"):
-        m[k] = tuple(float(v) for v in m[k])
-    meta = EpisodeMeta(**m)
+    # a truncated or damaged file fails inside zipfile/zlib (BadZipFile, EOFError, zlib.error on a bad CRC)
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ValueError(f"{path}: not a saved episode, or truncated or corrupt ({exc})") from exc
+    if not isinstance(header, dict) or header.get("format_version") != FORMAT_VERSION:
+        version = header.get("format_version") if isinstance(header, dict) else None
+        raise ValueError(f"{path}: episode format {version!r}, expected {FORMAT_VERSION}")
+    try:
+        m = dict(header["meta"])
+        m["key"] = EpisodeKey(**m["key"])
+        for k in ("start_m", "goal_m"):
+            m[k] = tuple(float(v) for v in m[k])
+        meta = EpisodeMeta(**m)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a saved episode (its metadata is incomplete: {exc})") from exc
+    n = len(arrays["t_s"])
+    if arrays["states"].ndim != 2 or len(arrays["states"]) != n or len(arrays["clearance_m"]) != n:
+        raise ValueError(f"{path}: not a saved episode (time, state and clearance rows disagree)")
     traj = Trajectory(**arrays, energy_J=meta.energy_J, outcome=meta.outcome, plan_time_s=meta.plan_time_s,
                       detail=meta.detail)
     return SavedEpisode(meta, traj)

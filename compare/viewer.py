@@ -164,11 +164,14 @@ def _finite_min(values) -> float | None:
     return round(float(v.min()), 3) if len(v) else None
 
 
-def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions()) -> str:
-    """The viewer page of a run folder, as one HTML string (plotly.js, script, style and data inline)."""
+def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_unreadable: bool = True) -> str:
+    """The viewer page of a run folder, as one HTML string (plotly.js, script, style and data inline).
+
+    Unreadable episode files are left out (see `compare.flights.flight_groups`, `warn_unreadable`).
+    """
     run_dir = Path(run_dir)
     info = load_run_info(run_dir)
-    groups = flight_groups(run_dir)
+    groups = flight_groups(run_dir, warn_unreadable=warn_unreadable)
     payload = {"run": {"folder": run_dir.name, "command": info.get("command", ""),
                        "created_utc": info.get("created_utc", "")},
                "groups": [group_payload(g, opts) for g in groups]}
@@ -195,11 +198,14 @@ def _script_safe(text: str) -> str:
     return text.replace("</script", "<\\/script").replace("</SCRIPT", "<\\/SCRIPT")
 
 
-def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerOptions = ViewerOptions()) -> Path:
+def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerOptions = ViewerOptions(), *,
+                 warn_unreadable: bool = True) -> Path:
     """Write the viewer of a run folder (default `RUN_DIR/viewer.html`) atomically; returns its path.
 
+    An unreadable episode file is left out with a warning (INFO when `warn_unreadable` is False).
+
     Raises:
-        ValueError: not a run folder, no saved episodes, or an unreadable map, naming the file.
+        ValueError: not a run folder, no readable saved episodes, or an unreadable map, naming the file.
     """
     out = Path(out) if out is not None else Path(run_dir) / VIEWER_NAME
-    return write_text_atomic(out, viewer_html(run_dir, opts))
+    return write_text_atomic(out, viewer_html(run_dir, opts, warn_unreadable=warn_unreadable))

@@ -20,8 +20,9 @@ import numpy as np
 
 from rl.cities import boxes_only
 from rl.nav import CLEARANCE_RANGE_M, NavConfig, nearest_surface, observe_slots, route_for
-from rl.observation import PilotMemory, action_to_command, goal_heading
+from rl.observation import PilotMemory, action_to_command, goal_heading, obs_size
 from rl.perception import Perception
+from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
 from rl.route import RouteBank, grid_shape
 from rl.sensor import BoxSensor
 from rl.train import normalize_obs
@@ -34,39 +35,47 @@ DEFAULT_POLICY_DIR = Path(__file__).parent / "policies" / "default"
 
 @dataclass
 class Policy:
-    """A trained policy: the SB3 model, its observation statistics and the task it was trained on."""
+    """A trained policy: its network, its observation statistics and the task it was trained on."""
 
     folder: Path
-    model: object
+    network: object
     obs_stats: dict
     nav: NavConfig
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (N, 3) in [-1, 1] for raw observations (N, obs)."""
-        act, _ = self.model.predict(normalize_obs(np.asarray(obs, dtype=np.float64), self.obs_stats),
-                                    deterministic=True)
+        act, _ = self.network.predict(normalize_obs(np.asarray(obs, dtype=np.float64), self.obs_stats),
+                                      deterministic=True)
         return np.asarray(act, dtype=np.float64).reshape(-1, 3)
 
 
 def load_policy(folder: Path | str | None = None) -> Policy:
-    """Load a policy folder (default: the shipped policy).
+    """Load a policy folder (default: the shipped policy) from plain data only (`rl.policy_file`):
+    nothing in the folder is unpickled or executed.
 
     Raises:
-        ValueError: the folder or one of its files is missing, naming it.
+        ValueError: the folder or one of its files is missing, unreadable, holds code, or does not
+            fit the task in its config.json, naming the file.
     """
     import torch
-    from stable_baselines3 import PPO
 
     folder = Path(folder) if folder is not None else DEFAULT_POLICY_DIR
     for name in ("model.zip", "obs_norm.npz", "config.json"):
         if not (folder / name).is_file():
             raise ValueError(f"{folder}: not a policy folder ({name} is missing)")
     torch.set_num_threads(1)
-    model = PPO.load(str(folder / "model.zip"), device="cpu")
-    with np.load(folder / "obs_norm.npz") as z:
-        stats = {k: np.array(z[k]) for k in ("mean", "var", "epsilon", "clip_obs")}
-    cfg = json.loads((folder / "config.json").read_text())
-    return Policy(folder, model, stats, NavConfig.from_dict(cfg["nav"]))
+    try:
+        cfg = json.loads((folder / "config.json").read_text())
+        nav = NavConfig.from_dict(cfg["nav"])
+        ppo = cfg["ppo"]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{folder / 'config.json'}: not a policy configuration ({exc})") from None
+    n_obs = obs_size(nav.perception)
+    stats = load_arrays(folder / "obs_norm.npz", OBS_NORM_KEYS)
+    if stats["mean"].shape != (n_obs,) or stats["var"].shape != (n_obs,):
+        raise ValueError(f"{folder / 'obs_norm.npz'}: statistics for {stats['mean'].size} observations; "
+                         f"config.json's task gives {n_obs}")
+    return Policy(folder, load_network(folder / "model.zip", n_obs, ppo), stats, nav)
 
 
 class _CitySenses:

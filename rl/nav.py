@@ -355,7 +355,10 @@ class NavBatch:
         self.route_m = self.routes.potential(pos, everyone)
         arrived = code == episode.SUCCESS
         crashed = (code == episode.COLLISION) | (code == episode.OUT_OF_BOUNDS) | (code == episode.NONFINITE)
-        terms = reward_terms(cfg.reward, route_before, self.route_m, clear_before, self.clear, elapsed, arrived, crashed)
+        vel = self.x[:, 3:6]
+        speed = np.sqrt(np.add.reduce(vel * vel, axis=1))
+        terms = reward_terms(cfg.reward, route_before, self.route_m, clear_before, self.clear, speed, elapsed,
+                             arrived, crashed)
         reward = terms[TERMS[0]].copy()
         for k in TERMS[1:]:
             reward += terms[k]

@@ -15,7 +15,10 @@ time         -time_per_s x Δt (flying slowly costs)
 danger       -danger_per_s x Δt x max(0, 1 - TTC / ttc_horizon_s)², TTC = clearance / closing
              speed (the clearance's rate of decrease over the decision): grows with closing speed,
              not only with closeness, so braking before a wall pays and crashing fast does not
-proximity    -proximity_per_s x Δt x max(0, 1 - clearance / proximity_m)²: discourages grazing
+proximity    -proximity_per_s x Δt x max(0, 1 - clearance / proximity_m)² x (1 + (v / proximity_speed_m_s)²),
+             v the ground speed at the decision's end: near a surface, cost per *metre* grows with
+             speed (per second alone, a fast graze would cost less than a slow one, being shorter),
+             so the cheapest way past a wall is wide or slow
 arrival      +arrival_bonus on reaching the goal radius
 collision    -collision_penalty on a collision, leaving the flight volume or a non-finite state
 ===========  ==================================================================================
@@ -39,6 +42,7 @@ class RewardConfig:
     ttc_horizon_s: float = 1.5
     proximity_per_s: float = 5.0
     proximity_m: float = 4.0
+    proximity_speed_m_s: float = 5.0
     arrival_bonus: float = 50.0
     collision_penalty: float = 100.0
 
@@ -46,18 +50,19 @@ class RewardConfig:
         for k, v in self.__dict__.items():
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"reward.{k} must be a finite number >= 0, got {v!r}")
-        if self.ttc_horizon_s <= 0 or self.proximity_m <= 0:
-            raise ValueError("reward.ttc_horizon_s and reward.proximity_m must be > 0")
+        if self.ttc_horizon_s <= 0 or self.proximity_m <= 0 or self.proximity_speed_m_s <= 0:
+            raise ValueError("reward.ttc_horizon_s, reward.proximity_m and reward.proximity_speed_m_s must be > 0")
 
 
 def reward_terms(cfg: RewardConfig, route_before_m: np.ndarray, route_after_m: np.ndarray,
-                 clear_before_m: np.ndarray, clear_after_m: np.ndarray, elapsed_s: np.ndarray,
-                 arrived: np.ndarray, crashed: np.ndarray) -> dict[str, np.ndarray]:
+                 clear_before_m: np.ndarray, clear_after_m: np.ndarray, speed_m_s: np.ndarray,
+                 elapsed_s: np.ndarray, arrived: np.ndarray, crashed: np.ndarray) -> dict[str, np.ndarray]:
     """Each reward term (N,) for N vehicles over one decision (see the module table).
 
     Args:
         route_before_m, route_after_m: Φ at the decision's start and end [m].
         clear_before_m, clear_after_m: clearance at the decision's start and end [m].
+        speed_m_s: ground speed at the decision's end [m/s].
         elapsed_s: flight time the decision covered [s] (> 0).
         arrived: reached the goal; crashed: collision, out of bounds or non-finite.
     """
@@ -66,13 +71,14 @@ def reward_terms(cfg: RewardConfig, route_before_m: np.ndarray, route_after_m: n
         closing = (clear_before_m - clear_after_m) / elapsed_s
         ttc = np.where(closing > 0.0, np.maximum(clear_after_m, 0.0) / closing, np.inf)
         danger = np.maximum(0.0, 1.0 - ttc / cfg.ttc_horizon_s) ** 2
-        near = np.maximum(0.0, 1.0 - clear_after_m / cfg.proximity_m) ** 2
+        near = np.minimum(np.maximum(0.0, 1.0 - clear_after_m / cfg.proximity_m) ** 2, 1.0)
+        near = near * (1.0 + (speed_m_s / cfg.proximity_speed_m_s) ** 2)
     ok = ~crashed
     return {
         "progress": np.where(ok & np.isfinite(progress), progress, 0.0),
         "time": -cfg.time_per_s * elapsed_s,
         "danger": np.where(ok & np.isfinite(danger), -cfg.danger_per_s * elapsed_s * danger, 0.0),
-        "proximity": np.where(ok & np.isfinite(near), -cfg.proximity_per_s * elapsed_s * np.minimum(near, 1.0), 0.0),
+        "proximity": np.where(ok & np.isfinite(near), -cfg.proximity_per_s * elapsed_s * near, 0.0),
         "arrival": np.where(arrived, cfg.arrival_bonus, 0.0),
         "collision": np.where(crashed, -cfg.collision_penalty, 0.0),
     }

@@ -5,9 +5,9 @@ curriculum on the task distance, evaluates periodically on validation cities (ne
 cities), keeps the best checkpoint on validation, and writes a policy folder:
 
 ```
-out_dir/model.zip          SB3 PPO model (policy and value networks)
-out_dir/obs_norm.npz       observation-normalisation statistics (mean, var, epsilon, clip)
-out_dir/vecnormalize.pkl   the same statistics as SB3's VecNormalize (for resuming)
+out_dir/model.zip          SB3 PPO model (policy and value networks; read back without unpickling, `rl.policy_file`)
+out_dir/obs_norm.npz       observation-normalisation statistics (mean, var, count, epsilon, clip)
+out_dir/vecnormalize.npz   all of VecNormalize's statistics, as plain arrays (for resuming)
 out_dir/config.json        the TrainConfig (preset, PPO settings, NavConfig)
 out_dir/reward_curve.csv   one row per PPO update (training episodes) + validation columns
 out_dir/provenance.json    command, seed, wall time, machine, library versions, pools, validation
@@ -38,8 +38,10 @@ import numpy as np
 from rl.evaluation import EvalResult, eval_config, evaluate
 from rl.nav import NavConfig, NavWorld
 from rl.policy import TanhMeanPolicy
+from rl.policy_file import load_model_for_resume, restore_vec_normalize, save_obs_norm, save_vec_normalize
 from rl.vec_env import UAMNavVecEnv
-from uam_fdm.atomic import atomic_open, atomic_path, write_text_atomic
+from uam_fdm.atomic import atomic_path, write_text_atomic
+from uam_fdm.version import code_version
 
 CURVE_COLUMNS = ("timesteps", "mean_episode_reward", "train_success_rate", "train_collision_rate",
                  "train_timeout_rate", "train_episodes", "difficulty", "success_rate", "collision_rate",
@@ -54,17 +56,23 @@ class PPOPreset:
     net_arch: tuple[int, ...] = (128, 128)
     clip_range: float = 0.2
     learning_rate: float = 3e-4
-    learning_rate_end: float | None = None  # linear decay to this over the run (None: constant)
+    learning_rate_end: float | None = 0.0  # linear decay to this over the run (None: constant)
     n_steps: int = 64
     batch_size: int = 4096
     n_epochs: int = 5
-    gamma: float = 0.99  # 10 Hz decisions: a 10 s horizon
+    horizon_s: float = 10.0  # the discount's horizon in flight seconds: γ = 1 - 1 / (horizon_s x decision_hz)
     gae_lambda: float = 0.95
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
     log_std_init: float = -1.0
     target_kl: float | None = None
+
+
+    def gamma(self, decision_hz: float) -> float:
+        """The discount per decision at `decision_hz` [Hz] (0.99 at 10 Hz): the same horizon in
+        seconds at any decision rate, as the reward is per second."""
+        return 1.0 - 1.0 / (self.horizon_s * decision_hz)
 
 
 PRESETS: dict[str, PPOPreset] = {"paper": PPOPreset()}
@@ -101,18 +109,21 @@ class TrainConfig:
         nav: the task definition (training cities).
         curriculum: the success-gated difficulty schedule.
         eval_every: evaluate on validation cities every this many timesteps; eval_episodes: episodes each.
+        collision_weight: the kept checkpoint maximises validation success - collision_weight x
+            collision rate (a crash costs more than a time-out: it is the failure a user cannot accept).
         checkpoint_every: save a checkpoint every this many timesteps (0 = never).
         torch_threads: torch intra-op threads (1: small-tensor work is fastest single-threaded here).
     """
 
     preset: str = "paper"
-    total_timesteps: int = 20_000_000
+    total_timesteps: int = 10_000_000
     n_envs: int = 256
     seed: int = 0
     nav: NavConfig = field(default_factory=NavConfig)
     curriculum: Curriculum = field(default_factory=Curriculum)
     eval_every: int = 1_000_000
-    eval_episodes: int = 200
+    eval_episodes: int = 500
+    collision_weight: float = 2.0
     checkpoint_every: int = 2_000_000
     torch_threads: int = 1
 
@@ -122,10 +133,13 @@ class TrainConfig:
         for k in ("total_timesteps", "n_envs", "eval_every", "eval_episodes"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+        if not (np.isfinite(self.collision_weight) and self.collision_weight >= 0):
+            raise ValueError(f"collision_weight must be a finite number >= 0, got {self.collision_weight!r}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["ppo"] = asdict(PRESETS[self.preset])
+        d["ppo"]["gamma"] = PRESETS[self.preset].gamma(self.nav.decision_hz)
         return d
 
     @classmethod
@@ -149,13 +163,6 @@ def _write_json(path: Path, data: dict) -> None:
     write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
-def save_obs_norm(path: Path, venv_norm) -> None:
-    """Write the observation statistics the policy agent needs (atomic)."""
-    with atomic_open(path, "wb") as f:
-        np.savez(f, mean=venv_norm.obs_rms.mean, var=venv_norm.obs_rms.var, count=venv_norm.obs_rms.count,
-                 epsilon=venv_norm.epsilon, clip_obs=venv_norm.clip_obs)
-
-
 def normalize_obs(obs: np.ndarray, stats: dict) -> np.ndarray:
     """SB3 VecNormalize's observation transform with frozen statistics."""
     z = (obs - stats["mean"]) / np.sqrt(stats["var"] + stats["epsilon"])
@@ -172,18 +179,25 @@ class LinearSchedule:
         return self.end + (self.start - self.end) * progress_remaining
 
 
-def _make_model(preset: PPOPreset, venv, seed: int, tb: Path):
+def normalized_env(base, preset: PPOPreset, decision_hz: float):
+    """`base` (a VecEnv) behind SB3's VecNormalize: observations and rewards, as training uses it."""
+    from stable_baselines3.common.vec_env import VecNormalize
+    return VecNormalize(base, norm_obs=True, norm_reward=True, clip_obs=10.0, gamma=preset.gamma(decision_hz))
+
+
+def make_model(preset: PPOPreset, venv, seed: int, decision_hz: float, tb: Path | None = None):
+    """A fresh PPO model of `preset` (tanh-bounded mean, separate 2-layer actor and critic) on `venv`."""
     from stable_baselines3 import PPO
     lr = preset.learning_rate if preset.learning_rate_end is None else \
         LinearSchedule(preset.learning_rate, preset.learning_rate_end)
     return PPO(
         TanhMeanPolicy, venv, learning_rate=lr, n_steps=preset.n_steps,
-        batch_size=preset.batch_size, n_epochs=preset.n_epochs, gamma=preset.gamma,
+        batch_size=preset.batch_size, n_epochs=preset.n_epochs, gamma=preset.gamma(decision_hz),
         gae_lambda=preset.gae_lambda, clip_range=preset.clip_range, ent_coef=preset.ent_coef,
         vf_coef=preset.vf_coef, max_grad_norm=preset.max_grad_norm, target_kl=preset.target_kl, seed=seed,
         device="cpu", policy_kwargs={"net_arch": {"pi": list(preset.net_arch), "vf": list(preset.net_arch)},
                                      "log_std_init": preset.log_std_init},
-        tensorboard_log=str(tb), verbose=0)
+        tensorboard_log=str(tb) if tb is not None else None, verbose=0)
 
 
 def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress: bool = True,
@@ -196,9 +210,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         The kept model's evaluation on `cfg.eval_episodes` validation episodes.
     """
     import torch
-    from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(cfg.torch_threads)
     out_dir = Path(out_dir)
@@ -213,15 +225,14 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
     curve_path = out_dir / "reward_curve.csv"
     if resume is not None:
         resume = Path(resume)
-        venv = VecNormalize.load(str(resume / "vecnormalize.pkl"), base)
-        venv.training = True
-        model = PPO.load(str(resume / "model.zip"), env=venv, device="cpu", tensorboard_log=str(out_dir / "tb"))
+        venv = restore_vec_normalize(resume / "vecnormalize.npz", base)
+        model = load_model_for_resume(resume / "model.zip", venv, preset, cfg.nav.decision_hz, out_dir / "tb")
         state_file = resume / "curriculum.json"
         difficulty = json.loads(state_file.read_text())["difficulty"] if state_file.is_file() else 1.0
         log(f"resumed from {resume} at {model.num_timesteps} timesteps (difficulty {difficulty:g})")
     else:
-        venv = VecNormalize(base, norm_obs=True, norm_reward=True, clip_obs=10.0, gamma=preset.gamma)
-        model = _make_model(preset, venv, cfg.seed, out_dir / "tb")
+        venv = normalized_env(base, preset, cfg.nav.decision_hz)
+        model = make_model(preset, venv, cfg.seed, cfg.nav.decision_hz, out_dir / "tb")
         difficulty = cfg.curriculum.start
     base.batch.difficulty = difficulty
     if resume is None or not curve_path.exists():
@@ -239,8 +250,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         _write_json(folder / "curriculum.json", {"difficulty": base.batch.difficulty})
         with atomic_path(folder / "model.zip", suffix=".zip") as tmp:
             model.save(str(tmp))
-        with atomic_path(folder / "vecnormalize.pkl") as tmp:
-            venv.save(str(tmp))
+        save_vec_normalize(folder / "vecnormalize.npz", venv)
         save_obs_norm(folder / "obs_norm.npz", venv)
 
     state = {"next_eval": (model.num_timesteps // cfg.eval_every + 1) * cfg.eval_every,
@@ -270,9 +280,9 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
             f"{base.batch.difficulty:4.2f}  validation success {res.success_rate:6.1%}  collisions "
             f"{res.collision_rate:6.1%}  ({res.outcomes})")
         best = state["best"]
+        score = (lambda r: r.success_rate - cfg.collision_weight * r.collision_rate)
         # only full-difficulty checkpoints compete; ties go to the later (more trained) one
-        if base.batch.difficulty >= 1.0 and (best is None or (res.success_rate, -res.collision_rate) >=
-                                             (best[1].success_rate, -best[1].collision_rate)):
+        if base.batch.difficulty >= 1.0 and (best is None or score(res) >= score(best[1])):
             state["best"] = (model.num_timesteps, res)
             save_to(out_dir / "best")
         return res
@@ -312,7 +322,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         save_to(out_dir / "best")
         log("the curriculum never reached full difficulty; keeping the last model")
     best_steps, kept = state["best"]
-    for name in ("model.zip", "vecnormalize.pkl", "obs_norm.npz", "config.json", "curriculum.json"):
+    for name in ("model.zip", "vecnormalize.npz", "obs_norm.npz", "config.json", "curriculum.json"):
         os.replace(out_dir / "best" / name, out_dir / name)
     shutil.rmtree(out_dir / "best", ignore_errors=True)
     log(f"kept the checkpoint at {best_steps:,d} timesteps: validation success {kept.success_rate:.1%}, "
@@ -324,11 +334,13 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         "timesteps_per_s": round(model.num_timesteps / wall, 1) if resume is None else None,
         "resumed_from": str(resume) if resume else None,
         "pools": {"training": f"train seeds {cfg.nav.city_pool_offset}..{cfg.nav.city_pool_offset + cfg.nav.city_pool_size - 1}",
-                  "selection": f"validation pool, {cfg.eval_episodes} cities (eval seeds 1,050,000 on)",
+                  "selection": f"validation pool, {cfg.eval_episodes} cities (eval seeds 1,050,000 on), "
+                               f"max success - {cfg.collision_weight:g} x collisions",
                   "test": "test pool (eval seeds 1,000,000 on): never used here; `uam-compare evaluate-policy` reports it"},
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                     "cpus": os.cpu_count(), "torch_threads": cfg.torch_threads},
         "versions": _versions(), "validation_of_kept_model": kept.as_dict(),
+        "code": code_version(),  # which physics the policy learned on (the flight model changes with the code)
     }
     _write_json(out_dir / "provenance.json", prov)
     return kept

@@ -68,6 +68,9 @@ def test_run_writes_every_output(tiny_run):
     run = json.loads((tiny_run / "run.json").read_text())
     assert run["command"].startswith("uam-compare run") and "Neither knows the wind" in run["fairness"]
     assert run["versions"]["casadi"] != "not installed"
+    # the learned pilot decides at its policy's rate, not the scenario's: said in run.json and the report
+    assert run["methods"]["ppo"]["decision_hz"] == 10.0
+    assert any(n.startswith("ppo decides at 10 Hz") for n in run["notes"]), run["notes"]
 
 
 def test_report_pdf_has_the_expected_pages(tiny_run):
@@ -75,7 +78,7 @@ def test_report_pdf_has_the_expected_pages(tiny_run):
     text = "\n".join(page.extract_text() or "" for page in reader.pages)
     assert len(reader.pages) >= 7
     for heading in ("uam-compare report", "Metrics", "Episode tiny #0 seed 0", "reward convergence", "Failures",
-                    "PPO policy", "RRT* + MPC", "clearance", "speed"):
+                    "PPO policy", "RRT* + MPC", "clearance", "speed", "decides at 10 Hz"):
         assert heading in text, heading
 
 

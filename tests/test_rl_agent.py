@@ -21,7 +21,7 @@ def policy():
 
 
 def test_shipped_policy_is_plain_ppo_with_provenance():
-    for name in ("model.zip", "obs_norm.npz", "vecnormalize.pkl", "config.json", "reward_curve.csv", "provenance.json"):
+    for name in ("model.zip", "obs_norm.npz", "vecnormalize.npz", "config.json", "reward_curve.csv", "provenance.json"):
         assert (DEFAULT_POLICY_DIR / name).is_file(), name
     prov = json.loads((DEFAULT_POLICY_DIR / "provenance.json").read_text())
     assert prov["command"].startswith("uam-compare train") and prov["wall_time_s"] > 0

@@ -12,7 +12,7 @@ from rl.cities import CityDistribution
 from rl.env import UAMNavEnv
 from rl.nav import FixedEpisodes, NavConfig, NavWorld
 from rl.observation import obs_size
-from rl.reward import TERMS
+from rl.reward import TERMS, RewardConfig, reward_terms
 from rl.sensor import BoxSensor
 from rl.vec_env import UAMNavVecEnv
 from uam_fdm.agent import Task
@@ -88,6 +88,20 @@ def test_reward_terms_sum_and_info(world):
         if term or trunc:
             assert info["outcome"] in ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
             break
+
+
+def test_proximity_cost_per_metre_grows_with_speed():
+    cfg = RewardConfig()
+    one = np.ones(3)
+    speed = np.array([0.0, cfg.proximity_speed_m_s, 2 * cfg.proximity_speed_m_s])
+    t = reward_terms(cfg, one, one, one, one, speed, 0.1 * one, np.zeros(3, bool), np.zeros(3, bool))
+    base = -cfg.proximity_per_s * 0.1 * (1 - 1 / cfg.proximity_m) ** 2
+    assert t["proximity"] == pytest.approx(base * np.array([1.0, 2.0, 5.0]))
+    # passing the same wall 1 m off: per metre, fast costs more than slow (per second alone it would cost less)
+    per_m = t["proximity"][1:] / speed[1:]
+    assert per_m[1] < per_m[0] < 0
+    far = reward_terms(cfg, one, one, one, one + cfg.proximity_m, speed, 0.1 * one, np.zeros(3, bool), np.zeros(3, bool))
+    assert (far["proximity"] == 0).all()
 
 
 def _box_world(tasks, timeout_s=30.0, turbulence="none"):

@@ -31,7 +31,7 @@ def test_train_writes_a_loadable_policy_and_resumes(tmp_path):
                       checkpoint_every=8 * 64)
     out = tmp_path / "pol"
     res = train(cfg, out, progress=False, command="test", log=lambda *_: None)
-    for name in ("model.zip", "obs_norm.npz", "vecnormalize.pkl", "config.json", "reward_curve.csv",
+    for name in ("model.zip", "obs_norm.npz", "vecnormalize.npz", "config.json", "reward_curve.csv",
                  "provenance.json", "curriculum.json"):
         assert (out / name).is_file(), name
     assert not (out / "best").exists() and sorted(p.name for p in (out / "checkpoints").iterdir())
@@ -86,6 +86,16 @@ def test_presets_keep_the_paper_network():
         TrainConfig(preset="huge")
     with pytest.raises(ValueError, match="curriculum"):
         Curriculum(start=0.0)
+    with pytest.raises(ValueError, match="collision_weight"):
+        TrainConfig(collision_weight=-1.0)
+
+
+def test_discount_keeps_its_horizon_in_seconds():
+    pr = PRESETS["paper"]
+    assert pr.gamma(10.0) == 0.99 and pr.gamma(50.0) == pytest.approx(0.998)
+    # the weight of a reward 10 s ahead is the same at either rate (1/e in the continuous limit)
+    assert pr.gamma(50.0) ** 500 == pytest.approx(pr.gamma(10.0) ** 100, rel=5e-3)
+    assert TrainConfig().to_dict()["ppo"]["gamma"] == 0.99
 
 
 def test_potential_field_flies_past_a_building_in_the_way():

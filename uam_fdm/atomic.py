@@ -2,7 +2,9 @@
 
 Every output the project writes goes through here, so an interrupted run never leaves a
 half-written file: a file either exists complete (the previous version or the new one) or not at
-all. The temporary file is hidden (leading dot) and removed if the writer fails.
+all. The temporary file is hidden (leading dot, `TEMP_MARK` in its name) and removed if the writer fails
+(a full disk included: the error then names the output that could not be written). A process killed
+mid-write cannot remove its own: `remove_stale_temporaries` does, on the next run or report.
 """
 from __future__ import annotations
 
@@ -12,6 +14,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
+
+
+TEMP_MARK = ".partial-"  # in every temporary name (".<final name>.partial-<random><suffix>"), and only there
 
 
 @contextmanager
@@ -24,13 +29,18 @@ def atomic_path(path: Path | str, suffix: str = ".tmp") -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARK}", suffix=suffix, dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
         # mkstemp makes the file private (0600); an output gets the permissions `open` would give it
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        if exc.filename is None:  # a failed write (disk full) names no file: name the output it was for
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+        raise
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -54,3 +64,15 @@ def write_text_atomic(path: Path | str, text: str) -> Path:
     with atomic_open(path, "w", encoding="utf-8", newline="") as f:
         f.write(text)
     return Path(path)
+
+
+def remove_stale_temporaries(folder: Path | str) -> list[Path]:
+    """Remove the temporary files that interrupted writes left anywhere under `folder`; returns them.
+
+    Call it only where no other writer is at work in `folder` (a run before it flies, a report before
+    it scores): a temporary there can only be the remains of a killed process.
+    """
+    stale = sorted(p for p in Path(folder).rglob(f".*{TEMP_MARK}*") if p.is_file())
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale

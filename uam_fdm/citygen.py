@@ -31,6 +31,12 @@ from uam_fdm.errors import ConfigError
 
 MAPS_DIR = Path(__file__).parent / "maps"
 REGENERATE_COMMAND = "python -m uam_fdm.citygen --write-shipped"
+# Generation costs ~40 us per lot, and every later step (clearance, planning, plots) grows with the
+# buildings: these keep a generated city to ~1 s. The shipped maps are <= 1 km with < 800 lots.
+MAX_CITY_EXTENT_M = 5000.0   # per axis
+MAX_LOTS_PER_BLOCK = 10      # per axis
+MAX_CITY_LOTS = 20_000       # lots the street grid holds over the whole city (built or not)
+MIN_BUILDING_SIZE_M = 1.0    # smallest footprint side: lot size x fill_range low (positions round to 1 cm)
 
 
 def _check_params(p: Any, source: str, prefix: str) -> None:
@@ -43,6 +49,8 @@ def _check_params(p: Any, source: str, prefix: str) -> None:
     for k in ("extent_m", "block_size_m"):
         if len(get(k)) != 2 or min(get(k)) <= 0:
             fail(k, "must be two positive numbers")
+    if max(get("extent_m")) > MAX_CITY_EXTENT_M:
+        fail("extent_m", f"must be at most {MAX_CITY_EXTENT_M:g} m per axis")
     if not get("street_width_m") > 0:
         fail("street_width_m", "must be positive")
     if not 0 <= get("margin_m") < 0.5 * min(get("extent_m")):
@@ -52,6 +60,8 @@ def _check_params(p: Any, source: str, prefix: str) -> None:
     lots = get("lots_per_block")
     if len(lots) != 2 or any(isinstance(v, bool) or int(v) != v or v < 1 for v in lots):
         fail("lots_per_block", "must be two integers >= 1")
+    if max(lots) > MAX_LOTS_PER_BLOCK:
+        fail("lots_per_block", f"must be at most {MAX_LOTS_PER_BLOCK} per axis")
     for k in ("density", "merge_prob"):
         if not 0.0 <= get(k) <= 1.0:
             fail(k, "must be in [0, 1]")
@@ -69,6 +79,22 @@ def _check_params(p: Any, source: str, prefix: str) -> None:
              "core radius must be >= 0 and height factor positive")
     if not get("yaw_jitter_deg") >= 0:
         fail("yaw_jitter_deg", "must be >= 0")
+    smallest = min(b / n for b, n in zip(get("block_size_m"), lots)) * f0
+    if smallest < MIN_BUILDING_SIZE_M:
+        fail("block_size_m", f"with lots_per_block {list(lots)} and fill_range low {f0:g} gives buildings "
+                             f"{smallest:.3g} m wide; at least {MIN_BUILDING_SIZE_M:g} m")
+    n_blocks = _grid_blocks(get("extent_m"), get("block_size_m"), get("street_width_m"))
+    n_lots = n_blocks[0] * n_blocks[1] * int(lots[0]) * int(lots[1])
+    if n_lots > MAX_CITY_LOTS:
+        fail("extent_m", f"with block_size_m {list(get('block_size_m'))}, street_width_m {get('street_width_m'):g} "
+                         f"and lots_per_block {list(lots)} makes a street grid of {n_lots:,} lots; at most "
+                         f"{MAX_CITY_LOTS:,} (a smaller extent_m, larger blocks or fewer lots)")
+
+
+def _grid_blocks(extent_m: Sequence[float], block_size_m: Sequence[float], street_width_m: float) -> list[int]:
+    """Blocks of the street grid along its x and y: enough to cover the city at any grid rotation."""
+    half_diag = 0.5 * math.hypot(extent_m[0], extent_m[1])
+    return [math.ceil(2.0 * half_diag / (block_size_m[i] + street_width_m)) + 1 for i in range(2)]
 
 
 @dataclass(frozen=True)
@@ -77,11 +103,12 @@ class CityGenParams:
 
     Attributes:
         extent_m: city size (x east, y north); the bounds are [0, W] x [0, D] x [0, ceiling].
+            At most MAX_CITY_EXTENT_M per axis, and the street grid at most MAX_CITY_LOTS lots.
         margin_m: building-free border inside the bounds.
         ceiling_m: top of the flight volume.
         block_size_m: block footprint between streets (along the grid's x and y).
         street_width_m: street width between blocks.
-        lots_per_block: lots per block along the grid's x and y.
+        lots_per_block: lots per block along the grid's x and y, each 1..MAX_LOTS_PER_BLOCK.
         density: probability that a lot holds a building, in [0, 1].
         fill_range: building footprint as a fraction of its lot, per axis, drawn uniformly in range.
         height_median_m: median building height outside the core.
@@ -159,8 +186,7 @@ def generate_city(params: CityGenParams, seed: int, name: str = "") -> BuildingM
     rot = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
     pitch = np.array(p.block_size_m) + p.street_width_m
     # A grid large enough to cover the city at any rotation; blocks outside are dropped below.
-    half_diag = 0.5 * math.hypot(width, depth)
-    n_blocks = [math.ceil(2.0 * half_diag / pitch[i]) + 1 for i in range(2)]
+    n_blocks = _grid_blocks(p.extent_m, p.block_size_m, p.street_width_m)
     core = np.array(p.core_center_frac) * np.array(p.extent_m)
     lo, hi = p.margin_m, np.array([width, depth]) - p.margin_m
     buildings: list[Building] = []

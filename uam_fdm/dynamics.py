@@ -17,12 +17,47 @@ import numpy as np
 from uam_fdm.codegen import compile_functions
 from uam_fdm.fastcall import BatchCaller
 from uam_fdm.control import N_CMD, N_CTRL_STATE, build_controller_function
+from uam_fdm.errors import ConfigError
 from uam_fdm.model import N_ENV, StateLayout, build_model_functions
 from uam_fdm.params import VehicleParams
 
 log = logging.getLogger(__name__)
 
 _BATCHED = ("rk4_step", "controller", "period_rotor", "period_velocity")
+# A control period is unrolled into one generated function of this many RK4 steps at most: its code,
+# compile time and memory grow with the count (10 at 500 Hz / 50 Hz is ~0.5 MB of machine code).
+MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD = 100
+# The motor lag dΩ/dt = (u - Ω)/τ under RK4 is stable only for dt < 2.8 τ; at dt <= τ/2 its error
+# per step stays below 0.05 %, so τ must span at least this many physics steps.
+MIN_PHYSICS_STEPS_PER_MOTOR_TIME_CONSTANT = 2.0
+
+
+def control_ratio_problem(physics_hz: float, control_hz: float) -> str | None:
+    """Why `control_hz` does not fit `physics_hz`, or None.
+
+    It must divide `physics_hz` into at most MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD physics steps per control period.
+    """
+    if not (physics_hz > 0 and control_hz > 0):
+        return f"physics_hz {physics_hz:g} and control_hz {control_hz:g} must be positive"
+    ratio = physics_hz / control_hz
+    if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+        return f"physics_hz {physics_hz:g} Hz must be a positive integer multiple of control_hz {control_hz:g} Hz"
+    if round(ratio) > MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD:
+        return (f"control_hz {control_hz:g} Hz gives {round(ratio)} physics steps per control period at {physics_hz:g} Hz; "
+                f"at most {MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD} (control_hz >= "
+                f"{physics_hz / MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD:g} Hz)")
+    return None
+
+
+def motor_lag_problem(params: VehicleParams, physics_hz: float) -> str | None:
+    """Why `params.motor_time_constant_s` is too short to integrate at `physics_hz`, or None."""
+    steps = params.motor_time_constant_s * physics_hz
+    if steps < MIN_PHYSICS_STEPS_PER_MOTOR_TIME_CONSTANT:
+        return (f"motor_time_constant_s {params.motor_time_constant_s:g} s spans {steps:.3g} physics steps at "
+                f"{physics_hz:g} Hz; it must span at least {MIN_PHYSICS_STEPS_PER_MOTOR_TIME_CONSTANT:g} (RK4 "
+                f"diverges once a step exceeds 2.8 time constants): a physics rate of at least "
+                f"{MIN_PHYSICS_STEPS_PER_MOTOR_TIME_CONSTANT / params.motor_time_constant_s:.4g} Hz")
+    return None
 
 
 @dataclass(frozen=True)
@@ -93,9 +128,13 @@ class VehicleDynamics:
 
     def __init__(self, params: VehicleParams, physics_hz: float = 500.0, control_hz: float = 50.0,
                  compiled: bool | None = None, cache_dir: Path | None = None) -> None:
+        problem = control_ratio_problem(physics_hz, control_hz)
+        if problem is not None:
+            raise ValueError(problem)
+        problem = motor_lag_problem(params, physics_hz)
+        if problem is not None:  # before compiling anything: a diverging model is not worth the wait
+            raise ConfigError(params.source, "motor_time_constant_s", problem)
         ratio = physics_hz / control_hz
-        if physics_hz <= 0 or control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(f"physics_hz {physics_hz} must be a positive multiple of control_hz {control_hz}")
         self.params = params
         self.layout = StateLayout(params.n_rotors)
         self.physics_hz, self.control_hz = float(physics_hz), float(control_hz)

@@ -19,11 +19,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from uam_fdm import citygen, geojson
 from uam_fdm.city import Building, BuildingMap, NoFlyZone
 from uam_fdm.errors import ConfigError
+from uam_fdm.yamlfile import load_yaml_file
 
 MAPS_DIR = Path(__file__).parent / "maps"
 _SOURCES = ("buildings", "generator", "geojson", "named")
@@ -126,12 +125,7 @@ def load_map_file(path: Path, source: str | None = None) -> BuildingMap:
         source: name used in error messages (default: the path).
     """
     src = source or str(path)
-    try:
-        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(src, "<file>", f"cannot read: {exc}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(src, "<yaml>", f"not valid YAML: {exc}") from None
+    doc = load_yaml_file(path, src)
     if not isinstance(doc, Mapping):
         raise ConfigError(src, "<root>", "must be a mapping with name, bounds and map")
     _reject_unknown(doc, {"name", "bounds", "map"}, src, "")

@@ -15,12 +15,15 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
 from uam_fdm.errors import ConfigError
+from uam_fdm.yamlfile import load_yaml_file
 
 GRAVITY_M_S2 = 9.80665
 PRESET_DIR = Path(__file__).parent / "presets"
+# controller.max_speed_m_s [m/s]: the default episode timeout divides by it (a tiny value gives a
+# timeout of days) and the wind model's airspeed is capped at 100 m/s; multicopters fly below it.
+MAX_SPEED_RANGE_M_S = (0.5, 100.0)
 
 
 @dataclass(frozen=True)
@@ -149,10 +152,9 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
     if not path.exists():
         raise ConfigError(str(name_or_path), "vehicle",
                           f"no such file and not a preset (presets: {', '.join(preset_names())})")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(str(path), "<yaml>", f"not valid YAML: {exc}") from None
+    if not path.is_file():
+        raise ConfigError(str(path), "vehicle", "is a folder, not a vehicle YAML file")
+    data = load_yaml_file(path)  # strict: duplicate keys, bounded aliases, UTF-8 text
     return vehicle_from_dict(data, source=str(path))
 
 
@@ -243,6 +245,10 @@ def _controller(data: Any, source: str) -> ControllerParams:
         raise ConfigError(source, "controller", f"missing {sorted(required - set(values))}") from None
     if not 0.0 < ctrl.max_tilt_deg < 80.0:
         raise ConfigError(source, "controller.max_tilt_deg", f"must be in (0, 80), got {ctrl.max_tilt_deg}")
+    lo, hi = MAX_SPEED_RANGE_M_S
+    if not lo <= ctrl.max_speed_m_s <= hi:
+        raise ConfigError(source, "controller.max_speed_m_s", f"must be in [{lo:g}, {hi:g}] m/s, "
+                                                              f"got {ctrl.max_speed_m_s:g}")
     return ctrl
 
 
