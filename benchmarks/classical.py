@@ -197,7 +197,7 @@ def measure_mpc(vehicle: str, solver: str, seconds: float = 10.0) -> dict:
     """
     from planners.mpc import MPCConfig, MPCTracker
     from uam_fdm.dynamics import VehicleDynamics
-    from uam_fdm.model import hover_state
+    from uam_fdm.model import hover_state, make_env
 
     p = load_vehicle(vehicle)
     try:
@@ -209,7 +209,7 @@ def measure_mpc(vehicle: str, solver: str, seconds: float = 10.0) -> dict:
     w = speed / radius
     n, h = mpc.config.horizon_steps, mpc.config.step_s
     x = hover_state(p, (0.0, 0.0, 30.0))
-    env = np.array([0.0, 0.0, 0.0, 1.0])
+    env = make_env()
     times, iters, errors = [], [], []
     for k in range(int(seconds * dyn.control_hz)):
         t = k / dyn.control_hz

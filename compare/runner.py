@@ -18,6 +18,7 @@ import numpy as np
 
 from uam_fdm import episode
 from uam_fdm.agent import Agent, Observation, RotorCommand, Task, VelocityCommand, World
+from uam_fdm.ground_effect import height_above_surface
 from uam_fdm.model import hover_state
 from uam_fdm.sim import Simulator
 from uam_fdm.wind import WindField
@@ -93,11 +94,13 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
             if held < 1:
                 raise ValueError(f"agent {agent.name!r} asked to hold its actuation for {held} periods")
         held -= 1
-        env = sim.env(s.x, s.t_s)
+        # ground effect: the height above the surface below, from the clearance at the period's start
+        height = float(height_above_surface(city, s.x[None, 0:3], clear[-1][-1:], p)[0])
+        env = sim.env(s.x, s.t_s, height)
         if isinstance(act, RotorCommand):
-            r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float))
+            r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float), height)
         elif isinstance(act, VelocityCommand):
-            r = sim.advance_velocity(act.as_vector())
+            r = sim.advance_velocity(act.as_vector(), height)
         else:
             raise TypeError(f"agent {agent.name!r} returned {type(act).__name__}, not an Actuation")
         n_sub = r.states.shape[0]

@@ -124,7 +124,10 @@ class ClassicalAgent:
         ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
         normals, offsets = self._halfspaces(obs, ref_pos)
         elapsed = 0.0 if self._last_t is None else obs.t_s - self._last_t
-        sol = mpc.solve(obs.x, ref_pos, ref_vel, self._task.start_yaw_rad, sigma, normals, offsets, elapsed)
+        # the map is known to this pilot: its MPC predicts the ground effect of the surface below it now
+        height = float(obs.x[2] - world.city.surface_height_m(obs.x[None, 0:3])[0])
+        sol = mpc.solve(obs.x, ref_pos, ref_vel, self._task.start_yaw_rad, sigma, normals, offsets, elapsed,
+                        height_above_surface_m=height)
         self._last_t = obs.t_s
         self._record(sol)
         return RotorCommand(sol.rotor_speeds_rad_s)

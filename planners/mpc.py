@@ -45,7 +45,7 @@ import casadi as ca
 import numpy as np
 
 from uam_fdm.codegen import compile_source
-from uam_fdm.model import N_ENV, dynamics_expr
+from uam_fdm.model import FAR_FROM_SURFACES_M, N_ENV, dynamics_expr, make_env
 from uam_fdm.params import VehicleParams
 
 log = logging.getLogger(__name__)
@@ -416,7 +416,7 @@ class MPCTracker:
 
     def solve(self, x_full: np.ndarray, ref_pos_m: np.ndarray, ref_vel_m_s: np.ndarray, yaw_ref_rad: float,
               density_ratio: float, normals: np.ndarray | None = None, offsets: np.ndarray | None = None,
-              elapsed_s: float = 0.0) -> MPCSolution:
+              elapsed_s: float = 0.0, height_above_surface_m: float = FAR_FROM_SURFACES_M) -> MPCSolution:
         """Solve for the rotor command to apply now.
 
         Args:
@@ -428,6 +428,8 @@ class MPCTracker:
                 and offsets (N, K) [m], meaning normals·p_k ≥ offsets (enforced, softly, at stages
                 1..N-1; the terminal stage carries none); None for no constraints.
             elapsed_s: time since the previous solve [s] (to shift the warm start).
+            height_above_surface_m: the vehicle's height above the surface below it [m], held over the
+                horizon (the model's ground effect; default: far from any surface).
         """
         cfg, n = self.config, self.n_v
         big_n, k_h = cfg.horizon_steps, cfg.n_halfspaces
@@ -441,7 +443,8 @@ class MPCTracker:
         else:
             normals_arr = np.asarray(normals, float).reshape(big_n, k_h * 3).T
             offsets_arr = np.asarray(offsets, float).reshape(big_n, k_h).T
-        params = np.concatenate([x0, ref.ravel(order="F"), [yaw_ref_rad], [0.0, 0.0, 0.0, density_ratio],
+        params = np.concatenate([x0, ref.ravel(order="F"), [yaw_ref_rad],
+                                 make_env(density_ratio=density_ratio, height_above_surface_m=height_above_surface_m),
                                  u_prev, u_hover, normals_arr.ravel(order="F"), offsets_arr.ravel(order="F")])
         w0 = self._initial_guess(x0, ref, u_hover, elapsed_s)
         args = {"x0": w0, "p": params, "lbx": self._lbx, "ubx": self._ubx, "lbg": self._lbg, "ubg": self._ubg}

@@ -38,6 +38,7 @@ from uam_fdm.city import BuildingMap
 from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.model import hover_state
 from uam_fdm.params import VehicleParams, load_vehicle
+from uam_fdm.ground_effect import height_above_surface, range_m as ground_effect_range_m
 from uam_fdm.sim import BatchSimulator
 from uam_fdm.wind import TurbulenceLevel, WindBank, WindConditions, WindField, gust_series
 
@@ -210,6 +211,7 @@ class NavBatch:
         self.memory = PilotMemory.empty(n, cfg.decision_hz)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
         self._radius = world.vehicle.collision_radius_m
+        self._ground_effect_range_m = ground_effect_range_m(world.vehicle) if world.vehicle.ground_effect else -np.inf
         self.lo = np.zeros((n, 3))
         self.hi = np.zeros((n, 3))
         self._period = 1.0 / world.dynamics.control_hz
@@ -314,6 +316,16 @@ class NavBatch:
             lb[near] = c[:, -1]
         return hit, lb
 
+    def _heights(self, idx: np.ndarray, pos: np.ndarray, clear_lb: np.ndarray) -> np.ndarray:
+        """Heights above the surface below (M,) [m] of slots idx at positions pos (M, 3) for ground effect:
+        the runner's rule (`height_above_surface`) in each slot's city; a slot whose clearance's lower
+        bound puts every surface out of ground-effect range gets its altitude, as in the runner."""
+        w = self.world
+        h = pos[:, 2].copy()
+        for k in np.flatnonzero(clear_lb + self._radius < self._ground_effect_range_m):
+            h[k] = height_above_surface(w.cities[self.city[idx[k]]], pos[k:k + 1], clear_lb[k:k + 1], w.vehicle)[0]
+        return h
+
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         """Advance every slot one decision.
 
@@ -336,7 +348,8 @@ class NavBatch:
             # every slot still flying (the common case): plain slices instead of gathers, same numbers
             sel = slice(None) if len(idx) == self.n else idx
             r = self.sim.step_velocity_batch(self.x[sel], self.xi[sel], cmd[sel], self.t[sel],
-                                             None if len(idx) == self.n else idx)
+                                             None if len(idx) == self.n else idx,
+                                             self._heights(idx, self.x[sel, 0:3], clear_lb[sel]))
             finite = np.isfinite(r.states).all(axis=(1, 2))
             hit, clear_lb[sel] = self._collided(idx, sel, r.states, finite, clear_lb[sel])
             c = episode.period_outcome(r.states, hit, self.lo[sel], self.hi[sel], self.goal[sel], self.goal_radius[sel])

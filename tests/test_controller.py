@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uam_fdm.model import hover_state
+from uam_fdm.model import hover_state, make_env
 
 # Bounds per (preset, wind): rise time to 90 % [s], overshoot, settling time to ±5 % [s], altitude
 # excursion [m]. Measured here: quad calm 0.82 s / 0.7 % / 0.94 s, wind 0.68 s / 8.3 % / 2.7 s;
@@ -22,7 +22,7 @@ BOUNDS = {
 def _step_response(p, dyn, v_cmd, wind=(0.0, 0.0, 0.0), seconds=12.0):
     x = hover_state(p, (0.0, 0.0, 60.0))
     xi = np.zeros(3)
-    env = np.array([*wind, 1.0])
+    env = make_env(wind)
     cmd = np.array([v_cmd, 0.0, 0.0, 0.0])
     t, vx, z, u_all = [], [], [], []
     for k in range(int(seconds * dyn.control_hz)):
@@ -57,7 +57,7 @@ def test_hover_to_5_m_s(name, wind, vehicles, compiled_dynamics):
 def test_climb_descend_and_yaw_commands_are_followed(name, vehicles, compiled_dynamics):
     p, dyn = vehicles[name], compiled_dynamics[name]
     x, xi = hover_state(p, (0.0, 0.0, 60.0)), np.zeros(3)
-    env = np.array([0.0, 0.0, 0.0, 1.0])
+    env = make_env()
     vz = p.controller.max_vertical_speed_m_s
     for cmd, check in (([0, 0, 2 * vz, 0.0], lambda s: abs(s[5] - vz) < 0.1),     # saturated to the limit
                        ([0, 0, -vz, 0.0], lambda s: abs(s[5] + vz) < 0.1),

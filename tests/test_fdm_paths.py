@@ -20,7 +20,8 @@ def _random_flight_inputs(p, n, seed):
     x[:, 10:13] += 0.3 * rng.normal(size=(n, 3))
     x[:, 13:] *= 1 + 0.1 * rng.normal(size=(n, p.n_rotors))
     cmd = np.column_stack([rng.uniform(-8, 8, size=(n, 3)), rng.uniform(-3, 3, size=n)])
-    env = np.column_stack([rng.normal(0, 4, size=(n, 3)), rng.uniform(0.8, 1.0, size=n)])
+    # heights 0.3-3 m above a surface: the ground-effect term is compared across the paths too
+    env = np.column_stack([rng.normal(0, 4, size=(n, 3)), rng.uniform(0.8, 1.0, size=n), rng.uniform(0.3, 3.0, size=n)])
     u = x[:, 13:] * (1 + 0.05 * rng.normal(size=(n, p.n_rotors)))
     return x, np.zeros((n, 3)), cmd, env, u
 

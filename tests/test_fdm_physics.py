@@ -9,7 +9,7 @@ import pytest
 
 from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.dynamics import VehicleDynamics
-from uam_fdm.model import StateLayout, hover_state
+from uam_fdm.model import StateLayout, hover_state, make_env
 from uam_fdm.params import GRAVITY_M_S2
 from uam_fdm.sim import Simulator
 
@@ -66,7 +66,7 @@ def test_trim_rotor_speed_matches_closed_form(name, elevation_m, vehicles, compi
     np.testing.assert_allclose(trim, expected, rtol=1e-9)
     # ... and the model agrees: no acceleration at that trim with that density.
     x = hover_state(p, (0.0, 0.0, 0.0), density_ratio=sigma)
-    x_dot = dyn.x_dot(x, trim, np.array([0.0, 0.0, 0.0, sigma]))
+    x_dot = dyn.x_dot(x, trim, make_env(density_ratio=sigma))
     np.testing.assert_allclose(x_dot[3:6], 0.0, atol=1e-9)
     np.testing.assert_allclose(x_dot[10:13], 0.0, atol=1e-9)
     if elevation_m > 0:   # thinner air needs faster rotors: ρ(2000 m)/ρ0 = 0.8216 (ICAO)
@@ -84,7 +84,7 @@ def test_differential_yaw_command_gives_predicted_angular_acceleration(name, veh
     omega = hover * np.sqrt(1.0 - spins * delta)   # clockwise rotors (s = -1) faster: total thrust unchanged
     x = hover_state(p, (0.0, 0.0, 100.0))
     x[lay.rotor] = omega
-    env = np.array([0.0, 0.0, 0.0, 1.0])
+    env = make_env()
     predicted = -np.sum(spins * p.torque_coeff_Nm_s2 * omega**2) / p.inertia[2, 2]
     assert predicted > 0, "clockwise rotors faster must yaw the body counter-clockwise (+z, FLU)"
     assert predicted == pytest.approx(p.torque_coeff_Nm_s2 * np.sum(hover**2) * delta / p.inertia[2, 2], rel=1e-9)
@@ -104,7 +104,7 @@ def test_shaft_power_and_energy_at_hover(name, vehicles, compiled_dynamics):
     x = hover_state(p, (0.0, 0.0, 100.0))
     hover = p.hover_rotor_speeds_rad_s()
     expected = float(np.sum(p.torque_coeff_Nm_s2 * hover**3))
-    env = np.array([0.0, 0.0, 0.0, 1.0])
+    env = make_env()
     assert dyn.shaft_power_W(x, env) == pytest.approx(expected, rel=1e-12)
     r = dyn.period_rotor(x, hover, env)
     assert r.energy_J == pytest.approx(expected / dyn.control_hz, rel=1e-9)
@@ -118,7 +118,7 @@ def test_jacobians_match_finite_differences(name, vehicles, compiled_dynamics):
     x[3:6] = rng.normal(size=3)
     x[10:13] = 0.2 * rng.normal(size=3)
     u = p.hover_rotor_speeds_rad_s() * (1 + 0.05 * rng.normal(size=p.n_rotors))
-    env = np.array([2.0, -1.0, 0.0, 0.95])
+    env = make_env((2.0, -1.0, 0.0), 0.95)
     a, b = dyn.jacobians(x, u, env)
     for j in range(x.size):
         h = 1e-6 * max(1.0, abs(x[j]))

@@ -21,7 +21,7 @@ from rl.route import RouteBank, grid_shape, route_field
 from uam_fdm import episode
 from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.city import Building, BuildingMap
-from uam_fdm.model import hover_state
+from uam_fdm.model import hover_state, make_env
 from uam_fdm.params import load_vehicle
 from uam_fdm.sim import BatchSimulator
 from uam_fdm.wind import GustSeries, TurbulenceLevel, WindBank
@@ -98,7 +98,7 @@ def test_batch_caller_reads_read_only_and_empty_inputs(compiled_dynamics, vehicl
     x = np.stack([hover_state(p, (0.0, 0.0, 30.0), 0.0) for _ in range(3)])
     x += rng.normal(0, 0.01, x.shape)
     xi, cmd = rng.normal(0, 0.1, (3, 3)), rng.uniform(-2, 2, (3, 4))
-    env = np.tile([1.0, -0.5, 0.0, 1.0], (3, 1))
+    env = np.tile(make_env((1.0, -0.5, 0.0)), (3, 1))
     ref = dyn.period_velocity_batch(x, xi, cmd, env)
     frozen = [a.copy() for a in (x, xi, cmd, env)]
     for a in frozen:

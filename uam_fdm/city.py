@@ -347,6 +347,11 @@ class BuildingMap:
         bid = np.where(use_b, self._part_ids[np.maximum(part, 0)] if len(self._parts) else -1, -1)
         return Clearance(_frozen(dist), _frozen(bid.astype(np.int64)), _frozen(near))
 
+    def surface_height_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Height of the surface directly below each point [m]: the highest roof at or below the point
+        whose footprint holds its (x, y), else the ground (0). Points (N, 3), ENU metres -> (N,)."""
+        return clearance_np.surface_below(_as_points(points_m), self._packed)
+
     def clearance_one(self, x: float, y: float, z: float, radius_m: float = 0.0) -> float:
         """Signed clearance of one sphere: the fast scalar path (OMPL validity callbacks).
 

@@ -173,6 +173,37 @@ def _keys(p: np.ndarray, a: PackedPrisms) -> np.ndarray:
     return out
 
 
+def surface_below(points: np.ndarray, a: PackedPrisms) -> np.ndarray:
+    """Height of the surface directly below each point: the highest obstacle top at or below the point
+    whose footprint holds the point's (x, y) (edges included), else the ground (0).
+
+    Args:
+        points: (N, 3) positions, ENU metres.
+        a: packed obstacles (height ranges starting at the ground, as `BuildingMap` packs them).
+
+    Returns:
+        (N,) surface heights [m].
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    out = np.zeros(len(p))
+    for s in range(0, len(p), _CHUNK):
+        q = p[s:s + _CHUNK]
+        if len(a.box_part):
+            dx, dy = q[:, 0:1] - a.box_cx, q[:, 1:2] - a.box_cy
+            inside = ((np.abs(dx * a.box_cos + dy * a.box_sin) <= a.box_hx)
+                      & (np.abs(dy * a.box_cos - dx * a.box_sin) <= a.box_hy))
+            top = a.box_zc + a.box_hz
+            under = inside & (top <= q[:, 2:3])
+            out[s:s + len(q)] = np.max(np.where(under, top, 0.0), axis=1, initial=0.0)
+        if len(a.prism_part):
+            rel = q[:, None, None, 0:2] - a.prism_v0[None]
+            inside = np.einsum("npki,pki->npk", rel, a.prism_n).max(axis=2) <= 0.0
+            top = a.prism_zc + a.prism_hz
+            under = inside & (top <= q[:, 2:3])
+            out[s:s + len(q)] = np.maximum(out[s:s + len(q)], np.max(np.where(under, top, 0.0), axis=1, initial=0.0))
+    return out
+
+
 def _key_to_distance(key: np.ndarray) -> np.ndarray:
     return np.copysign(np.sqrt(np.abs(key)), key)
 

@@ -27,7 +27,7 @@ import math
 import casadi as ca
 import numpy as np
 
-from uam_fdm.model import StateLayout, quat_to_rotation
+from uam_fdm.model import N_ENV, StateLayout, drag_force_body, quat_to_rotation
 from uam_fdm.params import GRAVITY_M_S2, VehicleParams
 
 N_CMD = 4   # v_e, v_n, v_u [m/s], yaw reference [rad]
@@ -56,10 +56,8 @@ def _desired_acceleration(p: VehicleParams, x: ca.SX, xi: ca.SX, v_ref: ca.SX, s
     rot = quat_to_rotation(x[lay.quat])
     # Feed-forward of the vehicle's own drag at the reference ground speed (the autopilot does not know
     # the wind; the integral term takes the rest).
-    v_ref_body = rot.T @ v_ref
-    drag_body = (ca.DM(p.drag_linear_N_s_m) * v_ref_body
-                 + sigma * ca.DM(p.drag_quadratic_N_s2_m2) * ca.fabs(v_ref_body) * v_ref_body)
-    a = c.velocity_gain_1_s * (v_ref - v) + xi + rot @ drag_body / p.mass_kg
+    drag_body = drag_force_body(p, rot.T @ v_ref, sigma)  # the model's own drag law, written once
+    a = c.velocity_gain_1_s * (v_ref - v) + xi - rot @ drag_body / p.mass_kg
     a_z = a[2] + GRAVITY_M_S2
     a_z_max = 0.95 * p.max_thrust_N() / p.mass_kg * sigma
     a_z = ca.fmin(ca.fmax(a_z, 0.3 * GRAVITY_M_S2), a_z_max)
@@ -118,7 +116,8 @@ def controller_expr(p: VehicleParams, x: ca.SX, xi: ca.SX, cmd: ca.SX, env: ca.S
         x: vehicle state (13 + n,).
         xi: integral state (3,) [m/s²], world ENU.
         cmd: [v_e, v_n, v_u, yaw_ref] (m/s world ENU, rad).
-        env: [wind_e, wind_n, wind_u, σ]; only σ is used (the autopilot does not sense the wind).
+        env: the model's environment input (`uam_fdm.model.N_ENV`); only σ is used (the autopilot senses
+            neither the wind nor the ground effect: its integral term takes both).
         dt: time until the next evaluation [s] (integral update).
 
     Returns:
@@ -146,7 +145,7 @@ def build_controller_function(p: VehicleParams) -> ca.Function:
     x = ca.SX.sym("x", lay.nx)
     xi = ca.SX.sym("xi", N_CTRL_STATE)
     cmd = ca.SX.sym("cmd", N_CMD)
-    env = ca.SX.sym("env", 4)
+    env = ca.SX.sym("env", N_ENV)
     dt = ca.SX.sym("dt")
     u, xi_next = controller_expr(p, x, xi, cmd, env, dt)
     return ca.Function("controller", [x, xi, cmd, env, dt], [u, xi_next],

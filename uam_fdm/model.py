@@ -12,20 +12,24 @@ State x (13 + n), world ENU / body FLU, SI units::
     x[13:]    rotor speeds Ω [rad/s] (non-negative)
 
 Input u (n): rotor-speed commands [rad/s], saturated to [Ω_min, Ω_max] by the motors.
-Environment e (4): wind [m/s] world ENU (e, n, u) and the air-density ratio σ = ρ/ρ0.
+Environment e (5): wind [m/s] world ENU (e, n, u), the air-density ratio σ = ρ/ρ0, and the
+height h [m] of the centre of mass above the surface directly below it (ground or roof).
 
 Equations::
 
     ṗ = v
-    m v̇ = R(q) (Σ kf σ Ω_i² ẑ + F_drag) − m g ẑ
-    F_drag = −D_lin ⊙ v_a − σ D_quad ⊙ |v_a| ⊙ v_a,   v_a = R(q)ᵀ (v − wind)      (body axes)
+    m v̇ = R(q) (Σ T_i ẑ + F_drag) − m g ẑ,     T_i = G_i kf σ Ω_i²
+    F_drag = −D_lin ⊙ v_a − σ D_quad ⊙ v_a ‖v_a‖,   v_a = R(q)ᵀ (v − wind)      (body axes)
     q̇ = ½ q ⊗ [0, ω]
-    J ω̇ = Σ r_i × (kf σ Ω_i² ẑ) − Σ s_i km σ Ω_i² ẑ − ω × J ω
+    J ω̇ = Σ r_i × (T_i ẑ) − Σ s_i km σ Ω_i² ẑ − ω × J ω
     Ω̇_i = (sat(u_i) − Ω_i) / τ_m
     shaft power P = Σ km σ Ω_i³   (Q_i Ω_i, the energy metric's integrand)
 
+G_i is rotor i's ground-effect gain (Cheeseman-Bennett, `uam_fdm.ground_effect`; 1 when the
+vehicle's `ground_effect` is off or the rotor is more than 10 radii above the surface).
+
 Not modelled (documented choices): rotor inertia and gyroscopic torques, blade flapping,
-ground effect, rotor-rotor and coaxial interference, angular (rotational) drag.
+rotor-rotor and coaxial interference, angular (rotational) drag.
 """
 from __future__ import annotations
 
@@ -34,9 +38,22 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from uam_fdm.ground_effect import thrust_gain_expr
 from uam_fdm.params import GRAVITY_M_S2, VehicleParams
 
-N_ENV = 4  # wind e, n, u [m/s] and density ratio σ
+N_ENV = 5  # wind e, n, u [m/s], density ratio σ, height above the surface below [m]
+FAR_FROM_SURFACES_M = 1.0e6  # a height input that no rotor feels (ground effect ends at 10 radii)
+
+
+def make_env(wind_enu_m_s=(0.0, 0.0, 0.0), density_ratio: float = 1.0,
+             height_above_surface_m: float = FAR_FROM_SURFACES_M) -> np.ndarray:
+    """The environment input (N_ENV,) of the model's Functions: wind [m/s, world ENU], σ = ρ/ρ0 and the
+    centre of mass's height above the surface below it [m] (default: far from any surface)."""
+    env = np.zeros(N_ENV)
+    env[0:3] = wind_enu_m_s
+    env[3] = density_ratio
+    env[4] = height_above_surface_m
+    return env
 
 
 @dataclass(frozen=True)
@@ -79,22 +96,36 @@ def _quat_rate(q: ca.SX, w: ca.SX) -> ca.SX:
     )
 
 
+# ‖v_a‖ is taken as sqrt(v_a·v_a + ε²): differentiable at rest (Jacobians, the MPC's gradients), at most ε too large
+AIRSPEED_SMOOTHING_M_S = 1e-6
+
+
+def drag_force_body(p: VehicleParams, v_air_body: ca.SX, sigma: ca.SX) -> ca.SX:
+    """Body drag [N] (body FLU) for the air-relative velocity `v_air_body` [m/s] (body FLU) at density ratio σ.
+
+    The quadratic part scales with the airspeed's magnitude, ‖v_a‖ v_a, with a coefficient per body axis:
+    its size for a given airspeed does not depend on how the body is turned in the flow beyond the
+    coefficients themselves (a per-axis |v_a| ⊙ v_a would drop to 1/√3 for flow along a diagonal).
+    """
+    airspeed = ca.sqrt(ca.dot(v_air_body, v_air_body) + AIRSPEED_SMOOTHING_M_S ** 2)
+    return (-ca.DM(p.drag_linear_N_s_m) * v_air_body
+            - sigma * ca.DM(p.drag_quadratic_N_s2_m2) * airspeed * v_air_body)
+
+
 def dynamics_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX) -> tuple[ca.SX, ca.SX]:
     """Continuous dynamics ẋ and shaft power P [W] as CasADi expressions (see module docstring)."""
     lay = StateLayout(p.n_rotors)
     v, q, w, omega = x[lay.vel], x[lay.quat], x[lay.rate], x[lay.rotor]
-    wind, sigma = env[0:3], env[3]
+    wind, sigma, height = env[0:3], env[3], env[4]
     rot = quat_to_rotation(q)
+    v_air_body = rot.T @ (v - wind)
 
     omega_sq = omega * omega
-    thrust = p.thrust_coeff_N_s2 * sigma * omega_sq                 # (n,) N
+    gain = thrust_gain_expr(p, rot, omega, v_air_body, height)      # (n,) ground effect, 1 away from surfaces
+    thrust = gain * p.thrust_coeff_N_s2 * sigma * omega_sq          # (n,) N
     drag_torque = p.torque_coeff_Nm_s2 * sigma * omega_sq           # (n,) N·m, opposes each rotor's spin
 
-    v_air_body = rot.T @ (v - wind)
-    d_lin = ca.DM(p.drag_linear_N_s_m)
-    d_quad = ca.DM(p.drag_quadratic_N_s2_m2)
-    f_drag = -d_lin * v_air_body - sigma * d_quad * ca.fabs(v_air_body) * v_air_body
-    f_body = ca.vertcat(0, 0, ca.sum1(thrust)) + f_drag
+    f_body = ca.vertcat(0, 0, ca.sum1(thrust)) + drag_force_body(p, v_air_body, sigma)
     accel = rot @ f_body / p.mass_kg - ca.DM([0.0, 0.0, GRAVITY_M_S2])
 
     r = p.rotor_positions

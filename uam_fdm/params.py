@@ -68,6 +68,7 @@ class VehicleParams:
     drag_quadratic_N_s2_m2: tuple[float, float, float]
     collision_radius_m: float
     controller: ControllerParams
+    ground_effect: bool = True  # the rotors' thrust gain near a surface below (`uam_fdm.ground_effect`)
     source: str = field(default="<inline>", compare=False)
 
     @property
@@ -128,9 +129,9 @@ class VehicleParams:
 _TOP_KEYS = {
     "name", "description", "mass_kg", "inertia_kg_m2", "rotors", "rotor_diameter_m", "thrust_coeff_N_s2", "torque_coeff_Nm_s2",
     "motor_time_constant_s", "rotor_speed_min_rad_s", "rotor_speed_max_rad_s", "drag_linear_N_s_m",
-    "drag_quadratic_N_s2_m2", "collision_radius_m", "controller",
+    "drag_quadratic_N_s2_m2", "collision_radius_m", "controller", "ground_effect",
 }
-_OPTIONAL_TOP_KEYS = {"description"}
+_OPTIONAL_TOP_KEYS = {"description", "ground_effect"}
 _ROTOR_KEYS = {"position_m", "spin"}
 _SPINS = {"ccw": 1, "cw": -1}
 
@@ -199,6 +200,7 @@ def vehicle_from_dict(data: Any, source: str = "<inline>") -> VehicleParams:
                                        min_value=0.0),
         collision_radius_m=_positive(data["collision_radius_m"], source, "collision_radius_m"),
         controller=_controller(data["controller"], source),
+        ground_effect=_boolean(data.get("ground_effect", True), source, "ground_effect"),
         source=source,
     )
     check_physics(params, source)
@@ -256,6 +258,12 @@ def _reject_unknown(data: Mapping, known: set[str], source: str, prefix: str) ->
     for key in data:
         if key not in known:
             raise ConfigError(source, f"{prefix}{key}", f"unknown key (allowed: {', '.join(sorted(known))})")
+
+
+def _boolean(value: Any, source: str, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(source, key, f"must be true or false, got {value!r}")
+    return value
 
 
 def _number(value: Any, source: str, key: str) -> float:

@@ -20,27 +20,34 @@ from uam_fdm.dynamics import PeriodResult, VehicleDynamics
 from uam_fdm.wind import WindBank, WindField
 
 
-def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray | float) -> np.ndarray:
-    """The environment input [wind_e, wind_n, wind_u (m/s), σ] held over a control period.
+def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray | float,
+               height_above_surface_m: np.ndarray | float | None = None) -> np.ndarray:
+    """The environment input [wind_e, wind_n, wind_u (m/s), σ, h (m)] held over a control period.
 
     The one rule every flight uses (the runner's `Simulator` and the learned pilot's batched
-    environment alike): the wind sampled at the period's midpoint in time (the caller passes it)
-    and the density ratio at the vehicle's altitude at the period's start (clamped to the table).
+    environment alike): the wind sampled at the period's midpoint in time (the caller passes it),
+    the density ratio at the vehicle's altitude at the period's start (clamped to the table), and
+    the height above the surface below at the period's start (the caller's, from
+    `uam_fdm.ground_effect.height_above_surface`; None: open ground at z = 0, so h = z).
 
     Args:
         atmosphere: the density table.
         wind_enu_m_s: (3,) or (N, 3) wind at the period's midpoint [m/s, world ENU].
         z_m: altitude(s) at the period's start [m], scalar or (N,).
+        height_above_surface_m: scalar or (N,) [m], or None.
 
     Returns:
-        (4,) for a scalar altitude, else (N, 4).
+        (5,) for a scalar altitude, else (N, 5).
     """
     if np.ndim(z_m) == 0:  # the scalar lookup (same arithmetic) is much cheaper for one vehicle
         w = np.asarray(wind_enu_m_s, dtype=float).reshape(3)
-        return np.array([w[0], w[1], w[2], atmosphere.density_ratio_clamped(float(z_m))])
-    env = np.empty((len(z_m), 4))
+        h = float(z_m) if height_above_surface_m is None else float(np.asarray(height_above_surface_m).reshape(-1)[0])
+        return np.array([w[0], w[1], w[2], atmosphere.density_ratio_clamped(float(z_m)), h])
+    z = np.asarray(z_m, dtype=float)
+    env = np.empty((len(z), 5))
     env[:, 0:3] = wind_enu_m_s
-    env[:, 3] = atmosphere.density_ratio_clamped(np.asarray(z_m, dtype=float))
+    env[:, 3] = atmosphere.density_ratio_clamped(z)
+    env[:, 4] = z if height_above_surface_m is None else height_above_surface_m
     return env
 
 
@@ -70,17 +77,20 @@ class Simulator:
         self.control_period_s = 1.0 / dynamics.control_hz
         self._state: SimState | None = None
 
-    def env(self, x: np.ndarray, t_s: float) -> np.ndarray:
-        """Environment input [wind_e, wind_n, wind_u (m/s), σ] held over the period starting at t_s."""
-        return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s), float(x[2]))
+    def env(self, x: np.ndarray, t_s: float, height_above_surface_m: float | None = None) -> np.ndarray:
+        """Environment input (`period_env`) held over the period starting at t_s; the height above the
+        surface below [m] from the caller (None: open ground, h = z)."""
+        return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s), float(x[2]),
+                          height_above_surface_m)
 
-    def step(self, x: np.ndarray, u: np.ndarray, t_s: float) -> PeriodResult:
+    def step(self, x: np.ndarray, u: np.ndarray, t_s: float, height_above_surface_m: float | None = None) -> PeriodResult:
         """One control period from state x at time t_s with rotor-speed commands u [rad/s] held."""
-        return self.dynamics.period_rotor(x, u, self.env(x, t_s))
+        return self.dynamics.period_rotor(x, u, self.env(x, t_s, height_above_surface_m))
 
-    def step_velocity(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, t_s: float) -> PeriodResult:
+    def step_velocity(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, t_s: float,
+                      height_above_surface_m: float | None = None) -> PeriodResult:
         """One control period under the low-level controller; cmd = [v_e, v_n, v_u (m/s), yaw (rad)]."""
-        return self.dynamics.period_velocity(x, ctrl_state, cmd, self.env(x, t_s))
+        return self.dynamics.period_velocity(x, ctrl_state, cmd, self.env(x, t_s, height_above_surface_m))
 
     # -- stateful shell ------------------------------------------------------------------------
     @property
@@ -97,17 +107,17 @@ class Simulator:
         self._state = SimState(float(t0_s), x0, np.zeros(N_CTRL_STATE), 0.0)
         return self._state
 
-    def advance(self, u: np.ndarray) -> PeriodResult:
+    def advance(self, u: np.ndarray, height_above_surface_m: float | None = None) -> PeriodResult:
         """Advance the held state one control period with rotor commands u [rad/s]."""
         s = self.state
-        r = self.step(s.x, u, s.t_s)
+        r = self.step(s.x, u, s.t_s, height_above_surface_m)
         self._state = SimState(s.t_s + self.control_period_s, r.final_state, s.ctrl_state, s.energy_J + r.energy_J)
         return r
 
-    def advance_velocity(self, cmd: np.ndarray) -> PeriodResult:
+    def advance_velocity(self, cmd: np.ndarray, height_above_surface_m: float | None = None) -> PeriodResult:
         """Advance the held state one control period under the velocity controller."""
         s = self.state
-        r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s)
+        r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s, height_above_surface_m)
         self._state = SimState(s.t_s + self.control_period_s, r.final_state, r.ctrl_state,
                                s.energy_J + r.energy_J)
         return r
@@ -133,11 +143,14 @@ class BatchSimulator:
     def n(self) -> int:
         return len(self.winds.steady) if isinstance(self.winds, WindBank) else len(self.winds)
 
-    def env(self, x: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
-        """Environment inputs (M, 4) for vehicles `idx` (default all) in states x (M, nx) at times t_s (M,) [s]."""
+    def env(self, x: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None,
+            height_above_surface_m: np.ndarray | None = None) -> np.ndarray:
+        """Environment inputs (M, 5) for vehicles `idx` (default all) in states x (M, nx) at times t_s (M,) [s];
+        heights above the surface below (M,) [m] from the caller (None: open ground, h = z)."""
         m = x.shape[0]
         if m == 1 and isinstance(self.winds, WindBank):
-            return self._env_one(x, t_s, 0 if idx is None else int(np.asarray(idx).reshape(-1)[0]))
+            return self._env_one(x, t_s, 0 if idx is None else int(np.asarray(idx).reshape(-1)[0]),
+                                 height_above_surface_m)
         t = np.asarray(t_s, dtype=float)
         t_mid = (t if t.shape == (m,) else np.broadcast_to(t, (m,))) + 0.5 * self.control_period_s
         if isinstance(self.winds, WindBank):
@@ -146,21 +159,27 @@ class BatchSimulator:
             which = range(m) if idx is None else idx
             wind = np.array([self.winds[int(i)].wind_enu_m_s(float(t)) for i, t in zip(which, t_mid)]).reshape(m, 3)
         if m == 1:  # the scalar density lookup: the same numbers, cheaper
-            return period_env(self.atmosphere, wind[0], float(x[0, 2]))[None]
-        return period_env(self.atmosphere, wind, x[:, 2])
+            return period_env(self.atmosphere, wind[0], float(x[0, 2]), height_above_surface_m)[None]
+        return period_env(self.atmosphere, wind, x[:, 2], height_above_surface_m)
 
-    def _env_one(self, x: np.ndarray, t_s: np.ndarray | float, i: int) -> np.ndarray:
-        """`env` (1, 4) of vehicle i alone, in plain Python (the same numbers: `WindBank._wind_one` and
+    def _env_one(self, x: np.ndarray, t_s: np.ndarray | float, i: int,
+                 height_above_surface_m: np.ndarray | None) -> np.ndarray:
+        """`env` (1, 5) of vehicle i alone, in plain Python (the same numbers: `WindBank._wind_one` and
         the scalar density lookup); NumPy's per-call overhead on one row dominated a single vehicle."""
         t_mid = float(np.asarray(t_s, dtype=float).reshape(-1)[0]) + 0.5 * self.control_period_s
         we, wn, wu = self.winds._wind_one(i, t_mid)
-        return np.array([[we, wn, wu, self.atmosphere.density_ratio_clamped(float(x[0, 2]))]])
+        z = float(x[0, 2])
+        h = z if height_above_surface_m is None else float(np.asarray(height_above_surface_m).reshape(-1)[0])
+        return np.array([[we, wn, wu, self.atmosphere.density_ratio_clamped(z), h]])
 
-    def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None) -> PeriodResult:
+    def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None,
+                   height_above_surface_m: np.ndarray | None = None) -> PeriodResult:
         """One control period for vehicles `idx` (default all), rotor commands u (M, n) [rad/s] held."""
-        return self.dynamics.period_rotor_batch(x, u, self.env(x, t_s, idx))
+        return self.dynamics.period_rotor_batch(x, u, self.env(x, t_s, idx, height_above_surface_m))
 
     def step_velocity_batch(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray,
-                            t_s: np.ndarray, idx: np.ndarray | None = None) -> PeriodResult:
+                            t_s: np.ndarray, idx: np.ndarray | None = None,
+                            height_above_surface_m: np.ndarray | None = None) -> PeriodResult:
         """One control period for vehicles `idx` (default all) under the velocity controller; cmd (M, 4)."""
-        return self.dynamics.period_velocity_batch(x, ctrl_state, cmd, self.env(x, t_s, idx))
+        return self.dynamics.period_velocity_batch(x, ctrl_state, cmd,
+                                                   self.env(x, t_s, idx, height_above_surface_m))
