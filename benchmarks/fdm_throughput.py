@@ -37,26 +37,42 @@ class NumpyTwin:
         self.dq = np.array(p.drag_quadratic_N_s2_m2)
         self.radius = 0.5 * p.rotor_diameter_m
 
-    def f(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        p = self.p
-        v, q, w, om = x[:, 3:6], x[:, 6:10], x[:, 10:13], x[:, 13:]
+    @staticmethod
+    def _rotation(q: np.ndarray) -> np.ndarray:
         qw, qx, qy, qz = q.T
-        rot = np.stack([
+        return np.stack([
             np.stack([1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)], -1),
             np.stack([2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)], -1),
             np.stack([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)], -1),
         ], 1)
+
+    def gain(self, x: np.ndarray, env: np.ndarray) -> np.ndarray:
+        """uam_fdm.ground_effect.thrust_gain_expr, term for term: (N, n)."""
+        p = self.p
+        if not p.ground_effect:
+            return np.ones((len(x), p.n_rotors))
+        rot = self._rotation(x[:, 6:10])
+        va = np.einsum("nji,nj->ni", rot, x[:, 3:6] - env[:, :3])
+        z_floor = ge.MIN_HEIGHT_RADII * self.radius
+        z = env[:, 4:5] + rot[:, 2, :] @ self.r.T
+        q = 0.25 * self.radius / np.where(z > z_floor, z, z_floor)
+        k = q * q - (0.25 / ge.CUTOFF_RADII) ** 2
+        k = np.where(k > 0.0, k, 0.0)
+        om2 = x[:, 13:] * x[:, 13:]
+        induced2 = om2 * (p.thrust_coeff_N_s2 / (2.0 * ge.RHO0_KG_M3 * np.pi * self.radius ** 2)) + ge._DV_SMOOTHING
+        speed2 = (va[:, 0] ** 2 + va[:, 1] ** 2)[:, None]
+        return (induced2 + speed2) / (induced2 * (1.0 - k) + speed2)
+
+    def f(self, x: np.ndarray, u: np.ndarray, env: np.ndarray, gain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = self.p
+        v, q, w, om = x[:, 3:6], x[:, 6:10], x[:, 10:13], x[:, 13:]
+        qw, qx, qy, qz = q.T
+        rot = self._rotation(q)
         sigma = env[:, 3:4]
         om2 = om * om
-        thrust = p.thrust_coeff_N_s2 * sigma * om2
+        thrust = gain * p.thrust_coeff_N_s2 * sigma * om2
         qdrag = p.torque_coeff_Nm_s2 * sigma * om2
         va = np.einsum("nji,nj->ni", rot, v - env[:, :3])
-        if p.ground_effect:  # uam_fdm.ground_effect.thrust_gain_expr, term for term
-            zr = np.maximum((env[:, 4:5] + rot[:, 2, :] @ self.r.T) / self.radius, ge.MIN_HEIGHT_RADII)
-            k = np.maximum((0.25 / zr) ** 2 - (0.25 / ge.CUTOFF_RADII) ** 2, 0.0)
-            induced2 = om2 * (p.thrust_coeff_N_s2 / (2.0 * ge.RHO0_KG_M3 * np.pi * self.radius ** 2))
-            speed2 = (va[:, 0] ** 2 + va[:, 1] ** 2)[:, None]
-            thrust = thrust / (1.0 - k * induced2 / (induced2 + speed2 + ge._DV_SMOOTHING))
         fb = -self.dl * va - sigma * self.dq * np.sqrt((va * va).sum(1, keepdims=True) + AIRSPEED_SMOOTHING_M_S ** 2) * va
         fb[:, 2] += thrust.sum(1)
         acc = np.einsum("nij,nj->ni", rot, fb) / p.mass_kg
@@ -73,10 +89,11 @@ class NumpyTwin:
         return np.hstack([v, acc, qdot, wdot, omdot]), np.sum(qdrag * om, 1)
 
     def rk4(self, x: np.ndarray, u: np.ndarray, env: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        k1, e1 = self.f(x, u, env)
-        k2, e2 = self.f(x + 0.5 * dt * k1, u, env)
-        k3, e3 = self.f(x + 0.5 * dt * k2, u, env)
-        k4, e4 = self.f(x + dt * k3, u, env)
+        g = self.gain(x, env)  # held over the step's stages, as uam_fdm.model.rk4_step_expr holds it
+        k1, e1 = self.f(x, u, env, g)
+        k2, e2 = self.f(x + 0.5 * dt * k1, u, env, g)
+        k3, e3 = self.f(x + 0.5 * dt * k2, u, env, g)
+        k4, e4 = self.f(x + dt * k3, u, env, g)
         xn = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xn[:, 6:10] /= np.linalg.norm(xn[:, 6:10], axis=1, keepdims=True)
         return xn, dt / 6 * (e1 + 2 * e2 + 2 * e3 + e4)
@@ -192,7 +209,8 @@ def main() -> None:
     for text, ok in targets:
         print(f"target {text}: {'met' if ok else 'NOT met'}")
     fig["vehicle"] = p.name
-    print(json.dumps({k: (round(v, 1) if isinstance(v, float) else v) for k, v in fig.items()}))
+    print(json.dumps({k: (round(v, 3 if k.endswith("ratio") else 1) if isinstance(v, float) else v)
+                      for k, v in fig.items()}))
 
 
 if __name__ == "__main__":

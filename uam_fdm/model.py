@@ -112,16 +112,29 @@ def drag_force_body(p: VehicleParams, v_air_body: ca.SX, sigma: ca.SX) -> ca.SX:
             - sigma * ca.DM(p.drag_quadratic_N_s2_m2) * airspeed * v_air_body)
 
 
-def dynamics_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """Continuous dynamics ẋ and shaft power P [W] as CasADi expressions (see module docstring)."""
+def ground_effect_gain(p: VehicleParams, x: ca.SX, env: ca.SX) -> ca.SX:
+    """Each rotor's ground-effect thrust gain G_i (n,) in state x and environment env."""
+    lay = StateLayout(p.n_rotors)
+    rot = quat_to_rotation(x[lay.quat])
+    return thrust_gain_expr(p, rot, x[lay.rotor], rot.T @ (x[lay.vel] - env[0:3]), env[4])
+
+
+def dynamics_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX,
+                  gain: ca.SX | None = None) -> tuple[ca.SX, ca.SX]:
+    """Continuous dynamics ẋ and shaft power P [W] as CasADi expressions (see module docstring).
+
+    `gain`: the rotors' ground-effect gains (n,) if the caller holds them (the RK4 step does), else
+    evaluated here at x.
+    """
     lay = StateLayout(p.n_rotors)
     v, q, w, omega = x[lay.vel], x[lay.quat], x[lay.rate], x[lay.rotor]
-    wind, sigma, height = env[0:3], env[3], env[4]
+    wind, sigma = env[0:3], env[3]
     rot = quat_to_rotation(q)
     v_air_body = rot.T @ (v - wind)
 
     omega_sq = omega * omega
-    gain = thrust_gain_expr(p, rot, omega, v_air_body, height)      # (n,) ground effect, 1 away from surfaces
+    if gain is None:  # (n,) ground effect, 1 away from surfaces
+        gain = thrust_gain_expr(p, rot, omega, v_air_body, env[4])
     thrust = gain * p.thrust_coeff_N_s2 * sigma * omega_sq          # (n,) N
     drag_torque = p.torque_coeff_Nm_s2 * sigma * omega_sq           # (n,) N·m, opposes each rotor's spin
 
@@ -149,14 +162,21 @@ def dynamics_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX) -> tuple[ca.
 def rk4_step_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX, dt: ca.SX) -> tuple[ca.SX, ca.SX]:
     """One classical RK4 step of the state and of the shaft energy; quaternion renormalised.
 
+    The ground-effect gains are evaluated once, at the step's start, and held over its four stages:
+    they change with height over centimetres, while a 2 ms step moves the vehicle millimetres
+    (the difference is far below the RK4 error), and the term would otherwise cost the batched
+    physics a fifth of its speed.
+
     Returns:
         (x_next, energy_J) with the energy integrated by the same RK4 stages.
     """
-    f = ca.Function("f_aug", [x, u, env], list(dynamics_expr(p, x, u, env)))
-    k1, e1 = f(x, u, env)
-    k2, e2 = f(x + 0.5 * dt * k1, u, env)
-    k3, e3 = f(x + 0.5 * dt * k2, u, env)
-    k4, e4 = f(x + dt * k3, u, env)
+    gain = ca.SX.sym("gain", p.n_rotors)
+    f = ca.Function("f_aug", [x, u, env, gain], list(dynamics_expr(p, x, u, env, gain)))
+    g = ground_effect_gain(p, x, env)
+    k1, e1 = f(x, u, env, g)
+    k2, e2 = f(x + 0.5 * dt * k1, u, env, g)
+    k3, e3 = f(x + 0.5 * dt * k2, u, env, g)
+    k4, e4 = f(x + dt * k3, u, env, g)
     x_next = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
     energy = dt / 6.0 * (e1 + 2 * e2 + 2 * e3 + e4)
     lay = StateLayout(p.n_rotors)
