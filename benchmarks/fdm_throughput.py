@@ -22,6 +22,16 @@ from uam_fdm import ground_effect as ge  # noqa: E402
 from uam_fdm.dynamics import VehicleDynamics  # noqa: E402
 from uam_fdm.model import AIRSPEED_SMOOTHING_M_S, hover_state, make_env  # noqa: E402
 from uam_fdm.params import GRAVITY_M_S2, VehicleParams, load_vehicle  # noqa: E402
+from uam_fdm.wind import (  # noqa: E402
+    PROBE_HEIGHTS_M,
+    GustStack,
+    TurbulenceLevel,
+    WindBank,
+    WindConditions,
+    WindField,
+    WindShear,
+    gust_stack,
+)
 
 
 class NumpyTwin:
@@ -120,6 +130,58 @@ def rate(fn, items_per_call: int, seconds: float) -> float:
     return items_per_call / best
 
 
+def wind_figures(seconds: float) -> tuple[list[tuple[str, str, float, str]], dict[str, float]]:
+    """Wind lookups (NumPy, outside the compiled physics): the height stack (7 rungs, power-law shear)
+    against a single-height table (the model before), one vehicle and 1024; and the JSBSim generation
+    of one 60 s episode's stack at 12 m/s against one series."""
+    rng = np.random.default_rng(1)
+    dt, m = 1.0 / 120.0, 7201
+
+    def stack(heights: tuple[float, ...]) -> GustStack:
+        return GustStack(dt * np.arange(m), heights, rng.normal(0.0, 1.0, (m, len(heights), 3)), dt,
+                         TurbulenceLevel.LIGHT, 0, 12.0)
+
+    shear = WindShear("power", 10.0, 0.3)
+    tables = {"stack": (stack(PROBE_HEIGHTS_M), shear), "single": (stack((40.0,)), None)}
+    n = 1024
+    t, z = rng.uniform(0.0, 50.0, n), rng.uniform(2.0, 150.0, n)
+    out: dict[str, float] = {}
+    for name, (table, sh) in tables.items():
+        field = WindField((2.0, 1.0, 0.0), table, sh)
+        bank = WindBank([table], n, sh)
+        for i in range(n):
+            bank.assign(i, (2.0, 1.0, 0.0), 0, int(rng.integers(600)))
+        out[f"one_{name}"] = rate(lambda: field.wind_enu_m_s(12.3, 33.0), 1, seconds)
+        out[f"env_{name}"] = rate(lambda: bank._wind_one(5, 12.3, 33.0), 1, seconds)
+        out[f"batch_{name}"] = rate(lambda: bank.wind_enu_m_s(t, z), n, seconds)
+    t0 = time.perf_counter()
+    gust_stack(WindConditions((2.0, 1.0, 0.0), TurbulenceLevel.LIGHT), 1, 60.0, 12.0)
+    gen_stack = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    gust_stack(WindConditions((2.0, 1.0, 0.0), TurbulenceLevel.LIGHT), 1, 60.0, 12.0, heights_m=(40.0,))
+    gen_single = time.perf_counter() - t0
+    rows = [("wind lookup, 1 vehicle (WindField)", "stack + shear", out["one_stack"],
+             f"single height x{out['one_single'] / out['one_stack']:.2f} faster"),
+            ("wind lookup, 1 vehicle (WindField)", "single height", out["one_single"], ""),
+            ("wind lookup, 1 vehicle (WindBank, env)", "stack + shear", out["env_stack"],
+             f"single height x{out['env_single'] / out['env_stack']:.2f} faster"),
+            ("wind lookup, 1 vehicle (WindBank, env)", "single height", out["env_single"], ""),
+            (f"wind lookup, batch N={n} (WindBank)", "stack + shear", out["batch_stack"],
+             f"vehicle-lookups/s; single height x{out['batch_single'] / out['batch_stack']:.2f} faster"),
+            (f"wind lookup, batch N={n} (WindBank)", "single height", out["batch_single"], "vehicle-lookups/s"),
+            ("gust generation, 60 s episode at 12 m/s [s]", "7-rung stack", gen_stack,
+             f"one series {gen_single:.3f} s, x{gen_stack / gen_single:.1f}")]
+    fig = {"wind_lookups_per_s_one_stack": out["one_stack"], "wind_lookups_per_s_one_single": out["one_single"],
+           "wind_lookup_one_stack_ratio": out["one_stack"] / out["one_single"],
+           "wind_lookups_per_s_env_stack": out["env_stack"], "wind_lookups_per_s_env_single": out["env_single"],
+           "wind_lookup_env_stack_ratio": out["env_stack"] / out["env_single"],
+           "wind_vehicle_lookups_per_s_n1024_stack": out["batch_stack"],
+           "wind_vehicle_lookups_per_s_n1024_single": out["batch_single"],
+           "wind_lookup_n1024_stack_ratio": out["batch_stack"] / out["batch_single"],
+           "wind_stack_generation_60s_episode_s": gen_stack, "wind_series_generation_60s_episode_s": gen_single}
+    return rows, fig
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vehicle", default="small_quad")
@@ -197,11 +259,15 @@ def main() -> None:
                        batched_numpy_phys_vehicle_steps_per_s=npb, batched_vs_numpy_ratio=hold / npb,
                        batched_vs_vm_ratio=vel / vm_map)
 
+    wind_rows, wind_fig = wind_figures(args.seconds)
+    rows += wind_rows
+    fig.update(wind_fig)
+
     print(f"uam_fdm throughput: vehicle {p.name} ({p.n_rotors} rotors), physics 500 Hz, control 50 Hz, "
           f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, OMP_NUM_THREADS=1")
     print(f"{'what':46s} {'path':18s} {'per second':>14s}  note")
     for what, path, value, note in rows:
-        print(f"{what:46s} {path:18s} {value:14,.0f}  {note}")
+        print(f"{what:46s} {path:18s} {value:14,.{3 if value < 100 else 0}f}  {note}")
     targets = [("ctrl_steps_per_s >= 10,000", fig["ctrl_steps_per_s"] >= 1e4),
                ("batched_phys_vehicle_steps_per_s (N=1024) >= 1,000,000", fig["batched_phys_vehicle_steps_per_s"] >= 1e6),
                ("ground effect costs <= 15 % (ctrl_steps_per_s and batched N=1024, against the same model "
@@ -209,7 +275,7 @@ def main() -> None:
     for text, ok in targets:
         print(f"target {text}: {'met' if ok else 'NOT met'}")
     fig["vehicle"] = p.name
-    print(json.dumps({k: (round(v, 3 if k.endswith("ratio") else 1) if isinstance(v, float) else v)
+    print(json.dumps({k: (round(v, 3 if k.endswith(("ratio", "episode_s")) else 1) if isinstance(v, float) else v)
                       for k, v in fig.items()}))
 
 

@@ -68,6 +68,13 @@ def _default_run_dir(spec: str) -> Path:
     return out
 
 
+def _one_torch_thread() -> None:
+    """This process flies small networks one observation at a time: one torch thread is fastest."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     import os
 
@@ -93,6 +100,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
     scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
+    _one_torch_thread()
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policy=args.policy, jobs=args.jobs,
                       resume=args.resume, progress=not args.no_progress, videos=args.videos,
                       command="uam-compare " + " ".join(args.argv))
@@ -227,6 +235,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
+    _one_torch_thread()
     policy = load_policy(args.policy)
     nav = eval_config(policy.nav, args.episodes, pool=args.pool, turbulence=args.turbulence)
     world = NavWorld(nav)

@@ -15,7 +15,7 @@ from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.model import hover_state
 from uam_fdm.params import load_vehicle
 from uam_fdm.sim import Simulator
-from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField
+from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField, probe_heights_up_to
 
 
 @dataclass(frozen=True)
@@ -63,7 +63,8 @@ def demo_flight(preset: str, seed: int = 0) -> DemoResult:
     dyn = VehicleDynamics(p, physics_hz=500.0, control_hz=50.0)
     atmosphere = Atmosphere.from_jsbsim(AtmosphereConditions(elevation_m=0.0), z_max_m=500.0)
     wind = WindField.from_conditions(WindConditions((2.0, 1.0, 0.0), TurbulenceLevel.LIGHT), seed=seed,
-                                     duration_s=timeout_s + 1.0, height_agl_m=40.0, airspeed_m_s=speed)
+                                     duration_s=timeout_s + 1.0, airspeed_m_s=speed,
+                                     heights_m=probe_heights_up_to(float(waypoints[:, 2].max()) + 10.0))
     sim = Simulator(dyn, atmosphere, wind)
     sim.reset(hover_state(p, (0.0, 0.0, 20.0), density_ratio=atmosphere.density_ratio(20.0)))
     states, target = [sim.state.x[None]], 0

@@ -15,7 +15,6 @@ import textwrap
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-import matplotlib
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
@@ -27,7 +26,6 @@ from compare.trajectory import EpisodeMeta, SavedEpisode
 from uam_fdm.city import BuildingMap, Prism
 from uam_fdm.city_plot import draw_map_3d, draw_map_topdown
 
-matplotlib.use("Agg")  # reports render off-screen; chosen here, not at package import
 
 METHOD_COLORS: dict[str, str] = {"ppo": "tab:orange", "rrt_mpc": "tab:blue"}
 FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",

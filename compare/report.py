@@ -289,6 +289,16 @@ def _scenario_entries(run: _Run) -> list[Mapping]:
     return [s for s in run.info.get("scenarios") or [] if isinstance(s, Mapping)]
 
 
+def _shear_words(shear: object) -> str:
+    """The steady wind's profile from run.json's wind.shear (absent in runs before it existed: uniform)."""
+    if not isinstance(shear, Mapping) or shear.get("law") in (None, "uniform"):
+        return "the same at every height"
+    ref = _fmt(shear.get("reference_height_m"), 0)
+    if shear.get("law") == "power":
+        return f"given at {ref} m, power-law shear alpha {_fmt(shear.get('exponent'), 2)}"
+    return f"given at {ref} m, log-law shear z0 {_fmt(shear.get('roughness_m'), 2)} m"
+
+
 def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
     info = run.info
     planned = _planned_episodes(run)
@@ -309,7 +319,7 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
             ("p", (f"    atmosphere: field elevation {_fmt(atm.get('elevation_m'), 0)} m, "
                    f"ISA offset {_fmt(atm.get('isa_offset_k'), 1)} K, "
                    f"density {_fmt(atm.get('density_kg_m3'), 3)} kg/m³")),
-            ("p", (f"    wind: steady {wind.get('steady_enu_m_s')} m/s (ENU), "
+            ("p", (f"    wind: steady {wind.get('steady_enu_m_s')} m/s (ENU), {_shear_words(wind.get('shear'))}, "
                    f"turbulence {wind.get('turbulence')}")),
             ("p", (f"    {n_eps} episodes × seeds {seeds}; methods "
                    f"{', '.join(run.label(m) for m in s.get('methods') or [])}; "

@@ -244,7 +244,7 @@ class CellRunner:
         return self._agents[method]
 
     def run(self, c: Cell) -> Path:
-        from uam_fdm.wind import WindField
+        from uam_fdm.wind import WindField, probe_heights_up_to
 
         sc = self.scenarios[c.scenario]
         spec = sc.episodes[c.episode]
@@ -253,9 +253,10 @@ class CellRunner:
         p = sc.vehicle
         wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
         agent_seed = cell_seed(sc.name, c.episode, c.seed, "agent")
-        height = float(np.clip(0.5 * (task.start_m[2] + task.goal_m[2]), 1.0, 5000.0))
+        # one reference probe airspeed per episode; turbulence rungs up to the flight volume's ceiling
         airspeed = float(np.clip(max(p.controller.max_speed_m_s, np.linalg.norm(sc.wind.steady_enu_m_s)), 1.0, 100.0))
-        wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, height, airspeed)
+        heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
+        wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
         agent = self.agent(c.method)
         traj = run_episode(world, agent, task, wind, agent_seed)
         extra: dict = {"wind_seed": wind_seed, "agent_seed": agent_seed,
@@ -324,6 +325,10 @@ def _init_worker(scenarios: list[Scenario], out_dir: Path, policy: Path | None) 
     # worker neither prints its own traceback nor dies half-way through telling the parent.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if any("ppo" in sc.methods for sc in scenarios):  # this process is ours: one torch thread is fastest
+        import torch
+
+        torch.set_num_threads(1)
     _WORKER = CellRunner(scenarios, out_dir, policy)
 
 
@@ -385,7 +390,8 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
             "vehicle_summary": f"{p.mass_kg:g} kg, {p.n_rotors} rotors, collision radius {p.collision_radius_m:g} m",
             "atmosphere": {"elevation_m": sc.atmosphere.elevation_m, "isa_offset_k": sc.atmosphere.isa_offset_k,
                            "density_kg_m3": round(float(rho), 4)},
-            "wind": {"steady_enu_m_s": list(sc.wind.steady_enu_m_s), "turbulence": sc.wind.turbulence.value},
+            "wind": {"steady_enu_m_s": list(sc.wind.steady_enu_m_s), "turbulence": sc.wind.turbulence.value,
+                     "shear": sc.wind.shear.to_dict()},
             "episodes": len(sc.episodes), "seeds": seeds, "methods": methods,
             "physics_hz": sc.physics_hz, "control_hz": sc.control_hz,
         })
@@ -429,8 +435,8 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
         fingerprints = check_resume(out, fingerprints)
     out.mkdir(parents=True, exist_ok=True)
     _remove_stale_temporaries(out)
-    for n in notes:
-        print(f"note: {n}", file=sys.stderr)
+    for n in notes:  # cells left out (also in run.json and the report)
+        log.warning("%s", n)
     write_run_files(scenarios, opts, cells, notes, fingerprints, policy)
     todo = [c for c in cells
             if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]

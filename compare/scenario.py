@@ -20,8 +20,16 @@ the field (ground at z = 0), seconds, SI units::
     atmosphere:                # optional; every key optional, defaults shown
       elevation_m: 0.0         #   field elevation above mean sea level [m], in [-500, 9000]
       isa_offset_k: 0.0        #   temperature offset from the ISA day [K], in [-50, 50]
-      wind_mps: [0, 0, 0]      #   steady wind, ENU [m/s] (where the air moves to), |w| <= 60
-      turbulence: none         #   Dryden turbulence: none | light | moderate | severe
+      wind_mps: [0, 0, 0]      #   steady wind, ENU [m/s] (where the air moves to), |w| <= 60, at
+                               #   wind_reference_height_m above the field
+      wind_reference_height_m: 10   # height of wind_mps above the field [m], in [1, 300]
+      wind_shear: {law: uniform}    # steady wind over height z (`uam_fdm.shear`): uniform (the same
+                               #   everywhere), {law: power, exponent: a} (u ~ (z/z_ref)^a, a in
+                               #   [0, 0.6]; about 0.28 towns, 0.40 city centres) or {law: log,
+                               #   roughness_m: z0} (u ~ ln(z/z0), z0 in [0.001, 3] m; about 0.5-1 m
+                               #   towns, 1-2 m city centres); horizontal components only
+      turbulence: none         #   Dryden turbulence: none | light | moderate | severe; its intensity
+                               #   and scale lengths follow MIL-F-8785C's dependence on height
     episodes:                  # required, non-empty list; one task each
       - start: [x, y, z]       #   required, ENU [m]
         goal: [x, y, z]        #   required, ENU [m]
@@ -79,6 +87,7 @@ from uam_fdm.dynamics import control_ratio_problem, motor_lag_problem
 from uam_fdm.errors import ConfigError
 from uam_fdm.mapfile import map_from_config
 from uam_fdm.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
+from uam_fdm.shear import EXPONENT_RANGE, REFERENCE_HEIGHT_RANGE_M, ROUGHNESS_RANGE_M, ShearLaw, WindShear
 from uam_fdm.wind import TurbulenceLevel, WindConditions
 from uam_fdm.yamlfile import load_yaml_file
 
@@ -101,7 +110,8 @@ MAX_NAME_CHARS = 100
 _TOP_KEYS = ("name", "description", "map", "bounds", "vehicle", "atmosphere", "episodes", "goal_radius_m",
              "timeout_s", "seeds", "methods", "physics_hz", "control_hz")
 _REQUIRED_KEYS = ("name", "map", "vehicle", "episodes")
-_ATMOSPHERE_KEYS = ("elevation_m", "isa_offset_k", "wind_mps", "turbulence")
+_ATMOSPHERE_KEYS = ("elevation_m", "isa_offset_k", "wind_mps", "wind_reference_height_m", "wind_shear", "turbulence")
+_SHEAR_KEYS = ("law", "exponent", "roughness_m")
 _EPISODE_KEYS = ("start", "goal", "goal_radius_m", "timeout_s")
 _NAME_RE = re.compile(r"[A-Za-z0-9_.-]+")
 
@@ -126,7 +136,7 @@ class Scenario:
         vehicle_name: the preset name when the scenario names a preset, else `vehicle.name`.
         city: the buildings, bounds and no-fly zones (ENU metres).
         atmosphere: field elevation [m MSL] and ISA temperature offset [K].
-        wind: steady wind (ENU, m/s) and turbulence level.
+        wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
         episodes: the tasks, in file order.
         seeds: the seeds each episode is flown with.
         methods: the pilots to fly, in `METHODS` order.
@@ -311,11 +321,40 @@ def _atmosphere(value: Any, source: str) -> tuple[AtmosphereConditions, WindCond
         turbulence = TurbulenceLevel.parse(level)
     except ValueError as exc:
         raise ConfigError(source, "atmosphere.turbulence", str(exc)) from None
+    reference = _in_range(cfg.get("wind_reference_height_m", 10.0), REFERENCE_HEIGHT_RANGE_M, "m above the field",
+                          source, "atmosphere.wind_reference_height_m")
+    shear = _wind_shear(cfg.get("wind_shear", {"law": "uniform"}), reference, source)
     try:
-        steady = WindConditions(wind, turbulence)
+        steady = WindConditions(wind, turbulence, shear)
     except ValueError as exc:
         raise ConfigError(source, "atmosphere.wind_mps", str(exc)) from None
     return AtmosphereConditions(elevation, offset), steady
+
+
+def _wind_shear(value: Any, reference_m: float, source: str) -> WindShear:
+    """The steady wind's height profile from `atmosphere.wind_shear` (see the module docstring)."""
+    key = "atmosphere.wind_shear"
+    cfg = _mapping(value, _SHEAR_KEYS, source, key)
+    laws = ", ".join(v.value for v in ShearLaw)
+    law = cfg.get("law")
+    if law is None:
+        raise ConfigError(source, f"{key}.law", f"missing (required: one of {laws})")
+    if not isinstance(law, str) or law not in {v.value for v in ShearLaw}:
+        raise ConfigError(source, f"{key}.law", f"unknown shear law {law!r} (known: {laws})")
+    needs = {"power": "exponent", "log": "roughness_m"}.get(law)
+    for name in ("exponent", "roughness_m"):
+        if name in cfg and name != needs:
+            raise ConfigError(source, f"{key}.{name}", f"does not apply to the {law} law, got {cfg[name]!r}")
+    if needs is not None and needs not in cfg:
+        raise ConfigError(source, f"{key}.{needs}", f"missing (required by the {law} law)")
+    exponent = (_in_range(cfg["exponent"], EXPONENT_RANGE, "dimensionless", source, f"{key}.exponent")
+                if needs == "exponent" else None)
+    roughness = (_in_range(cfg["roughness_m"], ROUGHNESS_RANGE_M, "m", source, f"{key}.roughness_m")
+                 if needs == "roughness_m" else None)
+    try:
+        return WindShear(ShearLaw(law), reference_m, exponent, roughness)
+    except ValueError as exc:  # what is left: a reference height below the log law's floor 2 z0
+        raise ConfigError(source, "atmosphere.wind_reference_height_m", str(exc)) from None
 
 
 def seeds_problem(values: Any) -> tuple[int | None, str] | None:

@@ -152,10 +152,11 @@ class ClassicalAgent:
     def _halfspaces(self, obs: Observation, ref_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clearance half-spaces (N, K, 3), (N, K) around the last prediction (or the reference).
 
-        Rows: the K−1 nearest buildings, facing the vehicle through their nearest points, and the
-        ground; each offset by the collision radius plus the MPC's clearance margin.
+        Rows: the K−1 nearest buildings or no-fly volumes, facing the vehicle through their nearest
+        points, and the ground; each offset by the collision radius plus the MPC's clearance margin.
         """
         world, mpc = self._world, self._tracker
+        obstacles = world.city.planning_map()  # the no-fly volumes are kept at the same margin
         n_stages, k = mpc.config.horizon_steps, mpc.config.n_halfspaces
         if k == 0:
             return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
@@ -165,8 +166,8 @@ class ClassicalAgent:
         offsets = np.full((n_stages, k), -1.0)
         normals[:, k - 1] = (0.0, 0.0, 1.0)
         offsets[:, k - 1] = required
-        if k > 1 and len(world.city.buildings) > 0:
-            pts, dist, ids = world.city.nearest_obstacles_batch(pred, k - 1, 0.0)
+        if k > 1 and len(obstacles.buildings) > 0:
+            pts, dist, ids = obstacles.nearest_obstacles_batch(pred, k - 1, 0.0)
             for stage in range(n_stages):
                 for j in range(k - 1):
                     if ids[stage, j] < 0:

@@ -35,7 +35,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
+import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -45,7 +46,7 @@ import casadi as ca
 import numpy as np
 
 from uam_fdm.codegen import compile_source
-from uam_fdm.model import FAR_FROM_SURFACES_M, N_ENV, dynamics_expr, make_env
+from uam_fdm.model import FAR_FROM_SURFACES_M, N_ENV, dynamics_expr, make_env, rk4_expr
 from uam_fdm.params import VehicleParams
 
 log = logging.getLogger(__name__)
@@ -222,12 +223,7 @@ class MPCTracker:
         if self.motor_lag:
             rows.append((u - x[13:]) / p.motor_time_constant_s)
         f = ca.Function("f", [x, u, env], [ca.vertcat(*rows)])
-        k1 = f(x, u, env)
-        k2 = f(x + h / 2 * k1, u, env)
-        k3 = f(x + h / 2 * k2, u, env)
-        k4 = f(x + h * k3, u, env)
-        xn = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        xn[6:10] = xn[6:10] / ca.norm_2(xn[6:10])
+        xn, = rk4_expr(lambda s: [f(s, u, env)], x, h)
         step = ca.Function("mpc_step", [x, u, env], [xn])
 
         ref = ca.SX.sym("ref", 6)
@@ -346,16 +342,7 @@ class MPCTracker:
         cfg = self.config
         opts = self._solver_options()
         if cfg.compiled is not False:
-            symbolic = ca.nlpsol("mpc", self.solver_name, self._nlp, opts)
-            with tempfile.TemporaryDirectory(prefix="uam_mpc_") as tmp:
-                # The solver's functions (objective, constraints and their derivatives) as C. CasADi
-                # writes this file relative to the working directory only (a path is rejected).
-                cwd = os.getcwd()
-                try:
-                    os.chdir(tmp)
-                    source = Path(tmp, symbolic.generate_dependencies("mpc_nlp.c")).read_bytes()
-                finally:
-                    os.chdir(cwd)
+            source = _nlp_functions_c(ca.nlpsol("mpc", self.solver_name, self._nlp, opts))
             tag = f"mpc_{self.params.fingerprint()}_{self.solver_name}"
             lib = compile_source(source, tag, cache_dir, opt_flags=(cfg.opt_level, "-march=native"))
             if lib is not None:
@@ -494,3 +481,20 @@ class MPCTracker:
         xs = [self._w[k * self._stage_len:k * self._stage_len + 13] for k in range(big_n)]
         xs.append(self._w[big_n * self._stage_len:big_n * self._stage_len + 13])
         return np.array(xs)
+
+
+def _nlp_functions_c(solver: ca.Function) -> bytes:
+    """The C source of an nlpsol's functions (objective, constraints and their derivatives).
+
+    CasADi writes it only relative to the working directory (a path is rejected), and changing this
+    process's directory would move it under every other thread: a child process loads the serialized
+    solver and writes the file in a temporary folder (the same bytes; it runs once per cache miss).
+    """
+    with tempfile.TemporaryDirectory(prefix="uam_mpc_") as tmp:
+        solver.save(str(Path(tmp, "solver.casadi")))
+        code = "import casadi; casadi.Function.load('solver.casadi').generate_dependencies('mpc_nlp.c')"
+        r = subprocess.run([sys.executable, "-c", code], cwd=tmp, capture_output=True, text=True, timeout=600)
+        out = Path(tmp, "mpc_nlp.c")
+        if r.returncode != 0 or not out.is_file():
+            raise RuntimeError(f"generating the MPC's C code failed: {r.stderr.strip()[-500:]}")
+        return out.read_bytes()

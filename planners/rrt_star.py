@@ -411,7 +411,8 @@ def plan_path(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[floa
     """Plan a collision-free path for a sphere from start to goal.
 
     Args:
-        city: the building map (its bounds are the flight volume).
+        city: the building map (its bounds are the flight volume); its no-fly volumes are obstacles
+            here (`BuildingMap.planning_map`), kept at the same margin as the buildings.
         start_m: (3,) start position, ENU metres.
         goal_m: (3,) goal position, ENU metres.
         radius_m: vehicle collision radius [m]; the path keeps `config.safety_margin_m` beyond it.
@@ -430,6 +431,7 @@ def plan_path(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[floa
             room in the bounds, a negative seed).
     """
     t_start = time.perf_counter()
+    city = city.planning_map()
     start = _point(start_m, "start_m")
     goal = _point(goal_m, "goal_m")
     r = float(radius_m)

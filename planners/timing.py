@@ -442,7 +442,8 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     Args:
         path_m: (K, 3) waypoints from start to goal, world ENU metres (e.g. `PlanResult.path_m`).
         limits: speed and acceleration limits.
-        city: the map the clearance is checked against.
+        city: the map the clearance is checked against (its no-fly volumes included, as in the
+            planner: `BuildingMap.planning_map`).
         radius_m: vehicle collision radius [m].
         margin_m: clearance required beyond the radius [m] (as used by the planner).
         config: smoothing and sampling settings.
@@ -457,6 +458,7 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     """
     if not (math.isfinite(radius_m) and radius_m >= 0 and math.isfinite(margin_m) and margin_m >= 0):
         raise ValueError(f"radius_m and margin_m must be finite and >= 0, got {radius_m}, {margin_m}")
+    city = city.planning_map()
     path = _clean(path_m)
     r_req = float(radius_m) + float(margin_m)
     if len(path) == 1:

@@ -53,17 +53,17 @@ def load_policy(folder: Path | str | None = None) -> Policy:
     """Load a policy folder (default: the shipped policy) from plain data only (`rl.policy_file`):
     nothing in the folder is unpickled or executed.
 
+    Torch's thread count is left to the caller (a process-wide setting): one thread is several times
+    faster than two for this small network; the CLI and the run's worker processes set it.
+
     Raises:
         ValueError: the folder or one of its files is missing, unreadable, holds code, or does not
             fit the task in its config.json, naming the file.
     """
-    import torch
-
     folder = Path(folder) if folder is not None else DEFAULT_POLICY_DIR
     for name in ("model.zip", "obs_norm.npz", "config.json"):
         if not (folder / name).is_file():
             raise ValueError(f"{folder}: not a policy folder ({name} is missing)")
-    torch.set_num_threads(1)
     try:
         cfg = json.loads((folder / "config.json").read_text())
         nav = NavConfig.from_dict(cfg["nav"])

@@ -77,9 +77,7 @@ class UAMNavEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        import matplotlib
-        matplotlib.use("Agg")
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # an explicit canvas: no backend to choose
         from matplotlib.figure import Figure
 
         from uam_fdm.city_plot import draw_map_topdown

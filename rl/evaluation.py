@@ -69,10 +69,11 @@ class EvalResult:
 
 
 def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None) -> NavConfig:
-    """The task on a held-out pool ("test" or "validation"), one city per episode."""
+    """The task on a held-out pool ("test" or "validation"), one city per episode, and at most one
+    turbulence stack per episode (each stack costs ~1 s of JSBSim at start-up; `NavWorld`)."""
     if pool not in POOLS:
         raise ValueError(f"pool must be one of {POOLS}, got {pool!r}")
-    return replace(nav, city_split="eval", city_pool_size=episodes,
+    return replace(nav, city_split="eval", city_pool_size=episodes, wind_pool_size=min(nav.wind_pool_size, episodes),
                    city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0,
                    turbulence=turbulence or nav.turbulence)
 

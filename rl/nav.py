@@ -40,7 +40,7 @@ from uam_fdm.model import hover_state
 from uam_fdm.params import VehicleParams, load_vehicle
 from uam_fdm.ground_effect import height_above_surface, range_m as ground_effect_range_m
 from uam_fdm.sim import BatchSimulator
-from uam_fdm.wind import TurbulenceLevel, WindBank, WindConditions, WindField, gust_series
+from uam_fdm.wind import GustStack, TurbulenceLevel, WindBank, WindConditions, WindField, gust_stack, probe_heights_up_to
 
 OUTCOMES = episode.OUTCOMES
 CLEARANCE_RANGE_M = 30.0  # clearance is measured exactly up to this, and reported capped there
@@ -61,8 +61,9 @@ class NavConfig:
         cities: city generator parameter ranges; tasks: start/goal distribution.
         turbulence: turbulence level (none/light/moderate/severe).
         steady_wind_max_m_s: steady horizontal wind speed drawn uniformly in [0, this] [m/s].
-        wind_pool_size: turbulence series shared by all episodes (each episode starts at a random
-            sample of one); wind_series_s: length of each [s].
+        wind_pool_size: turbulence stacks (series at the probe heights up to the cities' ceiling,
+            `uam_fdm.wind.gust_stack`) shared by all episodes (each episode starts at a random sample
+            of one); wind_series_s: length of each [s]. The steady wind is uniform with height.
         reward: reward weights.
     """
 
@@ -168,11 +169,12 @@ class NavWorld:
         self.route_cells = (int(shapes[:, 0].max()), int(shapes[:, 1].max()))  # the largest city's route grid
         level = TurbulenceLevel.parse(config.turbulence)
         self.turbulent = level is not TurbulenceLevel.NONE
-        self.gust_series = []
+        self.gust_stacks: list[GustStack] = []
         if self.turbulent:
             cond = WindConditions((0.0, 0.0, 0.0), level)
-            self.gust_series = [gust_series(cond, 7919 * (j + 1), config.wind_series_s, 20.0,
-                                            self.vehicle.controller.max_speed_m_s)
+            heights = probe_heights_up_to(float(self.hi[:, 2].max()))
+            self.gust_stacks = [gust_stack(cond, 7919 * (j + 1), config.wind_series_s,
+                                           self.vehicle.controller.max_speed_m_s, heights)
                                 for j in range(config.wind_pool_size)]
         self.obs_size = obs_size(config.perception)
 
@@ -205,7 +207,7 @@ class NavBatch:
         self.episode_len = np.zeros(n, dtype=np.int64)
         self.episode_count = np.zeros(n, dtype=np.int64)
         self.rngs: list[np.random.Generator] = [np.random.Generator(np.random.PCG64(i)) for i in range(n)]
-        self.winds = WindBank(world.gust_series, n)
+        self.winds = WindBank(world.gust_stacks, n)
         self.sim = BatchSimulator(world.dynamics, world.atmosphere, self.winds)
         self.routes = RouteBank(n, world.route_cells)
         self.memory = PilotMemory.empty(n, cfg.decision_hz)
@@ -240,7 +242,7 @@ class NavBatch:
                                         difficulty=self.difficulty)
             speed = rng.uniform(0.0, cfg.steady_wind_max_m_s)
             heading = rng.uniform(-np.pi, np.pi)
-            series = int(rng.integers(max(1, len(w.gust_series))))
+            series = int(rng.integers(max(1, len(w.gust_stacks))))
             start = 0
             if w.turbulent:
                 span = self.winds.samples - 2 - int(np.ceil((task.timeout_s + 1.0) / self.winds.dt_s))

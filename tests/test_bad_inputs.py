@@ -222,6 +222,18 @@ def test_a_control_rate_the_policy_was_not_trained_for_is_refused_before_writing
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("shear, key, reason", [
+    ({"law": "cubic"}, "atmosphere.wind_shear.law", "unknown shear law 'cubic'"),
+    ({"law": "log", "roughness_m": 50}, "atmosphere.wind_shear.roughness_m", "roughness_m=50.0 is outside"),
+])
+def test_a_bad_wind_shear_is_refused_before_writing(tmp_path: Path, capsys: pytest.CaptureFixture, shear: dict,
+                                                   key: str, reason: str) -> None:
+    path = _scenario(tmp_path, {**BASE, "atmosphere": {"wind_mps": [3, 0, 0], "wind_shear": shear}})
+    _fails(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"], capsys, tmp_path,
+           str(path), f": {key}: ", reason)
+    assert not (tmp_path / "out").exists()
+
+
 def test_motor_time_constant_too_short_for_the_demo(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     path = _vehicle_file(tmp_path, QUAD_YAML.replace("motor_time_constant_s: 0.0125", "motor_time_constant_s: 0.0005"))
     t0 = time.perf_counter()  # rejected before compiling anything
@@ -453,6 +465,7 @@ def _tiny_run(tmp_path: Path) -> tuple[Path, list[str]]:
     ("height: 30.0", "height: 31.0", "map (buildings, bounds, no-fly zones)"),  # one building 1 m taller
     ("goal: [110.0, 45.0, 12.0]", "goal: [110.0, 45.0, 13.0]", "episodes (start, goal, radius, timeout)"),
     ("turbulence: light", "turbulence: moderate", "atmosphere, wind or rates"),
+    ("turbulence: light", "turbulence: light, wind_shear: {law: power, exponent: 0.3}", "atmosphere, wind or rates"),
     ("vehicle: small_quad", "vehicle: VEHICLE", "vehicle parameters"),  # a copy of the preset, 0.1 kg heavier
 ])
 def test_resume_refuses_a_changed_scenario(tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,

@@ -29,7 +29,7 @@ def test_plan_and_track_reaches_goal_without_collision(name, scale, vehicles, co
     task = Task(start_m=(0.0, 0.0, 15.0 * scale), goal_m=(110.0 * scale, 0.0, 20.0 * scale),
                 goal_radius_m=2.0 + p.collision_radius_m, timeout_s=90.0)
     wind = WindField.from_conditions(WindConditions((1.5, 0.5, 0.0), TurbulenceLevel.LIGHT), seed=2,
-                                     duration_s=task.timeout_s + 1.0, height_agl_m=20.0 * scale, airspeed_m_s=5.0)
+                                     duration_s=task.timeout_s + 1.0, airspeed_m_s=5.0, heights_m=(20.0 * scale,))
     agent = ClassicalAgent()
     assert isinstance(agent, Agent)
     traj = run_episode(world, agent, task, wind, seed=5)

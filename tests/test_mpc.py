@@ -62,7 +62,7 @@ def test_quad_tracks_line_and_circle(shape, turbulence, vehicles, compiled_dynam
     reference = _line(5.0, 3.0) if shape == "line" else _circle(20.0, 4.0)
     steady = (0.0, 0.0, 0.0) if turbulence is TurbulenceLevel.NONE else (2.0, -1.0, 0.0)
     wind = WindField.from_conditions(WindConditions(steady, turbulence), seed=4, duration_s=20.0,
-                                     height_agl_m=30.0, airspeed_m_s=5.0)
+                                     airspeed_m_s=5.0, heights_m=(30.0,))
     rms, times, commands = _track(p, dyn, mpc, reference, 15.0, wind)
     bound = 0.05 if turbulence is TurbulenceLevel.NONE else 0.5   # the MPC does not know the wind
     assert rms < bound, f"RMS tracking error {rms:.3f} m"

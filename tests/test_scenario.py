@@ -22,7 +22,7 @@ from compare.scenario import (
 )
 from uam_fdm.errors import ConfigError
 from uam_fdm.params import PRESET_DIR, load_vehicle
-from uam_fdm.wind import TurbulenceLevel
+from uam_fdm.wind import ShearLaw, TurbulenceLevel, WindShear
 
 SHIPPED = sorted(SCENARIO_DIR.glob("*/*.yaml"))
 
@@ -132,6 +132,18 @@ def test_defaults_are_applied(tmp_path: Path) -> None:
     assert s.raw == BASE and s.city.bounds_max_m.tolist() == [100.0, 100.0, 50.0]
 
 
+@pytest.mark.parametrize(("shear", "expected"), [
+    ({"law": "power", "exponent": 0.3}, WindShear(ShearLaw.POWER, 20.0, exponent=0.3)),
+    ({"law": "log", "roughness_m": 1}, WindShear(ShearLaw.LOG, 20.0, roughness_m=1.0)),
+    ({"law": "uniform"}, WindShear(ShearLaw.UNIFORM, 20.0)),
+])
+def test_wind_shear_keys(tmp_path: Path, shear: dict, expected: WindShear) -> None:
+    s = load_scenario(_write(tmp_path, _with({"atmosphere.wind_mps": [4, 0, 0], "atmosphere.wind_shear": shear,
+                                              "atmosphere.wind_reference_height_m": 20})))
+    assert s.wind.shear == expected and s.wind.steady_enu_m_s == (4.0, 0.0, 0.0)
+    assert load_scenario(_write(tmp_path, BASE)).wind.shear == WindShear()  # default: uniform, given at 10 m
+
+
 def test_top_level_defaults_and_episode_overrides(tmp_path: Path) -> None:
     data = _with({"goal_radius_m": 4.0, "timeout_s": 70.0, "seeds": [3, 1, 2], "methods": ["rrt_mpc", "ppo"],
                   "physics_hz": 400, "control_hz": 25, "description": "two flights",
@@ -217,6 +229,35 @@ BAD_CASES: list[tuple[str, dict[str, Any], str, str]] = [
     ("wind-strong", {"atmosphere.wind_mps": [100, 0, 0]}, "atmosphere.wind_mps", "exceeds 60"),
     ("turbulence-unknown", {"atmosphere.turbulence": "hurricane"}, "atmosphere.turbulence", "'hurricane'"),
     ("turbulence-number", {"atmosphere.turbulence": 3}, "atmosphere.turbulence", "got 3"),
+    ("shear-law-unknown", {"atmosphere.wind_shear": {"law": "cubic"}}, "atmosphere.wind_shear.law",
+     "unknown shear law 'cubic' (known: uniform, power, log)"),
+    ("shear-law-missing", {"atmosphere.wind_shear": {"exponent": 0.3}}, "atmosphere.wind_shear.law", "missing"),
+    ("shear-not-mapping", {"atmosphere.wind_shear": "power"}, "atmosphere.wind_shear", "must be a mapping"),
+    ("shear-unknown-key", {"atmosphere.wind_shear": {"law": "power", "exponent": 0.3, "alpha": 0.3}},
+     "atmosphere.wind_shear.alpha", "unknown key"),
+    ("shear-exponent-range", {"atmosphere.wind_shear": {"law": "power", "exponent": 0.9}},
+     "atmosphere.wind_shear.exponent", "exponent=0.9 is outside the accepted range [0.0, 0.6]"),
+    ("shear-exponent-negative", {"atmosphere.wind_shear": {"law": "power", "exponent": -0.1}},
+     "atmosphere.wind_shear.exponent", "-0.1 is outside"),
+    ("shear-exponent-string", {"atmosphere.wind_shear": {"law": "power", "exponent": "0.3"}},
+     "atmosphere.wind_shear.exponent", "must be a number"),
+    ("shear-exponent-missing", {"atmosphere.wind_shear": {"law": "power"}}, "atmosphere.wind_shear.exponent",
+     "missing (required by the power law)"),
+    ("shear-roughness-range", {"atmosphere.wind_shear": {"law": "log", "roughness_m": 10.0}},
+     "atmosphere.wind_shear.roughness_m", "roughness_m=10.0 is outside the accepted range [0.001, 3.0] m"),
+    ("shear-roughness-zero", {"atmosphere.wind_shear": {"law": "log", "roughness_m": 0}},
+     "atmosphere.wind_shear.roughness_m", "0.0 is outside"),
+    ("shear-wrong-parameter", {"atmosphere.wind_shear": {"law": "log", "roughness_m": 1.0, "exponent": 0.3}},
+     "atmosphere.wind_shear.exponent", "does not apply to the log law, got 0.3"),
+    ("shear-uniform-parameter", {"atmosphere.wind_shear": {"law": "uniform", "roughness_m": 1.0}},
+     "atmosphere.wind_shear.roughness_m", "does not apply to the uniform law"),
+    ("shear-reference-range", {"atmosphere.wind_reference_height_m": 500}, "atmosphere.wind_reference_height_m",
+     "500.0 is outside the accepted range [1.0, 300.0] m above the field"),
+    ("shear-reference-bool", {"atmosphere.wind_reference_height_m": True}, "atmosphere.wind_reference_height_m",
+     "must be a number"),
+    ("shear-reference-below-floor", {"atmosphere.wind_reference_height_m": 3.0,
+                                     "atmosphere.wind_shear": {"law": "log", "roughness_m": 2.0}},
+     "atmosphere.wind_reference_height_m", "reference_height_m=3.0 is below the log law's floor 4.0 m"),
     ("atmosphere-list", {"atmosphere": [0, 0]}, "atmosphere", "must be a mapping"),
     ("cannot-hover", {"atmosphere": {"elevation_m": 9000, "isa_offset_k": 50}}, "atmosphere", "cannot hover"),
     # episodes

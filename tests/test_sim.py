@@ -7,7 +7,7 @@ import pytest
 from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.model import hover_state
 from uam_fdm.sim import BatchSimulator, Simulator
-from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField
+from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField, WindShear
 
 
 @pytest.fixture(scope="module")
@@ -16,8 +16,9 @@ def atmosphere() -> Atmosphere:
 
 
 def _wind(seed: int, level=TurbulenceLevel.MODERATE) -> WindField:
-    return WindField.from_conditions(WindConditions((4.0, -2.0, 0.0), level), seed=seed, duration_s=12.0,
-                                     height_agl_m=50.0, airspeed_m_s=8.0)
+    # three turbulence rungs around the flights' heights and a power-law steady profile
+    return WindField.from_conditions(WindConditions((4.0, -2.0, 0.0), level, WindShear("power", 10.0, 0.3)),
+                                     seed=seed, duration_s=12.0, airspeed_m_s=8.0, heights_m=(20.0, 40.0, 80.0))
 
 
 def _fly(sim: Simulator, p, seconds: float) -> tuple[np.ndarray, float]:

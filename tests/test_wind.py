@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import uam_fdm.wind as wind
-from uam_fdm.wind import GustSeries, TurbulenceLevel, WindConditions, WindField, gust_series
+from uam_fdm.wind import GustSeries, GustStack, TurbulenceLevel, WindConditions, WindField, gust_series
 
 FT = 0.3048
 KT = 1852.0 / 3600.0
@@ -94,8 +94,8 @@ def test_none_gives_exact_zeros_without_jsbsim(monkeypatch: pytest.MonkeyPatch) 
     g = gust_series(WindConditions((3.0, 0.0, 0.0)), seed=5, **FAST)
     assert g.gust_enu_m_s.shape == (1201, 3)
     assert not np.any(g.gust_enu_m_s)
-    field = WindField.from_conditions(WindConditions((3.0, 4.0, 0.5)), 5, **FAST)
-    winds = field.wind_enu_m_s_batch(np.linspace(0.0, 10.0, 50))
+    field = WindField.from_conditions(WindConditions((3.0, 4.0, 0.5)), 5, 10.0, 20.0)
+    winds = field.wind_enu_m_s_batch(np.linspace(0.0, 10.0, 50), np.linspace(0.0, 400.0, 50))
     np.testing.assert_array_equal(winds, np.tile([3.0, 4.0, 0.5], (50, 1)))
 
 
@@ -181,47 +181,52 @@ def test_longitudinal_axis_follows_the_steady_wind() -> None:
 # ----------------------------------------------------------------------------- wind field
 @pytest.fixture(scope="module")
 def gusty() -> WindField:
-    return WindField.from_conditions(_light((2.0, -1.0, 0.0)), 17, 12.0, 100.0, 20.0)
+    return WindField.from_conditions(_light((2.0, -1.0, 0.0)), 17, 12.0, 20.0, heights_m=(50.0, 100.0))
 
 
 def test_field_interpolates_steady_plus_gusts(gusty: WindField) -> None:
     g = gusty.gusts
-    assert isinstance(g, GustSeries)
+    assert isinstance(g, GustStack) and g.heights_m == (50.0, 100.0)
     steady = np.array([2.0, -1.0, 0.0])
     np.testing.assert_array_equal(gusty.steady_enu_m_s, steady)
-    k = 600
-    np.testing.assert_allclose(gusty.wind_enu_m_s(g.t_s[k]), steady + g.gust_enu_m_s[k], rtol=0, atol=1e-12)
+    k, top = 600, g.gust_enu_m_s[:, 1]
+    np.testing.assert_allclose(gusty.wind_enu_m_s(g.t_s[k], 100.0), steady + top[k], rtol=0, atol=1e-12)
     t_mid = 0.5 * (g.t_s[k] + g.t_s[k + 1])
-    expected = steady + 0.5 * (g.gust_enu_m_s[k] + g.gust_enu_m_s[k + 1])
-    np.testing.assert_allclose(gusty.wind_enu_m_s(t_mid), expected, rtol=0, atol=1e-12)
+    expected = steady + 0.5 * (top[k] + top[k + 1])
+    np.testing.assert_allclose(gusty.wind_enu_m_s(t_mid, 100.0), expected, rtol=0, atol=1e-12)
+    # linear in log height: the geometric mean of two rungs is their midpoint
+    mid = steady + 0.5 * (g.gust_enu_m_s[k, 0] + g.gust_enu_m_s[k, 1])
+    np.testing.assert_allclose(gusty.wind_enu_m_s(g.t_s[k], np.sqrt(5000.0)), mid, rtol=0, atol=1e-12)
     times = np.array([[0.0, 0.013], [7.77, gusty.duration_s]])
-    batch = gusty.wind_enu_m_s_batch(times)
+    heights = np.array([[1.0, 50.0], [73.0, 400.0]])
+    batch = gusty.wind_enu_m_s_batch(times, heights)
     assert batch.shape == (2, 2, 3)
-    for t, w in zip(times.flat, batch.reshape(-1, 3)):
-        np.testing.assert_allclose(w, gusty.wind_enu_m_s(float(t)), rtol=0, atol=1e-12)
+    for t, z, w in zip(times.flat, heights.flat, batch.reshape(-1, 3)):
+        np.testing.assert_array_equal(w, gusty.wind_enu_m_s(float(t), float(z)))
     assert gusty.duration_s >= 12.0
 
 
 @pytest.mark.parametrize("t", [-0.001, 12.1, float("nan")])
 def test_field_outside_its_series_raises(gusty: WindField, t: float) -> None:
     with pytest.raises(ValueError, match="build the WindField with duration_s"):
-        gusty.wind_enu_m_s(t)
+        gusty.wind_enu_m_s(t, 10.0)
     with pytest.raises(ValueError, match="build the WindField with duration_s"):
-        gusty.wind_enu_m_s_batch([1.0, t])
+        gusty.wind_enu_m_s_batch([1.0, t], 10.0)
 
 
 def test_calm_field_is_zero_at_any_time() -> None:
     calm = WindField.calm()
     assert calm.gusts is None and calm.duration_s == float("inf")
-    np.testing.assert_array_equal(calm.wind_enu_m_s(1e6), np.zeros(3))
-    np.testing.assert_array_equal(calm.wind_enu_m_s_batch(np.zeros((4, 2))), np.zeros((4, 2, 3)))
+    np.testing.assert_array_equal(calm.wind_enu_m_s(1e6, 30.0), np.zeros(3))
+    np.testing.assert_array_equal(calm.wind_enu_m_s_batch(np.zeros((4, 2)), 5.0), np.zeros((4, 2, 3)))
 
 
 def test_field_pickle_round_trip(gusty: WindField) -> None:
     clone = pickle.loads(pickle.dumps(gusty))
     t = np.linspace(0.0, 12.0, 1001)
-    np.testing.assert_array_equal(clone.wind_enu_m_s_batch(t), gusty.wind_enu_m_s_batch(t))
+    z = np.linspace(0.0, 150.0, 1001)
+    np.testing.assert_array_equal(clone.wind_enu_m_s_batch(t, z), gusty.wind_enu_m_s_batch(t, z))
     assert clone.gusts is not None and clone.gusts.seed == 17
-    returned = gusty.wind_enu_m_s(1.0)
+    returned = gusty.wind_enu_m_s(1.0, 70.0)
     returned[:] = 99.0  # callers own the returned array: the field must not change
-    assert not np.any(gusty.wind_enu_m_s(1.0) == 99.0)
+    assert not np.any(gusty.wind_enu_m_s(1.0, 70.0) == 99.0)

@@ -34,7 +34,7 @@ _TINY = 1e-300  # a positive pruning distance that still visits every bounding b
 
 @dataclass(frozen=True)
 class Building:
-    """A box building standing on the ground.
+    """A box building standing on the ground (or, in `BuildingMap.planning_map`, a no-fly box above it).
 
     Attributes:
         id: building id (parts of one decomposed footprint share it).
@@ -42,6 +42,8 @@ class Building:
         size_xy_m: footprint size (width along the building's x axis, depth along its y axis) [m].
         height_m: roof height above the ground [m].
         yaw_rad: footprint rotation, counter-clockwise about +z [rad].
+        base_m: bottom of the box above the ground [m]: 0 for buildings; a no-fly volume that starts
+            above the ground has its own.
     """
 
     id: int
@@ -49,6 +51,7 @@ class Building:
     size_xy_m: tuple[float, float]
     height_m: float
     yaw_rad: float = 0.0
+    base_m: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "id", int(self.id))
@@ -60,6 +63,9 @@ class Building:
             raise ValueError(f"building {self.id}: sizes and height must be positive and finite: {self}")
         if not math.isfinite(self.yaw_rad):
             raise ValueError(f"building {self.id}: yaw must be finite")
+        object.__setattr__(self, "base_m", float(self.base_m))
+        if not 0.0 <= self.base_m < self.height_m:
+            raise ValueError(f"building {self.id}: base must be in [0, height), got {self.base_m}")
 
     def footprint_xy_m(self) -> np.ndarray:
         """Footprint corners, counter-clockwise: (4, 2), ENU metres."""
@@ -217,7 +223,7 @@ class BuildingMap:
         self._init(tuple(buildings), bounds_min_m, bounds_max_m, tuple(no_fly), str(name))
 
     def _init(self, parts: tuple[Obstacle, ...], lo: Sequence[float], hi: Sequence[float],
-              no_fly: tuple[NoFlyZone, ...], name: str) -> None:
+              no_fly: tuple[NoFlyZone, ...], name: str, footprints_inside: bool = True) -> None:
         lo_a = np.array(lo, dtype=float).reshape(3)
         hi_a = np.array(hi, dtype=float).reshape(3)
         if not (np.all(np.isfinite(lo_a)) and np.all(np.isfinite(hi_a)) and np.all(hi_a > lo_a)):
@@ -229,11 +235,13 @@ class BuildingMap:
                 raise TypeError(f"buildings must be Building or Prism, got {type(p).__name__}")
             fp = p.footprint_xy_m()
             tol = 1e-9 * (1.0 + float(np.max(np.abs(hi_a[:2]))))
-            if np.any(fp < lo_a[:2] - tol) or np.any(fp > hi_a[:2] + tol):
+            if footprints_inside and (np.any(fp < lo_a[:2] - tol) or np.any(fp > hi_a[:2] + tol)):
                 raise ValueError(f"building {p.id}: footprint leaves the bounds in x/y")
         lo_a.setflags(write=False)
         hi_a.setflags(write=False)
         self._parts, self._lo, self._hi, self._no_fly, self._name = parts, lo_a, hi_a, no_fly, name
+        self._footprints_inside = footprints_inside
+        self._planning: BuildingMap | None = None
         self._part_ids = np.array([p.id for p in parts], dtype=np.int64)
         self._ids = np.unique(self._part_ids)
         self._packed = _pack_parts(parts)
@@ -267,11 +275,30 @@ class BuildingMap:
     # ---- pickling: plain data out, FCL rebuilt in -------------------------------------------------
     def __getstate__(self) -> dict[str, Any]:
         return {"buildings": self._parts, "bounds_min_m": self._lo.tolist(), "bounds_max_m": self._hi.tolist(),
-                "no_fly": self._no_fly, "name": self._name}
+                "no_fly": self._no_fly, "name": self._name, "footprints_inside": self._footprints_inside}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self._init(tuple(state["buildings"]), state["bounds_min_m"], state["bounds_max_m"],
-                   tuple(state["no_fly"]), state["name"])
+                   tuple(state["no_fly"]), state["name"], state.get("footprints_inside", True))
+
+    def planning_map(self) -> BuildingMap:
+        """This map with its no-fly volumes as obstacles, for planning (itself when it has none).
+
+        A planner or a tracker that keeps its clearance margin from this map's obstacles keeps it from
+        the no-fly volumes too (their boxes, at their own height range); the comparison's clearance
+        metric stays on the buildings and the ground. Built once, then cached.
+        """
+        if not self._no_fly:
+            return self
+        if self._planning is None:
+            first = int(self._ids.max()) + 1 if len(self._ids) else 0
+            zones = tuple(Building(first + k, z.center_xy_m, z.size_xy_m, z.z_range_m[1], z.yaw_rad,
+                                   base_m=z.z_range_m[0]) for k, z in enumerate(self._no_fly))
+            planning = BuildingMap.__new__(BuildingMap)
+            # a zone may reach beyond the flight volume: that part of it is never flown anyway
+            planning._init(self._parts + zones, self._lo, self._hi, (), self._name, footprints_inside=False)
+            self._planning = planning
+        return self._planning
 
     def __repr__(self) -> str:
         return (f"BuildingMap(name={self._name!r}, buildings={len(self._ids)}, parts={len(self._parts)}, "
@@ -534,7 +561,7 @@ def _pack_parts(parts: tuple[Obstacle, ...]) -> clearance_np.PackedPrisms:
     boxes, box_part, polys, poly_part = [], [], [], []
     for i, p in enumerate(parts):
         if isinstance(p, Building):
-            boxes.append((*p.center_xy_m, p.yaw_rad, *p.size_xy_m, 0.0, p.height_m))
+            boxes.append((*p.center_xy_m, p.yaw_rad, *p.size_xy_m, p.base_m, p.height_m))
             box_part.append(i)
         else:
             polys.append((p.footprint_xy_m(), 0.0, p.height_m))
@@ -550,8 +577,8 @@ def _rot_z(yaw: float) -> np.ndarray:
 def _fcl_object(p: Obstacle) -> tuple[fcl.CollisionGeometry, fcl.CollisionObject]:
     """An FCL primitive for one part: Box (analytic) or Convex (a prism with K side faces)."""
     if isinstance(p, Building):
-        geom = fcl.Box(p.size_xy_m[0], p.size_xy_m[1], p.height_m)
-        tf = fcl.Transform(_rot_z(p.yaw_rad), np.array([*p.center_xy_m, 0.5 * p.height_m]))
+        geom = fcl.Box(p.size_xy_m[0], p.size_xy_m[1], p.height_m - p.base_m)
+        tf = fcl.Transform(_rot_z(p.yaw_rad), np.array([*p.center_xy_m, 0.5 * (p.base_m + p.height_m)]))
         return geom, fcl.CollisionObject(geom, tf)
     v = p.footprint_xy_m()
     k = len(v)

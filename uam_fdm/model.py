@@ -33,6 +33,7 @@ rotor-rotor and coaxial interference, angular (rotational) drag.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import casadi as ca
@@ -173,16 +174,28 @@ def rk4_step_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX, dt: ca.SX) -
     gain = ca.SX.sym("gain", p.n_rotors)
     f = ca.Function("f_aug", [x, u, env, gain], list(dynamics_expr(p, x, u, env, gain)))
     g = ground_effect_gain(p, x, env)
-    k1, e1 = f(x, u, env, g)
-    k2, e2 = f(x + 0.5 * dt * k1, u, env, g)
-    k3, e3 = f(x + 0.5 * dt * k2, u, env, g)
-    k4, e4 = f(x + dt * k3, u, env, g)
-    x_next = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    energy = dt / 6.0 * (e1 + 2 * e2 + 2 * e3 + e4)
-    lay = StateLayout(p.n_rotors)
-    q = x_next[lay.quat]
-    x_next[lay.quat] = q / ca.norm_2(q)
+    x_next, energy = rk4_expr(lambda s: f(s, u, env, g), x, dt)
     return x_next, energy
+
+
+def rk4_expr(f: Callable[[ca.SX], Sequence[ca.SX]], x: ca.SX, dt: ca.SX | float) -> list[ca.SX]:
+    """One classical RK4 step of ẋ = f(x)[0], the attitude quaternion x[6:10] renormalised.
+
+    Any further outputs of f (e.g. the shaft power) are integrated by the same stages. The one RK4 of
+    the project: the simulator's physics step and the MPC's prediction both take theirs from here.
+
+    Returns:
+        [x_next, *integrals of the further outputs over the step].
+    """
+    k1 = f(x)
+    k2 = f(x + 0.5 * dt * k1[0])
+    k3 = f(x + 0.5 * dt * k2[0])
+    k4 = f(x + dt * k3[0])
+    out = [dt / 6.0 * (a + 2 * b + 2 * c + d) for a, b, c, d in zip(k1, k2, k3, k4)]
+    x_next = x + out[0]
+    q = x_next[StateLayout.quat]
+    x_next[StateLayout.quat] = q / ca.norm_2(q)
+    return [x_next, *out[1:]]
 
 
 @dataclass(frozen=True)

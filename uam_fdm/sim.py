@@ -2,10 +2,11 @@
 
 Pure steps take the state and return the next one (`step`, `step_velocity`, batched `step_batch`,
 `step_velocity_batch`); `reset`/`advance*` are a thin stateful shell over them. Over each control
-period the environment input (wind, density ratio) is held, sampled at the period's midpoint in
-time and at the vehicle's altitude at the start: within 20 ms the altitude changes by centimetres
-(Δσ ~ 1e-6), while JSBSim's turbulence is tabulated at 120 Hz. The wind field must cover the
-episode plus one control period.
+period the environment input (wind, density ratio) is held: the wind at the period's midpoint in
+time and, like the density, at the vehicle's altitude at the period's start (within 20 ms the
+altitude changes by centimetres: Δσ ~ 1e-6, and the wind's height profile and turbulence rungs
+change as little), while JSBSim's turbulence is tabulated at 120 Hz. The wind field must cover
+the episode plus one control period.
 """
 from __future__ import annotations
 
@@ -25,14 +26,16 @@ def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray
     """The environment input [wind_e, wind_n, wind_u (m/s), σ, h (m)] held over a control period.
 
     The one rule every flight uses (the runner's `Simulator` and the learned pilot's batched
-    environment alike): the wind sampled at the period's midpoint in time (the caller passes it),
-    the density ratio at the vehicle's altitude at the period's start (clamped to the table), and
+    environment alike): the wind sampled at the period's midpoint in time and at the vehicle's
+    altitude at the period's start (the caller passes it: `WindField.wind_enu_m_s(t + T/2, z)` or
+    `WindBank.wind_enu_m_s`), the density ratio at the vehicle's altitude at the period's start (clamped to the table), and
     the height above the surface below at the period's start (the caller's, from
     `uam_fdm.ground_effect.height_above_surface`; None: open ground at z = 0, so h = z).
 
     Args:
         atmosphere: the density table.
-        wind_enu_m_s: (3,) or (N, 3) wind at the period's midpoint [m/s, world ENU].
+        wind_enu_m_s: (3,) or (N, 3) wind at the period's midpoint in time, at the altitude z_m
+            [m/s, world ENU].
         z_m: altitude(s) at the period's start [m], scalar or (N,).
         height_above_surface_m: scalar or (N,) [m], or None.
 
@@ -80,7 +83,8 @@ class Simulator:
     def env(self, x: np.ndarray, t_s: float, height_above_surface_m: float | None = None) -> np.ndarray:
         """Environment input (`period_env`) held over the period starting at t_s; the height above the
         surface below [m] from the caller (None: open ground, h = z)."""
-        return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s), float(x[2]),
+        z = float(x[2])
+        return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s, z), z,
                           height_above_surface_m)
 
     def step(self, x: np.ndarray, u: np.ndarray, t_s: float, height_above_surface_m: float | None = None) -> PeriodResult:
@@ -154,10 +158,11 @@ class BatchSimulator:
         t = np.asarray(t_s, dtype=float)
         t_mid = (t if t.shape == (m,) else np.broadcast_to(t, (m,))) + 0.5 * self.control_period_s
         if isinstance(self.winds, WindBank):
-            wind = self.winds.wind_enu_m_s(t_mid, idx)
+            wind = self.winds.wind_enu_m_s(t_mid, x[:, 2], idx)
         else:
             which = range(m) if idx is None else idx
-            wind = np.array([self.winds[int(i)].wind_enu_m_s(float(t)) for i, t in zip(which, t_mid)]).reshape(m, 3)
+            wind = np.array([self.winds[int(i)].wind_enu_m_s(float(t), float(z))
+                             for i, t, z in zip(which, t_mid, x[:, 2])]).reshape(m, 3)
         if m == 1:  # the scalar density lookup: the same numbers, cheaper
             return period_env(self.atmosphere, wind[0], float(x[0, 2]), height_above_surface_m)[None]
         return period_env(self.atmosphere, wind, x[:, 2], height_above_surface_m)
@@ -167,8 +172,8 @@ class BatchSimulator:
         """`env` (1, 5) of vehicle i alone, in plain Python (the same numbers: `WindBank._wind_one` and
         the scalar density lookup); NumPy's per-call overhead on one row dominated a single vehicle."""
         t_mid = float(np.asarray(t_s, dtype=float).reshape(-1)[0]) + 0.5 * self.control_period_s
-        we, wn, wu = self.winds._wind_one(i, t_mid)
         z = float(x[0, 2])
+        we, wn, wu = self.winds._wind_one(i, t_mid, z)
         h = z if height_above_surface_m is None else float(np.asarray(height_above_surface_m).reshape(-1)[0])
         return np.array([[we, wn, wu, self.atmosphere.density_ratio_clamped(z), h]])
 
