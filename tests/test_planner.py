@@ -171,8 +171,8 @@ def test_start_inside_the_margin_is_relaxed_not_rejected():
 
 def test_time_budget_mode_and_bad_arguments():
     r = plan_path(gap_map(), (20, 50, 10), (80, 50, 10), R_QUAD,
-                  PlannerConfig(max_iterations=None, time_budget_s=0.1), seed=0)
-    assert r.ok and not r.wall_cap_hit
+                  PlannerConfig(max_iterations=None, time_budget_s=1.0), seed=0)
+    assert r.ok and not r.wall_cap_hit, r.message  # 1 s: enough on a loaded machine (0.1 s was not)
     with pytest.raises(ValueError):
         PlannerConfig(algorithm="aorrtc")
     with pytest.raises(ValueError):
