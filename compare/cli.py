@@ -101,7 +101,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
     scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
     _one_torch_thread()
-    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policy=args.policy, jobs=args.jobs,
+    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
                       resume=args.resume, progress=not args.no_progress, videos=args.videos,
                       command="uam-compare " + " ".join(args.argv))
     est = estimate_run(scenarios, opts)
@@ -211,10 +211,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from rl.nav import NavConfig
+    from rl.tasks import task_for
     from rl.train import Curriculum, TrainConfig, train
 
-    nav = replace(NavConfig(), city_pool_size=args.city_pool, turbulence=args.turbulence)
+    task = task_for(args.vehicle)
+    if args.city_pool is not None and args.city_pool < 1:
+        raise ValueError(f"--city-pool {args.city_pool}: must be >= 1")
+    nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, turbulence=args.turbulence)
     cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
@@ -282,7 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scenario", nargs="?", default="default",
                      help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
     run.add_argument("--methods", type=_csv_list, default=None, help="comma-separated subset of ppo,rrt_mpc")
-    run.add_argument("--policy", type=Path, default=None, help="policy folder for ppo (default: the shipped policy)")
+    run.add_argument("--policy", type=Path, action="append", default=[],
+                     help="policy folder for ppo, for the vehicle it was trained for; repeat for other vehicles "
+                          "(default: the shipped policy of each vehicle)")
     run.add_argument("--seeds", type=_seed_list, default=None,
                      help="comma-separated seeds overriding the scenarios' own (distinct, 0 to 2**32 - 1)")
     run.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
@@ -322,7 +327,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--timesteps", type=int, default=10_000_000, help="decisions, all vehicles (default 10M)")
     tr.add_argument("--envs", type=int, default=256, help="vehicles stepped together (default 256)")
     tr.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
-    tr.add_argument("--city-pool", type=int, default=1024, help="training cities (default 1024)")
+    tr.add_argument("--vehicle", default="small_quad",
+                    help="the vehicle and its task (rl/tasks.py): small_quad (default) or uam_multicopter")
+    tr.add_argument("--city-pool", type=int, default=None,
+                    help="training cities (default: the task's, 1024 for small_quad, 256 for uam_multicopter)")
     tr.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")

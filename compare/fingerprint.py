@@ -1,7 +1,7 @@
 """What a run's cells were computed from, as hashes: `--resume` completes a run only with the same inputs.
 
 `run_fingerprints` hashes, per scenario, its resolved content (map, vehicle parameters, atmosphere,
-wind and rates, episodes), the policy folder's files when ppo is flown, and the code version; the run
+wind and rates, episodes), each policy folder's files that ppo flies (one per vehicle), and the code version; the run
 stores them in `run.json` under "fingerprints". `check_resume` reads a folder (never writes) and
 refuses, with every difference listed, a folder that is not a run of this tool or whose saved inputs
 differ from the ones given now: finished episodes are never mixed with episodes of other inputs.
@@ -76,11 +76,13 @@ def policy_fingerprint(folder: Path) -> dict[str, str]:
     return out
 
 
-def run_fingerprints(scenarios: Sequence[Scenario], ppo_flown: bool, policy_dir: Path) -> dict:
-    """The "fingerprints" block of run.json: code, each scenario, and the policy when ppo is flown."""
+def run_fingerprints(scenarios: Sequence[Scenario], policies: Mapping[str, Path]) -> dict:
+    """The "fingerprints" block of run.json: code, each scenario, and the policy folder ppo flies for
+    each vehicle (`policies`: folder by vehicle name; empty when ppo is not flown)."""
     out: dict = {"code": code_version(), "scenarios": {sc.name: scenario_fingerprint(sc) for sc in scenarios}}
-    if ppo_flown:
-        out["policy"] = {"folder": str(Path(policy_dir).resolve()), "files": policy_fingerprint(policy_dir)}
+    if policies:
+        out["policies"] = {v: {"folder": str(Path(d).resolve()), "files": policy_fingerprint(d)}
+                           for v, d in sorted(policies.items())}
     return out
 
 
@@ -95,12 +97,14 @@ def fingerprint_differences(saved: Mapping, now: Mapping) -> list[str]:
         parts = [SCENARIO_PARTS.get(k, k) for k in sorted(set(sa) | set(sb)) if sa.get(k) != sb.get(k)]
         if parts:
             diffs.append(f"scenario {name}: {', '.join(parts)} changed")
-    pa, pb = saved.get("policy"), now.get("policy")
-    if pa is not None and pb is not None:  # a run that did not fly ppo before may start to
+    saved_p, now_p = saved.get("policies") or {}, now.get("policies") or {}
+    for vehicle in sorted(set(saved_p) & set(now_p)):  # a vehicle that did not fly ppo before may start to
+        pa, pb = saved_p[vehicle] or {}, now_p[vehicle] or {}
         fa, fb = pa.get("files") or {}, pb.get("files") or {}
         changed = [f for f in sorted(set(fa) | set(fb)) if fa.get(f) != fb.get(f)]
         if changed:
-            diffs.append(f"policy {', '.join(changed)} differ (saved from {pa.get('folder')}, now {pb.get('folder')})")
+            diffs.append(f"{vehicle} policy {', '.join(changed)} differ (saved from {pa.get('folder')}, "
+                         f"now {pb.get('folder')})")
     ca, cb = saved.get("code") or {}, now.get("code") or {}
     if ca != cb:
         diffs.append(f"code version: saved {_code_words(ca)}, now {_code_words(cb)}")
@@ -118,8 +122,9 @@ def check_resume(out: Path, now: dict) -> dict:
     Reads only: a refused folder is left byte for byte as it was. A missing or empty folder is a fresh start.
 
     Returns:
-        The fingerprints to save: `now`, keeping the saved policy's when ppo is not flown this time
-        (its episodes are still in the folder, and a later resume that flies ppo must match them).
+        The fingerprints to save: `now`, keeping the saved policy of each vehicle for which ppo is not
+        flown this time (its episodes are still in the folder, and a later resume that flies ppo for
+        that vehicle must match them).
 
     Raises:
         ValueError: `out` holds files but no run.json, an unreadable run.json, one without fingerprints,
@@ -149,6 +154,6 @@ def check_resume(out: Path, now: dict) -> dict:
     if diffs:
         raise ValueError(f"{out}: cannot resume: the inputs differ from the saved run's: {'; '.join(diffs)}; "
                          f"nothing was written (fly into a new folder)")
-    if "policy" not in now and isinstance(fps.get("policy"), dict):
-        return {**now, "policy": fps["policy"]}
-    return now
+    saved_p = fps.get("policies") if isinstance(fps.get("policies"), dict) else {}
+    merged = {**saved_p, **(now.get("policies") or {})}
+    return {**now, "policies": merged} if merged else now

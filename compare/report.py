@@ -182,7 +182,10 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
             for name, figs in _metrics_pages(run, rows):
                 pages.add_all(figs, name)
             failures = _episode_pages(run, groups, pages)
-            pages.add(_training_figure(run), "training_reward_curve")
+            policies = ppo_policies(run.info)
+            for k, pol in enumerate(policies or [{}]):  # one convergence page per policy flown
+                suffix = "" if k == 0 else f"_{pol.get('vehicle') or k}"
+                pages.add(_training_figure(pol, len(policies) > 1), f"training_reward_curve{suffix}")
             _failure_pages(run, failures, rows, run.unreadable, pages)
     logger.info("report %s: %d pages", out, pages.count)
     return out
@@ -328,10 +331,12 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
     blocks.append(("h", "Methods"))
     for m, cfg in (info.get("methods") or {}).items():
         cfg = cfg or {}
-        extra = f" (policy: {cfg['policy_dir']})" if cfg.get("policy_dir") else ""
-        if cfg.get("decision_hz"):
-            extra += f"; decides at {cfg['decision_hz']:g} Hz"
-        blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.get('description', '')}{extra}"))
+        blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.get('description', '')}"))
+        if m == "ppo":
+            for pol in ppo_policies(info):
+                rate = f"; decides at {pol['decision_hz']:g} Hz" if pol.get("decision_hz") else ""
+                who = f"for {pol['vehicle']}: " if pol.get("vehicle") else ""
+                blocks.append(("p", f"    {who}policy {pol.get('policy_dir')}{rate}"))
     run_notes = [str(n) for n in info.get("notes") or []]
     if run_notes:  # e.g. cells left out, the pilots' decision rates
         blocks += [("h", "Notes"), *(("p", n) for n in run_notes)]
@@ -478,10 +483,22 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
 
 
 # ---- 4. training ----------------------------------------------------------------------------------------
-def _training_figure(run: _Run) -> Figure:
+def ppo_policies(info: Mapping) -> list[dict]:
+    """The learned pilot's policies recorded in run.json (vehicle, policy_dir, decision_hz), one per
+    vehicle; a run written before policies per vehicle has one, without its vehicle."""
+    ppo = (info.get("methods") or {}).get("ppo") or {}
+    if isinstance(ppo.get("policies"), list):
+        return [p for p in ppo["policies"] if isinstance(p, dict)]
+    if ppo.get("policy_dir"):
+        return [{"vehicle": None, "policy_dir": ppo["policy_dir"], "decision_hz": ppo.get("decision_hz")}]
+    return []
+
+
+def _training_figure(policy: Mapping, name_vehicle: bool) -> Figure:
     title = "PPO training: reward convergence"
-    ppo = (run.info.get("methods") or {}).get("ppo")
-    policy_dir = (ppo or {}).get("policy_dir")
+    if name_vehicle and policy.get("vehicle"):
+        title += f" ({policy['vehicle']})"
+    policy_dir = policy.get("policy_dir")
     if not policy_dir:
         return F.reward_curve_figure(title, None,
                                      "No PPO policy folder is recorded in run.json: no reward curve.")

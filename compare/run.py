@@ -25,7 +25,7 @@ import os
 import platform
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib import metadata
@@ -54,7 +54,8 @@ METHOD_DESCRIPTIONS = {
     "ppo": "Learned pilot: policy network (2 x 128 tanh units, trained from scratch with PPO, no demonstrations; "
            "see its provenance) choosing a 3D velocity command at its decision rate (held between decisions) "
            "-> the vehicle's low-level velocity/attitude controller -> rotor speeds; sees only its local "
-           "observation (goal frame, 40 m rays, roof-height map, the route around the buildings); "
+           "observation (goal frame, horizontal rays and a roof-height map at its vehicle's scale, the route around "
+           "the buildings); one policy per vehicle, trained for it; "
            "acts deterministically.",
     "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
                "reference -> CasADi NMPC (ipopt) commanding rotor speeds, replanning on large tracking errors.",
@@ -99,7 +100,8 @@ class RunOptions:
         out_dir: the run folder.
         methods: only these methods (None: each scenario's own list).
         seeds: override every scenario's seeds (None: the scenarios' own).
-        policy: the learned pilot's policy folder (None: the shipped policy).
+        policies: the learned pilot's policy folders, at most one per vehicle (each records the
+            vehicle it was trained for); a vehicle without one flies its shipped policy, if any.
         jobs: parallel processes (1: in this process).
         resume: skip cells whose episode file already exists; refuse a folder that is not a run of this
             tool or was saved from other inputs (`compare.fingerprint.check_resume`).
@@ -113,7 +115,7 @@ class RunOptions:
     out_dir: Path
     methods: tuple[str, ...] | None = None
     seeds: tuple[int, ...] | None = None
-    policy: Path | None = None
+    policies: tuple[Path, ...] = ()
     jobs: int = 1
     resume: bool = False
     progress: bool = True
@@ -128,20 +130,25 @@ class PolicyFacts:
 
     Attributes:
         folder: the policy folder.
+        vehicle: the name of the vehicle it was trained for (its config.json's nav.vehicle).
         vehicle_fingerprint: `VehicleParams.fingerprint()` of the vehicle it was trained for.
         control_hz: the low-level controller rate it was trained with [Hz].
         decision_hz: the rate at which it chooses a command [Hz] (held for the control periods between).
     """
 
     folder: Path
+    vehicle: str
     vehicle_fingerprint: str
     control_hz: float
     decision_hz: float
 
 
 def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
-               policy: PolicyFacts | None) -> tuple[list[Cell], list[str]]:
+               policies: Mapping[str, PolicyFacts] | None) -> tuple[list[Cell], list[str]]:
     """The cells to fly, in a fixed order, and notes on cells left out (e.g. no policy for a vehicle).
+
+    `policies`: the learned pilot's policies by vehicle fingerprint (`select_policies`); None: not
+    known yet (an estimate), every ppo cell is kept.
 
     Raises:
         ValueError: a scenario that flies the learned pilot runs its controller at another rate than
@@ -150,9 +157,11 @@ def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
     cells, notes = [], []
     for si, sc in enumerate(scenarios):
         methods = [m for m in sc.methods if opts.methods is None or m in opts.methods]
-        if "ppo" in methods and policy is not None and sc.vehicle.fingerprint() != policy.vehicle_fingerprint:
+        policy = policies.get(sc.vehicle.fingerprint()) if policies is not None else None
+        if "ppo" in methods and policies is not None and policy is None:
             methods.remove("ppo")
-            notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r}; ppo not flown")
+            notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} (none shipped, none "
+                         f"given with --policy); ppo not flown")
         if "ppo" in methods and policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
             raise ValueError(
                 f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
@@ -210,11 +219,12 @@ def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
 class CellRunner:
     """Flies cells; holds per-process caches (worlds per scenario, one agent per method)."""
 
-    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policy: Path | None) -> None:
-        self.scenarios, self.out_dir, self.policy = list(scenarios), Path(out_dir), policy
+    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path]) -> None:
+        """`policies`: the learned pilot's policy folder by vehicle fingerprint."""
+        self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
         self._worlds: dict[int, object] = {}
         self._dynamics: dict[tuple, object] = {}
-        self._agents: dict[str, object] = {}
+        self._agents: dict[tuple[str, str], object] = {}
 
     def world(self, si: int):
         from uam_fdm.agent import World
@@ -231,17 +241,21 @@ class CellRunner:
             self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, atm)
         return self._worlds[si]
 
-    def agent(self, method: str):
-        if method not in self._agents:
+    def agent(self, method: str, sc: Scenario):
+        """The agent flying `method` in scenario `sc` (the learned pilot: the policy for its vehicle)."""
+        fp = sc.vehicle.fingerprint() if method == "ppo" else ""
+        if (method, fp) not in self._agents:
             if method == "ppo":
-                from rl.agent import PolicyAgent
-                self._agents[method] = PolicyAgent(self.policy)
+                from rl.agent import PolicyAgent, load_policy
+                if fp not in self.policies:
+                    raise ValueError(f"{sc.source}: no learned policy for vehicle {sc.vehicle_name!r}")
+                self._agents[method, fp] = PolicyAgent(load_policy(self.policies[fp], sc.vehicle))
             elif method == "rrt_mpc":
                 from planners.agent import ClassicalAgent
-                self._agents[method] = ClassicalAgent()
+                self._agents[method, fp] = ClassicalAgent()
             else:
                 raise ValueError(f"unknown method {method!r}")
-        return self._agents[method]
+        return self._agents[method, fp]
 
     def run(self, c: Cell) -> Path:
         from uam_fdm.wind import WindField, probe_heights_up_to
@@ -257,7 +271,7 @@ class CellRunner:
         airspeed = float(np.clip(max(p.controller.max_speed_m_s, np.linalg.norm(sc.wind.steady_enu_m_s)), 1.0, 100.0))
         heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
-        agent = self.agent(c.method)
+        agent = self.agent(c.method, sc)
         traj = run_episode(world, agent, task, wind, agent_seed)
         extra: dict = {"wind_seed": wind_seed, "agent_seed": agent_seed,
                        "torque_coeff_Nm_s2": p.torque_coeff_Nm_s2,
@@ -295,14 +309,14 @@ class RunInterrupted(Exception):
         self.out_dir, self.kept, self.cells = out_dir, kept, cells
 
 
-def _fly_in_processes(scenarios: Sequence[Scenario], out: Path, policy: Path | None, jobs: int,
+def _fly_in_processes(scenarios: Sequence[Scenario], out: Path, policies: Mapping[str, Path], jobs: int,
                       todo: Sequence[Cell], bar) -> None:
     """Fly `todo` in `jobs` worker processes. On any exception here (an interrupt included) the workers are
     terminated at once: an episode in flight is not written (its temporary file, if any, goes next run)."""
     import multiprocessing as mp
 
     # spawn: a fresh interpreter per worker (no copied casadi/ompl/torch state from this process)
-    pool = mp.get_context("spawn").Pool(jobs, initializer=_init_worker, initargs=(list(scenarios), out, policy))
+    pool = mp.get_context("spawn").Pool(jobs, initializer=_init_worker, initargs=(list(scenarios), out, dict(policies)))
     try:
         for _ in pool.imap_unordered(_run_in_worker, todo):
             bar.update(1)
@@ -317,7 +331,7 @@ def _fly_in_processes(scenarios: Sequence[Scenario], out: Path, policy: Path | N
 _WORKER: CellRunner | None = None
 
 
-def _init_worker(scenarios: list[Scenario], out_dir: Path, policy: Path | None) -> None:
+def _init_worker(scenarios: list[Scenario], out_dir: Path, policies: dict[str, Path]) -> None:
     import signal
 
     global _WORKER
@@ -329,7 +343,7 @@ def _init_worker(scenarios: list[Scenario], out_dir: Path, policy: Path | None) 
         import torch
 
         torch.set_num_threads(1)
-    _WORKER = CellRunner(scenarios, out_dir, policy)
+    _WORKER = CellRunner(scenarios, out_dir, policies)
 
 
 def _run_in_worker(c: Cell) -> Path:
@@ -371,9 +385,9 @@ def versions() -> dict[str, str]:
 
 
 def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str],
-                    fingerprints: dict, policy: PolicyFacts | None = None) -> None:
+                    fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
     """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, and the learned pilot's
-    policy folder and decision rate) and maps/*.yaml."""
+    policy folders, their vehicles and decision rates) and maps/*.yaml."""
     from uam_fdm.atmosphere import Atmosphere
     from uam_fdm.citygen import map_yaml_text
 
@@ -397,11 +411,12 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
         })
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
     methods = sorted({c.method for c in cells})
-    if "ppo" in methods and policy is not None:
-        notes = [*notes, f"ppo decides at {policy.decision_hz:g} Hz (its policy's rate, each command held for "
-                         f"{policy.control_hz / policy.decision_hz:g} control periods); "
-                         f"rrt_mpc at each scenario's control rate"]
-    ppo_cfg = ({"policy_dir": str(policy.folder), "decision_hz": policy.decision_hz} if policy is not None else {})
+    if "ppo" in methods and policies:
+        rates = "; ".join(f"for {p.vehicle} at {p.decision_hz:g} Hz (each command held for "
+                          f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
+        notes = [*notes, f"ppo decides at its policy's rate: {rates}; rrt_mpc at each scenario's control rate"]
+    ppo_cfg = ({"policies": [{"vehicle": p.vehicle, "policy_dir": str(p.folder), "decision_hz": p.decision_hz}
+                             for p in policies]} if policies else {})
     run = {
         "format_version": 1, "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "command": opts.command, "scenarios": entries, "notes": list(notes),
@@ -417,39 +432,38 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     from tqdm import tqdm
 
     from compare.animate import VIDEO_CHOICES
-    from rl.agent import DEFAULT_POLICY_DIR
 
     if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
         raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
     scenarios = list(scenarios)
-    policy = None
-    if any("ppo" in sc.methods for sc in scenarios) and (opts.methods is None or "ppo" in opts.methods):
-        policy = policy_facts(opts.policy)
-    cells, notes = plan_cells(scenarios, opts, policy)
+    policies = select_policies(scenarios, opts)
+    cells, notes = plan_cells(scenarios, opts, policies)
     if not cells:
         raise ValueError("nothing to fly: no (scenario, method) left after --methods")
     out = Path(opts.out_dir)
-    fingerprints = run_fingerprints(scenarios, any(c.method == "ppo" for c in cells),
-                                    opts.policy if opts.policy is not None else DEFAULT_POLICY_DIR)
+    flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if c.method == "ppo"}
+    used = [f for fp, f in policies.items() if fp in flown]
+    fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
         fingerprints = check_resume(out, fingerprints)
     out.mkdir(parents=True, exist_ok=True)
     _remove_stale_temporaries(out)
     for n in notes:  # cells left out (also in run.json and the report)
         log.warning("%s", n)
-    write_run_files(scenarios, opts, cells, notes, fingerprints, policy)
+    write_run_files(scenarios, opts, cells, notes, fingerprints, used)
+    folders = {f.vehicle_fingerprint: f.folder for f in used}
     todo = [c for c in cells
             if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]
     t0 = time.perf_counter()
     bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
     try:
         if opts.jobs <= 1:
-            runner = CellRunner(scenarios, out, opts.policy)
+            runner = CellRunner(scenarios, out, folders)
             for c in todo:
                 runner.run(c)
                 bar.update(1)
         else:
-            _fly_in_processes(scenarios, out, opts.policy, opts.jobs, todo, bar)
+            _fly_in_processes(scenarios, out, folders, opts.jobs, todo, bar)
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
         raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
     finally:
@@ -471,8 +485,39 @@ def policy_facts(policy: Path | None) -> PolicyFacts:
     from uam_fdm.params import load_vehicle
 
     nav = load_policy(policy).nav
-    return PolicyFacts(Path(policy if policy is not None else DEFAULT_POLICY_DIR).resolve(),
+    return PolicyFacts(Path(policy if policy is not None else DEFAULT_POLICY_DIR).resolve(), nav.vehicle,
                        load_vehicle(nav.vehicle).fingerprint(), float(nav.control_hz), float(nav.decision_hz))
+
+
+def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str, PolicyFacts]:
+    """The learned pilot's policy for each vehicle that flies ppo, by vehicle fingerprint: the one given
+    with --policy for that vehicle, else the shipped one trained for it (none: ppo is not flown there).
+
+    Raises:
+        ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
+    """
+    from rl.agent import shipped_policy_dir
+
+    if opts.methods is not None and "ppo" not in opts.methods:
+        return {}
+    chosen: dict[str, PolicyFacts] = {}
+    for folder in opts.policies:
+        facts = policy_facts(folder)
+        first = chosen.get(facts.vehicle_fingerprint)
+        if first is not None:
+            raise ValueError(f"--policy {folder}: a second policy for vehicle {facts.vehicle!r} "
+                             f"(the first: {first.folder}); give one per vehicle")
+        chosen[facts.vehicle_fingerprint] = facts
+    for sc in scenarios:
+        fp = sc.vehicle.fingerprint()
+        if "ppo" not in sc.methods or fp in chosen:
+            continue
+        shipped = shipped_policy_dir(sc.vehicle.name)
+        if shipped is not None:
+            facts = policy_facts(shipped)
+            if facts.vehicle_fingerprint == fp:  # a vehicle file that reuses a preset's name is not that preset
+                chosen[fp] = facts
+    return chosen
 
 
 def finalize(run_dir: Path, report: bool = True) -> Path:

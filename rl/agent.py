@@ -19,18 +19,26 @@ from pathlib import Path
 import numpy as np
 
 from rl.cities import boxes_only
-from rl.nav import CLEARANCE_RANGE_M, NavConfig, nearest_surface, observe_slots, route_for
+from rl.nav import NavConfig, clearance_sensor, nearest_surface, observe_slots, route_for
 from rl.observation import PilotMemory, action_to_command, goal_heading, obs_size
 from rl.perception import Perception
 from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
 from rl.route import RouteBank, grid_shape
-from rl.sensor import BoxSensor
 from rl.train import normalize_obs
 from uam_fdm.agent import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.city import BuildingMap
-from uam_fdm.params import load_vehicle
+from uam_fdm.params import VehicleParams, load_vehicle
 
 DEFAULT_POLICY_DIR = Path(__file__).parent / "policies" / "default"
+# The shipped policies, by the vehicle preset each was trained for (its config.json says so too).
+SHIPPED_POLICIES: dict[str, Path] = {"small_quad": DEFAULT_POLICY_DIR,
+                                     "uam_multicopter": Path(__file__).parent / "policies" / "uam"}
+
+
+def shipped_policy_dir(vehicle: str) -> Path | None:
+    """The shipped policy folder for vehicle preset `vehicle`, or None when none is shipped."""
+    folder = SHIPPED_POLICIES.get(vehicle)
+    return folder if folder is not None and (folder / "config.json").is_file() else None
 
 
 @dataclass
@@ -49,16 +57,20 @@ class Policy:
         return np.asarray(act, dtype=np.float64).reshape(-1, 3)
 
 
-def load_policy(folder: Path | str | None = None) -> Policy:
-    """Load a policy folder (default: the shipped policy) from plain data only (`rl.policy_file`):
-    nothing in the folder is unpickled or executed.
+def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None = None) -> Policy:
+    """Load a policy folder (default: the shipped small-quad policy) from plain data only
+    (`rl.policy_file`): nothing in the folder is unpickled or executed.
+
+    `vehicle`: the vehicle it is to fly; a policy trained for another vehicle (another preset, or the
+    same name with other parameters) is refused.
 
     Torch's thread count is left to the caller (a process-wide setting): one thread is several times
     faster than two for this small network; the CLI and the run's worker processes set it.
 
     Raises:
         ValueError: the folder or one of its files is missing, unreadable, holds code, or does not
-            fit the task in its config.json, naming the file.
+            fit the task in its config.json, naming the file; or it was trained for another
+            vehicle than `vehicle` (naming the file, both vehicles).
     """
     folder = Path(folder) if folder is not None else DEFAULT_POLICY_DIR
     for name in ("model.zip", "obs_norm.npz", "config.json"):
@@ -70,6 +82,8 @@ def load_policy(folder: Path | str | None = None) -> Policy:
         ppo = cfg["ppo"]
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{folder / 'config.json'}: not a policy configuration ({exc})") from None
+    if vehicle is not None:
+        check_vehicle(folder, nav, vehicle)
     n_obs = obs_size(nav.perception)
     stats = load_arrays(folder / "obs_norm.npz", OBS_NORM_KEYS)
     if stats["mean"].shape != (n_obs,) or stats["var"].shape != (n_obs,):
@@ -78,12 +92,22 @@ def load_policy(folder: Path | str | None = None) -> Policy:
     return Policy(folder, load_network(folder / "model.zip", n_obs, ppo), stats, nav)
 
 
+def check_vehicle(folder: Path, nav: NavConfig, vehicle: VehicleParams) -> None:
+    """Raise ValueError unless the policy in `folder` (task `nav`) was trained for `vehicle`."""
+    trained = load_vehicle(nav.vehicle)
+    if trained.fingerprint() != vehicle.fingerprint():
+        same = " (the same name with other parameters)" if trained.name == vehicle.name else ""
+        raise ValueError(f"{Path(folder) / 'config.json'}: the policy was trained for vehicle {nav.vehicle!r} "
+                         f"(nav.vehicle); it cannot fly vehicle {vehicle.name!r}{same}: use a policy trained "
+                         f"for {vehicle.name!r} (uam-compare train --vehicle)")
+
+
 class _CitySenses:
     """The environment's sensors for one city (box buildings): clearance and perception."""
 
     def __init__(self, city: BuildingMap, nav: NavConfig, radius_m: float) -> None:
         self.city = city
-        self.clearance = BoxSensor([city], 1, CLEARANCE_RANGE_M, radius_m)
+        self.clearance = clearance_sensor([city], nav, radius_m)
         self.perception = Perception([city], radius_m, nav.perception)
         self.route_cells = grid_shape(city, nav.route.cell_m)
 
@@ -130,7 +154,7 @@ class PolicyAgent:
         self._world = world
         self._task = task
         self._goal = np.asarray(task.goal_m, dtype=float)[None]
-        self._routes = RouteBank(1, self._senses.route_cells)
+        self._routes = RouteBank(1, self._senses.route_cells, nav.route.climb_weight)
         self._routes.set(0, route_for(world.city, task, radius, nav.route))
         self._memory = PilotMemory.empty(1, nav.decision_hz)
         start = np.asarray(task.start_m, dtype=float)[None]

@@ -83,7 +83,9 @@ class TaskDistribution:
             (on top of the vehicle's collision radius).
         bounds_margin_m: minimum distance of start and goal from the flight-volume sides [m].
         goal_radius_m: success radius [m].
-        timeout_base_s, timeout_per_speed: timeout = base + factor × distance / max speed [s].
+        timeout_base_s, timeout_per_speed, timeout_per_climb: timeout = base + per_speed x distance /
+            max speed + per_climb x |height difference| / max vertical speed [s] (the last term
+            for a vehicle whose climb is much slower than its cruise; 0 for the small quad).
     """
 
     distance_m: tuple[float, float] = (40.0, 250.0)
@@ -93,9 +95,10 @@ class TaskDistribution:
     goal_radius_m: float = 3.0
     timeout_base_s: float = 20.0
     timeout_per_speed: float = 2.5
+    timeout_per_climb: float = 0.0
 
     def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
-               attempts: int = 200, difficulty: float = 1.0) -> Task:
+               attempts: int = 200, difficulty: float = 1.0, max_vertical_speed_m_s: float = 1.0) -> Task:
         """A free start/goal pair in `city` drawn from `rng` (ENU metres).
 
         `difficulty` in (0, 1] (the training curriculum) shrinks the distance range's upper end
@@ -123,6 +126,8 @@ class TaskDistribution:
                 continue
             d = float(np.linalg.norm(goal - start))
             timeout = self.timeout_base_s + self.timeout_per_speed * d / max_speed_m_s
+            if self.timeout_per_climb:
+                timeout += self.timeout_per_climb * abs(dz) / max_vertical_speed_m_s
             return Task(tuple(map(float, start)), tuple(map(float, goal)), self.goal_radius_m, round(timeout, 2))
         raise RuntimeError(f"no free start/goal pair in {city.name!r} after {attempts} draws")
 

@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from rl.nav import NavBatch, NavConfig, NavWorld
+from rl.observation import ObservationScales
 from rl.vec_env import UAMNavVecEnv
 
 VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
@@ -125,22 +126,26 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
 def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
                              world: NavWorld | None = None) -> EvalResult:
     """The reactive potential-field pilot (`rl.expert`) on the same tasks as `evaluate(..., nav, episodes,
-    seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the tasks do not depend on it).
+    seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the tasks do not depend on it),
+    its distances scaled by the task's clearance scale over the small quad's (1 for the small quad).
 
     Args:
         world: a world whose dynamics and atmosphere to reuse (e.g. the policy's evaluation world).
     """
-    from rl.expert import PotentialFieldPilot
+    from rl.expert import PotentialField, PotentialFieldPilot
 
     base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
                        decision_hz=nav.control_hz)
     base_world = NavWorld(base_nav, dynamics=world.dynamics if world else None,
-                          atmosphere=world.atmosphere if world else None)
+                          atmosphere=world.atmosphere if world else None, wind_from=world)
     holder: dict[str, PotentialFieldPilot] = {}
+
+    # its gains were tuned for the small quad's task (30 m clearance scale); a larger task scales them
+    gains = PotentialField().scaled(nav.scales.clearance_m / ObservationScales().clearance_m)
 
     def potential_field(obs: np.ndarray, batch: NavBatch) -> np.ndarray:
         if "pilot" not in holder:  # its sensor is built on the batch's cities
-            holder["pilot"] = PotentialFieldPilot(batch)
+            holder["pilot"] = PotentialFieldPilot(batch, gains)
         return holder["pilot"](obs, batch)
 
     return evaluate(potential_field, base_nav, episodes, seed=seed, pool=pool, world=base_world)

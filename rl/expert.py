@@ -11,7 +11,7 @@ the environment's batch directly, at whatever decision rate the batch runs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -33,6 +33,13 @@ class PotentialField:
     speed_min: float = 0.2
     slow_m: float = 15.0
     vertical_gain: float = 4.0
+
+    def scaled(self, factor: float) -> PotentialField:
+        """The same pilot with every distance (range, influence, slow-down) times `factor`: for a
+        vehicle whose task is `factor` times larger (`rl.evaluation.evaluate_potential_field` uses
+        the task's clearance scale over the small quad's 30 m). Scaled, not re-tuned."""
+        return replace(self, range_m=self.range_m * factor, influence_m=self.influence_m * factor,
+                       slow_m=self.slow_m * factor)
 
     def velocity(self, p_m: np.ndarray, goal_m: np.ndarray, nearest_m: np.ndarray,
                  distance_m: np.ndarray) -> np.ndarray:

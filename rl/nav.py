@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
-from rl.observation import PilotMemory, action_to_command, build_observations, goal_heading, obs_size
+from rl.observation import ObservationScales, PilotMemory, action_to_command, build_observations, goal_heading, obs_size
 from rl.perception import Perception, PerceptionConfig
 from rl.reward import TERMS, RewardConfig, reward_terms
 from rl.route import RouteBank, RouteConfig, grid_shape, route_field
@@ -43,7 +43,6 @@ from uam_fdm.sim import BatchSimulator
 from uam_fdm.wind import GustStack, TurbulenceLevel, WindBank, WindConditions, WindField, gust_stack, probe_heights_up_to
 
 OUTCOMES = episode.OUTCOMES
-CLEARANCE_RANGE_M = 30.0  # clearance is measured exactly up to this, and reported capped there
 
 
 @dataclass(frozen=True)
@@ -56,6 +55,8 @@ class NavConfig:
         decision_hz: the policy's decision rate [Hz] (must divide control_hz); the command is held
             between decisions.
         perception: rays and height map (`rl.perception`); route: the geodesic potential (`rl.route`).
+        scales: the observation's length scales (`rl.observation`); the clearance is measured
+            exactly up to `scales.clearance_m` and reads that value beyond.
         city_split: "train" or "eval": which seed range the city pool comes from.
         city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
         cities: city generator parameter ranges; tasks: start/goal distribution.
@@ -73,6 +74,7 @@ class NavConfig:
     decision_hz: float = 10.0
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
+    scales: ObservationScales = field(default_factory=ObservationScales)
     city_split: str = "train"
     city_pool_size: int = 1024
     city_pool_offset: int = 0
@@ -121,7 +123,7 @@ class NavConfig:
         """
         d = dict(d)
         nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
-                  "perception": PerceptionConfig, "route": RouteConfig}
+                  "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
@@ -148,7 +150,11 @@ class NavWorld:
     """What the slots share (built once): vehicle, compiled dynamics, atmosphere, cities, sensors, wind pool."""
 
     def __init__(self, config: NavConfig, fixed: FixedEpisodes | None = None,
-                 dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | None = None) -> None:
+                 dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | None = None,
+                 wind_from: NavWorld | None = None) -> None:
+        """`wind_from`: a world whose turbulence stacks are the ones this one would generate (same
+        level, series length, probe heights and airspeed, a pool at least as large; checked), e.g. the
+        training world for its validation world: they are shared instead of generated again."""
         self.config = config
         self.vehicle: VehicleParams = dynamics.params if dynamics is not None else load_vehicle(config.vehicle)
         self.dynamics = dynamics or VehicleDynamics(self.vehicle, config.physics_hz, config.control_hz)
@@ -161,7 +167,7 @@ class NavWorld:
         else:
             self.cities = [config.cities.city(s) for s in config.city_seeds()]
         radius = self.vehicle.collision_radius_m
-        self.clearance_sensor = BoxSensor(self.cities, 1, CLEARANCE_RANGE_M, radius)
+        self.clearance_sensor = clearance_sensor(self.cities, config, radius)
         self.perception = Perception(self.cities, radius, config.perception)
         self.lo = np.array([c.bounds_min_m for c in self.cities])
         self.hi = np.array([c.bounds_max_m for c in self.cities])
@@ -173,9 +179,15 @@ class NavWorld:
         if self.turbulent:
             cond = WindConditions((0.0, 0.0, 0.0), level)
             heights = probe_heights_up_to(float(self.hi[:, 2].max()))
-            self.gust_stacks = [gust_stack(cond, 7919 * (j + 1), config.wind_series_s,
-                                           self.vehicle.controller.max_speed_m_s, heights)
-                                for j in range(config.wind_pool_size)]
+            airspeed = self.vehicle.controller.max_speed_m_s
+            donor = wind_from.gust_stacks if wind_from is not None else []
+            if not (len(donor) >= config.wind_pool_size and wind_from.config.wind_series_s == config.wind_series_s
+                    and all(g.turbulence is level and g.heights_m == heights and g.airspeed_m_s == airspeed
+                            and g.seed == 7919 * (j + 1) for j, g in enumerate(donor))):
+                donor = []
+            self.gust_stacks = list(donor[:config.wind_pool_size]) or [
+                gust_stack(cond, 7919 * (j + 1), config.wind_series_s, airspeed, heights)
+                for j in range(config.wind_pool_size)]
         self.obs_size = obs_size(config.perception)
 
 
@@ -209,7 +221,7 @@ class NavBatch:
         self.rngs: list[np.random.Generator] = [np.random.Generator(np.random.PCG64(i)) for i in range(n)]
         self.winds = WindBank(world.gust_stacks, n)
         self.sim = BatchSimulator(world.dynamics, world.atmosphere, self.winds)
-        self.routes = RouteBank(n, world.route_cells)
+        self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight)
         self.memory = PilotMemory.empty(n, cfg.decision_hz)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
         self._radius = world.vehicle.collision_radius_m
@@ -239,7 +251,8 @@ class NavBatch:
                 if self.city_of_slot is not None:
                     ci = int(self.city_of_slot[i])
                 task = cfg.tasks.sample(w.cities[ci], rng, p.collision_radius_m, p.controller.max_speed_m_s,
-                                        difficulty=self.difficulty)
+                                        difficulty=self.difficulty,
+                                        max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s)
             speed = rng.uniform(0.0, cfg.steady_wind_max_m_s)
             heading = rng.uniform(-np.pi, np.pi)
             series = int(rng.integers(max(1, len(w.gust_stacks))))
@@ -399,6 +412,14 @@ class NavBatch:
         return self._obs.copy(), reward.astype(np.float32), terminated, truncated, infos
 
 
+def clearance_sensor(cities: Sequence[BuildingMap], config: NavConfig, radius_m: float) -> BoxSensor:
+    """The exact clearance sensor of a task (range `config.scales.clearance_m`) for a vehicle of
+    collision radius `radius_m` [m]. Its candidate grid's cells are a third of the range (10 m at
+    least): the readings are exact whatever the cell, the cell only trades memory for work."""
+    rng = config.scales.clearance_m
+    return BoxSensor(cities, 1, rng, radius_m, cell_m=max(10.0, rng / 3.0))
+
+
 def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig):
     """The geodesic route field of a task: around buildings taller than the higher of start and goal."""
     ref_alt = max(task.start_m[2], task.goal_m[2])
@@ -432,4 +453,4 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
     reading = perception.observe(pos, heading, city)
     return build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m, nearest_m,
                               memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
-                              config.perception, vehicle, config.decision_hz)
+                              config.perception, vehicle, config.decision_hz, config.scales)

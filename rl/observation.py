@@ -11,25 +11,28 @@ Observation (float32, `obs_size(perception)` = 18 + n_rays + grid_cells² elemen
 =====================  =====  ==================================================================
 elements               count  meaning
 =====================  =====  ==================================================================
-0   goal distance        1    horizontal distance to the goal / 100 m
-1   goal height          1    (goal z - z) / 20 m
-2   route distance       1    geodesic distance-to-go Φ (`rl.route`, around the buildings) / 100 m
+0   goal distance        1    horizontal distance to the goal / goal scale (100 m)
+1   goal height          1    (goal z - z) / height scale (20 m)
+2   route distance       1    geodesic distance-to-go Φ (`rl.route`, around the buildings) / goal scale
 3:5 route direction      2    the route's horizontal direction (steepest descent of Φ), goal frame
 5:8 velocity             3    (v_x', v_y') / max horizontal speed, v_z / max vertical speed
-8   altitude             1    z / 50 m
+8   altitude             1    z / altitude scale (50 m)
 9   clearance            1    signed clearance of the collision sphere to buildings or the ground
-                              / 30 m (capped at 1)
+                              / clearance scale (30 m; capped at 1)
 10:13 previous action    3    the action of the previous decision (memory)
 13  progress stall       1    (Φ now - Φ 2 s ago) / (max speed x 2 s): about -1 at full progress,
                               0 when stuck (memory)
 14  time used            1    t / time limit (the time limit is part of the task)
 15:18 nearest surface     3    vector to the nearest point of a building or the ground, goal frame,
-                              / 30 m (zero when nothing is within 30 m): where the clearance is
+                              / clearance scale (zero when nothing is within it): where the clearance is
 18: rays              n_rays  horizontal sphere-cast distances / range, ray j at bearing 2πj/n
                               counter-clockwise from x' (`rl.perception`)
- .. height map        g²     (roof height - z) / 20 m, clipped to [-1, 1], of a g x g grid of
+ .. height map        g²     (roof height - z) / height scale, clipped to [-1, 1], of a g x g grid of
                               cells around the vehicle in the goal frame (x' index slow)
 =====================  =====  ==================================================================
+
+The scales (in brackets: the small quad's) are an `ObservationScales` of the task: a vehicle ten
+times larger and faster sees its world at its own scale (`rl.tasks`).
 
 Action: a = (a_x', a_y', a_z) in [-1, 1]³ in the goal frame: horizontal velocity command
 (a_x', a_y') x max horizontal speed (its norm clipped to the max speed) rotated to the world, and
@@ -49,12 +52,31 @@ from uam_fdm.params import VehicleParams
 
 N_BASE = 18
 OBS_CLIP = 10.0
-GOAL_SCALE_M = 100.0
-HEIGHT_SCALE_M = 20.0
-ALTITUDE_SCALE_M = 50.0
-CLEARANCE_SCALE_M = 30.0
 HEADING_HOLD_M = 1.0
 STALL_WINDOW_S = 2.0
+
+
+@dataclass(frozen=True)
+class ObservationScales:
+    """Length scales of the observation [m] (see the module table).
+
+    Attributes:
+        goal_m: horizontal goal and route distances.
+        height_m: goal height difference and the height map's roof-minus-altitude (clipped at ±1).
+        altitude_m: altitude above the ground.
+        clearance_m: clearance and the nearest-surface vector; also the range within which the
+            clearance is measured exactly (beyond it, it reads this value).
+    """
+
+    goal_m: float = 100.0
+    height_m: float = 20.0
+    altitude_m: float = 50.0
+    clearance_m: float = 30.0
+
+    def __post_init__(self) -> None:
+        for k, v in self.__dict__.items():
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"observation scale {k} must be positive and finite, got {v!r}")
 
 
 def obs_size(perception: PerceptionConfig) -> int:
@@ -119,7 +141,8 @@ class PilotMemory:
 def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarray, route_m: np.ndarray,
                        route_dir: np.ndarray, clearance_m: np.ndarray, nearest_m: np.ndarray, prev_action: np.ndarray,
                        route_history_m: np.ndarray, t_frac: np.ndarray, reading: PerceptionReading,
-                       perception: PerceptionConfig, vehicle: VehicleParams, decision_hz: float) -> np.ndarray:
+                       perception: PerceptionConfig, vehicle: VehicleParams, decision_hz: float,
+                       scales: ObservationScales) -> np.ndarray:
     """Observations (N, obs_size) float32 (see the module table).
 
     Args:
@@ -133,11 +156,12 @@ def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarra
         reading: the perception (rays, roof heights) in the goal frame.
         perception: its configuration; vehicle: the vehicle (speed limits).
         decision_hz: decision rate [Hz] (scales the stall window).
+        scales: the observation's length scales.
     """
     if len(x) == 1:
         return _build_observation_one(x, goal_m, heading_rad, route_m, route_dir, clearance_m, nearest_m,
                                       prev_action, route_history_m, t_frac, reading, perception, vehicle,
-                                      decision_hz)
+                                      decision_hz, scales)
     p = x[:, 0:3]
     c = vehicle.controller
     g = goal_m - p
@@ -146,29 +170,30 @@ def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarra
     window_s = route_history_m.shape[1] / decision_hz
     stall = (route_m - route_history_m[:, 0]) / (c.max_speed_m_s * window_s)
     base = np.stack([
-        d_h / GOAL_SCALE_M,
-        g[:, 2] / HEIGHT_SCALE_M,
-        route_m / GOAL_SCALE_M,
+        d_h / scales.goal_m,
+        g[:, 2] / scales.height_m,
+        route_m / scales.goal_m,
         *to_goal_frame(route_dir, heading_rad).T,
         v_goal[:, 0] / c.max_speed_m_s,
         v_goal[:, 1] / c.max_speed_m_s,
         x[:, 5] / c.max_vertical_speed_m_s,
-        p[:, 2] / ALTITUDE_SCALE_M,
-        np.minimum(clearance_m / CLEARANCE_SCALE_M, 1.0),
+        p[:, 2] / scales.altitude_m,
+        np.minimum(clearance_m / scales.clearance_m, 1.0),
         *prev_action.T,
         stall,
         t_frac,
-        *(to_goal_frame(nearest_m[:, 0:2], heading_rad) / CLEARANCE_SCALE_M).T,
-        nearest_m[:, 2] / CLEARANCE_SCALE_M,
+        *(to_goal_frame(nearest_m[:, 0:2], heading_rad) / scales.clearance_m).T,
+        nearest_m[:, 2] / scales.clearance_m,
     ], axis=1)
-    roofs = np.clip((reading.roof_m - p[:, 2:3]) / HEIGHT_SCALE_M, -1.0, 1.0)
+    roofs = np.clip((reading.roof_m - p[:, 2:3]) / scales.height_m, -1.0, 1.0)
     out = np.concatenate([base, reading.ray_m / perception.ray_range_m, roofs], axis=1)
     np.minimum(np.maximum(out, -OBS_CLIP, out=out), OBS_CLIP, out=out)
     return out.astype(np.float32)
 
 
 def _build_observation_one(x, goal_m, heading_rad, route_m, route_dir, clearance_m, nearest_m, prev_action,
-                           route_history_m, t_frac, reading, perception, vehicle, decision_hz) -> np.ndarray:
+                           route_history_m, t_frac, reading, perception, vehicle, decision_hz,
+                           scales: ObservationScales) -> np.ndarray:
     """`build_observations` (1, obs_size) of one vehicle: the 18 base elements in plain Python (NumPy's
     per-call overhead on one row dominated a single vehicle's step), the same operations on the same
     doubles (cos and sin of the heading from NumPy, as `to_goal_frame` takes them); the perception
@@ -185,25 +210,25 @@ def _build_observation_one(x, goal_m, heading_rad, route_m, route_dir, clearance
     window_s = route_history_m.shape[1] / decision_hz
     out = np.empty((1, N_BASE + perception.n_rays + perception.grid_cells ** 2))
     out[0, 0:N_BASE] = (
-        math.sqrt(dx * dx + dy * dy) / GOAL_SCALE_M,
-        dz / HEIGHT_SCALE_M,
-        route / GOAL_SCALE_M,
+        math.sqrt(dx * dx + dy * dy) / scales.goal_m,
+        dz / scales.height_m,
+        route / scales.goal_m,
         c * rdx + s * rdy, c * rdy - s * rdx,
         (c * vx + s * vy) / ctl.max_speed_m_s,
         (c * vy - s * vx) / ctl.max_speed_m_s,
         vz / ctl.max_vertical_speed_m_s,
-        pz / ALTITUDE_SCALE_M,
-        min(float(clearance_m[0]) / CLEARANCE_SCALE_M, 1.0),  # np.minimum: NaN stays NaN
+        pz / scales.altitude_m,
+        min(float(clearance_m[0]) / scales.clearance_m, 1.0),  # np.minimum: NaN stays NaN
         *prev_action[0].tolist(),
         (route - float(route_history_m[0, 0])) / (ctl.max_speed_m_s * window_s),
         float(t_frac[0]),
-        (c * nx + s * ny) / CLEARANCE_SCALE_M,
-        (c * ny - s * nx) / CLEARANCE_SCALE_M,
-        nz / CLEARANCE_SCALE_M,
+        (c * nx + s * ny) / scales.clearance_m,
+        (c * ny - s * nx) / scales.clearance_m,
+        nz / scales.clearance_m,
     )
     n_rays = perception.n_rays
     out[:, N_BASE:N_BASE + n_rays] = reading.ray_m / perception.ray_range_m
-    out[:, N_BASE + n_rays:] = np.clip((reading.roof_m - pz) / HEIGHT_SCALE_M, -1.0, 1.0)
+    out[:, N_BASE + n_rays:] = np.clip((reading.roof_m - pz) / scales.height_m, -1.0, 1.0)
     np.minimum(np.maximum(out, -OBS_CLIP, out=out), OBS_CLIP, out=out)
     return out.astype(np.float32)
 

@@ -63,11 +63,15 @@ class RouteConfig:
             costs 1 / blocked_speed per metre. Finite, so G is defined everywhere without local
             minima; a blocked band thinner than (detour around it) × blocked_speed is cheaper to
             cross than to go around, so it must stay small.
+        climb_weight: k in the 3-D potential sqrt(G² + (k Δz)²): a metre of height difference
+            counts as k metres of route (1 for the small quad; more for a vehicle whose climb is
+            much slower than its cruise, so that closing the height gap earns a fair progress rate).
     """
 
     cell_m: float = 4.0
     margin_m: float = 3.0
     blocked_speed: float = 0.1
+    climb_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if not (self.cell_m > 0 and math.isfinite(self.cell_m)):
@@ -76,6 +80,8 @@ class RouteConfig:
             raise ValueError(f"margin_m must be >= 0 and finite, got {self.margin_m}")
         if not 0 < self.blocked_speed <= 1:
             raise ValueError(f"blocked_speed must be in (0, 1], got {self.blocked_speed}")
+        if not (self.climb_weight > 0 and math.isfinite(self.climb_weight)):
+            raise ValueError(f"climb_weight must be positive and finite, got {self.climb_weight}")
 
 
 @dataclass(frozen=True)
@@ -297,13 +303,15 @@ class RouteBank:
     Args:
         n: number of slots.
         max_cells: (ny_max, nx_max), the largest grid shape a slot will hold (see `grid_shape`).
+        climb_weight: k of the potential (`RouteConfig.climb_weight`).
     """
 
-    def __init__(self, n: int, max_cells: tuple[int, int]) -> None:
+    def __init__(self, n: int, max_cells: tuple[int, int], climb_weight: float = 1.0) -> None:
         ny, nx = (int(v) for v in max_cells)
         if n < 1 or ny < 2 or nx < 2:
             raise ValueError(f"need n >= 1 and max_cells >= (2, 2), got {n}, {max_cells}")
         self.n, self.max_cells = int(n), (ny, nx)
+        self.climb_weight = float(climb_weight)
         self._stride = nx
         self._block = ny * nx
         # Per cell: G, dG/dx, dG/dy (float32), slots stacked, cells row-major.
@@ -409,7 +417,7 @@ class RouteBank:
             return np.array([math.nan])
         _, _, dn, w = self._near_goal_one(x, y, s)
         g = w * dn + (1.0 - w) * float(sample[0])
-        dz = z - float(self._goal[s, 2])
+        dz = (z - float(self._goal[s, 2])) * self.climb_weight
         return np.array([math.sqrt(g * g + dz * dz)])
 
     def _direction_one(self, p: np.ndarray, s: int) -> np.ndarray:
@@ -454,12 +462,12 @@ class RouteBank:
         return self._distance(p, s)
 
     def potential(self, points_m: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
-        """3-D potential sqrt(G² + (z - z_goal)²) [m] (M,) of points (M, 3) ENU metres."""
+        """3-D potential sqrt(G² + (k (z - z_goal))²) [m] (M,) of points (M, 3) ENU metres (k: `climb_weight`)."""
         p, s = self._slots(points_m, slots)
         if len(s) == 1:
             return self._potential_one(p[0], int(s[0]))
         g = self._distance(p, s)
-        dz = p[:, 2] - self._goal[s, 2]
+        dz = (p[:, 2] - self._goal[s, 2]) * self.climb_weight
         return np.sqrt(g * g + dz * dz)
 
     def direction(self, points_m: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:

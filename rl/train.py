@@ -221,7 +221,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
     log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
     base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
     eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"), dynamics=base.world.dynamics,
-                          atmosphere=base.world.atmosphere)
+                          atmosphere=base.world.atmosphere, wind_from=base.world)
     curve_path = out_dir / "reward_curve.csv"
     if resume is not None:
         resume = Path(resume)

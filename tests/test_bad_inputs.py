@@ -473,7 +473,7 @@ def test_resume_refuses_a_changed_scenario(tmp_path: Path, capsys: pytest.Captur
     scen, argv = _tiny_run(tmp_path)
     out = tmp_path / "run"
     saved = json.loads((out / "run.json").read_text())["fingerprints"]
-    assert set(saved["scenarios"]["tiny"]) == {"map", "vehicle", "conditions", "episodes"} and "policy" not in saved
+    assert set(saved["scenarios"]["tiny"]) == {"map", "vehicle", "conditions", "episodes"} and "policies" not in saved
     assert main([*argv, "--resume"]) == 0  # the same inputs: resumes (nothing left to fly)
     capsys.readouterr()
     vehicle = _vehicle_file(tmp_path, QUAD_YAML.replace("mass_kg: 1.5", "mass_kg: 1.6"))
@@ -498,10 +498,10 @@ def test_resume_keeps_the_policy_fingerprint_of_a_run_that_flew_ppo(tmp_path: Pa
     _, argv = _tiny_run(tmp_path)
     run_json = tmp_path / "run" / "run.json"
     info = json.loads(run_json.read_text())
-    policy = {"folder": "/somewhere/policy", "files": {"model.zip": "0" * 64}}
-    run_json.write_text(json.dumps({**info, "fingerprints": {**info["fingerprints"], "policy": policy}}))
+    policies = {"small_quad": {"folder": "/somewhere/policy", "files": {"model.zip": "0" * 64}}}
+    run_json.write_text(json.dumps({**info, "fingerprints": {**info["fingerprints"], "policies": policies}}))
     assert main([*argv, "--resume"]) == 0  # rrt_mpc only: the saved ppo episodes' policy stays on record
-    assert json.loads(run_json.read_text())["fingerprints"]["policy"] == policy
+    assert json.loads(run_json.read_text())["fingerprints"]["policies"] == policies
 
 
 def test_resume_refuses_a_foreign_folder_and_leaves_it_untouched(tmp_path: Path, capsys: pytest.CaptureFixture,

@@ -15,6 +15,7 @@ from pypdf import PdfReader
 
 from compare.cli import main
 from compare.metrics import COLUMNS
+from rl.agent import DEFAULT_POLICY_DIR
 
 DATA = Path(__file__).parent / "data"
 GOLDEN = Path(__file__).parent / "golden" / "tiny_metrics.json"
@@ -69,8 +70,11 @@ def test_run_writes_every_output(tiny_run):
     assert run["command"].startswith("uam-compare run") and "Neither knows the wind" in run["fairness"]
     assert run["versions"]["casadi"] != "not installed"
     # the learned pilot decides at its policy's rate, not the scenario's: said in run.json and the report
-    assert run["methods"]["ppo"]["decision_hz"] == 10.0
-    assert any(n.startswith("ppo decides at 10 Hz") for n in run["notes"]), run["notes"]
+    [policy] = run["methods"]["ppo"]["policies"]  # one vehicle, so one policy: the shipped one for it
+    assert policy["vehicle"] == "small_quad" and policy["decision_hz"] == 10.0
+    assert Path(policy["policy_dir"]) == DEFAULT_POLICY_DIR.resolve()
+    assert any(n.startswith("ppo decides at its policy's rate: for small_quad at 10 Hz") for n in run["notes"]), \
+        run["notes"]
 
 
 def test_report_pdf_has_the_expected_pages(tiny_run):

@@ -192,3 +192,37 @@ def test_bad_config_rejected():
         NavConfig(city_split="test")
     with pytest.raises(ValueError):
         NavConfig(turbulence="hurricane")
+
+
+def test_a_validation_world_shares_the_training_worlds_turbulence_only_when_identical(world):
+    """The same stacks a fresh build gives (same seeds and settings), shared instead of generated again;
+    a world that would generate other stacks (here: longer series) builds its own."""
+    from dataclasses import replace
+
+    shared = NavWorld(replace(SMALL, wind_pool_size=1, city_split="eval"), dynamics=world.dynamics,
+                      atmosphere=world.atmosphere, wind_from=world)
+    assert len(shared.gust_stacks) == 1 and shared.gust_stacks[0] is world.gust_stacks[0]
+    fresh = NavWorld(replace(SMALL, wind_pool_size=1), dynamics=world.dynamics, atmosphere=world.atmosphere)
+    np.testing.assert_array_equal(fresh.gust_stacks[0].gust_enu_m_s, world.gust_stacks[0].gust_enu_m_s)
+    other = NavWorld(replace(SMALL, wind_pool_size=1, wind_series_s=160.0), dynamics=world.dynamics,
+                     atmosphere=world.atmosphere, wind_from=world)
+    assert other.gust_stacks[0] is not world.gust_stacks[0]
+    assert other.gust_stacks[0].duration_s > world.gust_stacks[0].duration_s
+
+
+def test_time_limit_adds_the_climb_time_only_when_asked():
+    """The UAM's time limit adds per_climb x |Δz| / max vertical speed; the same draws, the same legs."""
+    from dataclasses import replace
+
+    from rl.cities import TaskDistribution
+
+    city = CityDistribution().city(3)
+    plain = TaskDistribution()
+    climb = replace(plain, timeout_per_climb=2.0)
+    for k in range(5):
+        a = plain.sample(city, np.random.default_rng(k), 0.42, 12.0, max_vertical_speed_m_s=3.0)
+        b = climb.sample(city, np.random.default_rng(k), 0.42, 12.0, max_vertical_speed_m_s=3.0)
+        assert (a.start_m, a.goal_m) == (b.start_m, b.goal_m)
+        d = float(np.linalg.norm(np.subtract(a.goal_m, a.start_m)))
+        assert a.timeout_s == round(20.0 + 2.5 * d / 12.0, 2)
+        assert b.timeout_s == round(20.0 + 2.5 * d / 12.0 + 2.0 * abs(a.goal_m[2] - a.start_m[2]) / 3.0, 2)

@@ -334,3 +334,22 @@ def test_invalid_inputs():
     prism_city = BuildingMap([Prism(1, ((10, 10), (30, 10), (20, 30)), 40.0)], (0, 0, 0), (100, 100, 100))
     with pytest.raises(ValueError):
         route_field(prism_city, (50.0, 50.0, 5.0), ALT, RADIUS)
+
+
+def test_climb_weight_scales_the_height_term_in_both_paths():
+    """sqrt(G² + (k Δz)²), the same in the batched and the one-point path; k = 1 is the plain potential."""
+    city = _wall_city()
+    f = route_field(city, (150.0, 150.0 + 40.0, ALT), ALT, RADIUS)
+    plain, heavy = RouteBank(2, f.shape), RouteBank(2, f.shape, climb_weight=3.0)
+    for bank in (plain, heavy):
+        bank.set(0, f)
+        bank.set(1, f)
+    pts = np.array([[150.0, 100.0, ALT + 20.0], [60.0, 80.0, ALT - 7.0]])
+    g = plain.distance(pts)
+    dz = pts[:, 2] - ALT
+    np.testing.assert_allclose(plain.potential(pts), np.sqrt(g ** 2 + dz ** 2), rtol=1e-12)
+    np.testing.assert_allclose(heavy.potential(pts), np.sqrt(g ** 2 + (3.0 * dz) ** 2), rtol=1e-12)
+    for i in range(2):
+        assert heavy.potential(pts[i:i + 1], slots=[i])[0] == heavy.potential(pts)[i]  # one-point path, same doubles
+    with pytest.raises(ValueError, match="climb_weight"):
+        RouteConfig(climb_weight=0.0)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from rl.cities import CityDistribution
-from rl.observation import build_observations, obs_size
+from rl.observation import ObservationScales, build_observations, obs_size
 from rl.perception import Perception, PerceptionConfig, PerceptionReading
 from rl.route import RouteBank, grid_shape, route_field
 from uam_fdm import episode
@@ -277,7 +277,8 @@ def test_route_one_equals_batch(cities):
 
 # --------------------------------------------------------------------------------- observation
 
-def test_build_observation_one_equals_batch():
+@pytest.mark.parametrize("scales", [ObservationScales(), ObservationScales(400.0, 80.0, 200.0, 120.0)])
+def test_build_observation_one_equals_batch(scales):
     rng = np.random.default_rng(7)
     cfg = PerceptionConfig()
     vehicle = load_vehicle("small_quad")
@@ -305,11 +306,11 @@ def test_build_observation_one_equals_batch():
     rays[30:35] = 0.0
     roofs = np.maximum(rng.normal(10.0, 30.0, (n, cfg.grid_cells ** 2)), 0.0).round()
     batch = build_observations(x, goal, heading, route, route_dir, clear, nearest, prev, history, t_frac,
-                               PerceptionReading(rays, roofs), cfg, vehicle, 10.0)
+                               PerceptionReading(rays, roofs), cfg, vehicle, 10.0, scales)
     assert batch.shape == (n, obs_size(cfg)) and np.isnan(batch).any()
     for k in range(n):
         s = slice(k, k + 1)
         one = build_observations(x[s], goal[s], heading[s], route[s], route_dir[s], clear[s], nearest[s],
                                  prev[s], history[s], t_frac[s], PerceptionReading(rays[s], roofs[s]), cfg,
-                                 vehicle, 10.0)
+                                 vehicle, 10.0, scales)
         assert_same(one, batch[s])

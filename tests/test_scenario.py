@@ -74,9 +74,7 @@ def test_every_shipped_scenario_loads(path: Path) -> None:
     s = load_scenario(path)
     assert s.name == path.stem
     assert s.source == str(path)
-    assert s.episodes and s.seeds and s.methods
-    if s.vehicle_name == "uam_multicopter":
-        assert s.methods == ("rrt_mpc",)
+    assert s.episodes and s.seeds and s.methods == METHODS  # both pilots on both vehicles
     for ep in s.episodes:
         a, b = ep.task.start_m, ep.task.goal_m
         distance = math.dist(a, b)
@@ -98,7 +96,7 @@ def test_default_set_contents() -> None:
     assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.methods == METHODS
     assert len(by_name["downtown-quad"].episodes) == 2 and by_name["downtown-quad"].city.name == "downtown"
     uam = by_name["suburb-uam"]
-    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == ("rrt_mpc",)
+    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == METHODS
 
 
 def test_full_set_contents() -> None:
@@ -109,7 +107,7 @@ def test_full_set_contents() -> None:
             assert s.city.name == city and s.wind.turbulence is TurbulenceLevel.parse(level)
             assert len(s.episodes) == 4 and s.seeds == (0, 1, 2)
         uam = full[f"{city}-uam"]
-        assert uam.methods == ("rrt_mpc",) and len(uam.episodes) == 2
+        assert uam.methods == METHODS and len(uam.episodes) == 2 and uam.episodes[0].task.goal_radius_m == 10.0
     hot = full["hot-high-quad"]
     assert (hot.atmosphere.elevation_m, hot.atmosphere.isa_offset_k) == (2500.0, 25.0)
     assert len(full) == 13

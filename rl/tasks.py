@@ -1,0 +1,79 @@
+"""The learned pilot's task per vehicle: cities, legs, sensing, decision rate and reward at the vehicle's scale.
+
+`task_for(vehicle)` is the `NavConfig` a policy for that vehicle is trained on (`uam-compare train
+--vehicle NAME`). A policy folder records its task (config.json), so evaluation and the comparison
+runner always fly a policy in the task it learned.
+
+**small_quad** (the `NavConfig` defaults): 0.42 m collision radius, 12 m/s, 45 deg tilt. Cities
+260-420 m across with 12-28 m streets, legs 40-250 m at 5-30 m above the ground, rays to 40 m,
+decisions at 10 Hz (a decision is 0.1 s, a quarter of the velocity loop's 0.4 s time constant).
+
+**uam_multicopter** (VoloCity-sized, 900 kg, 6 m collision radius, 30.5 m/s, 25 deg tilt, 2.5 m/s
+climb, 0.12 s motor lag; `uam_fdm/presets/uam_multicopter.yaml`). Everything follows from its
+stopping distance and its slow loops:
+
+* Braking from cruise at the tilt limit takes v² / (2 g tan 25°) = 30.5² / 9.1 = 102 m, plus ~1.25 s
+  of velocity-loop lag (gain 0.8 1/s) at 30.5 m/s = 38 m: about 140 m. Rays reach 200 m, 1.4
+  stopping distances (the quad's 40 m are ~3 of its ~12 m), the height map 135 m to each side, and
+  the clearance is measured exactly to 120 m (time-to-contact at 30 m/s over the 4 s danger horizon).
+* Decisions at 5 Hz: 0.2 s is a sixth of the velocity loop's ~1.25 s time constant (the quad's
+  10 Hz is a quarter of its 0.4 s) and 6 m of flight at cruise, one collision radius.
+* Districts 1.0-1.6 km across with 35-70 m streets (a 12 m wide vehicle needs several spans of
+  room to turn at speed: its turn radius at cruise and 25 deg is v² / (g tan 25°) = 204 m, so it
+  slows for corners), a low-rise fabric (median height 15-45 m) with a tower core in half the
+  districts (up to 5x taller) that reaches through the cruise layer.
+* Legs 0.3-1.5 km between points 30-90 m above the ground (vertiport approach and cruise
+  altitudes; the 2.5 m/s climb limit makes 60 m of height change take 24 s), at least 10 m clear of
+  everything beyond the 6 m sphere; a 10 m goal radius (the vehicle is 11.3 m across). The time
+  limit adds 2 x the climb time (|Δz| / 2.5 m/s) to the quad's 2.5 x the cruise time: a first
+  run without it timed out above the goal, descending at the 2.5 m/s the vehicle allows.
+* The reward keeps the quad's balance per unit of the vehicle's own motion: progress per metre is
+  0.15 (a 1 km leg is worth 150, as the quad's 150 m legs), the time cost 0.2 per second (4 % of
+  the progress rate at cruise, as the quad's 0.5 is of its 12 m/s), and the proximity cost starts
+  15 m beyond the sphere and grows with speed above 15 m/s. A metre of height difference counts
+  as 3 metres of route in the potential (`RouteConfig.climb_weight`): the UAM climbs 12x slower
+  than it cruises (the quad 4x), so with weight 1 closing a height gap earned a twelfth of the
+  cruise's progress rate and a first run learned to climb away from the roofs and time out
+  above its goal; with 3, climbing and descending earn a quarter of it, as for the quad.
+"""
+from __future__ import annotations
+
+from rl.cities import CityDistribution, TaskDistribution
+from rl.nav import NavConfig
+from rl.observation import ObservationScales
+from rl.perception import PerceptionConfig
+from rl.reward import RewardConfig
+from rl.route import RouteConfig
+
+UAM_TASK = NavConfig(
+    vehicle="uam_multicopter",
+    decision_hz=5.0,
+    perception=PerceptionConfig(n_rays=16, ray_range_m=200.0, grid_cells=9, cell_m=30.0, raster_m=5.0),
+    route=RouteConfig(cell_m=10.0, margin_m=8.0, climb_weight=3.0),
+    scales=ObservationScales(goal_m=1000.0, height_m=50.0, altitude_m=100.0, clearance_m=120.0),
+    city_pool_size=256,
+    cities=CityDistribution(
+        extent_m=(1000.0, 1600.0), ceiling_m=250.0, margin_m=60.0, block_size_m=(80.0, 200.0),
+        street_width_m=(35.0, 70.0), lots_per_block=(1, 3), density=(0.4, 0.85), fill_low=(0.45, 0.75),
+        height_median_m=(15.0, 45.0), height_sigma=(0.3, 0.6), height_range_m=(8.0, 230.0),
+        core_probability=0.5, core_height_factor=(2.0, 5.0), merge_prob=(0.0, 0.3)),
+    tasks=TaskDistribution(distance_m=(300.0, 1500.0), altitude_m=(30.0, 90.0), min_clearance_m=10.0,
+                           bounds_margin_m=80.0, goal_radius_m=10.0, timeout_base_s=30.0, timeout_per_speed=2.5,
+                           timeout_per_climb=2.0),
+    steady_wind_max_m_s=5.0,
+    reward=RewardConfig(progress_per_m=0.15, time_per_s=0.2, danger_per_s=4.0, ttc_horizon_s=4.0,
+                        proximity_per_s=5.0, proximity_m=15.0, proximity_speed_m_s=15.0),
+)
+
+TASKS: dict[str, NavConfig] = {"small_quad": NavConfig(), "uam_multicopter": UAM_TASK}
+
+
+def task_for(vehicle: str) -> NavConfig:
+    """The training task of a vehicle preset.
+
+    Raises:
+        ValueError: no task is defined for `vehicle` (naming the ones that are).
+    """
+    if vehicle not in TASKS:
+        raise ValueError(f"no learned-pilot task for vehicle {vehicle!r}; tasks exist for {sorted(TASKS)}")
+    return TASKS[vehicle]
