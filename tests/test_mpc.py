@@ -105,3 +105,70 @@ def test_halfspace_keeps_the_prediction_off_a_wall(vehicles, trackers):
         sol = mpc.solve(x, target, np.zeros((n + 1, 3)), 0.0, 1.0, normals, offsets, elapsed_s=0.02)
     assert sol.success
     assert sol.predicted_states[:, 0].max() <= 5.0 - p.collision_radius_m - 0.5 + 0.05
+
+
+# -- solver agreement (issue 15, item 5) ------------------------------------------------------------
+# The real-time iteration (solver="rti": one Gauss-Newton SQP step per decision) and the NLP solvers
+# share one OCP (planners.mpc_ocp). Iterated on a fixed problem, the Gauss-Newton steps converge to the
+# NLP's KKT point, so the RTI's first control must reach Ipopt's converged one. Tolerance 0.05 rad/s:
+# 6e-5 of the quad's hover speed (794 rad/s), 7e-4 of the UAM's (75 rad/s); measured 0.007 rad/s at most.
+# Both on CasADi's VM (no compile). Not covered: a 2 m step from hover for the quad, where full
+# Gauss-Newton steps cycle (docs/planner.md); closed-loop agreement is benchmarks/classical.py's.
+AGREEMENT_TOL_RAD_S = 0.05
+
+
+def _fixed_problem(p, case: str, n: int, k: int, step_s: float):
+    """(state, ref positions, ref velocities, normals, offsets) of a fixed MPC problem at 30 m."""
+    x = hover_state(p, (0.0, 0.0, 30.0))
+    t = step_s * np.arange(n + 1)
+    if case == "offset":      # hover 0.6 m from the target
+        return x, np.tile([0.5, -0.3, 30.2], (n + 1, 1)), np.zeros((n + 1, 3)), None, None
+    if case == "moving":      # flying at 3 m/s into a curving reference
+        x[3] = 3.0
+        return (x, np.stack([3.0 * t, 0.5 * t ** 2, 30.0 + 0 * t], 1), np.stack([3.0 + 0 * t, t, 0 * t], 1),
+                None, None)
+    x[3] = 1.0                # "wall": moving at 1 m/s towards a keep-out plane x <= 1 with the target behind it
+    normals, offsets = np.zeros((n, k, 3)), np.full((n, k), -1.0)
+    normals[:, 0] = (-1.0, 0.0, 0.0)
+    offsets[:, 0] = -1.0
+    return x, np.tile([3.0, 0.0, 30.0], (n + 1, 1)), np.zeros((n + 1, 3)), normals, offsets
+
+
+@pytest.fixture(scope="module")
+def vm_solvers(vehicles) -> dict[str, dict[str, MPCTracker]]:
+    return {name: {"ipopt": MPCTracker(p, MPCConfig(solver="ipopt", compiled=False)),
+                   "rti": MPCTracker(p, MPCConfig(solver="rti", rti_iterations=40, compiled=False)),
+                   "fatrop": MPCTracker(p, MPCConfig(solver="fatrop", compiled=False))}
+            for name, p in vehicles.items()}
+
+
+@pytest.mark.parametrize("case", ["offset", "moving", "wall"])
+@pytest.mark.parametrize("vehicle", ["small_quad", "uam_multicopter"])
+def test_rti_reaches_ipopts_first_control(vehicle, case, vehicles, vm_solvers):
+    p, ipopt, rti = vehicles[vehicle], vm_solvers[vehicle]["ipopt"], vm_solvers[vehicle]["rti"]
+    problem = _fixed_problem(p, case, ipopt.config.horizon_steps, ipopt.config.n_halfspaces, ipopt.config.step_s)
+    ipopt.reset()
+    rti.reset()
+    ref = ipopt.solve(problem[0], *problem[1:3], 0.0, 1.0, *problem[3:])
+    fast = rti.solve(problem[0], *problem[1:3], 0.0, 1.0, *problem[3:])
+    assert ref.success and fast.success
+    assert fast.iterations < rti.config.rti_iterations   # converged (step below tolerance), not capped
+    np.testing.assert_allclose(fast.rotor_speeds_rad_s, ref.rotor_speeds_rad_s, atol=AGREEMENT_TOL_RAD_S, rtol=0)
+
+
+@pytest.mark.parametrize("vehicle", ["small_quad", "uam_multicopter"])
+def test_fatrop_solves_the_stage_structured_ocp(vehicle, vehicles, vm_solvers):
+    """Fatrop raised inside every solve while the gap rows read F − x_{k+1}; on the stage-wise layout
+    (x_{k+1} − F, previous input as a state) it detects N stages and agrees with Ipopt."""
+    p, ipopt, fatrop = vehicles[vehicle], vm_solvers[vehicle]["ipopt"], vm_solvers[vehicle]["fatrop"]
+    problem = _fixed_problem(p, "wall", ipopt.config.horizon_steps, ipopt.config.n_halfspaces, ipopt.config.step_s)
+    ipopt.reset()
+    fatrop.reset()
+    ref = ipopt.solve(problem[0], *problem[1:3], 0.0, 1.0, *problem[3:])
+    sol = fatrop.solve(problem[0], *problem[1:3], 0.0, 1.0, *problem[3:])
+    stats = fatrop._solver.stats()
+    lay = fatrop.layout
+    assert sol.success, sol.status
+    assert stats["N"] == lay.n_stages and list(stats["nx"]) == [lay.nx] * (lay.n_stages + 1)
+    assert list(stats["ng"]) == list(fatrop.ocp.path_rows)
+    np.testing.assert_allclose(sol.rotor_speeds_rad_s, ref.rotor_speeds_rad_s, atol=AGREEMENT_TOL_RAD_S, rtol=0)
