@@ -49,7 +49,7 @@ import casadi as ca
 import numpy as np
 
 from planners.mpc_ocp import MPCWeights, OcpLayout, PredictionModel, build_tracking_ocp, pack_parameters
-from planners.rti import QP_SOLVERS, GaussNewtonRTI, qp_data_function
+from planners.rti import QP_SOLVERS, GaussNewtonRTI, merit_data_function, qp_data_function
 from uam_fdm.codegen import compile_source
 from uam_fdm.model import FAR_FROM_SURFACES_M, make_env
 from uam_fdm.params import VehicleParams
@@ -76,7 +76,8 @@ class MPCConfig:
         qp_solver: QP solver of "rti" (one of `planners.rti.QP_SOLVERS`) or of "sqpmethod" ("qrqp";
             "osqp"/"proxqp" need a convex QP); None: "hpipm" for rti, "qrqp" for sqpmethod.
         max_iterations: NLP solver iteration cap per decision.
-        rti_iterations: Gauss-Newton steps per decision of "rti" (1: the real-time iteration).
+        rti_iterations: Gauss-Newton steps per decision of "rti" (1: the real-time iteration, a full
+            step; more: steps damped by a line search, converging to the NLP's solution).
         n_halfspaces: clearance half-spaces per stage.
         clearance_margin_m: margin added to the collision radius in the half-spaces [m].
         input_mode: "rotors" or "wrench" (None: rotors for 4 rotors, wrench above; module docstring).
@@ -221,19 +222,20 @@ class MPCTracker:
         tag = f"mpc_{self.params.fingerprint()}_{self.solver_name}"
         flags = (cfg.opt_level, "-march=native")
         if self.solver_name == "rti":
-            qp_data = qp_data_function(self.ocp)
+            functions = [qp_data_function(self.ocp), merit_data_function(self.ocp)]
             backend = "vm"
             if cfg.compiled is not False:
                 gen = ca.CodeGenerator(f"{tag}.c", {"with_header": False})
-                gen.add(qp_data)
+                for f in functions:
+                    gen.add(f)
                 lib = compile_source(gen.dump().encode(), tag, cache_dir, opt_flags=flags)
                 if lib is not None:
-                    qp_data, backend = ca.external(qp_data.name(), str(lib)), "compiled"
+                    functions, backend = [ca.external(f.name(), str(lib)) for f in functions], "compiled"
                 elif cfg.compiled:
                     raise RuntimeError("compiled=True but the MPC could not be compiled (see the log)")
             if backend == "vm":
-                qp_data = qp_data.expand()
-            return GaussNewtonRTI(self.ocp, qp_data, cfg.qp_solver, cfg.rti_iterations), backend
+                functions = [f.expand() for f in functions]
+            return GaussNewtonRTI(self.ocp, *functions, cfg.qp_solver, cfg.rti_iterations), backend
         opts = self._nlp_options()
         nlp = self.ocp.nlp()
         if cfg.compiled is not False:
