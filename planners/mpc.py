@@ -78,6 +78,8 @@ class MPCConfig:
         max_iterations: NLP solver iteration cap per decision.
         rti_iterations: Gauss-Newton steps per decision of "rti" (1: the real-time iteration, a full
             step; more: steps damped by a line search, converging to the NLP's solution).
+        rti_cold_iterations: Gauss-Newton steps (line-searched) of "rti" when there is no previous
+            solution to start from (the first decision after `reset`: an episode start, a replan).
         n_halfspaces: clearance half-spaces per stage.
         clearance_margin_m: margin added to the collision radius in the half-spaces [m].
         input_mode: "rotors" or "wrench" (None: rotors for 4 rotors, wrench above; module docstring).
@@ -96,6 +98,7 @@ class MPCConfig:
     qp_solver: str | None = None
     max_iterations: int = 200
     rti_iterations: int = 1
+    rti_cold_iterations: int = 5
     n_halfspaces: int = 3
     clearance_margin_m: float = 0.5
     input_mode: str | None = None
@@ -114,7 +117,7 @@ class MPCConfig:
             raise ValueError(f"input_mode must be None, 'rotors' or 'wrench', got {self.input_mode!r}")
         if ((self.horizon_steps is not None and self.horizon_steps < 2)
                 or (self.step_s is not None and self.step_s <= 0) or self.max_iterations < 1
-                or self.rti_iterations < 1 or self.n_halfspaces < 0):
+                or self.rti_iterations < 1 or self.rti_cold_iterations < 1 or self.n_halfspaces < 0):
             raise ValueError(f"invalid MPC config {self}")
 
 
@@ -304,6 +307,8 @@ class MPCTracker:
                 "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if self._lam_x is not None:
             args.update(lam_x0=self._lam_x, lam_g0=self._lam_g)
+        if self.solver_name == "rti" and self._w is None:   # no previous solution to iterate in real time
+            args["iterations"] = max(cfg.rti_iterations, cfg.rti_cold_iterations)
         t0 = time.perf_counter()
         try:
             sol = self._solver(**args)

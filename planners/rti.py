@@ -93,16 +93,19 @@ class GaussNewtonRTI:
         self._stats: dict = {}
 
     def __call__(self, x0: np.ndarray, p: np.ndarray, lbx: np.ndarray, ubx: np.ndarray, lbg: np.ndarray,
-                 ubg: np.ndarray, lam_x0: np.ndarray | None = None, lam_g0: np.ndarray | None = None) -> dict:
-        """Take up to `iterations` full Gauss-Newton steps from x0 (the multiplier guesses are unused).
+                 ubg: np.ndarray, lam_x0: np.ndarray | None = None, lam_g0: np.ndarray | None = None,
+                 iterations: int | None = None) -> dict:
+        """Take up to `iterations` (default: the constructor's) Gauss-Newton steps from x0 (the
+        multiplier guesses are unused).
 
         Returns:
             {"x", "lam_x", "lam_g"} like `nlpsol` (the multipliers of the last QP); `stats()` tells
             success (every QP solved), the QP's return status, SQP steps and QP iterations.
         """
         w = np.asarray(x0, float)
+        n_steps = self.iterations if iterations is None else iterations
         qp_iterations, status, success, sol, penalty = 0, "not_run", True, None, 0.0
-        for it in range(self.iterations):
+        for it in range(n_steps):
             hess, grad, jac, g, f = self._qp_data(w, p)
             g = np.asarray(g).ravel()
             sol = self._qp(h=hess, g=grad, a=jac, lba=lbg - g, uba=ubg - g, lbx=lbx - w, ubx=ubx - w)
@@ -114,7 +117,7 @@ class GaussNewtonRTI:
                 success = False
                 break
             alpha = 1.0
-            if self.iterations > 1:
+            if n_steps > 1:
                 # ℓ1 merit with a penalty above the multipliers; the QP step satisfies the linearised
                 # constraints, so the merit's directional derivative is ∇fᵀΔw − μ‖violation‖₁.
                 penalty = max(penalty, 1.1 * float(np.max(np.abs(np.asarray(sol["lam_a"])), initial=0.0)))
