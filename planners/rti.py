@@ -48,8 +48,11 @@ def _violation(g: np.ndarray, lbg: np.ndarray, ubg: np.ndarray) -> float:
     return float(np.sum(np.maximum(lbg - g, 0.0)) + np.sum(np.maximum(g - ubg, 0.0)))
 
 
-def qp_solver_options(ocp: TrackingOcp, qp_solver: str) -> dict:
-    """Options of `casadi.conic` for the RTI's QP: the stage structure where the solver needs it."""
+def qp_solver_options(ocp: TrackingOcp, qp_solver: str, accurate: bool = False) -> dict:
+    """Options of `casadi.conic` for the RTI's QP: the stage structure where the solver needs it.
+
+    `accurate`: for several SQP steps per call, which converge only on accurately solved QPs.
+    """
     lay = ocp.layout
     n = lay.n_stages
     if qp_solver == "hpipm":
@@ -57,11 +60,14 @@ def qp_solver_options(ocp: TrackingOcp, qp_solver: str) -> dict:
         # excluded). The interface boxes every variable, an infinite bound becoming ±`inf`: at the
         # default 1e8 the interior point stalled at its iteration cap on converged solutions (its
         # residuals scale with the bounds); 1e4 is far outside any step in these units (m, m/s, rad).
-        # Mode "speed_abs" took the fewest iterations in closed loop (quad circle/wall median 4/8,
-        # "balance" 5/10; UAM 11/13 against 14/16) without failures; "speed" hit its iteration cap
-        # on two UAM QPs that were already solved (its relative residual test).
+        # Mode "speed_abs" (a test on the barrier parameter only) took the fewest iterations in closed
+        # loop (quad circle/wall median 4/8, "balance" 5/10; UAM 11/13 against 14/16) without failures
+        # and at the same tracking error, but its solutions are too rough for SQP steps to converge
+        # on (a fixed problem stalled 0.24 rad/s from Ipopt's solution after 40 steps): several steps
+        # per call use "balance". "speed" hit its iteration cap on UAM QPs that were already solved.
+        mode = "balance" if accurate else "speed_abs"
         return {"N": n, "nx": [lay.nx] * (n + 1), "nu": [lay.nu] * n + [0], "ng": list(ocp.path_rows),
-                "inf": 1e4, "error_on_fail": False, "hpipm": {"mode": "speed_abs", "iter_max": 50}}
+                "inf": 1e4, "error_on_fail": False, "hpipm": {"mode": mode, "iter_max": 50}}
     if qp_solver == "qrqp":
         return {"error_on_fail": False, "print_iter": False, "print_header": False, "print_info": False}
     if qp_solver == "osqp":
@@ -90,6 +96,8 @@ class GaussNewtonRTI:
         self._merit_data = merit_data
         sparsity = {"h": qp_data.sparsity_out("H"), "a": qp_data.sparsity_out("J")}
         self._qp = ca.conic("mpc_qp", qp_solver, sparsity, qp_solver_options(ocp, qp_solver))
+        self._qp_accurate = ca.conic("mpc_qp_accurate", qp_solver, sparsity,
+                                     qp_solver_options(ocp, qp_solver, accurate=True))
         self.qp_solver = qp_solver
         self.iterations = iterations
         self.step_tol = step_tol
@@ -107,12 +115,13 @@ class GaussNewtonRTI:
         """
         w = np.asarray(x0, float)
         n_steps = self.iterations if iterations is None else iterations
+        qp = self._qp if n_steps == 1 else self._qp_accurate
         qp_iterations, status, success, sol, penalty = 0, "not_run", True, None, 0.0
         for it in range(n_steps):
             hess, grad, jac, g, f = self._qp_data(w, p)
             g = np.asarray(g).ravel()
-            sol = self._qp(h=hess, g=grad, a=jac, lba=lbg - g, uba=ubg - g, lbx=lbx - w, ubx=ubx - w)
-            stats = self._qp.stats()
+            sol = qp(h=hess, g=grad, a=jac, lba=lbg - g, uba=ubg - g, lbx=lbx - w, ubx=ubx - w)
+            stats = qp.stats()
             qp_iterations += int(stats.get("iter_count", 0))
             status = str(stats.get("return_status", "unknown"))
             step = np.asarray(sol["x"]).ravel()

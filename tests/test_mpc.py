@@ -12,8 +12,9 @@ from uam_fdm.wind import TurbulenceLevel, WindConditions, WindField
 
 
 @pytest.fixture(scope="module")
-def trackers(vehicles) -> dict[str, MPCTracker]:
-    return {name: MPCTracker(p) for name, p in vehicles.items()}
+def trackers(vehicles) -> dict[str, dict[str, MPCTracker]]:
+    """Per vehicle, the default MPC (the real-time iteration) and the Ipopt reference, compiled."""
+    return {name: {s: MPCTracker(p, MPCConfig(solver=s)) for s in ("rti", "ipopt")} for name, p in vehicles.items()}
 
 
 def _line(speed, accel):
@@ -55,10 +56,11 @@ def _track(p, dyn, mpc, reference, seconds, wind: WindField, settle_s=3.0):
 
 
 # RMS position error bounds [m] after a 3 s settling (measured: quad calm 0.004 m on the circle).
+@pytest.mark.parametrize("solver", ["rti", "ipopt"])
 @pytest.mark.parametrize("shape", ["line", "circle"])
 @pytest.mark.parametrize("turbulence", [TurbulenceLevel.NONE, TurbulenceLevel.LIGHT])
-def test_quad_tracks_line_and_circle(shape, turbulence, vehicles, compiled_dynamics, trackers):
-    p, dyn, mpc = vehicles["small_quad"], compiled_dynamics["small_quad"], trackers["small_quad"]
+def test_quad_tracks_line_and_circle(shape, turbulence, solver, vehicles, compiled_dynamics, trackers):
+    p, dyn, mpc = vehicles["small_quad"], compiled_dynamics["small_quad"], trackers["small_quad"][solver]
     reference = _line(5.0, 3.0) if shape == "line" else _circle(20.0, 4.0)
     steady = (0.0, 0.0, 0.0) if turbulence is TurbulenceLevel.NONE else (2.0, -1.0, 0.0)
     wind = WindField.from_conditions(WindConditions(steady, turbulence), seed=4, duration_s=20.0,
@@ -70,8 +72,9 @@ def test_quad_tracks_line_and_circle(shape, turbulence, vehicles, compiled_dynam
     assert commands.min() >= p.rotor_speed_min_rad_s - 1e-9 and commands.max() <= p.rotor_speed_max_rad_s + 1e-9
 
 
-def test_uam_tracks_a_line_with_wrench_inputs(vehicles, compiled_dynamics, trackers):
-    p, dyn, mpc = vehicles["uam_multicopter"], compiled_dynamics["uam_multicopter"], trackers["uam_multicopter"]
+@pytest.mark.parametrize("solver", ["rti", "ipopt"])
+def test_uam_tracks_a_line_with_wrench_inputs(solver, vehicles, compiled_dynamics, trackers):
+    p, dyn, mpc = vehicles["uam_multicopter"], compiled_dynamics["uam_multicopter"], trackers["uam_multicopter"][solver]
     assert mpc.input_mode == "wrench" and mpc.motor_lag
     rms, _, commands = _track(p, dyn, mpc, _line(8.0, 1.0), 14.0, WindField.calm(), settle_s=0.0)
     assert rms < 0.5, f"RMS tracking error {rms:.3f} m"
@@ -91,8 +94,9 @@ def test_failed_solve_falls_back_and_is_counted(vehicles):
     assert mpc.n_failures == 1 and mpc.n_solves == 1
 
 
-def test_halfspace_keeps_the_prediction_off_a_wall(vehicles, trackers):
-    p, mpc = vehicles["small_quad"], trackers["small_quad"]
+@pytest.mark.parametrize("solver", ["rti", "ipopt"])
+def test_halfspace_keeps_the_prediction_off_a_wall(solver, vehicles, trackers):
+    p, mpc = vehicles["small_quad"], trackers["small_quad"][solver]
     mpc.reset()
     n, k = mpc.config.horizon_steps, mpc.config.n_halfspaces
     x = hover_state(p, (0.0, 0.0, 30.0))
