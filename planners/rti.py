@@ -28,6 +28,9 @@ from planners.mpc_ocp import TrackingOcp
 # active set) and osqp (ADMM) solve the same QP more slowly (measured 25 ms and 6 ms against HPIPM's
 # 1.4 ms on the quad's QP, VM, loaded machine). The wheel's fatrop QP interface failed on it (and prints).
 QP_SOLVERS = ("hpipm", "qrqp", "osqp")
+# HPIPM's return flags (hpipm_common.h), reported as readable statuses.
+HPIPM_STATUS = {0: "success", 1: "max_iterations", 2: "min_step_length", 3: "nan_solution",
+                4: "inconsistent_equality"}
 
 
 def qp_data_function(ocp: TrackingOcp) -> ca.Function:
@@ -123,7 +126,8 @@ class GaussNewtonRTI:
             sol = qp(h=hess, g=grad, a=jac, lba=lbg - g, uba=ubg - g, lbx=lbx - w, ubx=ubx - w)
             stats = qp.stats()
             qp_iterations += int(stats.get("iter_count", 0))
-            status = str(stats.get("return_status", "unknown"))
+            status = stats.get("return_status", "unknown")
+            status = HPIPM_STATUS.get(status, f"hpipm_{status}") if self.qp_solver == "hpipm" else str(status)
             step = np.asarray(sol["x"]).ravel()
             if not stats.get("success", False) or not np.all(np.isfinite(step)):
                 success = False
