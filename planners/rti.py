@@ -66,8 +66,9 @@ def qp_solver_options(ocp: TrackingOcp, qp_solver: str, accurate: bool = False) 
         # Mode "speed_abs" (a test on the barrier parameter only) took the fewest iterations in closed
         # loop (quad circle/wall median 4/8, "balance" 5/10; UAM 11/13 against 14/16) without failures
         # and at the same tracking error, but its solutions are too rough for SQP steps to converge
-        # on (a fixed problem stalled 0.24 rad/s from Ipopt's solution after 40 steps): several steps
-        # per call use "balance". "speed" hit its iteration cap on UAM QPs that were already solved.
+        # on (a fixed problem stalled 0.24 rad/s from Ipopt's solution after 40 steps): a solver
+        # configured for several steps per call uses "balance". "speed" hit its iteration cap on UAM
+        # QPs that were already solved.
         mode = "balance" if accurate else "speed_abs"
         return {"N": n, "nx": [lay.nx] * (n + 1), "nu": [lay.nu] * n + [0], "ng": list(ocp.path_rows),
                 "inf": 1e4, "error_on_fail": False, "hpipm": {"mode": mode, "iter_max": 50}}
@@ -118,7 +119,9 @@ class GaussNewtonRTI:
         """
         w = np.asarray(x0, float)
         n_steps = self.iterations if iterations is None else iterations
-        qp = self._qp if n_steps == 1 else self._qp_accurate
+        # Accurate QPs when configured to converge (several steps per decision); a cold start's few
+        # extra steps only need a good first control, and the rough QPs are half as costly.
+        qp = self._qp_accurate if self.iterations > 1 else self._qp
         qp_iterations, status, success, sol, penalty = 0, "not_run", True, None, 0.0
         for it in range(n_steps):
             hess, grad, jac, g, f = self._qp_data(w, p)
