@@ -9,8 +9,13 @@ shipped maps (suburb, downtown, canyon) and several seeds:
     InformedRRT* (run in parallel first) and of every budget run.
 The timing law (planners.timing) is measured on the default planner's paths: duration, mean
 speed, refinements, stops, clearance.
+The MPC is flown closed loop on the simulator (`MPC_EPISODES`: circle, line, wall) for both
+vehicles with Ipopt (the reference) and the fast solver (`--mpc-solver`, default the real-time
+iteration), on the same episodes: solve ms median/p95 per decision, iterations, failures, RMS
+tracking error, and the ratios to Ipopt.
 
     OMP_NUM_THREADS=1 flock /tmp/uam_cpu.lock python benchmarks/classical.py [--long-s 15] [--variants]
+    OMP_NUM_THREADS=1 python benchmarks/classical.py --mpc-only [--mpc-extra fatrop,sqpmethod]
 
 Prints a table and, as its last line, one JSON object of the figures.
 """
@@ -188,12 +193,44 @@ def measure_timing(queries: Sequence[Query], vehicle: str = "small_quad", config
     }
 
 
-def measure_mpc(vehicle: str, solver: str, seconds: float = 10.0) -> dict:
-    """Closed-loop MPC on the simulator: a 20 m circle at 4 m/s (quad) or 60 m at 8 m/s (UAM).
+@dataclass(frozen=True)
+class MPCEpisode:
+    """A closed-loop MPC episode on the simulator: a reference (and optionally a wall) from hover at 30 m."""
 
-    Returns solve-time statistics per decision (warm-started; the first, cold solve excluded) and
-    the RMS tracking error after 3 s. The MPC is built (and its NLP compiled, once per machine)
-    before timing.
+    name: str
+    seconds: float
+
+
+MPC_EPISODES = (MPCEpisode("circle", 10.0), MPCEpisode("line", 8.0), MPCEpisode("wall", 6.0))
+
+
+def _mpc_reference(episode: str, n_rotors: int, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reference position and velocity (len(ts), 3) [m, m/s], world ENU, at times ts [s]."""
+    quad = n_rotors == 4
+    if episode == "circle":   # 20 m at 4 m/s (quad) or 60 m at 8 m/s (UAM), entered at full speed from hover
+        radius, speed = (20.0, 4.0) if quad else (60.0, 8.0)
+        w = speed / radius
+        return (np.stack([radius * np.sin(w * ts), radius * (1 - np.cos(w * ts)), 30.0 + 0 * ts], 1),
+                np.stack([speed * np.cos(w * ts), speed * np.sin(w * ts), 0 * ts], 1))
+    if episode == "line":     # along (1, 0.5, 0.2), accelerating from rest to 5 m/s (quad) or 8 m/s (UAM)
+        speed, accel = (5.0, 3.0) if quad else (8.0, 1.0)
+        direction = np.array([1.0, 0.5, 0.2]) / np.linalg.norm([1.0, 0.5, 0.2])
+        t_acc = speed / accel
+        s = np.where(ts < t_acc, 0.5 * accel * ts ** 2, 0.5 * speed * t_acc + speed * (ts - t_acc))
+        v = np.where(ts < t_acc, accel * ts, speed)
+        return np.outer(s, direction) + [0.0, 0.0, 30.0], np.outer(v, direction)
+    # wall: a fixed target 2 d ahead behind a wall at x = d (d = 5 m quad, 15 m UAM): the half-space is active
+    d = 5.0 if quad else 15.0
+    return np.tile([2 * d, 0.0, 30.0], (len(ts), 1)), np.zeros((len(ts), 3))
+
+
+def measure_mpc(vehicle: str, solver: str, episode: MPCEpisode) -> dict:
+    """One closed-loop MPC episode on the simulator (50 Hz decisions, 500 Hz physics, calm air).
+
+    Returns solve-time statistics per decision (warm-started; the first, cold solve excluded),
+    iterations, failures and the RMS tracking error after 3 s (circle, line) or the largest
+    penetration of the wall's keep-out plane (wall). The MPC is built (and compiled, once per
+    machine) before timing.
     """
     from planners.mpc import MPCConfig, MPCTracker
     from uam_fdm.dynamics import VehicleDynamics
@@ -203,34 +240,81 @@ def measure_mpc(vehicle: str, solver: str, seconds: float = 10.0) -> dict:
     try:
         mpc = MPCTracker(p, MPCConfig(solver=solver))
     except RuntimeError as exc:   # a solver plugin that cannot handle the problem: report, don't crash
-        return {"solver": solver, "error": str(exc).splitlines()[-1][:120]}
+        return {"vehicle": vehicle, "solver": solver, "episode": episode.name, "error": str(exc).splitlines()[-1][:120]}
     dyn = VehicleDynamics(p, physics_hz=500.0, control_hz=50.0)
-    radius, speed = (20.0, 4.0) if p.n_rotors == 4 else (60.0, 8.0)
-    w = speed / radius
-    n, h = mpc.config.horizon_steps, mpc.config.step_s
+    n, k, h = mpc.config.horizon_steps, mpc.config.n_halfspaces, mpc.config.step_s
+    normals, offsets, wall_limit = None, None, math.inf
+    if episode.name == "wall":
+        d = 5.0 if p.n_rotors == 4 else 15.0
+        wall_limit = d - p.collision_radius_m - mpc.config.clearance_margin_m
+        normals = np.zeros((n, k, 3))
+        offsets = np.full((n, k), -1.0)
+        normals[:, 0] = (-1.0, 0.0, 0.0)
+        offsets[:, 0] = -wall_limit
     x = hover_state(p, (0.0, 0.0, 30.0))
     env = make_env()
-    times, iters, errors = [], [], []
-    for k in range(int(seconds * dyn.control_hz)):
-        t = k / dyn.control_hz
-        ts = t + h * np.arange(n + 1)
-        pos = np.stack([radius * np.sin(w * ts), radius * (1 - np.cos(w * ts)), 30.0 + 0 * ts], 1)
-        vel = np.stack([speed * np.cos(w * ts), speed * np.sin(w * ts), 0 * ts], 1)
-        sol = mpc.solve(x, pos, vel, 0.0, 1.0, elapsed_s=1.0 / dyn.control_hz)
-        if k > 0:
+    times, iters, qp_iters, errors, overshoot = [], [], [], [], -math.inf
+    for step in range(int(episode.seconds * dyn.control_hz)):
+        t = step / dyn.control_hz
+        pos, vel = _mpc_reference(episode.name, p.n_rotors, t + h * np.arange(n + 1))
+        sol = mpc.solve(x, pos, vel, 0.0, 1.0, normals, offsets, elapsed_s=1.0 / dyn.control_hz)
+        if step > 0:
             times.append(sol.solve_time_s)
             iters.append(sol.iterations)
+            qp_iters.append(sol.qp_iterations)
         x = dyn.period_rotor(x, sol.rotor_speeds_rad_s, env).final_state
         t1 = t + 1.0 / dyn.control_hz
+        overshoot = max(overshoot, x[0] - wall_limit)
         if t1 > 3.0:
-            errors.append(np.linalg.norm(x[:3] - [radius * np.sin(w * t1), radius * (1 - np.cos(w * t1)), 30.0]))
+            errors.append(np.linalg.norm(x[:3] - _mpc_reference(episode.name, p.n_rotors, np.array([t1]))[0][0]))
     times_ms = 1e3 * np.array(times)
-    return {"vehicle": vehicle, "solver": mpc.solver_name, "input_mode": mpc.input_mode, "motor_lag": mpc.motor_lag,
-            "backend": mpc.backend, "solve_ms_median": float(np.median(times_ms)),
+    return {"vehicle": vehicle, "solver": mpc.solver_name, "episode": episode.name, "input_mode": mpc.input_mode,
+            "motor_lag": mpc.motor_lag, "backend": mpc.backend, "solve_ms_median": float(np.median(times_ms)),
             "solve_ms_p95": float(np.percentile(times_ms, 95)), "solve_ms_max": float(times_ms.max()),
-            "iterations_median": float(np.median(iters)), "failures": mpc.n_failures, "solves": mpc.n_solves,
-            "rms_error_m": float(np.sqrt(np.mean(np.square(errors)))),
-            "control_period_ms": 1e3 / dyn.control_hz}
+            "iterations_median": float(np.median(iters)), "qp_iterations_median": float(np.median(qp_iters)),
+            "qp_iterations_p95": float(np.percentile(qp_iters, 95)), "failures": mpc.n_failures,
+            "solves": mpc.n_solves, "rms_error_m": float(np.sqrt(np.mean(np.square(errors)))),
+            "wall_overshoot_m": float(overshoot) if episode.name == "wall" else None,
+            "control_period_ms": 1e3 / dyn.control_hz, "times_ms": times_ms}
+
+
+def summarize_mpc(rows: list[dict], vehicle: str, solver: str) -> dict:
+    """Pooled figures of one (vehicle, solver) over the episodes: solve ms median/p95 over all
+    decisions, failures, and RMS error per episode."""
+    mine = [r for r in rows if r["vehicle"] == vehicle and r["solver"] == solver and "error" not in r]
+    if not mine:
+        return {}
+    times = np.concatenate([r["times_ms"] for r in mine])
+    return {"solve_ms_median": float(np.median(times)), "solve_ms_p95": float(np.percentile(times, 95)),
+            "solve_ms_max": float(times.max()), "failures": sum(r["failures"] for r in mine),
+            "solves": sum(r["solves"] for r in mine), "control_period_ms": mine[0]["control_period_ms"],
+            "rms_error_m": {r["episode"]: r["rms_error_m"] for r in mine}}
+
+
+def run_mpc_benchmark(vehicles: Sequence[str], solvers: Sequence[str]) -> list[dict]:
+    """Every (vehicle, solver, episode) of `MPC_EPISODES`, printed as a table as it goes."""
+    print("\nMPC, closed loop on the simulator (50 Hz decisions, 500 Hz physics, calm air; quad N = 15 x 50 ms, "
+          "UAM N = 20 x 150 ms), warm solves; iterations: solver (QP median/p95 for rti); RMS error after 3 s; "
+          "over: the wall episode's largest overshoot of its keep-out plane")
+    print(f"{'vehicle':16s} {'solver':8s} {'episode':7s} {'inputs':7s} {'lag':4s} {'median ms':>9s} {'p95 ms':>7s} "
+          f"{'max ms':>7s} {'iters':>9s} {'fail':>7s} {'RMS m':>7s} {'over m':>7s}")
+    rows = []
+    for vehicle in vehicles:
+        for solver in solvers:
+            for episode in MPC_EPISODES:
+                r = measure_mpc(vehicle, solver, episode)
+                rows.append(r)
+                if "error" in r:
+                    print(f"{vehicle:16s} {solver:10s} failed to build: {r['error']}")
+                    break
+                over = "" if r["wall_overshoot_m"] is None else f"{r['wall_overshoot_m']:7.3f}"
+                its = f"{r['iterations_median']:.0f}" + (f" ({r['qp_iterations_median']:.0f}/"
+                                                         f"{r['qp_iterations_p95']:.0f})"
+                                                         if r["qp_iterations_median"] >= 0 else "")
+                print(f"{vehicle:16s} {solver:8s} {episode.name:7s} {r['input_mode']:7s} {str(r['motor_lag'])[0]:4s} "
+                      f"{r['solve_ms_median']:9.2f} {r['solve_ms_p95']:7.2f} {r['solve_ms_max']:7.1f} {its:>9s} "
+                      f"{r['failures']:3d}/{r['solves']:<3d} {r['rms_error_m']:7.4f} {over}", flush=True)
+    return rows
 
 
 def _print_planning(res: dict) -> None:
@@ -242,6 +326,39 @@ def _print_planning(res: dict) -> None:
               f"{f['path_efficiency']:10.3f} {f['path_efficiency_min']:8.3f} {f['min_clearance_m']:9.2f}")
 
 
+def mpc_figures(rows: list[dict], fast: str, reference: str = "ipopt") -> dict:
+    """The MPC figures of the JSON line: the fast solver's, and its ratios to the reference's on the same episodes."""
+    out: dict = {"mpc_solver": fast, "mpc_reference_solver": reference}
+    for vehicle, prefix in (("small_quad", "mpc"), ("uam_multicopter", "uam_mpc")):
+        f, r = summarize_mpc(rows, vehicle, fast), summarize_mpc(rows, vehicle, reference)
+        if not f:
+            continue
+        out.update({f"{prefix}_solve_ms_median": f["solve_ms_median"], f"{prefix}_solve_ms_p95": f["solve_ms_p95"],
+                    f"{prefix}_solve_ms_max": f["solve_ms_max"], f"{prefix}_control_period_ms": f["control_period_ms"],
+                    f"{prefix}_failures": f["failures"], f"{prefix}_solves": f["solves"],
+                    f"{prefix}_rms_error_m": f["rms_error_m"]})
+        if r:
+            out.update({f"{prefix}_reference_solve_ms_median": r["solve_ms_median"],
+                        f"{prefix}_reference_solve_ms_p95": r["solve_ms_p95"],
+                        f"{prefix}_reference_failures": r["failures"],
+                        f"{prefix}_reference_rms_error_m": r["rms_error_m"],
+                        f"{prefix}_speedup_vs_{reference}": r["solve_ms_median"] / f["solve_ms_median"],
+                        f"{prefix}_rms_ratio_vs_{reference}": {e: f["rms_error_m"][e] / r["rms_error_m"][e]
+                                                                for e in f["rms_error_m"] if e in r["rms_error_m"]}})
+    return out
+
+
+def _print_mpc_ratios(figures: dict, fast: str, reference: str) -> None:
+    for prefix, label in (("mpc", "small_quad"), ("uam_mpc", "uam_multicopter")):
+        if f"{prefix}_speedup_vs_{reference}" not in figures:
+            continue
+        ratios = ", ".join(f"{e} {v:.2f}" for e, v in figures[f"{prefix}_rms_ratio_vs_{reference}"].items())
+        print(f"{label}: {fast} median {figures[f'{prefix}_solve_ms_median']:.2f} ms, p95 "
+              f"{figures[f'{prefix}_solve_ms_p95']:.2f} ms (period {figures[f'{prefix}_control_period_ms']:.0f} ms), "
+              f"{figures[f'{prefix}_failures']} failures / {figures[f'{prefix}_solves']}; speed-up vs {reference} "
+              f"x{figures[f'{prefix}_speedup_vs_{reference}']:.1f}; RMS ratio to {reference}: {ratios}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--per-map", type=int, default=3, help="start/goal queries per shipped map")
@@ -249,72 +366,61 @@ def main() -> None:
     ap.add_argument("--long-s", type=float, default=15.0, help="time budget of each long reference run [s]")
     ap.add_argument("--variants", action="store_true", help="also measure the non-default variants")
     ap.add_argument("--vehicle", default="small_quad")
+    ap.add_argument("--mpc-only", action="store_true", help="skip planning and timing; only the MPC closed loop")
+    ap.add_argument("--mpc-solver", default="rti", help="the fast MPC solver whose figures the JSON line reports")
+    ap.add_argument("--mpc-extra", default="", help="comma-separated further MPC solvers to measure (fatrop,sqpmethod)")
     args = ap.parse_args()
 
     params = load_vehicle(args.vehicle)
     default = PlannerConfig()
-    queries = make_queries(args.per_map, params.collision_radius_m, default.safety_margin_m)
-    configs = {a: PlannerConfig(algorithm=a) for a in ALGORITHMS}
-    if args.variants:
-        configs.update(VARIANTS)
-    print(f"classical pilot, planning: {len(queries)} queries on {', '.join(MAPS)}, {args.seeds} seeds, "
-          f"{args.vehicle} (r = {params.collision_radius_m} m, margin {default.safety_margin_m} m), "
-          f"long runs {args.long_s} s; default {default.algorithm} ({default.iteration_budget} iterations); "
-          f"{platform.processor() or platform.machine()}, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}")
     t0 = time.perf_counter()
-    plan = measure_planning(configs, queries, params.collision_radius_m, seeds=tuple(range(1, args.seeds + 1)),
-                            long_s=args.long_s)
-    _print_planning(plan)
-    timings = {}
-    for vehicle in dict.fromkeys([args.vehicle, "uam_multicopter"]):
-        r = load_vehicle(vehicle).collision_radius_m
-        timings[vehicle] = t = measure_timing(make_queries(args.per_map, r, default.safety_margin_m), vehicle, default)
-        lim = ", ".join(f"{v:.2f}" for v in t["limits"].values())
-        print(f"timing law, {vehicle} (limits v_h, v_z, a_h, a_z = {lim}): ok {t['ok_rate']:.2f}, median "
-              f"{1e3 * t['timing_time_s_median']:.0f} ms per path, mean speed {t['mean_speed_m_s_median']:.1f} m/s, "
-              f"refinements <= {t['refinements_max']}, stops {t['stops_total']}, "
-              f"min clearance {t['min_clearance_m']:.2f} m (margin {default.safety_margin_m} m)")
-    timing = timings[args.vehicle]
+    figures: dict = {}
+    print(f"classical pilot; {platform.processor() or platform.machine()}, "
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}")
+    if not args.mpc_only:
+        queries = make_queries(args.per_map, params.collision_radius_m, default.safety_margin_m)
+        configs = {a: PlannerConfig(algorithm=a) for a in ALGORITHMS}
+        if args.variants:
+            configs.update(VARIANTS)
+        print(f"planning: {len(queries)} queries on {', '.join(MAPS)}, {args.seeds} seeds, "
+              f"{args.vehicle} (r = {params.collision_radius_m} m, margin {default.safety_margin_m} m), "
+              f"long runs {args.long_s} s; default {default.algorithm} ({default.iteration_budget} iterations)")
+        plan = measure_planning(configs, queries, params.collision_radius_m, seeds=tuple(range(1, args.seeds + 1)),
+                                long_s=args.long_s)
+        _print_planning(plan)
+        timings = {}
+        for vehicle in dict.fromkeys([args.vehicle, "uam_multicopter"]):
+            r = load_vehicle(vehicle).collision_radius_m
+            timings[vehicle] = t = measure_timing(make_queries(args.per_map, r, default.safety_margin_m), vehicle,
+                                                  default)
+            lim = ", ".join(f"{v:.2f}" for v in t["limits"].values())
+            print(f"timing law, {vehicle} (limits v_h, v_z, a_h, a_z = {lim}): ok {t['ok_rate']:.2f}, median "
+                  f"{1e3 * t['timing_time_s_median']:.0f} ms per path, mean speed {t['mean_speed_m_s_median']:.1f} "
+                  f"m/s, refinements <= {t['refinements_max']}, stops {t['stops_total']}, "
+                  f"min clearance {t['min_clearance_m']:.2f} m (margin {default.safety_margin_m} m)")
+        timing = timings[args.vehicle]
+        d = plan["per_config"][default.algorithm]
+        figures.update({
+            "default_algorithm": default.algorithm,
+            "rrt_first_solution_ms_median": d["first_solution_ms_median"],
+            "path_efficiency": d["path_efficiency"],
+            "plan_time_s_median": d["plan_time_s_median"],
+            "success_rate": d["success_rate"],
+            "per_algorithm": {k: {kk: v[kk] for kk in ("first_solution_ms_median", "path_efficiency", "success_rate",
+                                                       "plan_time_s_median")} for k, v in plan["per_config"].items()},
+            "timing_ok_rate": timing["ok_rate"],
+            "timing_ms_median": 1e3 * timing["timing_time_s_median"],
+            "reference_mean_speed_m_s_median": timing["mean_speed_m_s_median"],
+            "reference_min_clearance_m": timing["min_clearance_m"],
+        })
 
-    print("\nMPC, closed loop on the simulator (50 Hz decisions; quad N = 15 x 50 ms, UAM N = 20 x 150 ms), warm solves:")
-    print(f"{'vehicle':16s} {'solver':10s} {'inputs':7s} {'lag':4s} {'median ms':>9s} {'p95 ms':>7s} {'max ms':>7s} "
-          f"{'iters':>5s} {'fail':>6s} {'RMS m':>6s}")
-    mpc_rows = [measure_mpc("small_quad", s) for s in ("ipopt", "sqpmethod", "fatrop")]
-    mpc_rows.append(measure_mpc("uam_multicopter", "ipopt"))
-    for r in mpc_rows:
-        if "error" in r:
-            print(f"{'small_quad':16s} {r['solver']:10s} failed to build: {r['error']}")
-            continue
-        print(f"{r['vehicle']:16s} {r['solver']:10s} {r['input_mode']:7s} {str(r['motor_lag'])[0]:4s} "
-              f"{r['solve_ms_median']:9.2f} {r['solve_ms_p95']:7.2f} {r['solve_ms_max']:7.1f} "
-              f"{r['iterations_median']:5.0f} {r['failures']:3d}/{r['solves']:<3d} {r['rms_error_m']:6.3f}")
-    quad_default = next(r for r in mpc_rows if r.get("vehicle") == "small_quad" and r["solver"] == "ipopt")
-    uam = mpc_rows[-1]
-    print(f"total {time.perf_counter() - t0:.0f} s")
-
-    d = plan["per_config"][default.algorithm]
-    figures = {
-        "default_algorithm": default.algorithm,
-        "rrt_first_solution_ms_median": d["first_solution_ms_median"],
-        "path_efficiency": d["path_efficiency"],
-        "plan_time_s_median": d["plan_time_s_median"],
-        "success_rate": d["success_rate"],
-        "per_algorithm": {k: {kk: v[kk] for kk in ("first_solution_ms_median", "path_efficiency", "success_rate",
-                                                   "plan_time_s_median")} for k, v in plan["per_config"].items()},
-        "timing_ok_rate": timing["ok_rate"],
-        "timing_ms_median": 1e3 * timing["timing_time_s_median"],
-        "reference_mean_speed_m_s_median": timing["mean_speed_m_s_median"],
-        "reference_min_clearance_m": timing["min_clearance_m"],
-        "mpc_solver": quad_default["solver"],
-        "mpc_solve_ms_median": quad_default["solve_ms_median"],
-        "mpc_solve_ms_p95": quad_default["solve_ms_p95"],
-        "mpc_control_period_ms": quad_default["control_period_ms"],
-        "mpc_rms_error_m": quad_default["rms_error_m"],
-        "mpc_per_solver": {r["solver"]: (r.get("solve_ms_median"), r.get("failures")) for r in mpc_rows[:-1]},
-        "mpc_uam_solver": uam.get("solver"),
-        "mpc_uam_solve_ms_median": uam.get("solve_ms_median"),
-        "mpc_uam_solve_ms_p95": uam.get("solve_ms_p95"),
-    }
+    solvers = list(dict.fromkeys(["ipopt", args.mpc_solver, *[s for s in args.mpc_extra.split(",") if s]]))
+    rows = run_mpc_benchmark(["small_quad", "uam_multicopter"], solvers)
+    figures.update(mpc_figures(rows, args.mpc_solver))
+    figures["mpc_per_solver"] = {f"{v}/{s}": summarize_mpc(rows, v, s) for v in ("small_quad", "uam_multicopter")
+                                 for s in solvers}
+    _print_mpc_ratios(figures, args.mpc_solver, "ipopt")
+    print(f"total {time.perf_counter() - t0:.0f} s, load average {os.getloadavg()[0]:.2f}")
     print(json.dumps(figures))
 
 
