@@ -58,7 +58,8 @@ METHOD_DESCRIPTIONS = {
            "the buildings); one policy per vehicle, trained for it; "
            "acts deterministically.",
     "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
-               "reference -> CasADi NMPC (ipopt) commanding rotor speeds, replanning on large tracking errors.",
+               "reference -> CasADi NMPC (real-time iteration: one Gauss-Newton SQP step per decision, HPIPM) "
+               "commanding rotor speeds (through the wrench for many-rotor vehicles), replanning on large tracking errors.",
 }
 FAIRNESS = (
     "Both pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics rate; "

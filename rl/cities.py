@@ -98,7 +98,7 @@ class TaskDistribution:
     timeout_per_climb: float = 0.0
 
     def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
-               attempts: int = 200, difficulty: float = 1.0, max_vertical_speed_m_s: float = 1.0) -> Task:
+               attempts: int = 200, difficulty: float = 1.0, max_vertical_speed_m_s: float | None = None) -> Task:
         """A free start/goal pair in `city` drawn from `rng` (ENU metres).
 
         `difficulty` in (0, 1] (the training curriculum) shrinks the distance range's upper end
@@ -127,6 +127,8 @@ class TaskDistribution:
             d = float(np.linalg.norm(goal - start))
             timeout = self.timeout_base_s + self.timeout_per_speed * d / max_speed_m_s
             if self.timeout_per_climb:
+                if max_vertical_speed_m_s is None:
+                    raise ValueError("timeout_per_climb needs the vehicle's max_vertical_speed_m_s")
                 timeout += self.timeout_per_climb * abs(dz) / max_vertical_speed_m_s
             return Task(tuple(map(float, start)), tuple(map(float, goal)), self.goal_radius_m, round(timeout, 2))
         raise RuntimeError(f"no free start/goal pair in {city.name!r} after {attempts} draws")

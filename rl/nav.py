@@ -180,14 +180,14 @@ class NavWorld:
             cond = WindConditions((0.0, 0.0, 0.0), level)
             heights = probe_heights_up_to(float(self.hi[:, 2].max()))
             airspeed = self.vehicle.controller.max_speed_m_s
-            donor = wind_from.gust_stacks if wind_from is not None else []
-            if not (len(donor) >= config.wind_pool_size and wind_from.config.wind_series_s == config.wind_series_s
+            seeds = [7919 * (j + 1) for j in range(config.wind_pool_size)]
+            donor = wind_from.gust_stacks[:len(seeds)] if wind_from is not None else []
+            if (len(donor) == len(seeds) and wind_from.config.wind_series_s == config.wind_series_s
                     and all(g.turbulence is level and g.heights_m == heights and g.airspeed_m_s == airspeed
-                            and g.seed == 7919 * (j + 1) for j, g in enumerate(donor))):
-                donor = []
-            self.gust_stacks = list(donor[:config.wind_pool_size]) or [
-                gust_stack(cond, 7919 * (j + 1), config.wind_series_s, airspeed, heights)
-                for j in range(config.wind_pool_size)]
+                            and g.seed == seed for g, seed in zip(donor, seeds))):
+                self.gust_stacks = list(donor)
+            else:
+                self.gust_stacks = [gust_stack(cond, seed, config.wind_series_s, airspeed, heights) for seed in seeds]
         self.obs_size = obs_size(config.perception)
 
 
