@@ -28,7 +28,7 @@ import numpy as np
 from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
 from rl.observation import ObservationScales, PilotMemory, action_to_command, build_observations, goal_heading, obs_size
 from rl.perception import Perception, PerceptionConfig
-from rl.reward import TERMS, RewardConfig, reward_terms
+from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
 from rl.route import RouteBank, RouteConfig, grid_shape, route_field
 from rl.sensor import BoxSensor
 from uam_fdm import episode
@@ -37,7 +37,7 @@ from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.city import BuildingMap
 from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.model import hover_state
-from uam_fdm.params import VehicleParams, load_vehicle
+from uam_fdm.params import GRAVITY_M_S2, VehicleParams, load_vehicle
 from uam_fdm.ground_effect import height_above_surface, range_m as ground_effect_range_m
 from uam_fdm.sim import BatchSimulator
 from uam_fdm.wind import GustStack, TurbulenceLevel, WindBank, WindConditions, WindField, gust_stack, probe_heights_up_to
@@ -341,6 +341,15 @@ class NavBatch:
             h[k] = height_above_surface(w.cities[self.city[idx[k]]], pos[k:k + 1], clear_lb[k:k + 1], w.vehicle)[0]
         return h
 
+    def _braking_reach(self, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Free distance along each slot's horizontal velocity and its stopping distance (N,) [m]
+        (the reward's braking term): deceleration g tan(max tilt), lag 1 / velocity gain."""
+        ctl = self.world.vehicle.controller
+        v_h = np.hypot(vel[:, 0], vel[:, 1])
+        ahead = self.world.perception.free_distance(pos, np.arctan2(vel[:, 1], vel[:, 0]), self.city)
+        decel = GRAVITY_M_S2 * np.tan(np.radians(ctl.max_tilt_deg))
+        return ahead, stopping_distance(v_h, decel, 1.0 / ctl.velocity_gain_1_s)
+
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         """Advance every slot one decision.
 
@@ -385,8 +394,11 @@ class NavBatch:
         crashed = (code == episode.COLLISION) | (code == episode.OUT_OF_BOUNDS) | (code == episode.NONFINITE)
         vel = self.x[:, 3:6]
         speed = np.sqrt(np.add.reduce(vel * vel, axis=1))
+        ahead = stop = None
+        if cfg.reward.braking_per_s > 0.0:
+            ahead, stop = self._braking_reach(pos, vel)
         terms = reward_terms(cfg.reward, route_before, self.route_m, clear_before, self.clear, speed, elapsed,
-                             arrived, crashed)
+                             arrived, crashed, ahead, stop)
         reward = terms[TERMS[0]].copy()
         for k in TERMS[1:]:
             reward += terms[k]

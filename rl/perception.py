@@ -50,6 +50,7 @@ from uam_fdm.city import Building, BuildingMap
 
 _EPS_M = 1e-6  # widening of build-time overlap and distance tests [m] (keeps them conservative)
 _TOL_M = 1e-7  # shrinking of the height map's query boxes [m] (well within _EPS_M)
+_ONE_RAY = (np.ones(1), np.zeros(1))  # a single ray along the heading
 
 
 @dataclass(frozen=True)
@@ -250,6 +251,12 @@ class Perception:
         """Only the ray distances (N, n_rays) [m] of `observe` (same arguments)."""
         return self._rays(*self._inputs(points_m, heading_rad, city))
 
+    def free_distance(self, points_m: np.ndarray, bearing_rad: np.ndarray, city: np.ndarray) -> np.ndarray:
+        """Distances (N,) [m] of one ray per point at its own bearing (CCW from east): the same sphere
+        stand-in and range cap as the rays (e.g. along the vehicle's horizontal velocity)."""
+        p, ch, sh, ci = self._inputs(points_m, bearing_rad, city)
+        return self._rays(p, ch, sh, ci, _ONE_RAY)[:, 0]
+
     def roofs(self, points_m: np.ndarray, heading_rad: np.ndarray, city: np.ndarray) -> np.ndarray:
         """Only the height maps (N, grid_cells**2) [m] of `observe` (same arguments)."""
         return self._roofs(*self._inputs(points_m, heading_rad, city))
@@ -264,12 +271,15 @@ class Perception:
             raise ValueError(f"need as many headings and cities as points: {len(p)}, {len(hd)}, {len(ci)}")
         return p, np.cos(hd), np.sin(hd), ci
 
-    def _rays(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray) -> np.ndarray:
-        """Ray distances (N, n_rays) [m]; headings given by their cos, sin (N,)."""
+    def _rays(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray,
+              fan: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """Ray distances (N, R) [m]; headings given by their cos, sin (N,); `fan` the rays' (cos, sin)
+        relative to the heading (R,) (None: the configured n_rays)."""
         n, rng_m = len(p), self.config.ray_range_m
+        fan = (self._ray_cos, self._ray_sin) if fan is None else fan
         if n == 1:
-            return self._rays_one(p, ch, sh, ci)
-        out = np.full((n, self.config.n_rays), rng_m)
+            return self._rays_one(p, ch, sh, ci, fan)
+        out = np.full((n, len(fan[0])), rng_m)
         if n == 0:
             return out
         # Candidate lists of each point's (clamped) grid cell.
@@ -292,16 +302,17 @@ class Perception:
         dx, dy = p[pt, 0] - b[:, 0], p[pt, 1] - b[:, 1]
         hc, hs = ch[pt], sh[pt]
         near = self._entries(b, dx * co + dy * si, dy * co - dx * si, hc * co + hs * si, hs * co - hc * si,
-                             p[pt, 2] >= b[:, 6])
+                             p[pt, 2] >= b[:, 6], fan)
         has = lens > 0
         out[has] = np.minimum(np.minimum.reduceat(near, seg[has], axis=0), rng_m)
         return out
 
-    def _rays_one(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray) -> np.ndarray:
+    def _rays_one(self, p: np.ndarray, ch: np.ndarray, sh: np.ndarray, ci: np.ndarray,
+                  fan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """`_rays` of one point (1, n_rays): the candidate lookup in plain Python (NumPy's per-call
         overhead on one row dominated a single vehicle's step), then the same array operations on
         the same candidates as `_rays`, so the same numbers (tested)."""
-        out = np.full((1, self.config.n_rays), self.config.ray_range_m)
+        out = np.full((1, len(fan[0])), self.config.ray_range_m)
         x, y, z = p[0].tolist()
         c = int(ci[0])
         ox, oy = self._g_origin[c].tolist()
@@ -318,21 +329,23 @@ class Perception:
         dx, dy = x - b[:, 0], y - b[:, 1]
         hc, hs = float(ch[0]), float(sh[0])
         near = self._entries(b, dx * co + dy * si, dy * co - dx * si, hc * co + hs * si, hs * co - hc * si,
-                             z >= b[:, 6])
+                             z >= b[:, 6], fan)
         np.minimum(out, near.min(axis=0, keepdims=True), out=out)
         return out
 
-    def _entries(self, b: np.ndarray, lx: np.ndarray, ly: np.ndarray, c_rel: np.ndarray, s_rel: np.ndarray,
-                 low: np.ndarray) -> np.ndarray:
-        """Entry distances (M, n_rays) [m] of the rays into candidate boxes b (M, 7) (inf: no hit).
+    @staticmethod
+    def _entries(b: np.ndarray, lx: np.ndarray, ly: np.ndarray, c_rel: np.ndarray, s_rel: np.ndarray,
+                 low: np.ndarray, fan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Entry distances (M, R) [m] of the rays into candidate boxes b (M, 7) (inf: no hit).
 
         Args:
             lx, ly: (M,) the ray origin in each box's frame; c_rel, s_rel: (M,) cos, sin of the heading
-                in the box's frame; low: (M,) the box's roof + r is at or below the ray (no obstacle).
+                in the box's frame; low: (M,) the box's roof + r is at or below the ray (no obstacle);
+                fan: the rays' cos, sin (R,) relative to the heading.
         """
         hx = np.where(low, -1.0, b[:, 4])[:, None]  # a negative half-extent never hits
         hy = np.where(low, -1.0, b[:, 5])[:, None]
-        rc, rs = self._ray_cos, self._ray_sin
+        rc, rs = fan
         # Ray directions in the box frame (M, R); +1e-300 turns exact zeros into a tiny positive
         # component (no 0 * inf) and leaves every other value unchanged.
         ux = c_rel[:, None] * rc - s_rel[:, None] * rs

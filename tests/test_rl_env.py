@@ -12,7 +12,7 @@ from rl.cities import CityDistribution
 from rl.env import UAMNavEnv
 from rl.nav import FixedEpisodes, NavConfig, NavWorld
 from rl.observation import obs_size
-from rl.reward import TERMS, RewardConfig, reward_terms
+from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
 from rl.sensor import BoxSensor
 from rl.vec_env import UAMNavVecEnv
 from uam_fdm.agent import Task
@@ -226,3 +226,44 @@ def test_time_limit_adds_the_climb_time_only_when_asked():
         d = float(np.linalg.norm(np.subtract(a.goal_m, a.start_m)))
         assert a.timeout_s == round(20.0 + 2.5 * d / 12.0, 2)
         assert b.timeout_s == round(20.0 + 2.5 * d / 12.0 + 2.0 * abs(a.goal_m[2] - a.start_m[2]) / 3.0, 2)
+
+
+def test_braking_cost_starts_at_a_margin_of_the_stopping_distance():
+    cfg = RewardConfig(braking_per_s=10.0, braking_margin=1.5)
+    d = stopping_distance(np.array([0.0, 20.0]), 4.57, 1.25)
+    assert d == pytest.approx([0.0, 20.0 ** 2 / (2 * 4.57) + 20.0 * 1.25])
+    one = np.ones(4)
+    stop = np.full(4, 60.0)
+    ahead = np.array([200.0, 90.0, 60.0, 0.0])  # beyond the reach (1.5 x 60 m), at it, at d, at the wall
+    t = reward_terms(cfg, one, one, 100 * one, 100 * one, 20 * one, 0.2 * one, np.zeros(4, bool), np.zeros(4, bool),
+                     ahead, stop)
+    assert t["braking"] == pytest.approx(-10.0 * 0.2 * np.array([0.0, 0.0, (1 - 1 / 1.5) ** 2, 1.0]))
+    hover = reward_terms(cfg, one, one, one, one, 0 * one, 0.2 * one, np.zeros(4, bool), np.zeros(4, bool),
+                         0 * one, 0 * one)  # at rest nothing is owed, even touching a wall
+    assert (hover["braking"] == 0).all()
+    with pytest.raises(ValueError, match="braking"):
+        reward_terms(cfg, one, one, one, one, one, one, np.zeros(4, bool), np.zeros(4, bool))
+    # off by default (the small quad's task): the term is zero and needs no distances
+    assert (reward_terms(RewardConfig(), one, one, one, one, one, one, np.zeros(4, bool),
+                         np.zeros(4, bool))["braking"] == 0).all()
+
+
+def test_braking_term_in_the_env_charges_heading_at_a_wall():
+    """Flying east at a box at speed costs braking; the same flight with the term off costs none."""
+    city = BuildingMap([Building(0, (150.0, 50.0), (20.0, 40.0), 40.0)], (0, 0, 0), (220, 100, 60), name="wall")
+    task = Task((20.0, 50.0, 10.0), (200.0, 50.0, 10.0), 3.0, 30.0)
+    costs = []
+    for per_s in (0.0, 10.0):
+        cfg = NavConfig(city_pool_size=1, turbulence="none", steady_wind_max_m_s=0.0,
+                        reward=RewardConfig(braking_per_s=per_s))
+        env = UAMNavEnv(world=NavWorld(cfg, fixed=FixedEpisodes((city,), ((0, task),))))
+        env.reset(seed=0)
+        total = 0.0
+        for _ in range(300):
+            _, _, term, trunc, info = env.step(np.array([1.0, 0.0, 0.0], dtype=np.float32))
+            total += info["reward_terms"]["braking"]
+            if term or trunc:
+                break
+        assert info.get("outcome") == "collision"
+        costs.append(total)
+    assert costs[0] == 0.0 and costs[1] < -1.0

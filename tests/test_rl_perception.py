@@ -434,3 +434,20 @@ def test_bad_config_rejected():
         PerceptionConfig(raster_m=0.0)
     with pytest.raises(ValueError, match="radius"):
         Perception([], -1.0)
+
+
+def test_free_distance_is_a_ray_at_any_bearing(cities, perception):
+    """`free_distance` along an arbitrary bearing = the reference ray (j = 0 of that heading), batched and single."""
+    rng = np.random.default_rng(11)
+    ci = rng.integers(0, len(cities), 60)
+    pts = np.array([[*rng.uniform(cities[c].bounds_min_m[:2], cities[c].bounds_max_m[:2]), rng.uniform(1.0, 30.0)]
+                    for c in ci])
+    bearing = rng.uniform(-math.pi, math.pi, 60)
+    got = perception.free_distance(pts, bearing, ci)
+    ref = [ray_reference(cities[c], p, b, 0, 1, R, CFG.ray_range_m) for c, p, b in zip(ci, pts, bearing)]
+    assert got == pytest.approx(ref, abs=1e-9)
+    assert 0 < (got < CFG.ray_range_m).sum() < len(got)  # hits and misses both exercised
+    one = [perception.free_distance(pts[k:k + 1], bearing[k:k + 1], ci[k:k + 1])[0] for k in range(5)]
+    assert one == pytest.approx(got[:5], abs=1e-12)
+    # the configured rays are untouched: ray 0 of a heading is the free distance along it
+    assert perception.rays(pts, bearing, ci)[:, 0] == pytest.approx(got, abs=1e-12)
