@@ -158,11 +158,12 @@ class ClassicalAgent:
         return self._trackers[key]
 
     def margins_for(self, world: World, task: Task) -> Margins:
-        """The planner's and the MPC's margins for this vehicle, forecast turbulence and the air at the start."""
+        """The planner's and the MPC's margins for this vehicle, forecast turbulence and the field's air."""
         cfg = self.config
         if cfg.margin_rule is None:
             return Margins(cfg.planner.safety_margin_m, cfg.mpc.clearance_margin_m, math.nan, "fixed (configured)")
-        sigma = float(world.atmosphere.density_ratio(float(task.start_m[2])))
+        # the table's airs are fields (density ratio at the ground), so look it up at the ground too
+        sigma = float(world.atmosphere.density_ratio(0.0))
         return margins_for(self._table, cfg.margin_rule, world.vehicle, world.turbulence, sigma,
                            cfg.planner.safety_margin_m, cfg.mpc.clearance_margin_m)
 
