@@ -30,9 +30,15 @@ CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 KNOWN_OUTCOMES = OUTCOMES + ("solver_failure",)
 """Outcomes an episode may end with (the runner's, plus the tracker's `solver_failure`)."""
 
+TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
+                   "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m")
+"""The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
+method like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
+without them read as NaN."""
+
 SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
                    "time_s", "path_length_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
-                   "plan_time_s")
+                   "plan_time_s") + TRACKER_METRICS
 """Fields aggregated by `summarize`, in report order."""
 
 SUCCESS_ONLY_METRICS = ("time_s", "path_length_m", "energy_kj")
@@ -60,8 +66,19 @@ class EpisodeMetrics:
         spl: success weighted by path length, success × straight / max(path, straight) [-].
         energy_kj: rotor shaft energy [kJ].
         compute_ms_mean, compute_ms_max: wall time per decision [ms] (NaN without decisions).
-        plan_time_s: planning time at reset [s] (for the PPO pilot: computing its route field, the
-            geodesic distance-to-go its observation uses; NaN for a pilot that reports none).
+        plan_time_s: planning time at reset, plus every replan of the classical pilot [s] (for the PPO
+            pilot: computing its route field, the geodesic distance-to-go its observation uses; NaN for a
+            pilot that reports none). A decision that replans also counts that time in compute_ms_max.
+        mpc_solve_ms_median, mpc_solve_ms_p95: the MPC solver's wall time per decision [ms].
+        mpc_failures: MPC solves that failed (a fallback command was flown) [count].
+        replans_tracking, replans_clearance: replans because the tracking error exceeded its threshold,
+            and because the MPC's prediction came closer to an obstacle than its margin [count].
+        tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
+            curve over the decisions [m].
+        planner_margin_m, mpc_margin_m: the clearance margins flown beyond the collision radius (the
+            reference's, and the MPC's soft constraint) [m].
+        The tracker columns (`TRACKER_METRICS`) are NaN for a pilot without a tracker (ppo) and, where an
+        older episode file did not record them, for the classical pilot too (counts as floats for that).
     """
 
     scenario: str
@@ -85,6 +102,15 @@ class EpisodeMetrics:
     compute_ms_mean: float
     compute_ms_max: float
     plan_time_s: float
+    mpc_solve_ms_median: float = math.nan
+    mpc_solve_ms_p95: float = math.nan
+    mpc_failures: float = math.nan
+    replans_tracking: float = math.nan
+    replans_clearance: float = math.nan
+    tracking_rms_m: float = math.nan
+    tracking_max_m: float = math.nan
+    planner_margin_m: float = math.nan
+    mpc_margin_m: float = math.nan
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
@@ -151,7 +177,23 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
         compute_ms_mean=float(compute_ms.mean()) if compute_ms.size else math.nan,
         compute_ms_max=float(compute_ms.max()) if compute_ms.size else math.nan,
         plan_time_s=math.nan if does_not_plan else float(meta.plan_time_s),
+        **_tracker_fields(meta.extra or {}),
     )
+
+
+def _tracker_fields(extra: dict) -> dict[str, float]:
+    """The tracker columns from an episode's metadata: its `tracker` report (`compare.run.tracker_extra`),
+    or, in an episode saved before that existed, the few counters it kept at the top level; NaN where
+    absent (a pilot without a tracker)."""
+    def num(v: Any) -> float:
+        return math.nan if v is None or isinstance(v, (str, dict, list)) else float(v)
+
+    tracker = extra.get("tracker")
+    if isinstance(tracker, dict):
+        return {name: num(tracker.get(name)) for name in TRACKER_METRICS}
+    old = {"mpc_solve_ms_median": extra.get("mpc_solve_ms_median"), "mpc_failures": extra.get("mpc_failures"),
+           "replans_tracking": extra.get("replans")}  # before clearance replans, every replan was a tracking one
+    return {name: num(old.get(name)) for name in TRACKER_METRICS}
 
 
 def _path_length_m(positions_m: np.ndarray) -> float:
@@ -220,7 +262,7 @@ def read_metrics_csv(path: Path) -> list[EpisodeMetrics]:
         header = next(reader, None)
         if header is None:
             raise ValueError(f"{path}: empty file, expected a header with columns {', '.join(COLUMNS)}")
-        missing = [c for c in COLUMNS if c not in header]
+        missing = [c for c in COLUMNS if c not in header and c not in TRACKER_METRICS]  # older files: NaN
         if missing:
             raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
         unknown = [c for c in header if c not in COLUMNS]
@@ -234,7 +276,7 @@ def read_metrics_csv(path: Path) -> list[EpisodeMetrics]:
             if len(cells) != len(header):
                 raise ValueError(f"{path}: line {reader.line_num}: {len(cells)} cells, expected {len(header)}")
             values = {name: _parse_cell(_KINDS[name], text, f"{path}: line {reader.line_num}, column {name}")
-                      for name, text in zip(header, cells)}
+                      for name, text in zip(header, cells)}  # absent tracker columns keep their NaN default
             rows.append(EpisodeMetrics(**values))
     return rows
 
@@ -375,6 +417,8 @@ def _paired_summary(rows_a: list[EpisodeMetrics], rows_b: list[EpisodeMetrics], 
     common = sorted(a.keys() & b.keys())
     out: dict[str, Any] = {"episodes": len(common)}
     for metric in SUMMARY_METRICS:
+        if metric in TRACKER_METRICS:
+            continue
         cells = [c for c in common
                  if metric not in SUCCESS_ONLY_METRICS or (a[c].success and b[c].success)]
         d = _values([a[c] for c in cells], metric) - _values([b[c] for c in cells], metric)
@@ -435,6 +479,15 @@ _TABLE_COLUMNS = {
     "compute_ms_mean": ("compute mean [ms]", _fixed(2)),
     "compute_ms_max": ("compute max [ms]", _fixed(2)),
     "plan_time_s": ("plan time [s]", _fixed(2)),
+    "mpc_solve_ms_median": ("MPC solve median [ms]", _fixed(2)),
+    "mpc_solve_ms_p95": ("MPC solve p95 [ms]", _fixed(2)),
+    "mpc_failures": ("MPC failures", _fixed(1)),
+    "replans_tracking": ("replans (tracking error)", _fixed(2)),
+    "replans_clearance": ("replans (predicted clearance)", _fixed(2)),
+    "tracking_rms_m": ("tracking RMS [m]", _fixed(3)),
+    "tracking_max_m": ("tracking max [m]", _fixed(3)),
+    "planner_margin_m": ("planner margin [m]", _fixed(2)),
+    "mpc_margin_m": ("MPC margin [m]", _fixed(2)),
 }
 
 

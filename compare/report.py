@@ -53,7 +53,17 @@ SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
     ("compute_ms_mean", "compute per decision, mean [ms]", 1.0, 2),
     ("compute_ms_max", "compute per decision, max [ms]", 1.0, 2),
     ("plan_time_s", "plan time [s]", 1.0, 3),
+    ("mpc_solve_ms_median", "MPC solve, median per episode [ms]", 1.0, 2),
+    ("mpc_solve_ms_p95", "MPC solve, p95 per episode [ms]", 1.0, 2),
+    ("mpc_failures", "MPC failed solves per episode", 1.0, 2),
+    ("replans_tracking", "replans per episode: tracking error", 1.0, 2),
+    ("replans_clearance", "replans per episode: predicted clearance", 1.0, 2),
+    ("tracking_rms_m", "tracking RMS (distance to the reference) [m]", 1.0, 3),
+    ("tracking_max_m", "tracking max (distance to the reference) [m]", 1.0, 3),
+    ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
+    ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
 )
+TRACKER_METHOD = "rrt_mpc"  # the pilot whose tracker columns get a page per scenario
 MAX_FAILURE_PLOTS = 6
 PNG_DPI = 130
 _STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<method>.+)__s(?P<seed>-?\d+)$")
@@ -358,8 +368,49 @@ def _metrics_pages(run: _Run, rows: list[dict[str, str]] | None) -> list[tuple[s
     paired = (summary or {}).get("paired")
     if isinstance(paired, Mapping) and paired:
         out.append(("metrics_paired", _paired_pages(run, paired)))
+    tracker = _tracker_pages(run, rows)
+    if tracker:
+        out.append(("metrics_tracker", tracker))
     out.append(("metrics_episodes", _episode_table_pages(run, rows)))
     return out
+
+
+def _tracker_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
+    """The classical pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from
+    metrics.csv; nothing when it did not fly (or the file predates the tracker columns)."""
+    mine = [r for r in rows if r.get("method") == TRACKER_METHOD]
+    if not mine or all(not math.isfinite(_float(r.get("planner_margin_m"))) for r in mine):
+        return []
+    table = []
+    for scenario in dict.fromkeys(r.get("scenario", "") for r in mine):
+        rs = [r for r in mine if r.get("scenario") == scenario]
+        col = {k: np.array([_float(r.get(k)) for r in rs]) for k in
+               ("success", "min_clearance_m", "planner_margin_m", "mpc_margin_m", "tracking_rms_m", "tracking_max_m",
+                "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking", "replans_clearance")}
+        ratio = col["min_clearance_m"] / col["planner_margin_m"]
+
+        def agg(f, x: np.ndarray, digits: int) -> str:
+            x = x[np.isfinite(x)]
+            return f"{f(x):.{digits}f}" if x.size else "n/a"
+
+        table.append([scenario, str(len(rs)), agg(np.mean, 100.0 * col["success"], 0),
+                      agg(np.max, col["planner_margin_m"], 2) + " / " + agg(np.max, col["mpc_margin_m"], 2),
+                      agg(np.min, col["min_clearance_m"], 2), agg(np.min, ratio, 2),
+                      agg(np.mean, col["tracking_rms_m"], 3), agg(np.max, col["tracking_max_m"], 2),
+                      agg(np.median, col["mpc_solve_ms_median"], 2), agg(np.max, col["mpc_solve_ms_p95"], 2),
+                      agg(np.sum, col["mpc_failures"], 0),
+                      agg(np.sum, col["replans_tracking"], 0) + " / " + agg(np.sum, col["replans_clearance"], 0)])
+    header = ["scenario", "episodes", "success [%]", "margin planner / MPC [m]", "min clearance [m]",
+              "min clearance / margin", "tracking RMS [m]", "tracking max [m]", "solve median [ms]",
+              "solve p95 max [ms]", "failures", "replans track / clear"]
+    notes = ["Margins: from the vehicle's measured tracking error in the scenario's forecast turbulence and air "
+             "(docs/planner.md). Target: min clearance / margin >= 0.5.",
+             "Min clearance: least over the episodes. Tracking: distance to the reference curve (RMS: mean over "
+             "episodes; max: over all).",
+             "Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
+             "episodes."]
+    return F.table_pages(f"Metrics: the {run.label(TRACKER_METHOD)} tracker per scenario", header, table,
+                         rows_per_page=26, notes=notes, font_size=7)
 
 
 def _read_summary(path: Path) -> dict | None:

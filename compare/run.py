@@ -19,8 +19,10 @@ missing cells, after checking that the folder is a run saved from the same input
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
+import math
 import os
 import platform
 import sys
@@ -59,16 +61,21 @@ METHOD_DESCRIPTIONS = {
            "acts deterministically.",
     "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
                "reference -> CasADi NMPC (real-time iteration: one Gauss-Newton SQP step per decision, HPIPM) "
-               "commanding rotor speeds (through the wrench for many-rotor vehicles), replanning on large tracking errors.",
+               "commanding rotor speeds (through the wrench for many-rotor vehicles); clearance margins sized from "
+               "the vehicle's measured tracking error in the forecast turbulence and air density; replanning on "
+               "large tracking errors and when the MPC predicts it will come closer than its margin.",
 }
 FAIRNESS = (
     "Both pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics rate; "
     "the classical pilot decides at the scenario's control rate, the learned pilot at its policy's decision rate "
     "(its command held by the same low-level controller in between; both rates are in run.json), and each "
     "decision is timed with the same stopwatch. Both know the vehicle's parameters, the building map, the air "
-    "density and the full vehicle state at each decision (perfect state estimation). Neither knows the wind: both "
+    "density, the forecast turbulence level (none/light/moderate/severe: the classical pilot sizes its clearance "
+    "margins from it, the learned pilot does not use it) and the full vehicle state at each decision (perfect "
+    "state estimation). Neither knows the wind: both "
     "fly the same seeded steady wind and turbulence realisation in each episode. The classical pilot plans on the "
-    "whole map before take-off (its planning time is reported separately) and commands rotor speeds through its "
+    "whole map before take-off and when it replans (its planning time is reported separately) and commands rotor "
+    "speeds through its "
     "MPC; the learned pilot sees only its observation (goal, a route around the buildings computed from the map "
     "at take-off, velocity, altitude, rays and a roof-height map of the buildings near it) and commands a "
     "velocity that the vehicle's low-level controller turns into rotor speeds. Clearance is measured at every "
@@ -239,7 +246,8 @@ class CellRunner:
                 self._dynamics[key] = VehicleDynamics(sc.vehicle, sc.physics_hz, sc.control_hz)
             top = float(sc.city.bounds_max_m[2]) + 100.0
             atm = Atmosphere.from_jsbsim(sc.atmosphere, z_max_m=top, z_min_m=-50.0)
-            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, atm)
+            # the forecast turbulence level (a category) is the pilots' to know; its gusts are not
+            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, atm, sc.wind.turbulence)
         return self._worlds[si]
 
     def agent(self, method: str, sc: Scenario):
@@ -278,22 +286,29 @@ class CellRunner:
                        "torque_coeff_Nm_s2": p.torque_coeff_Nm_s2,
                        "density_ratio": float(world.atmosphere.density_ratio(task.start_m[2])),
                        "mean_decision_ms": float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None}
-        stats = getattr(agent, "stats", None)
-        if stats is not None and c.method == "rrt_mpc":
-            extra.update(replans=stats.replans, mpc_solves=stats.mpc_solves, mpc_failures=stats.mpc_failures,
-                         mpc_statuses=dict(stats.mpc_statuses),
-                         mpc_solve_ms_median=float(np.median(stats.mpc_solve_times_s) * 1e3)
-                         if stats.mpc_solve_times_s else None)
-            if (traj.outcome not in ("success", "planner_failure") and stats.mpc_solves
-                    and stats.mpc_failures >= SOLVER_FAILURE_SHARE * stats.mpc_solves):
+        plan_time_s = float(traj.plan_time_s)
+        report = agent.episode_report() if hasattr(agent, "episode_report") else None
+        if report is not None:  # the classical pilot: what its tracker did (typed columns of metrics.csv)
+            extra["tracker"] = tracker_extra(report)
+            plan_time_s = float(report.plan_time_s)  # planning at reset plus every replan
+            if (traj.outcome not in ("success", "planner_failure") and report.mpc_solves
+                    and report.mpc_failures >= SOLVER_FAILURE_SHARE * report.mpc_solves):
                 extra["failure_reason"] = "solver_failure"
         key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
                            start_m=tuple(task.start_m), goal_m=tuple(task.goal_m), goal_radius_m=task.goal_radius_m,
                            timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
-                           energy_J=float(traj.energy_J), outcome=traj.outcome, plan_time_s=float(traj.plan_time_s),
+                           energy_J=float(traj.energy_J), outcome=traj.outcome, plan_time_s=plan_time_s,
                            detail=traj.detail, extra=extra)
         return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta, traj)
+
+
+def tracker_extra(report) -> dict:
+    """The classical pilot's end-of-episode report (`planners.agent.ClassicalReport`) as the JSON-ready
+    dict saved in the episode's metadata (`EpisodeMeta.extra["tracker"]`; NaN saved as null)."""
+    out = dataclasses.asdict(report)
+    out["replans"] = report.replans
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
 
 
 class RunInterrupted(Exception):

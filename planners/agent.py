@@ -1,23 +1,38 @@
 """The classical pilot: plan once with OMPL RRT* (timed), time-parameterise, track with NMPC.
 
-Implements the `uam_fdm.agent.Agent` protocol and emits rotor-speed commands. Optionally
-replans from the current position when the tracking error exceeds a threshold (the replanning
-time is counted as planning time).
+Implements the `uam_fdm.agent.Agent` protocol and emits rotor-speed commands. Its clearance margins
+follow from the vehicle's measured tracking error in the forecast turbulence and the air density
+(`planners.margins`). It replans from the current position when the tracking error exceeds a
+threshold, or when the MPC's last prediction comes closer to an obstacle than the MPC's margin
+(each bounded per episode; replanning time counts as planning time). `episode_report()` gives
+what the tracker did, for the metrics.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from planners.margins import (
+    Margins,
+    MarginRule,
+    TrackingErrorTable,
+    forecast_gust_m_s,
+    load_tracking_table,
+    margins_for,
+)
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.rrt_star import PlannerConfig, PlanResult, plan_path
-from planners.timing import Reference, TimingLimits, time_parameterize
+from planners.timing import Reference, TimingLimits, endpoint_allowance, time_parameterize
 from uam_fdm.agent import Observation, ResetInfo, RotorCommand, Task, World
 
 log = logging.getLogger(__name__)
+
+REPLAN_CAUSES = ("tracking", "clearance")
 
 
 @dataclass(frozen=True)
@@ -25,34 +40,88 @@ class ClassicalConfig:
     """Settings of the plan-and-track pilot.
 
     Attributes:
-        planner: OMPL planner settings (algorithm, deterministic iteration budget, safety margin).
-        mpc: NMPC settings.
+        planner: OMPL planner settings (algorithm, deterministic iteration budget; its
+            `safety_margin_m` is the fixed margin used when `margin_rule` is None or the table does
+            not know the vehicle).
+        mpc: NMPC settings (its `clearance_margin_m`: the fixed MPC margin, likewise).
         speed_fraction: share of the vehicle's speed caps the reference may use.
         accel_fraction: share of the vehicle's acceleration capability the reference may use.
+        margin_rule: how margins follow from the tracking-error table (`planners.margins`); None:
+            the fixed margins of `planner` and `mpc`.
+        tracking_table: the tracking-error table file (None: the shipped one).
         replan_error_m: replan from the current position when the position error to the reference
-            exceeds this [m]; None disables replanning.
-        max_replans: at most this many replans per episode.
+            exceeds this [m]; None disables it.
+        max_replans: at most this many tracking-error replans per episode.
+        replan_on_clearance: replan from the current position when the MPC's last predicted states
+            come closer to an obstacle (`World.city.planning_map()`) than the MPC's margin.
+        max_clearance_replans: at most this many clearance replans per episode.
+        replan_cooldown_s: no clearance replan within this time of the previous replan [s] (the new
+            reference needs a moment to pull the prediction out).
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     mpc: MPCConfig = field(default_factory=MPCConfig)
     speed_fraction: float = 0.8
     accel_fraction: float = 0.5
+    margin_rule: MarginRule | None = field(default_factory=MarginRule)
+    tracking_table: Path | None = None
     replan_error_m: float | None = 5.0
     max_replans: int = 3
+    replan_on_clearance: bool = True
+    max_clearance_replans: int = 3
+    replan_cooldown_s: float = 1.0
 
 
 @dataclass
 class ClassicalStats:
-    """Per-episode counters of the classical pilot (read by the runner for metrics)."""
+    """Per-episode counters of the classical pilot (mutable, internal; `ClassicalReport` is the result)."""
 
     plan_time_s: float = 0.0
+    replan_time_s: float = 0.0
     replans: int = 0
+    replans_by_cause: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REPLAN_CAUSES, 0))
     mpc_solves: int = 0
     mpc_failures: int = 0
     mpc_solve_times_s: list[float] = field(default_factory=list)
     mpc_iterations: list[int] = field(default_factory=list)
     mpc_statuses: dict[str, int] = field(default_factory=dict)
+    deviations_m: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class ClassicalReport:
+    """What the classical pilot did in one episode (read by the runner into the episode's metadata).
+
+    Attributes:
+        plan_time_s: planning at reset plus every replan [s]; replan_time_s: the replans' share [s].
+        replans_tracking, replans_clearance: replans by cause (tracking error above the threshold;
+            the MPC's prediction inside its clearance margin).
+        mpc_solves, mpc_failures: MPC decisions and failed solves (fallback commands).
+        mpc_solve_ms_median, mpc_solve_ms_p95: solver wall time per decision [ms] (NaN: none).
+        mpc_statuses: solver return statuses and their counts.
+        tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
+            curve over the decisions (`Reference.deviation_m`) [m] (NaN: none).
+        planner_margin_m, mpc_margin_m: the margins flown [m]; margin_source: where they came from.
+    """
+
+    plan_time_s: float
+    replan_time_s: float
+    replans_tracking: int
+    replans_clearance: int
+    mpc_solves: int
+    mpc_failures: int
+    mpc_solve_ms_median: float
+    mpc_solve_ms_p95: float
+    mpc_statuses: dict[str, int]
+    tracking_rms_m: float
+    tracking_max_m: float
+    planner_margin_m: float
+    mpc_margin_m: float
+    margin_source: str
+
+    @property
+    def replans(self) -> int:
+        return self.replans_tracking + self.replans_clearance
 
 
 class ClassicalAgent:
@@ -70,9 +139,14 @@ class ClassicalAgent:
         self._cache_dir = cache_dir
         self._trackers: dict[str, MPCTracker] = {}
         self._world: World | None = None
+        self._table: TrackingErrorTable | None = None
+        if self.config.margin_rule is not None:
+            self._table = load_tracking_table(*(() if self.config.tracking_table is None
+                                                 else (self.config.tracking_table,)))
         self.plan: PlanResult | None = None
         self.reference: Reference | None = None
         self.last_solution: MPCSolution | None = None
+        self.margins: Margins | None = None
         self.stats = ClassicalStats()
 
     # -- episode set-up -------------------------------------------------------------------------
@@ -83,31 +157,81 @@ class ClassicalAgent:
             self._trackers[key] = MPCTracker(world.vehicle, self.config.mpc, self._cache_dir)
         return self._trackers[key]
 
+    def margins_for(self, world: World, task: Task) -> Margins:
+        """The planner's and the MPC's margins for this vehicle, forecast turbulence and the field's air."""
+        cfg = self.config
+        if cfg.margin_rule is None:
+            return Margins(cfg.planner.safety_margin_m, cfg.mpc.clearance_margin_m, math.nan, "fixed (configured)")
+        # the table's airs are fields (density ratio at the ground), so look it up at the ground too
+        sigma = float(world.atmosphere.density_ratio(0.0))
+        return margins_for(self._table, cfg.margin_rule, world.vehicle, world.turbulence, sigma,
+                           cfg.planner.safety_margin_m, cfg.mpc.clearance_margin_m)
+
     def reset(self, world: World, task: Task, seed: int) -> ResetInfo:
-        """Plan from the task's start to its goal (timed) and prepare the tracker."""
+        """Choose the margins, plan from the task's start to its goal (timed) and prepare the tracker."""
         self._world, self._task, self._seed = world, task, int(seed)
         self._tracker = self.tracker_for(world)
         self._tracker.reset()
         self.stats = ClassicalStats()
         self.last_solution = None
         self._last_t: float | None = None
+        self._last_replan_t = -math.inf
+        # the air the reference is timed for: density at the start, gusts of the forecast level there
+        self._sigma = float(world.atmosphere.density_ratio(float(task.start_m[2])))
+        self._gust_m_s = forecast_gust_m_s(world.turbulence, float(task.start_m[2]))
+        self.margins = self.margins_for(world, task)
+        self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
+        log.debug("margins: planner %.2f m, MPC %.2f m (%s)", self.margins.planner_m, self.margins.mpc_m,
+                  self.margins.source)
         ok, status, detail = self._plan(np.asarray(task.start_m, float), t_start=0.0)
         return ResetInfo(ok=ok, status=status, plan_time_s=self.stats.plan_time_s, detail=detail)
 
-    def _plan(self, start: np.ndarray, t_start: float) -> tuple[bool, str, str]:
+    def _plan(self, start: np.ndarray, t_start: float, velocity_m_s: np.ndarray | None = None
+              ) -> tuple[bool, str, str]:
         world, task, cfg = self._world, self._task, self.config
         radius = world.vehicle.collision_radius_m
-        plan = plan_path(world.city, start, task.goal_m, radius, cfg.planner,
+        plan = plan_path(world.city, start, task.goal_m, radius, self._planner_cfg,
                          seed=self._seed + self.stats.replans)
         self.stats.plan_time_s += plan.plan_time_s
         if not plan.ok:
             return False, "planner_failure", f"{plan.status}: {plan.message}"
-        limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction)
-        reference = time_parameterize(plan.path_m, limits, world.city, radius, cfg.planner.safety_margin_m)
+        # the reference asks only for what the rotors can give in this air (thrust scales with density)
+        limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
+                                           self._gust_m_s)
+        # a replan from a moving vehicle starts at its speed along the new path (not at rest: no hard brake)
+        start_speed = 0.0
+        if velocity_m_s is not None and len(plan.path_m) > 1:
+            tangent = plan.path_m[1] - plan.path_m[0]
+            start_speed = max(0.0, float(velocity_m_s @ tangent) / max(float(np.linalg.norm(tangent)), 1e-9))
+        reference = time_parameterize(plan.path_m, limits, world.city, radius, self._planner_cfg.safety_margin_m,
+                                      start_speed_m_s=start_speed)
         if not reference.ok:
             return False, "planner_failure", f"time-parameterisation: {reference.status}"
         self.plan, self.reference, self._t_ref0 = plan, reference, t_start
+        # near a start or goal closer than the margin the requirement is relaxed (as in the planner)
+        self._relaxed_ends = []
+        for end in (np.asarray(plan.path_m[0], float), np.asarray(plan.path_m[-1], float)):
+            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, self.margins.mpc_m)
+            if zone > 0.0:
+                self._relaxed_ends.append((end, zone))
         return True, "ok", ""
+
+    def episode_report(self) -> ClassicalReport:
+        """What the tracker did in the episode so far (see `ClassicalReport`)."""
+        s, m = self.stats, self.margins
+        ms = 1e3 * np.asarray(s.mpc_solve_times_s, float)
+        dev = np.asarray(s.deviations_m, float)
+        return ClassicalReport(
+            plan_time_s=s.plan_time_s, replan_time_s=s.replan_time_s,
+            replans_tracking=s.replans_by_cause["tracking"], replans_clearance=s.replans_by_cause["clearance"],
+            mpc_solves=s.mpc_solves, mpc_failures=s.mpc_failures,
+            mpc_solve_ms_median=float(np.median(ms)) if ms.size else math.nan,
+            mpc_solve_ms_p95=float(np.percentile(ms, 95)) if ms.size else math.nan,
+            mpc_statuses=dict(s.mpc_statuses),
+            tracking_rms_m=float(np.sqrt(np.mean(dev ** 2))) if dev.size else math.nan,
+            tracking_max_m=float(dev.max()) if dev.size else math.nan,
+            planner_margin_m=m.planner_m if m else math.nan, mpc_margin_m=m.mpc_m if m else math.nan,
+            margin_source=m.source if m else "")
 
     # -- flying ---------------------------------------------------------------------------------
     def act(self, obs: Observation) -> RotorCommand:
@@ -133,21 +257,57 @@ class ClassicalAgent:
         return RotorCommand(sol.rotor_speeds_rad_s)
 
     def _maybe_replan(self, obs: Observation) -> None:
-        cfg = self.config
-        if cfg.replan_error_m is None or self.stats.replans >= cfg.max_replans:
-            return
-        ref_now, _, _ = self.reference.sample(obs.t_s - self._t_ref0)
-        if np.linalg.norm(obs.x[0:3] - ref_now) <= cfg.replan_error_m:
+        cause = self._replan_cause(obs)
+        if cause is None:
             return
         self.stats.replans += 1
-        log.info("tracking error above %.1f m at t = %.2f s: replanning", cfg.replan_error_m, obs.t_s)
-        previous = (self.plan, self.reference, self._t_ref0)
-        ok, _, _ = self._plan(obs.x[0:3].copy(), t_start=obs.t_s)
+        self.stats.replans_by_cause[cause] += 1
+        self._last_replan_t = obs.t_s
+        previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends)
+        before = self.stats.plan_time_s
+        ok, _, _ = self._plan(obs.x[0:3].copy(), t_start=obs.t_s, velocity_m_s=obs.x[3:6].copy())
+        self.stats.replan_time_s += self.stats.plan_time_s - before
         if not ok:   # keep tracking the old reference rather than give up
-            self.plan, self.reference, self._t_ref0 = previous
+            self.plan, self.reference, self._t_ref0, self._relaxed_ends = previous
         else:
             self._tracker.reset()
             self._last_t = None
+            self.last_solution = None   # its prediction belonged to the old reference
+
+    def _replan_cause(self, obs: Observation) -> str | None:
+        """"tracking", "clearance" or None (no replan now); also records the deviation from the reference."""
+        cfg, s = self.config, self.stats
+        t_ref = obs.t_s - self._t_ref0
+        s.deviations_m.append(self.reference.deviation_m(obs.x[0:3], t_ref))
+        if cfg.replan_error_m is not None and s.replans_by_cause["tracking"] < cfg.max_replans:
+            ref_now, _, _ = self.reference.sample(t_ref)
+            error = float(np.linalg.norm(obs.x[0:3] - ref_now))
+            if error > cfg.replan_error_m:
+                log.info("tracking error %.1f m above %.1f m at t = %.2f s: replanning", error,
+                         cfg.replan_error_m, obs.t_s)
+                return "tracking"
+        if (cfg.replan_on_clearance and self.last_solution is not None
+                and s.replans_by_cause["clearance"] < cfg.max_clearance_replans
+                and obs.t_s - self._last_replan_t >= cfg.replan_cooldown_s):
+            clearance = self.predicted_clearance_m(self.last_solution.predicted_states[1:, 0:3])
+            if clearance < self.margins.mpc_m:
+                log.info("predicted clearance %.2f m below the MPC margin %.2f m at t = %.2f s: replanning",
+                         clearance, self.margins.mpc_m, obs.t_s)
+                return "clearance"
+        return None
+
+    def predicted_clearance_m(self, points_m: np.ndarray) -> float:
+        """Least sphere clearance [m] of predicted positions (M, 3) to the planning map (buildings, no-fly
+        volumes, ground), leaving out points inside a start's or goal's relaxed zone (closer than the
+        margin by the task itself); +inf when every point is left out."""
+        keep = np.ones(len(points_m), dtype=bool)
+        for end, zone in self._relaxed_ends:
+            keep &= np.linalg.norm(points_m - end, axis=1) > zone
+        if not np.any(keep):
+            return math.inf
+        obstacles = self._world.city.planning_map()
+        d = obstacles.clearance(points_m[keep], self._world.vehicle.collision_radius_m).distance_m
+        return float(np.min(d))
 
     def _halfspaces(self, obs: Observation, ref_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clearance half-spaces (N, K, 3), (N, K) around the last prediction (or the reference).
@@ -161,7 +321,7 @@ class ClassicalAgent:
         if k == 0:
             return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
         pred = self.last_solution.predicted_states[1:, 0:3] if self.last_solution is not None else ref_pos[1:]
-        required = world.vehicle.collision_radius_m + mpc.config.clearance_margin_m
+        required = world.vehicle.collision_radius_m + self.margins.mpc_m
         normals = np.zeros((n_stages, k, 3))
         offsets = np.full((n_stages, k), -1.0)
         normals[:, k - 1] = (0.0, 0.0, 1.0)

@@ -64,22 +64,58 @@ class TimingLimits:
 
     @classmethod
     def from_vehicle(cls, params: VehicleParams, speed_fraction: float = 0.8,
-                     accel_fraction: float = 0.5) -> TimingLimits:
-        """Limits as fractions of a vehicle's capabilities (the rest is the tracker's headroom).
+                     accel_fraction: float = 0.5, density_ratio: float = 1.0, gust_m_s: float = 0.0,
+                     thrust_fraction: float = 0.85) -> TimingLimits:
+        """Limits as fractions of a vehicle's capabilities in air of density ratio σ (the rest is the
+        tracker's headroom).
 
         Args:
             params: the vehicle.
             speed_fraction: share of the controller's horizontal and vertical speed caps.
-            accel_fraction: share of the accelerations: horizontal g tan(max tilt); vertical
-                g (T_max / W - 1), the climb acceleration at full thrust at sea level.
+            accel_fraction: share of the accelerations: vertical g (σ T_max / W - 1), the climb
+                acceleration at full thrust; horizontal g tan(max tilt), or, where thin air leaves less
+                thrust than level flight at the tilt limit needs (σ T_max / W < 1 / cos(max tilt)),
+                g sqrt((σ T_max / W)^2 - 1), the most it can do without sinking.
+            density_ratio: σ = ρ/ρ0 where it flies [-] (thrust scales with it). A reference planned
+                with sea-level thrust in hot-and-high air asks for climbs the vehicle cannot fly:
+                the small quad at σ = 0.71 tracked it with up to 4.6 m of error in moderate turbulence
+                and hit buildings (docs/planner.md).
+            gust_m_s: airspeed allowance for gusts [m/s] (e.g. `planners.margins.forecast_gust_m_s`).
+            thrust_fraction: the horizontal speed is also capped so that level flight at that speed
+                plus `gust_m_s` of airspeed needs at most this share of the thrust (drag on the body's
+                x axis): the rest is the tracker's authority against the gusts. At sea level this
+                never binds for the presets (the speed caps do); in thin air it does: the small quad at
+                σ = 0.71 flew its reference at 9.6 m/s into 8 m/s gusts with every rotor at its limit.
         """
         if not (0 < speed_fraction <= 1 and 0 < accel_fraction <= 1):
             raise ValueError("speed_fraction and accel_fraction must be in (0, 1]")
+        if not (math.isfinite(density_ratio) and density_ratio > 0):
+            raise ValueError(f"density_ratio must be positive and finite, got {density_ratio!r}")
         c = params.controller
-        a_h = GRAVITY_M_S2 * math.tan(math.radians(c.max_tilt_deg))
-        a_v = GRAVITY_M_S2 * (params.max_thrust_N() / params.weight_N - 1.0)
-        return cls(speed_fraction * c.max_speed_m_s, speed_fraction * c.max_vertical_speed_m_s,
-                   accel_fraction * a_h, accel_fraction * a_v)
+        thrust_to_weight = density_ratio * params.max_thrust_N() / params.weight_N
+        if thrust_to_weight <= 1.0:
+            raise ValueError(f"vehicle {params.name!r} cannot hover at density ratio {density_ratio:.3f} "
+                             f"(thrust/weight {thrust_to_weight:.2f})")
+        a_h = GRAVITY_M_S2 * min(math.tan(math.radians(c.max_tilt_deg)), math.sqrt(thrust_to_weight ** 2 - 1.0))
+        a_v = GRAVITY_M_S2 * (thrust_to_weight - 1.0)
+        v_h = min(speed_fraction * c.max_speed_m_s, _cruise_airspeed_m_s(params, density_ratio, thrust_fraction)
+                  - max(0.0, float(gust_m_s)))
+        # thinner air than this leaves no authority at any useful speed: fly slowly rather than fail
+        v_h = max(v_h, min(1.0, speed_fraction * c.max_speed_m_s))
+        return cls(v_h, speed_fraction * c.max_vertical_speed_m_s, accel_fraction * a_h, accel_fraction * a_v)
+
+
+def _cruise_airspeed_m_s(params: VehicleParams, density_ratio: float, thrust_fraction: float) -> float:
+    """The airspeed [m/s] at which level flight needs `thrust_fraction` of the thrust at σ: solves
+    W² + D(v)² = (f σ T_max)², D(v) = d1 v + d2 v² (the body x axis's drag); inf when it never does."""
+    thrust = thrust_fraction * density_ratio * params.max_thrust_N()
+    if thrust <= params.weight_N:
+        return 0.0
+    drag = math.sqrt(thrust ** 2 - params.weight_N ** 2)
+    d1, d2 = float(params.drag_linear_N_s_m[0]), float(params.drag_quadratic_N_s2_m2[0])
+    if d2 > 0:
+        return (-d1 + math.sqrt(d1 * d1 + 4.0 * d2 * drag)) / (2.0 * d2)
+    return drag / d1 if d1 > 0 else math.inf
 
 
 @dataclass(frozen=True)
@@ -122,7 +158,8 @@ class TimingConfig:
 
 @dataclass(frozen=True)
 class Reference:
-    """A time-parameterised reference (world ENU; starts and ends at rest).
+    """A time-parameterised reference (world ENU; ends at rest; starts at rest unless planned from a moving
+    vehicle, see `time_parameterize`).
 
     Attributes:
         t_s: (M,) sample times from 0 to `duration_s` [s].
@@ -183,6 +220,28 @@ class Reference:
         vel[outside] = 0.0
         acc[outside] = 0.0
         return pos, vel, acc
+
+    def deviation_m(self, point_m: np.ndarray, t_s: float, window_s: float = 5.0) -> float:
+        """Distance [m] from `point_m` (3,) to the reference curve within `window_s` of time `t_s`.
+
+        The curve is the polyline of the 20 ms samples (their chords lie within millimetres of the
+        smooth curve at these speeds). Unlike the error to the reference *at* t, this ignores lag
+        along the path: it is how far the vehicle is from where the reference goes, i.e. how much
+        of the clearance margin it has used. The window keeps a path that passes the same place
+        twice from counting the other pass.
+        """
+        lo, hi = np.searchsorted(self.t_s, [t_s - window_s, t_s + window_s])
+        pts = self.pos_m[max(0, lo - 1):min(len(self.t_s), hi + 1)]
+        p = np.asarray(point_m, float)
+        if len(pts) == 1:
+            return float(np.linalg.norm(p - pts[0]))
+        a, b = pts[:-1], pts[1:]
+        ab = b - a
+        den = np.einsum("ij,ij->i", ab, ab)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(den > 0, np.einsum("ij,ij->i", p - a, ab) / den, 0.0)
+        s = np.clip(s, 0.0, 1.0)
+        return float(np.sqrt(np.min(np.sum((a + s[:, None] * ab - p) ** 2, axis=1))))
 
 
 # ---- the clearance contract (shared with planners.rrt_star) ------------------------------------------
@@ -368,8 +427,10 @@ def _interval_abs_le(h: np.ndarray, g: np.ndarray, limit: float) -> tuple[np.nda
     return np.where(empty, 0.0, lo), np.where(empty, 0.0, hi)
 
 
-def _speed_profile(curve: _Curve, limits: TimingLimits, config: TimingConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Squared speed w (N,) at the samples and tangential acceleration a (N-1,) on each interval."""
+def _speed_profile(curve: _Curve, limits: TimingLimits, config: TimingConfig,
+                   start_speed_m_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Squared speed w (N,) at the samples and tangential acceleration a (N-1,) on each interval; the piece
+    starts at `start_speed_m_s` if its limits and the stop at its end allow, else as fast as they do."""
     t, k = curve.tan, curve.kappa
     th, tz = np.linalg.norm(t[:, :2], axis=1), np.abs(t[:, 2])
     kh, kz = np.linalg.norm(k[:, :2], axis=1), np.abs(k[:, 2])
@@ -393,7 +454,8 @@ def _speed_profile(curve: _Curve, limits: TimingLimits, config: TimingConfig) ->
     a_up = np.minimum(hi[:-1], hi[1:])
     a_down = -np.maximum(lo[:-1], lo[1:])
     ds = np.diff(curve.s)
-    w_max[0] = w_max[-1] = 0.0  # rest at both ends
+    w_max[0] = min(w_max[0], float(start_speed_m_s) ** 2)  # rest at the start unless already moving
+    w_max[-1] = 0.0  # rest at the end
     w = _cap_growth(w_max, 2.0 * np.maximum(a_up, 0.0) * ds)
     w = _cap_growth(w[::-1], (2.0 * np.maximum(a_down, 0.0) * ds)[::-1])[::-1]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -436,7 +498,8 @@ def _sample_piece(curve: _Curve, w: np.ndarray, a: np.ndarray, t_piece: np.ndarr
 
 # ---- the public entry point ----------------------------------------------------------------------------
 def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMap, radius_m: float,
-                      margin_m: float, config: TimingConfig = TimingConfig()) -> Reference:
+                      margin_m: float, config: TimingConfig = TimingConfig(), start_speed_m_s: float = 0.0
+                      ) -> Reference:
     """Smooth a collision-free path and time it within the limits, keeping the clearance.
 
     Args:
@@ -447,9 +510,11 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
         radius_m: vehicle collision radius [m].
         margin_m: clearance required beyond the radius [m] (as used by the planner).
         config: smoothing and sampling settings.
+        start_speed_m_s: speed along the path at its start [m/s] (a replan from a moving vehicle): the
+            reference starts at it where the limits and the first stop allow, else as fast as they do.
 
     Returns:
-        A Reference starting and ending at rest on the path's end points.  Its status is
+        A Reference from the path's start (at rest unless `start_speed_m_s`) to its end, at rest.  Its status is
         "clearance_violation" when some sample of the curve is closer than radius + margin (less
         near a close start or goal: `endpoint_allowance`), which a path from `plan_path` never is.
 
@@ -458,6 +523,8 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     """
     if not (math.isfinite(radius_m) and radius_m >= 0 and math.isfinite(margin_m) and margin_m >= 0):
         raise ValueError(f"radius_m and margin_m must be finite and >= 0, got {radius_m}, {margin_m}")
+    if not (math.isfinite(start_speed_m_s) and start_speed_m_s >= 0):
+        raise ValueError(f"start_speed_m_s must be finite and >= 0, got {start_speed_m_s}")
     city = city.planning_map()
     path = _clean(path_m)
     r_req = float(radius_m) + float(margin_m)
@@ -467,8 +534,8 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     curves, refinements, stops = _smooth(path, city, ends, r_req, config)
     t_all, pos_all, vel_all, acc_all = [], [], [], []
     t_offset = 0.0
-    for curve in curves:
-        w, a = _speed_profile(curve, limits, config)
+    for k, curve in enumerate(curves):
+        w, a = _speed_profile(curve, limits, config, start_speed_m_s if k == 0 else 0.0)
         t_piece = _timed(curve, w, a)
         n = max(1, math.ceil(t_piece[-1] / config.sample_dt_s))
         t = np.minimum(np.arange(n) * config.sample_dt_s, t_piece[-1])

@@ -14,13 +14,14 @@ import pytest
 from pypdf import PdfReader
 
 from compare.cli import main
-from compare.metrics import COLUMNS
+from compare.metrics import COLUMNS, TRACKER_METRICS
 from rl.agent import DEFAULT_POLICY_DIR
 
 DATA = Path(__file__).parent / "data"
 GOLDEN = Path(__file__).parent / "golden" / "tiny_metrics.json"
 TINY = DATA / "tiny_scenario.yaml"
-WALL_CLOCK_COLUMNS = {"compute_ms_mean", "compute_ms_max", "plan_time_s"}  # measured, not simulated
+WALL_CLOCK_COLUMNS = {"compute_ms_mean", "compute_ms_max", "plan_time_s", "mpc_solve_ms_median",
+                      "mpc_solve_ms_p95"}  # measured, not simulated
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +63,15 @@ def test_run_writes_every_output(tiny_run):
     for r in rows:
         assert r["success"] in ("0", "1")
         assert float(r["straight_line_m"]) == pytest.approx(np.linalg.norm([90.0, 5.0, 2.0]))
+    # the tracker's columns: NaN for the learned pilot, finite and sane for the classical one
+    ppo, mpc = rows
+    assert all(ppo[k] == "nan" for k in TRACKER_METRICS)
+    assert all(np.isfinite(float(mpc[k])) for k in TRACKER_METRICS), mpc
+    assert 0.0 < float(mpc["mpc_solve_ms_median"]) <= float(mpc["mpc_solve_ms_p95"]) < 1e3
+    assert float(mpc["mpc_failures"]) == 0.0 and float(mpc["replans_tracking"]) == 0.0
+    assert 0.0 <= float(mpc["tracking_rms_m"]) <= float(mpc["tracking_max_m"]) < 1.0
+    assert float(mpc["planner_margin_m"]) >= 1.0 and float(mpc["mpc_margin_m"]) == 0.5 * float(mpc["planner_margin_m"])
+    assert float(mpc["min_clearance_m"]) >= 0.5 * float(mpc["planner_margin_m"])
     summary = json.loads((tiny_run / "summary.json").read_text())
     assert set(summary["methods"]) == {"ppo", "rrt_mpc"} and "ppo - rrt_mpc" in summary["paired"]
     s = summary["methods"]["rrt_mpc"]["success"]
@@ -82,7 +92,8 @@ def test_report_pdf_has_the_expected_pages(tiny_run):
     text = "\n".join(page.extract_text() or "" for page in reader.pages)
     assert len(reader.pages) >= 7
     for heading in ("uam-compare report", "Metrics", "Episode tiny #0 seed 0", "reward convergence", "Failures",
-                    "PPO policy", "RRT* + MPC", "clearance", "speed", "decides at 10 Hz"):
+                    "PPO policy", "RRT* + MPC", "clearance", "speed", "decides at 10 Hz", "tracker per scenario",
+                    "MPC solve, median per episode"):
         assert heading in text, heading
 
 

@@ -36,7 +36,7 @@ POLYLINE = [(0.0, 0.0, 10.0), (3.0, 0.0, 10.0), (3.0, 4.0, 10.0), (3.0, 4.0, 22.
 def make_episode(positions=POLYLINE, clearance=(0.5, 1.5, 4.0, 1.0), compute_s=(0.001, 0.003, 0.002),
                  outcome="success", method="rrt_mpc", plan_time_s=0.7, energy_J=1234.5,
                  start=(0.0, 0.0, 10.0), goal=(3.0, 4.0, 22.0), scenario="town", episode=0, seed=0,
-                 t_s=None) -> SavedEpisode:
+                 t_s=None, extra=None) -> SavedEpisode:
     pos = np.asarray(positions, float)
     m = pos.shape[0]
     states = np.zeros((m, 13 + N_ROTORS))
@@ -51,7 +51,7 @@ def make_episode(positions=POLYLINE, clearance=(0.5, 1.5, 4.0, 1.0), compute_s=(
     meta = EpisodeMeta(key=EpisodeKey(scenario, episode, method, seed), map_name="town-map",
                        vehicle="small_quad", start_m=tuple(start), goal_m=tuple(goal), goal_radius_m=1.0,
                        timeout_s=60.0, collision_radius_m=0.3, n_rotors=N_ROTORS, energy_J=energy_J,
-                       outcome=outcome, plan_time_s=plan_time_s, detail="hand-made")
+                       outcome=outcome, plan_time_s=plan_time_s, detail="hand-made", extra=extra)
     return SavedEpisode(meta, traj)
 
 
@@ -95,6 +95,50 @@ def test_metrics_of_a_known_polyline():
     assert m.compute_ms_max == pytest.approx(3.0)
     assert m.plan_time_s == 0.7
     assert all(type(getattr(m, f)) is float for f in COLUMNS if M._KINDS[f] == "float")
+
+
+TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures": 1, "replans_tracking": 0,
+           "replans_clearance": 2, "tracking_rms_m": 0.125, "tracking_max_m": 0.75, "planner_margin_m": 1.5,
+           "mpc_margin_m": 0.75, "mpc_statuses": {"ok": 3}, "margin_source": "table", "replans": 2}
+
+
+def test_tracker_columns_come_from_the_episode_report(tmp_path):
+    m = episode_metrics(make_episode(extra={"tracker": TRACKER}))
+    assert {k: getattr(m, k) for k in M.TRACKER_METRICS} == {k: float(TRACKER[k]) for k in M.TRACKER_METRICS}
+    # a pilot without a tracker (ppo): NaN in every tracker column, finite elsewhere
+    ppo = episode_metrics(make_episode(method="ppo", plan_time_s=0.0))
+    assert all(math.isnan(getattr(ppo, k)) for k in M.TRACKER_METRICS)
+    # NaN saved as null (no decision flown) reads back as NaN
+    empty = episode_metrics(make_episode(extra={"tracker": {**TRACKER, "tracking_rms_m": None}}))
+    assert math.isnan(empty.tracking_rms_m) and empty.replans_clearance == 2.0
+    # an episode saved before the report: its old top-level counters, NaN for the rest
+    old = episode_metrics(make_episode(extra={"replans": 1, "mpc_failures": 0, "mpc_solve_ms_median": 1.5}))
+    assert (old.replans_tracking, old.mpc_failures, old.mpc_solve_ms_median) == (1.0, 0.0, 1.5)
+    assert math.isnan(old.replans_clearance) and math.isnan(old.planner_margin_m)
+    # through metrics.csv and back, exactly
+    path = write_metrics_csv([m, ppo], tmp_path / "metrics.csv")
+    back = read_metrics_csv(path)
+    assert same(back[0], ppo) and same(back[1], m)
+
+
+def test_a_metrics_csv_without_the_tracker_columns_still_reads(tmp_path):
+    lines = write_metrics_csv([row("rrt_mpc")], tmp_path / "new.csv").read_text().splitlines()
+    n = len(COLUMNS) - len(M.TRACKER_METRICS)
+    assert COLUMNS[n:] == M.TRACKER_METRICS  # the tracker columns are last
+    old = tmp_path / "old.csv"
+    old.write_text("\n".join(",".join(line.split(",")[:n]) for line in lines) + "\n")
+    (r,) = read_metrics_csv(old)
+    assert r.planner_margin_m != r.planner_margin_m and r.plan_time_s == 0.5
+
+
+def test_tracker_metrics_are_summarised_but_not_paired():
+    rows = [row("rrt_mpc", episode=e, planner_margin_m=1.0 + e, replans_clearance=float(e)) for e in range(2)]
+    rows += [row("ppo", episode=e) for e in range(2)]
+    s = summarize(rows, resamples=50)
+    assert s["methods"]["rrt_mpc"]["planner_margin_m"]["mean"] == 1.5
+    assert s["methods"]["rrt_mpc"]["replans_clearance"]["n"] == 2
+    assert s["methods"]["ppo"]["planner_margin_m"]["n"] == 0 and s["methods"]["ppo"]["planner_margin_m"]["mean"] is None
+    assert not set(M.TRACKER_METRICS) & set(s["paired"]["ppo - rrt_mpc"])
 
 
 def test_threshold_fields_follow_the_constant():
@@ -181,7 +225,8 @@ def test_csv_columns_are_the_contract_order():
         "scenario", "episode", "method", "seed", "map", "vehicle", "outcome", "success", "collision",
         "failure_reason", "min_clearance_m", "time_below_2m_s", "time_below_5m_s", "time_s",
         "path_length_m", "straight_line_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
-        "plan_time_s")
+        "plan_time_s", "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
+        "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):

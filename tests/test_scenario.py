@@ -108,9 +108,12 @@ def test_full_set_contents() -> None:
             assert len(s.episodes) == 4 and s.seeds == (0, 1, 2)
         uam = full[f"{city}-uam"]
         assert uam.methods == METHODS and len(uam.episodes) == 2 and uam.episodes[0].task.goal_radius_m == 10.0
-    hot = full["hot-high-quad"]
-    assert (hot.atmosphere.elevation_m, hot.atmosphere.isa_offset_k) == (2500.0, 25.0)
-    assert len(full) == 13
+    for name, level in (("hot-high-quad", "light"), ("hot-high-quad-moderate", "moderate")):
+        hot = full[name]
+        assert (hot.atmosphere.elevation_m, hot.atmosphere.isa_offset_k) == (2500.0, 25.0)
+        assert hot.wind.turbulence is TurbulenceLevel.parse(level)
+        assert hot.episodes == full["suburb-quad-light"].episodes
+    assert len(full) == 14
 
 
 # ---- defaults and structure --------------------------------------------------------------------------
@@ -346,7 +349,7 @@ def test_missing_file(tmp_path: Path) -> None:
 # ---- resolve_scenarios -------------------------------------------------------------------------------
 def test_resolve_builtin_sets() -> None:
     assert [s.name for s in resolve_scenarios("default")] == ["downtown-quad", "suburb-quad", "suburb-uam"]
-    assert len(resolve_scenarios("full")) == 13
+    assert len(resolve_scenarios("full")) == 14
 
 
 def test_resolve_file_and_folder(tmp_path: Path) -> None:

@@ -75,6 +75,23 @@ def test_straight_line_is_the_trapezoid():
     assert vertical.duration_s == pytest.approx(100 / v + v / a, rel=1e-3)
 
 
+def test_a_reference_can_start_moving():
+    """A replan from a moving vehicle: the reference starts at its speed along the path, within the limits."""
+    path = np.array([[10, 10, 20], [210, 10, 20]])
+    ref = time_parameterize(path, LIMITS, empty_city(), R_QUAD, MARGIN, start_speed_m_s=5.0)
+    assert ref.vel_m_s[0] == pytest.approx([5.0, 0.0, 0.0], abs=1e-9) and np.all(ref.vel_m_s[-1] == 0)
+    check_limits(ref, LIMITS)
+    v, a, v0 = LIMITS.max_speed_m_s, LIMITS.max_accel_m_s2, 5.0   # trapezoid from v0: L/v + (2v² - 2v v0 + v0²)/(2av)
+    assert ref.duration_s == pytest.approx(200 / v + (2 * v * v - 2 * v * v0 + v0 * v0) / (2 * a * v), rel=1e-3)
+    fast = time_parameterize(path, LIMITS, empty_city(), R_QUAD, MARGIN, start_speed_m_s=50.0)
+    assert np.linalg.norm(fast.vel_m_s[0]) == pytest.approx(v)   # capped at the limit
+    short = time_parameterize(np.array([[10, 10, 20], [14, 10, 20]]), LIMITS, empty_city(), R_QUAD, MARGIN,
+                              start_speed_m_s=8.0)          # cannot stop in 4 m from 8 m/s at 4 m/s^2
+    assert np.linalg.norm(short.vel_m_s[0]) == pytest.approx(math.sqrt(2 * a * 4.0), rel=1e-3)
+    with pytest.raises(ValueError, match="start_speed_m_s"):
+        time_parameterize(path, LIMITS, empty_city(), R_QUAD, MARGIN, start_speed_m_s=-1.0)
+
+
 def test_sample_clamps_and_horizon():
     ref = time_parameterize(ZIGZAG[:3], LIMITS, empty_city(), R_QUAD, MARGIN)
     p, v, a = ref.sample(ref.duration_s + 5.0)
@@ -89,6 +106,18 @@ def test_sample_clamps_and_horizon():
     assert np.allclose(P[1:], ZIGZAG[2]) and not V[1:].any()
 
 
+def test_deviation_is_the_distance_to_the_curve_not_the_lag():
+    ref = time_parameterize(np.array([[10, 10, 20], [210, 10, 20]]), LIMITS, empty_city(), R_QUAD, MARGIN)
+    on_path = ref.sample(10.0)[0]
+    behind = ref.sample(9.0)[0]                      # 1 s late along the path: no deviation
+    assert ref.deviation_m(behind, 10.0) == pytest.approx(0.0, abs=1e-9)
+    assert np.linalg.norm(behind - on_path) > 5.0    # ... although the error at t is metres
+    assert ref.deviation_m(on_path + (0.0, 0.3, -0.4), 10.0) == pytest.approx(0.5, abs=1e-9)
+    # the window: a point near the far end is measured to the curve within 5 s of t, not to the end
+    end = ref.pos_m[-1]
+    assert ref.deviation_m(end, 1.0) == pytest.approx(np.linalg.norm(end - ref.sample(6.0)[0]), rel=1e-6)
+
+
 def test_from_vehicle():
     p = load_vehicle("small_quad")
     lim = TimingLimits.from_vehicle(p, speed_fraction=0.8, accel_fraction=0.5)
@@ -98,6 +127,27 @@ def test_from_vehicle():
     assert lim.max_vertical_accel_m_s2 == pytest.approx(0.5 * GRAVITY_M_S2 * (p.max_thrust_N() / p.weight_N - 1))
     with pytest.raises(ValueError):
         TimingLimits(1.0, 1.0, 0.0, 1.0)
+
+
+def test_from_vehicle_in_thin_air():
+    """Hot and high (density ratio 0.714): the climb and the level-flight tilt are what the thrust gives."""
+    p = load_vehicle("small_quad")
+    tw = p.max_thrust_N() / p.weight_N                       # 1.92 at sea level
+    thin = TimingLimits.from_vehicle(p, 0.8, 0.5, density_ratio=0.714)
+    assert thin.max_vertical_accel_m_s2 == pytest.approx(0.5 * GRAVITY_M_S2 * (0.714 * tw - 1))
+    # sigma T/W = 1.37 < 1 / cos 45 deg: holding altitude caps the horizontal acceleration below g tan 45
+    assert thin.max_accel_m_s2 == pytest.approx(0.5 * GRAVITY_M_S2 * math.sqrt((0.714 * tw) ** 2 - 1))
+    assert thin.max_accel_m_s2 < TimingLimits.from_vehicle(p).max_accel_m_s2
+    assert thin.max_speed_m_s == TimingLimits.from_vehicle(p).max_speed_m_s
+    # gusts: level flight at cruise plus the allowance may use 85 % of the thrust; binding only in thin air
+    sea, hot = (TimingLimits.from_vehicle(p, density_ratio=s, gust_m_s=5.7) for s in (1.0, 0.714))
+    assert sea.max_speed_m_s == pytest.approx(0.8 * p.controller.max_speed_m_s)
+    airspeed = hot.max_speed_m_s + 5.7
+    drag = p.drag_linear_N_s_m[0] * airspeed + p.drag_quadratic_N_s2_m2[0] * airspeed ** 2
+    assert math.hypot(p.weight_N, drag) == pytest.approx(0.85 * 0.714 * p.max_thrust_N(), rel=1e-9)
+    assert 5.0 < hot.max_speed_m_s < 7.0
+    with pytest.raises(ValueError, match="cannot hover at density ratio 0.400"):
+        TimingLimits.from_vehicle(p, density_ratio=0.4)
 
 
 def _dense_clearance(ref: Reference, city: BuildingMap) -> float:

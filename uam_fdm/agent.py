@@ -13,8 +13,10 @@ An actuation may be held for several control periods (`hold_periods`): the learn
 at 10 Hz over a 50 Hz low-level controller. The runner then flies the held command period by
 period, checking the episode's end rules after each, and counts one decision.
 What both pilots know (the fairness statement): the vehicle's parameters, the building map, the
-air density, and the full vehicle state at each decision (perfect state estimation). Neither
-knows the wind or its gusts.
+air density, the forecast turbulence level (the scenario's category: none, light, moderate, severe),
+and the full vehicle state at each decision (perfect state estimation). Neither knows the wind or
+its gusts: the steady wind and the turbulence realisation are the simulator's alone. (The classical
+pilot sizes its clearance margins from the forecast level; the learned pilot does not use it.)
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ import numpy as np
 from uam_fdm.atmosphere import Atmosphere
 from uam_fdm.dynamics import VehicleDynamics
 from uam_fdm.params import VehicleParams
+from uam_fdm.wind import TurbulenceLevel
 
 if TYPE_CHECKING:  # the city module is imported lazily by its users; only its type is named here
     from uam_fdm.city import BuildingMap
@@ -44,12 +47,19 @@ class Task:
 
 @dataclass(frozen=True)
 class World:
-    """What an agent may know about the world it flies in (no wind: see the module docstring)."""
+    """What an agent may know about the world it flies in (no wind: see the module docstring).
+
+    `turbulence` is the forecast level, a category, not the gusts the vehicle will meet.
+    """
 
     vehicle: VehicleParams
     dynamics: VehicleDynamics
     city: "BuildingMap"
     atmosphere: Atmosphere
+    turbulence: TurbulenceLevel = TurbulenceLevel.NONE
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "turbulence", TurbulenceLevel.parse(self.turbulence))  # "light" accepted
 
     @property
     def decision_period_s(self) -> float:
