@@ -78,7 +78,6 @@ class ClassicalStats:
 
     plan_time_s: float = 0.0
     replan_time_s: float = 0.0
-    replans: int = 0
     replans_by_cause: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REPLAN_CAUSES, 0))
     mpc_solves: int = 0
     mpc_failures: int = 0
@@ -191,7 +190,7 @@ class ClassicalAgent:
         world, task, cfg = self._world, self._task, self.config
         radius = world.vehicle.collision_radius_m
         plan = plan_path(world.city, start, task.goal_m, radius, self._planner_cfg,
-                         seed=self._seed + self.stats.replans)
+                         seed=self._seed + sum(self.stats.replans_by_cause.values()))
         self.stats.plan_time_s += plan.plan_time_s
         if not plan.ok:
             return False, "planner_failure", f"{plan.status}: {plan.message}"
@@ -257,10 +256,10 @@ class ClassicalAgent:
         return RotorCommand(sol.rotor_speeds_rad_s)
 
     def _maybe_replan(self, obs: Observation) -> None:
+        self.stats.deviations_m.append(self.reference.deviation_m(obs.x[0:3], obs.t_s - self._t_ref0))
         cause = self._replan_cause(obs)
         if cause is None:
             return
-        self.stats.replans += 1
         self.stats.replans_by_cause[cause] += 1
         self._last_replan_t = obs.t_s
         previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends)
@@ -275,10 +274,9 @@ class ClassicalAgent:
             self.last_solution = None   # its prediction belonged to the old reference
 
     def _replan_cause(self, obs: Observation) -> str | None:
-        """"tracking", "clearance" or None (no replan now); also records the deviation from the reference."""
+        """"tracking", "clearance" or None (no replan now)."""
         cfg, s = self.config, self.stats
         t_ref = obs.t_s - self._t_ref0
-        s.deviations_m.append(self.reference.deviation_m(obs.x[0:3], t_ref))
         if cfg.replan_error_m is not None and s.replans_by_cause["tracking"] < cfg.max_replans:
             ref_now, _, _ = self.reference.sample(t_ref)
             error = float(np.linalg.norm(obs.x[0:3] - ref_now))
