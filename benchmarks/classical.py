@@ -39,8 +39,9 @@ import numpy as np  # noqa: E402
 
 from planners.rrt_star import ALGORITHMS, PlannerConfig, plan_path  # noqa: E402
 from planners.timing import TimingLimits, time_parameterize  # noqa: E402
-from uam_fdm.city import BuildingMap, load_named_map  # noqa: E402
-from uam_fdm.params import load_vehicle  # noqa: E402
+from uam_fdm.city.buildings import BuildingMap  # noqa: E402
+from uam_fdm.city.mapfile import load_named_map  # noqa: E402
+from uam_fdm.vehicle.params import load_vehicle  # noqa: E402
 
 MAPS = ("suburb", "downtown", "canyon")
 # Start/goal heights per map [m]: low enough that the buildings are in the way.
@@ -233,8 +234,8 @@ def measure_mpc(vehicle: str, solver: str, episode: MPCEpisode) -> dict:
     machine) before timing.
     """
     from planners.mpc import MPCConfig, MPCTracker
-    from uam_fdm.dynamics import VehicleDynamics
-    from uam_fdm.model import hover_state, make_env
+    from uam_fdm.vehicle.dynamics import VehicleDynamics
+    from uam_fdm.vehicle.model import hover_state, make_env
 
     p = load_vehicle(vehicle)
     try:

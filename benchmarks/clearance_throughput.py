@@ -19,8 +19,8 @@ os.environ["OMP_NUM_THREADS"] = "1"  # before NumPy loads: single-threaded, comp
 import fcl  # noqa: E402
 import numpy as np  # noqa: E402
 
-from uam_fdm.city import BuildingMap  # noqa: E402
-from uam_fdm.citygen import CityGenParams, generate_city  # noqa: E402
+from uam_fdm.city.buildings import BuildingMap  # noqa: E402
+from uam_fdm.city.generator import CityGenParams, generate_city  # noqa: E402
 
 N_BUILDINGS = 200
 RADIUS_M = 1.0

@@ -18,11 +18,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from uam_fdm import ground_effect as ge  # noqa: E402
-from uam_fdm.dynamics import VehicleDynamics  # noqa: E402
-from uam_fdm.model import AIRSPEED_SMOOTHING_M_S, hover_state, make_env  # noqa: E402
-from uam_fdm.params import GRAVITY_M_S2, VehicleParams, load_vehicle  # noqa: E402
-from uam_fdm.wind import (  # noqa: E402
+from uam_fdm.vehicle import ground_effect as ge  # noqa: E402
+from uam_fdm.vehicle.dynamics import VehicleDynamics  # noqa: E402
+from uam_fdm.vehicle.model import AIRSPEED_SMOOTHING_M_S, hover_state, make_env  # noqa: E402
+from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle  # noqa: E402
+from uam_fdm.air.wind import (  # noqa: E402
     PROBE_HEIGHTS_M,
     GustStack,
     TurbulenceLevel,
@@ -57,7 +57,7 @@ class NumpyTwin:
         ], 1)
 
     def gain(self, x: np.ndarray, env: np.ndarray) -> np.ndarray:
-        """uam_fdm.ground_effect.thrust_gain_expr, term for term: (N, n)."""
+        """uam_fdm.vehicle.ground_effect.thrust_gain_expr, term for term: (N, n)."""
         p = self.p
         if not p.ground_effect:
             return np.ones((len(x), p.n_rotors))
@@ -99,7 +99,7 @@ class NumpyTwin:
         return np.hstack([v, acc, qdot, wdot, omdot]), np.sum(qdrag * om, 1)
 
     def rk4(self, x: np.ndarray, u: np.ndarray, env: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        g = self.gain(x, env)  # held over the step's stages, as uam_fdm.model.rk4_step_expr holds it
+        g = self.gain(x, env)  # held over the step's stages, as uam_fdm.vehicle.model.rk4_step_expr holds it
         k1, e1 = self.f(x, u, env, g)
         k2, e2 = self.f(x + 0.5 * dt * k1, u, env, g)
         k3, e3 = self.f(x + 0.5 * dt * k2, u, env, g)

@@ -41,7 +41,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from compare.report import read_reward_curve
+from compare.viz.report import read_reward_curve
 from rl.agent import load_policy
 from rl.evaluation import evaluate
 from rl.train import Curriculum, TrainConfig, train

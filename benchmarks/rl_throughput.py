@@ -36,7 +36,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from compare.report import read_reward_curve
+from compare.viz.report import read_reward_curve
 from rl.agent import DEFAULT_POLICY_DIR
 from rl.env import UAMNavEnv
 from rl.nav import NavConfig, NavWorld

@@ -1,7 +1,7 @@
 """The classical pilot's tracking error per vehicle and air, measured closed loop: the margin table.
 
 Flies `planners.agent.ClassicalAgent` (fixed margins, no replanning: the tracker as it is) through
-the comparison's own runner (`compare.runner.run_episode`, 500 Hz physics, 50 Hz decisions) on
+the comparison's own runner (`compare.episode_loop.run_episode`, 500 Hz physics, 50 Hz decisions) on
 generated cities and legs from the learned pilot's **validation** pool of each vehicle
 (`rl.tasks.task_for(vehicle)`, `rl.evaluation.eval_config(..., pool="validation")`: city i of the
 pool, a leg drawn from the vehicle's task distribution with its own seed, a steady wind up to the
@@ -38,7 +38,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from planners.margins import DEFAULT_TABLE_PATH, TrackingErrorRow, write_tracking_table  # noqa: E402
-from uam_fdm.wind import TurbulenceLevel  # noqa: E402
+from uam_fdm.air.wind import TurbulenceLevel  # noqa: E402
 
 # (name, field elevation [m], ISA offset [K]): sea level, and the full set's hot-and-high field
 AIRS = {"sea_level": (0.0, 0.0), "hot_high": (2500.0, 25.0)}
@@ -68,7 +68,7 @@ def _validation_task(vehicle: str, index: int, seed: int):
     """City `index` of the vehicle's validation pool, a leg and a steady wind drawn from (seed, index)."""
     from rl.evaluation import eval_config
     from rl.tasks import task_for
-    from uam_fdm.params import load_vehicle
+    from uam_fdm.vehicle.params import load_vehicle
 
     nav = eval_config(task_for(vehicle), index + 1, pool="validation")
     tasks = nav.tasks
@@ -89,12 +89,12 @@ _AGENTS: dict = {}
 
 def fly(job: Job) -> dict:
     """Fly one episode; its deviations from the reference and its outcome."""
-    from compare.runner import run_episode
+    from compare.episode_loop import run_episode
     from planners.agent import ClassicalAgent, ClassicalConfig
-    from uam_fdm.agent import World
-    from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
-    from uam_fdm.dynamics import VehicleDynamics
-    from uam_fdm.wind import WindConditions, WindField, probe_heights_up_to
+    from uam_fdm.pilot import World
+    from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+    from uam_fdm.vehicle.dynamics import VehicleDynamics
+    from uam_fdm.air.wind import WindConditions, WindField, probe_heights_up_to
 
     p, city, city_seed, task, steady = _validation_task(job.vehicle, job.index, job.seed)
     key = (job.vehicle, job.adaptive)
@@ -123,8 +123,8 @@ def fly(job: Job) -> dict:
 
 def table_rows(results: list[dict]) -> list[TrackingErrorRow]:
     """Pooled percentiles per (vehicle, turbulence, air)."""
-    from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
-    from uam_fdm.params import load_vehicle
+    from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+    from uam_fdm.vehicle.params import load_vehicle
 
     rows = []
     for vehicle, turbulence, air in CONDITIONS:

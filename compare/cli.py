@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from uam_fdm.params import preset_names
+from uam_fdm.vehicle.params import preset_names
 
 INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 
@@ -32,8 +32,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_maps(args: argparse.Namespace) -> int:
-    from compare.outputs import check_output_dir
-    from uam_fdm.city_plot import render_named_maps
+    from compare.results.outputs import check_output_dir
+    from uam_fdm.city.plot import render_named_maps
 
     check_output_dir(Path(args.out_dir), "OUT_DIR")
     for path in render_named_maps(args.out_dir):
@@ -78,8 +78,8 @@ def _one_torch_thread() -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     import os
 
-    from compare.outputs import check_output_dir
-    from compare.run import RunInterrupted, RunOptions, estimate_run, run_comparison
+    from compare.results.outputs import check_output_dir
+    from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
     from compare.scenario import METHODS, resolve_scenarios, seeds_problem
 
     if args.methods is not None:
@@ -125,7 +125,7 @@ def _print_summary(run_dir: Path) -> None:
     """Per scenario (vehicles differ between scenarios, so their energies do not average): one row per method."""
     import json
 
-    from compare.metrics import methods_table
+    from compare.results.metrics import methods_table
 
     summary = json.loads((run_dir / "summary.json").read_text())
     wanted = ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")
@@ -147,7 +147,7 @@ def _print_summary(run_dir: Path) -> None:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from compare.run import finalize
+    from compare.campaign import finalize
 
     run_dir = finalize(args.run_dir)
     _print_summary(run_dir)
@@ -163,10 +163,10 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
-    from compare.animate import AnimationOptions, render_animation, render_videos
-    from compare.flights import flight_groups, select_group
-    from compare.outputs import check_output_dir, check_output_file
-    from compare.run import VIDEOS_DIR
+    from compare.viz.animate import AnimationOptions, render_animation, render_videos
+    from compare.viz.flights import flight_groups, select_group
+    from compare.results.outputs import check_output_dir, check_output_file
+    from compare.campaign import VIDEOS_DIR
 
     w, h = args.size
     opts = AnimationOptions(fps=args.fps, duration_s=args.duration, width_px=w, height_px=h, orbit_deg=args.orbit)
@@ -190,8 +190,8 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from compare.outputs import check_output_file
-    from compare.viewer import VIEWER_NAME, build_viewer
+    from compare.results.outputs import check_output_file
+    from compare.viz.viewer import VIEWER_NAME, build_viewer
 
     check_output_file(args.out if args.out is not None else args.run_dir / VIEWER_NAME, "--out")
     print(build_viewer(args.run_dir, args.out))

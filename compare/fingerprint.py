@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from compare.scenario import Scenario
-from uam_fdm.version import code_version
+from uam_fdm.files.version import code_version
 
 POLICY_FILES = ("model.zip", "obs_norm.npz", "config.json")  # what the learned pilot flies with
 # Words for the parts of a scenario's fingerprint, in the error that lists differences.

@@ -7,14 +7,14 @@ the field (ground at z = 0), seconds, SI units::
     name: suburb-quad          # required. [A-Za-z0-9_.-]+, at most 100 characters, not "." or "..",
                                #   no "__" (it separates the fields of output file names); names the results
     description: "..."         # optional free text
-    map: {named: suburb}       # required. Anything `uam_fdm.mapfile.map_from_config` accepts:
+    map: {named: suburb}       # required. Anything `uam_fdm.city.mapfile.map_from_config` accepts:
                                #   {named: suburb|downtown|canyon}, {buildings: [{center: [x, y] m,
                                #   size: [w, d] m, height: h m, yaw_deg: a}, ...]}, {generator:
                                #   {seed: N, ...}}, {geojson: file (relative to this file), ...},
                                #   each with optional no_fly: [{center, size, z_range: [z0, z1] m}]
     bounds: {min: [x, y, z], max: [x, y, z]}   # optional flight volume [m] (default: the map's
                                #   own; required with map.buildings and map.geojson)
-    vehicle: small_quad        # required. A preset name (`uam_fdm.params.preset_names()`), a path
+    vehicle: small_quad        # required. A preset name (`uam_fdm.vehicle.params.preset_names()`), a path
                                #   to a vehicle YAML (relative to this file), or an inline mapping
                                #   of vehicle parameters (the preset format)
     atmosphere:                # optional; every key optional, defaults shown
@@ -23,7 +23,7 @@ the field (ground at z = 0), seconds, SI units::
       wind_mps: [0, 0, 0]      #   steady wind, ENU [m/s] (where the air moves to), |w| <= 60, at
                                #   wind_reference_height_m above the field
       wind_reference_height_m: 10   # height of wind_mps above the field [m], in [1, 300]
-      wind_shear: {law: uniform}    # steady wind over height z (`uam_fdm.shear`): uniform (the same
+      wind_shear: {law: uniform}    # steady wind over height z (`uam_fdm.air.shear`): uniform (the same
                                #   everywhere), {law: power, exponent: a} (u ~ (z/z_ref)^a, a in
                                #   [0, 0.6]; about 0.28 towns, 0.40 city centres) or {law: log,
                                #   roughness_m: z0} (u ~ ln(z/z0), z0 in [0.001, 3] m; about 0.5-1 m
@@ -74,22 +74,22 @@ from typing import Any
 
 import numpy as np
 
-from uam_fdm.agent import Task
-from uam_fdm.atmosphere import (
+from uam_fdm.pilot import Task
+from uam_fdm.air.atmosphere import (
     ELEVATION_RANGE_M,
     ISA_OFFSET_RANGE_K,
     Atmosphere,
     AtmosphereConditions,
     checked_number,
 )
-from uam_fdm.city import BuildingMap
-from uam_fdm.dynamics import control_ratio_problem, motor_lag_problem
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
 from uam_fdm.errors import ConfigError
-from uam_fdm.mapfile import map_from_config
-from uam_fdm.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
-from uam_fdm.shear import EXPONENT_RANGE, REFERENCE_HEIGHT_RANGE_M, ROUGHNESS_RANGE_M, ShearLaw, WindShear
-from uam_fdm.wind import TurbulenceLevel, WindConditions
-from uam_fdm.yamlfile import load_yaml_file
+from uam_fdm.city.mapfile import map_from_config
+from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
+from uam_fdm.air.shear import EXPONENT_RANGE, REFERENCE_HEIGHT_RANGE_M, ROUGHNESS_RANGE_M, ShearLaw, WindShear
+from uam_fdm.air.wind import TurbulenceLevel, WindConditions
+from uam_fdm.files.yamlfile import load_yaml_file
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 METHODS = ("ppo", "rrt_mpc")

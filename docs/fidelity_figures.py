@@ -16,9 +16,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from uam_fdm import ground_effect as ge  # noqa: E402
-from uam_fdm.city_plot import save_figure  # noqa: E402
-from uam_fdm.wind import (  # noqa: E402
+from uam_fdm.vehicle import ground_effect as ge  # noqa: E402
+from uam_fdm.city.plot import save_figure  # noqa: E402
+from uam_fdm.air.wind import (  # noqa: E402
     PROBE_HEIGHTS_M,
     ShearLaw,
     TurbulenceLevel,

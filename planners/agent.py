@@ -1,6 +1,6 @@
 """The classical pilot: plan once with OMPL RRT* (timed), time-parameterise, track with NMPC.
 
-Implements the `uam_fdm.agent.Agent` protocol and emits rotor-speed commands. Its clearance margins
+Implements the `uam_fdm.pilot.Agent` protocol and emits rotor-speed commands. Its clearance margins
 follow from the vehicle's measured tracking error in the forecast turbulence and the air density
 (`planners.margins`). It replans from the current position when the tracking error exceeds a
 threshold, or when the MPC's last prediction comes closer to an obstacle than the MPC's margin
@@ -28,7 +28,7 @@ from planners.margins import (
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.rrt_star import PlannerConfig, PlanResult, plan_path
 from planners.timing import Reference, TimingLimits, endpoint_allowance, time_parameterize
-from uam_fdm.agent import Observation, ResetInfo, RotorCommand, Task, World
+from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +128,7 @@ class ClassicalAgent:
 
     Args:
         config: pilot settings.
-        cache_dir: cache for the compiled MPC (default `uam_fdm.codegen.default_cache_dir()`).
+        cache_dir: cache for the compiled MPC (default `uam_fdm.vehicle.codegen.default_cache_dir()`).
     """
 
     name = "rrt_mpc"

@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uam_fdm.params import VehicleParams
-from uam_fdm.wind import TurbulenceLevel, milspec_low_altitude
+from uam_fdm.vehicle.params import VehicleParams
+from uam_fdm.air.wind import TurbulenceLevel, milspec_low_altitude
 
 log = logging.getLogger(__name__)
 
@@ -225,7 +225,7 @@ def load_tracking_table(path: Path | str = DEFAULT_TABLE_PATH) -> TrackingErrorT
 
 def write_tracking_table(rows: Sequence[TrackingErrorRow], provenance: Mapping[str, object], path: Path) -> Path:
     """Write a table readable by `load_tracking_table` (atomically)."""
-    from uam_fdm.atomic import write_text_atomic
+    from uam_fdm.files.atomic import write_text_atomic
 
     out = {"format_version": TABLE_FORMAT_VERSION, "provenance": dict(provenance),
            "rows": [{"vehicle": r.vehicle, "fingerprint": r.fingerprint, "turbulence": r.turbulence.value,

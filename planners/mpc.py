@@ -1,6 +1,6 @@
 """Nonlinear MPC tracker: reference (position, velocity, heading) -> rotor-speed commands.
 
-Built from the same CasADi expression as the simulator (`uam_fdm.model.dynamics_expr`), with two
+Built from the same CasADi expression as the simulator (`uam_fdm.vehicle.model.dynamics_expr`), with two
 documented reductions chosen automatically:
 
 * Inputs. With four rotors the MPC decides each rotor's speed (``input_mode="rotors"``). With more
@@ -32,7 +32,7 @@ radius plus a margin (computed by the agent from the city; inactive ones are 0 â
 Solvers: ``"rti"`` (the default), the real-time iteration of `planners.rti`: one Gauss-Newton SQP
 step per decision on the stage-structured QP, solved by HPIPM; or the NLP solvers ipopt (the
 reference it is tested against), fatrop (structure-exploiting interior point) and sqpmethod. Their
-functions are generated as C, compiled once and cached on disk (`uam_fdm.codegen`); without a
+functions are generated as C, compiled once and cached on disk (`uam_fdm.vehicle.codegen`); without a
 compiler they run on CasADi's virtual machine.
 """
 from __future__ import annotations
@@ -51,9 +51,9 @@ import numpy as np
 
 from planners.mpc_ocp import MPCWeights, OcpLayout, PredictionModel, build_tracking_ocp, pack_parameters
 from planners.rti import QP_SOLVERS, GaussNewtonRTI, merit_data_function, qp_data_function
-from uam_fdm.codegen import compile_source
-from uam_fdm.model import FAR_FROM_SURFACES_M, make_env
-from uam_fdm.params import VehicleParams
+from uam_fdm.vehicle.codegen import compile_source
+from uam_fdm.vehicle.model import FAR_FROM_SURFACES_M, make_env
+from uam_fdm.vehicle.params import VehicleParams
 
 log = logging.getLogger(__name__)
 
@@ -157,7 +157,7 @@ class MPCTracker:
     Args:
         params: the vehicle.
         config: MPC settings.
-        cache_dir: cache for the compiled functions (default `uam_fdm.codegen.default_cache_dir()`).
+        cache_dir: cache for the compiled functions (default `uam_fdm.vehicle.codegen.default_cache_dir()`).
     """
 
     def __init__(self, params: VehicleParams, config: MPCConfig | None = None,

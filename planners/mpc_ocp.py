@@ -1,7 +1,7 @@
 """The NMPC's optimal-control problem, written once in a stage-wise layout for every solver.
 
 The prediction model comes from the same CasADi expression as the simulator
-(`uam_fdm.model.dynamics_expr`, one RK4 step per interval through `uam_fdm.model.rk4_expr`), with
+(`uam_fdm.vehicle.model.dynamics_expr`, one RK4 step per interval through `uam_fdm.vehicle.model.rk4_expr`), with
 the two reductions documented in `planners.mpc` (wrench inputs above four rotors, motor lag kept
 only when it is slow against a step).
 
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from uam_fdm.model import N_ENV, dynamics_expr, rk4_expr
-from uam_fdm.params import VehicleParams
+from uam_fdm.vehicle.model import N_ENV, dynamics_expr, rk4_expr
+from uam_fdm.vehicle.params import VehicleParams
 
 
 # The tilt limit as a polygon in (q_x, q_y): the tilt θ satisfies cos θ = 1 − 2(q_x² + q_y²), a disc of

@@ -31,7 +31,7 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from planners.timing import endpoint_allowance
-from uam_fdm.city import BuildingMap
+from uam_fdm.city.buildings import BuildingMap
 
 logger = logging.getLogger(__name__)
 

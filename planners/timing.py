@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.city import BuildingMap
-from uam_fdm.params import GRAVITY_M_S2, VehicleParams
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams
 
 logger = logging.getLogger(__name__)
 

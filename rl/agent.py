@@ -7,7 +7,7 @@ At reset it computes the task's geodesic route field (timed, reported as plannin
 a `VelocityCommand` held for the policy's decision period (e.g. 5 control periods at 10 Hz), which
 the runner flies through the same low-level controller, period by period, with the same end
 rules the environment applies; so an episode flown through the runner is bit-identical to the
-environment's (tests/test_rl_agent.py).
+environment's (tests/rl/test_rl_agent.py).
 """
 from __future__ import annotations
 
@@ -25,9 +25,9 @@ from rl.perception import Perception
 from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
 from rl.route import RouteBank, grid_shape
 from rl.train import normalize_obs
-from uam_fdm.agent import Observation, ResetInfo, Task, VelocityCommand, World
-from uam_fdm.city import BuildingMap
-from uam_fdm.params import VehicleParams, load_vehicle
+from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 DEFAULT_POLICY_DIR = Path(__file__).parent / "policies" / "default"
 # The shipped policies, by the vehicle preset each was trained for (its config.json says so too).
@@ -113,7 +113,7 @@ class _CitySenses:
 
 
 class PolicyAgent:
-    """The learned pilot (implements `uam_fdm.agent.Agent`).
+    """The learned pilot (implements `uam_fdm.pilot.Agent`).
 
     Args:
         policy: a loaded `Policy`, a policy folder, or None for the shipped policy.

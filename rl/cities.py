@@ -1,6 +1,6 @@
 """The learned pilot's world distribution: procedurally generated cities and start/goal pairs.
 
-Every training or evaluation city is `uam_fdm.citygen.generate_city` with generator parameters
+Every training or evaluation city is `uam_fdm.city.generator.generate_city` with generator parameters
 drawn from one seed, so a city is named by an integer and the same seed gives the same city on
 any machine. Training draws from one seed range, evaluation from a disjoint one (held-out
 cities): `TRAIN_SEEDS` and `EVAL_SEEDS`.
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.agent import Task
-from uam_fdm.city import Building, BuildingMap
-from uam_fdm.citygen import CityGenParams, generate_city
+from uam_fdm.pilot import Task
+from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.city.generator import CityGenParams, generate_city
 
 TRAIN_SEEDS = range(100_000)
 EVAL_SEEDS = range(1_000_000, 1_100_000)

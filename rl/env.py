@@ -80,7 +80,7 @@ class UAMNavEnv(gym.Env):
         from matplotlib.backends.backend_agg import FigureCanvasAgg  # an explicit canvas: no backend to choose
         from matplotlib.figure import Figure
 
-        from uam_fdm.city_plot import draw_map_topdown
+        from uam_fdm.city.plot import draw_map_topdown
 
         city = self.world.cities[int(self.batch.city[0])]
         fig = Figure(figsize=(4, 4), dpi=80)

@@ -32,15 +32,15 @@ from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
 from rl.route import RouteBank, RouteConfig, grid_shape, route_field
 from rl.sensor import BoxSensor
 from uam_fdm import episode
-from uam_fdm.agent import Task
-from uam_fdm.atmosphere import Atmosphere, AtmosphereConditions
-from uam_fdm.city import BuildingMap
-from uam_fdm.dynamics import VehicleDynamics
-from uam_fdm.model import hover_state
-from uam_fdm.params import GRAVITY_M_S2, VehicleParams, load_vehicle
-from uam_fdm.ground_effect import height_above_surface, range_m as ground_effect_range_m
+from uam_fdm.pilot import Task
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.vehicle.dynamics import VehicleDynamics
+from uam_fdm.vehicle.model import hover_state
+from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle
+from uam_fdm.vehicle.ground_effect import height_above_surface, range_m as ground_effect_range_m
 from uam_fdm.sim import BatchSimulator
-from uam_fdm.wind import GustStack, TurbulenceLevel, WindBank, WindConditions, WindField, gust_stack, probe_heights_up_to
+from uam_fdm.air.wind import GustStack, TurbulenceLevel, WindBank, WindConditions, WindField, gust_stack, probe_heights_up_to
 
 OUTCOMES = episode.OUTCOMES
 
@@ -63,7 +63,7 @@ class NavConfig:
         turbulence: turbulence level (none/light/moderate/severe).
         steady_wind_max_m_s: steady horizontal wind speed drawn uniformly in [0, this] [m/s].
         wind_pool_size: turbulence stacks (series at the probe heights up to the cities' ceiling,
-            `uam_fdm.wind.gust_stack`) shared by all episodes (each episode starts at a random sample
+            `uam_fdm.air.wind.gust_stack`) shared by all episodes (each episode starts at a random sample
             of one); wind_series_s: length of each [s]. The steady wind is uniform with height.
         reward: reward weights.
     """

@@ -37,7 +37,7 @@ times larger and faster sees its world at its own scale (`rl.tasks`).
 Action: a = (a_x', a_y', a_z) in [-1, 1]³ in the goal frame: horizontal velocity command
 (a_x', a_y') x max horizontal speed (its norm clipped to the max speed) rotated to the world, and
 vertical a_z x max vertical speed. The heading is held at the episode's start yaw. The low-level
-controller (`uam_fdm.control`) turns the velocity command into rotor speeds at the physics rate;
+controller (`uam_fdm.vehicle.control`) turns the velocity command into rotor speeds at the physics rate;
 the command is held for the whole decision period (several control periods).
 """
 from __future__ import annotations
@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rl.perception import PerceptionConfig, PerceptionReading
-from uam_fdm.params import VehicleParams
+from uam_fdm.vehicle.params import VehicleParams
 
 N_BASE = 18
 OBS_CLIP = 10.0
@@ -146,7 +146,7 @@ def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarra
     """Observations (N, obs_size) float32 (see the module table).
 
     Args:
-        x: states (N, 13 + n) (see `uam_fdm.model`).
+        x: states (N, 13 + n) (see `uam_fdm.vehicle.model`).
         goal_m: goals (N, 3) ENU [m].
         heading_rad: goal-frame headings (N,) [rad].
         route_m: geodesic distance-to-go Φ (N,) [m]; route_dir: its world direction (N, 2).

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.city import Building, BuildingMap
+from uam_fdm.city.buildings import Building, BuildingMap
 
 _EPS_M = 1e-6  # widening of build-time overlap and distance tests [m] (keeps them conservative)
 _TOL_M = 1e-7  # shrinking of the height map's query boxes [m] (well within _EPS_M)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uam_fdm.atomic import atomic_open
+from uam_fdm.files.atomic import atomic_open
 
 OBS_NORM_KEYS = ("mean", "var", "count", "epsilon", "clip_obs")
 VEC_NORM_KEYS = OBS_NORM_KEYS + ("ret_mean", "ret_var", "ret_count", "clip_reward", "gamma")

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 import skfmm
 
-from uam_fdm.city import Building, BuildingMap
+from uam_fdm.city.buildings import Building, BuildingMap
 
 _SEED_CELLS = 1.5    # radius of the goal circle (the march's zero level set) [cells]
 _SEGMENT_SAMPLES = 8  # samples on each goal-to-cell segment when testing line of sight near the goal

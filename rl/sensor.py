@@ -3,7 +3,7 @@
 For each query point (world ENU, metres) in its own city, `BoxSensor.query` returns the K nearest
 distinct buildings within the sensing range (nearest point on each building's surface and the
 signed distance to it) and the clearance to buildings and the ground. Distances are the exact
-point-to-box formula used by `uam_fdm.city.BuildingMap.clearance` (which agrees with FCL to
+point-to-box formula used by `uam_fdm.city.buildings.BuildingMap.clearance` (which agrees with FCL to
 ~1e-12 m; tests/test_rl_sensor.py checks this sensor against FCL directly).
 
 Speed comes from a per-city grid: each cell of `cell_m` lists every building whose footprint
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.city import Building, BuildingMap
+from uam_fdm.city.buildings import Building, BuildingMap
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ runner always fly a policy in the task it learned.
 decisions at 10 Hz (a decision is 0.1 s, a quarter of the velocity loop's 0.4 s time constant).
 
 **uam_multicopter** (VoloCity-sized, 900 kg, 6 m collision radius, 30.5 m/s, 25 deg tilt, 2.5 m/s
-climb, 0.12 s motor lag; `uam_fdm/presets/uam_multicopter.yaml`). Everything follows from its
+climb, 0.12 s motor lag; `uam_fdm/vehicle/presets/uam_multicopter.yaml`). Everything follows from its
 stopping distance and its slow loops:
 
 * Braking from cruise at the tilt limit takes v² / (2 g tan 25°) = 30.5² / 9.1 = 102 m, plus ~1.25 s

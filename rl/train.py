@@ -40,8 +40,8 @@ from rl.nav import NavConfig, NavWorld
 from rl.policy import TanhMeanPolicy
 from rl.policy_file import load_model_for_resume, restore_vec_normalize, save_obs_norm, save_vec_normalize
 from rl.vec_env import UAMNavVecEnv
-from uam_fdm.atomic import atomic_path, write_text_atomic
-from uam_fdm.version import code_version
+from uam_fdm.files.atomic import atomic_path, write_text_atomic
+from uam_fdm.files.version import code_version
 
 CURVE_COLUMNS = ("timesteps", "mean_episode_reward", "train_success_rate", "train_collision_rate",
                  "train_timeout_rate", "train_episodes", "difficulty", "success_rate", "collision_rate",

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from uam_fdm.dynamics import VehicleDynamics
-from uam_fdm.params import VehicleParams, load_vehicle
+from uam_fdm.vehicle.dynamics import VehicleDynamics
+from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 PRESETS = ("small_quad", "uam_multicopter")
 

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.atmosphere import Atmosphere
-from uam_fdm.control import N_CTRL_STATE
-from uam_fdm.dynamics import PeriodResult, VehicleDynamics
-from uam_fdm.wind import WindBank, WindField
+from uam_fdm.air.atmosphere import Atmosphere
+from uam_fdm.vehicle.control import N_CTRL_STATE
+from uam_fdm.vehicle.dynamics import PeriodResult, VehicleDynamics
+from uam_fdm.air.wind import WindBank, WindField
 
 
 def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray | float,
@@ -30,7 +30,7 @@ def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray
     altitude at the period's start (the caller passes it: `WindField.wind_enu_m_s(t + T/2, z)` or
     `WindBank.wind_enu_m_s`), the density ratio at the vehicle's altitude at the period's start (clamped to the table), and
     the height above the surface below at the period's start (the caller's, from
-    `uam_fdm.ground_effect.height_above_surface`; None: open ground at z = 0, so h = z).
+    `uam_fdm.vehicle.ground_effect.height_above_surface`; None: open ground at z = 0, so h = z).
 
     Args:
         atmosphere: the density table.

@@ -1,0 +1,572 @@
+"""A comparison run: every (scenario, episode, seed, method) cell flown, saved, scored and reported.
+
+`run_comparison(scenarios, options)` writes a run folder:
+
+```
+RUN_DIR/run.json        provenance: scenarios, methods, software versions, fairness statement, command
+RUN_DIR/maps/*.yaml     the city of each scenario (reports never need the scenario files again)
+RUN_DIR/episodes/*.npz  one per cell (`compare.results.trajectory`), written atomically as each finishes
+RUN_DIR/metrics.csv     one row per cell (`compare.results.metrics`)
+RUN_DIR/summary.json    per-method means with 95 % bootstrap intervals, paired differences
+RUN_DIR/report.pdf      the report (`compare.viz.report`); RUN_DIR/figures/*.png its pages
+```
+
+Cells are independent and seeded from the cell alone (`compare.seeding`), so they run in any order
+in any number of processes (`jobs`) with the same results. An interrupted run keeps every episode
+finished so far; `finalize(RUN_DIR)` (the `report` command) rescores and reports them (an unreadable
+episode file is skipped with a warning and listed in the report), and `resume=True` flies only the
+missing cells, after checking that the folder is a run saved from the same inputs (`compare.fingerprint`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from compare.fingerprint import check_resume, run_fingerprints
+from compare.results.metrics import (
+    episode_metrics,
+    read_metrics_csv,
+    summarize,
+    write_metrics_csv,
+    write_summary_json,
+)
+from compare.episode_loop import run_episode
+from compare.scenario import Scenario
+from compare.seeding import cell_seed
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
+from uam_fdm.files.atomic import write_text_atomic
+
+log = logging.getLogger(__name__)
+
+METHOD_LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
+METHOD_DESCRIPTIONS = {
+    "ppo": "Learned pilot: policy network (2 x 128 tanh units, trained from scratch with PPO, no demonstrations; "
+           "see its provenance) choosing a 3D velocity command at its decision rate (held between decisions) "
+           "-> the vehicle's low-level velocity/attitude controller -> rotor speeds; sees only its local "
+           "observation (goal frame, horizontal rays and a roof-height map at its vehicle's scale, the route around "
+           "the buildings); one policy per vehicle, trained for it; "
+           "acts deterministically.",
+    "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
+               "reference -> CasADi NMPC (real-time iteration: one Gauss-Newton SQP step per decision, HPIPM) "
+               "commanding rotor speeds (through the wrench for many-rotor vehicles); clearance margins sized from "
+               "the vehicle's measured tracking error in the forecast turbulence and air density; replanning on "
+               "large tracking errors and when the MPC predicts it will come closer than its margin.",
+}
+FAIRNESS = (
+    "Both pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics rate; "
+    "the classical pilot decides at the scenario's control rate, the learned pilot at its policy's decision rate "
+    "(its command held by the same low-level controller in between; both rates are in run.json), and each "
+    "decision is timed with the same stopwatch. Both know the vehicle's parameters, the building map, the air "
+    "density, the forecast turbulence level (none/light/moderate/severe: the classical pilot sizes its clearance "
+    "margins from it, the learned pilot does not use it) and the full vehicle state at each decision (perfect "
+    "state estimation). Neither knows the wind: both "
+    "fly the same seeded steady wind and turbulence realisation in each episode. The classical pilot plans on the "
+    "whole map before take-off and when it replans (its planning time is reported separately) and commands rotor "
+    "speeds through its "
+    "MPC; the learned pilot sees only its observation (goal, a route around the buildings computed from the map "
+    "at take-off, velocity, altitude, rays and a roof-height map of the buildings near it) and commands a "
+    "velocity that the vehicle's low-level controller turns into rotor speeds. Clearance is measured at every "
+    "physics step from the vehicle's collision sphere to the buildings and the ground."
+)
+VIDEOS_DIR = "videos"  # the run's animations, one file per animated cell
+# Upper-bound planning figures for `estimate_run` [wall s per simulated s, one process]: the tests'
+# tiny run flies at 0.15 (ppo) and 0.35 (rrt_mpc, small quad); the UAM's MPC is slower than real time.
+WALL_S_PER_FLIGHT_S = {"ppo": 0.2, "rrt_mpc": 1.0}
+WARN_RUN_HOURS = 3.0  # the CLI warns above these estimates before flying
+WARN_RUN_GB = 3.0
+SOLVER_FAILURE_SHARE = 0.25  # a failed classical episode with >= this share of failed MPC solves: "solver_failure"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One episode to fly: scenario (index into the run's list), episode index, seed and method."""
+
+    scenario: int
+    episode: int
+    seed: int
+    method: str
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How to run.
+
+    Attributes:
+        out_dir: the run folder.
+        methods: only these methods (None: each scenario's own list).
+        seeds: override every scenario's seeds (None: the scenarios' own).
+        policies: the learned pilot's policy folders, at most one per vehicle (each records the
+            vehicle it was trained for); a vehicle without one flies its shipped policy, if any.
+        jobs: parallel processes (1: in this process).
+        resume: skip cells whose episode file already exists; refuse a folder that is not a run of this
+            tool or was saved from other inputs (`compare.fingerprint.check_resume`).
+        progress: show a progress bar.
+        command: the command line, for provenance.
+        report: build the PDF report and the HTML viewer at the end.
+        videos: which cells to animate into `videos/` at the end: "scenario" (the first cell of each
+            scenario), "all" or "none" (see `compare.viz.animate.render_videos`).
+    """
+
+    out_dir: Path
+    methods: tuple[str, ...] | None = None
+    seeds: tuple[int, ...] | None = None
+    policies: tuple[Path, ...] = ()
+    jobs: int = 1
+    resume: bool = False
+    progress: bool = True
+    command: str = ""
+    report: bool = True
+    videos: str = "scenario"
+
+
+@dataclass(frozen=True)
+class PolicyFacts:
+    """What a run needs to know of the learned pilot's policy before flying.
+
+    Attributes:
+        folder: the policy folder.
+        vehicle: the name of the vehicle it was trained for (its config.json's nav.vehicle).
+        vehicle_fingerprint: `VehicleParams.fingerprint()` of the vehicle it was trained for.
+        control_hz: the low-level controller rate it was trained with [Hz].
+        decision_hz: the rate at which it chooses a command [Hz] (held for the control periods between).
+    """
+
+    folder: Path
+    vehicle: str
+    vehicle_fingerprint: str
+    control_hz: float
+    decision_hz: float
+
+
+def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
+               policies: Mapping[str, PolicyFacts] | None) -> tuple[list[Cell], list[str]]:
+    """The cells to fly, in a fixed order, and notes on cells left out (e.g. no policy for a vehicle).
+
+    `policies`: the learned pilot's policies by vehicle fingerprint (`select_policies`); None: not
+    known yet (an estimate), every ppo cell is kept.
+
+    Raises:
+        ValueError: a scenario that flies the learned pilot runs its controller at another rate than
+            the policy was trained with (the policy's decisions would be held for the wrong time).
+    """
+    cells, notes = [], []
+    for si, sc in enumerate(scenarios):
+        methods = [m for m in sc.methods if opts.methods is None or m in opts.methods]
+        policy = policies.get(sc.vehicle.fingerprint()) if policies is not None else None
+        if "ppo" in methods and policies is not None and policy is None:
+            methods.remove("ppo")
+            notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} (none shipped, none "
+                         f"given with --policy); ppo not flown")
+        if "ppo" in methods and policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
+            raise ValueError(
+                f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
+                f"{policy.control_hz:g} Hz controller (its config.json, nav.control_hz); fly this scenario at "
+                f"{policy.control_hz:g} Hz, without ppo (--methods rrt_mpc), or with a policy trained for it")
+        seeds = opts.seeds if opts.seeds is not None else sc.seeds
+        for ep in sc.episodes:
+            for seed in seeds:
+                for m in methods:
+                    cells.append(Cell(si, ep.index, int(seed), m))
+    return cells, notes
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """Upper bounds of what a run costs, every episode flown to its timeout.
+
+    Attributes:
+        cells: episodes to fly (scenario x episode x seed x method).
+        flight_s: simulated flight time of all cells [s].
+        wall_h: wall time with `jobs` processes [h] (WALL_S_PER_FLIGHT_S per simulated second).
+        disk_gb: episode files, uncompressed [GB] (float64 time, state, commands, wind, clearance per physics step).
+    """
+
+    cells: int
+    flight_s: float
+    wall_h: float
+    disk_gb: float
+
+    @property
+    def large(self) -> bool:
+        """More than WARN_RUN_HOURS or WARN_RUN_GB."""
+        return self.wall_h > WARN_RUN_HOURS or self.disk_gb > WARN_RUN_GB
+
+
+def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate:
+    """Estimate a run's time and disk from its scenarios and options, without flying or loading a policy."""
+    cells, _ = plan_cells(scenarios, opts, None)
+    flight_s = wall_s = n_bytes = 0.0
+    for c in cells:
+        sc = scenarios[c.scenario]
+        t = sc.episodes[c.episode].task.timeout_s
+        flight_s += t
+        wall_s += t * WALL_S_PER_FLIGHT_S.get(c.method, max(WALL_S_PER_FLIGHT_S.values()))
+        n = sc.vehicle.n_rotors
+        n_bytes += t * sc.physics_hz * 8 * (1 + (13 + n) + n + 3 + 1)  # t, state, commands, wind, clearance
+    workers = max(1, min(opts.jobs, os.cpu_count() or 1))
+    return RunEstimate(len(cells), flight_s, wall_s / workers / 3600.0, n_bytes / 1e9)
+
+
+def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
+    return EpisodeKey(scenarios[c.scenario].name, c.episode, c.method, c.seed)
+
+
+class CellRunner:
+    """Flies cells; holds per-process caches (worlds per scenario, one agent per method)."""
+
+    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path]) -> None:
+        """`policies`: the learned pilot's policy folder by vehicle fingerprint."""
+        self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
+        self._worlds: dict[int, object] = {}
+        self._dynamics: dict[tuple, object] = {}
+        self._agents: dict[tuple[str, str], object] = {}
+
+    def world(self, si: int):
+        from uam_fdm.pilot import World
+        from uam_fdm.air.atmosphere import Atmosphere
+        from uam_fdm.vehicle.dynamics import VehicleDynamics
+
+        if si not in self._worlds:
+            sc = self.scenarios[si]
+            key = (sc.vehicle.fingerprint(), sc.physics_hz, sc.control_hz)
+            if key not in self._dynamics:
+                self._dynamics[key] = VehicleDynamics(sc.vehicle, sc.physics_hz, sc.control_hz)
+            top = float(sc.city.bounds_max_m[2]) + 100.0
+            atm = Atmosphere.from_jsbsim(sc.atmosphere, z_max_m=top, z_min_m=-50.0)
+            # the forecast turbulence level (a category) is the pilots' to know; its gusts are not
+            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, atm, sc.wind.turbulence)
+        return self._worlds[si]
+
+    def agent(self, method: str, sc: Scenario):
+        """The agent flying `method` in scenario `sc` (the learned pilot: the policy for its vehicle)."""
+        fp = sc.vehicle.fingerprint() if method == "ppo" else ""
+        if (method, fp) not in self._agents:
+            if method == "ppo":
+                from rl.agent import PolicyAgent, load_policy
+                if fp not in self.policies:
+                    raise ValueError(f"{sc.source}: no learned policy for vehicle {sc.vehicle_name!r}")
+                self._agents[method, fp] = PolicyAgent(load_policy(self.policies[fp], sc.vehicle))
+            elif method == "rrt_mpc":
+                from planners.agent import ClassicalAgent
+                self._agents[method, fp] = ClassicalAgent()
+            else:
+                raise ValueError(f"unknown method {method!r}")
+        return self._agents[method, fp]
+
+    def run(self, c: Cell) -> Path:
+        from uam_fdm.air.wind import WindField, probe_heights_up_to
+
+        sc = self.scenarios[c.scenario]
+        spec = sc.episodes[c.episode]
+        task = spec.task
+        world = self.world(c.scenario)
+        p = sc.vehicle
+        wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
+        agent_seed = cell_seed(sc.name, c.episode, c.seed, "agent")
+        # one reference probe airspeed per episode; turbulence rungs up to the flight volume's ceiling
+        airspeed = float(np.clip(max(p.controller.max_speed_m_s, np.linalg.norm(sc.wind.steady_enu_m_s)), 1.0, 100.0))
+        heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
+        wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
+        agent = self.agent(c.method, sc)
+        traj = run_episode(world, agent, task, wind, agent_seed)
+        extra: dict = {"wind_seed": wind_seed, "agent_seed": agent_seed,
+                       "torque_coeff_Nm_s2": p.torque_coeff_Nm_s2,
+                       "density_ratio": float(world.atmosphere.density_ratio(task.start_m[2])),
+                       "mean_decision_ms": float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None}
+        plan_time_s = float(traj.plan_time_s)
+        report = agent.episode_report() if hasattr(agent, "episode_report") else None
+        if report is not None:  # the classical pilot: what its tracker did (typed columns of metrics.csv)
+            extra["tracker"] = tracker_extra(report)
+            plan_time_s = float(report.plan_time_s)  # planning at reset plus every replan
+            if (traj.outcome not in ("success", "planner_failure") and report.mpc_solves
+                    and report.mpc_failures >= SOLVER_FAILURE_SHARE * report.mpc_solves):
+                extra["failure_reason"] = "solver_failure"
+        key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
+        meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
+                           start_m=tuple(task.start_m), goal_m=tuple(task.goal_m), goal_radius_m=task.goal_radius_m,
+                           timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
+                           energy_J=float(traj.energy_J), outcome=traj.outcome, plan_time_s=plan_time_s,
+                           detail=traj.detail, extra=extra)
+        return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta, traj)
+
+
+def tracker_extra(report) -> dict:
+    """The classical pilot's end-of-episode report (`planners.agent.ClassicalReport`) as the JSON-ready
+    dict saved in the episode's metadata (`EpisodeMeta.extra["tracker"]`; NaN saved as null)."""
+    out = dataclasses.asdict(report)
+    out["replans"] = report.replans
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
+
+
+class RunInterrupted(Exception):
+    """Ctrl-C or SIGTERM stopped a run; the episodes finished so far are kept.
+
+    Attributes:
+        out_dir: the run folder.
+        kept: episode files in it.
+        cells: episodes the run asked for.
+    """
+
+    def __init__(self, out_dir: Path, kept: int, cells: int) -> None:
+        super().__init__(f"{out_dir}: interrupted with {kept} of {cells} episodes kept")
+        self.out_dir, self.kept, self.cells = out_dir, kept, cells
+
+
+def _fly_in_processes(scenarios: Sequence[Scenario], out: Path, policies: Mapping[str, Path], jobs: int,
+                      todo: Sequence[Cell], bar) -> None:
+    """Fly `todo` in `jobs` worker processes. On any exception here (an interrupt included) the workers are
+    terminated at once: an episode in flight is not written (its temporary file, if any, goes next run)."""
+    import multiprocessing as mp
+
+    # spawn: a fresh interpreter per worker (no copied casadi/ompl/torch state from this process)
+    pool = mp.get_context("spawn").Pool(jobs, initializer=_init_worker, initargs=(list(scenarios), out, dict(policies)))
+    try:
+        for _ in pool.imap_unordered(_run_in_worker, todo):
+            bar.update(1)
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
+
+
+_WORKER: CellRunner | None = None
+
+
+def _init_worker(scenarios: list[Scenario], out_dir: Path, policies: dict[str, Path]) -> None:
+    import signal
+
+    global _WORKER
+    # Ctrl-C reaches the whole process group: the parent alone decides (it terminates the workers), so a
+    # worker neither prints its own traceback nor dies half-way through telling the parent.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if any("ppo" in sc.methods for sc in scenarios):  # this process is ours: one torch thread is fastest
+        import torch
+
+        torch.set_num_threads(1)
+    _WORKER = CellRunner(scenarios, out_dir, policies)
+
+
+def _run_in_worker(c: Cell) -> Path:
+    assert _WORKER is not None
+    return _WORKER.run(c)
+
+
+def _episode_kept(path: Path) -> bool:
+    """On resume: the cell's episode file exists and reads; an unreadable one is flown again (and replaced)."""
+    if not path.exists():
+        return False
+    try:
+        load_episode(path)
+    except ValueError as exc:
+        log.warning("flying again: %s", exc)  # the message names the file
+        return False
+    return True
+
+
+def _remove_stale_temporaries(run_dir: Path) -> None:
+    from uam_fdm.files.atomic import remove_stale_temporaries
+
+    stale = remove_stale_temporaries(run_dir)
+    if stale:
+        log.info("removed %d temporary files left by an interrupted write: %s", len(stale),
+                 ", ".join(str(p.relative_to(run_dir)) for p in stale))
+
+
+def versions() -> dict[str, str]:
+    """Versions of the software that produced a run."""
+    out = {"python": platform.python_version()}
+    for dist in ("uam-compare", "numpy", "casadi", "ompl", "jsbsim", "python-fcl", "shapely", "torch",
+                 "stable-baselines3", "gymnasium", "matplotlib"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    return out
+
+
+def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str],
+                    fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
+    """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, and the learned pilot's
+    policy folders, their vehicles and decision rates) and maps/*.yaml."""
+    from uam_fdm.air.atmosphere import Atmosphere
+    from uam_fdm.city.generator import map_yaml_text
+
+    out = opts.out_dir
+    entries = []
+    for si, sc in enumerate(scenarios):
+        methods = sorted({c.method for c in cells if c.scenario == si})
+        seeds = sorted({c.seed for c in cells if c.scenario == si})
+        p = sc.vehicle
+        rho = Atmosphere.from_jsbsim(sc.atmosphere, z_max_m=50.0, z_min_m=0.0).density_kg_m3(0.0)
+        entries.append({
+            "name": sc.name, "source": str(sc.source), "description": sc.description, "map_name": sc.city.name or sc.name,
+            "vehicle": sc.vehicle_name,
+            "vehicle_summary": f"{p.mass_kg:g} kg, {p.n_rotors} rotors, collision radius {p.collision_radius_m:g} m",
+            "atmosphere": {"elevation_m": sc.atmosphere.elevation_m, "isa_offset_k": sc.atmosphere.isa_offset_k,
+                           "density_kg_m3": round(float(rho), 4)},
+            "wind": {"steady_enu_m_s": list(sc.wind.steady_enu_m_s), "turbulence": sc.wind.turbulence.value,
+                     "shear": sc.wind.shear.to_dict()},
+            "episodes": len(sc.episodes), "seeds": seeds, "methods": methods,
+            "physics_hz": sc.physics_hz, "control_hz": sc.control_hz,
+        })
+        write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
+    methods = sorted({c.method for c in cells})
+    if "ppo" in methods and policies:
+        rates = "; ".join(f"for {p.vehicle} at {p.decision_hz:g} Hz (each command held for "
+                          f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
+        notes = [*notes, f"ppo decides at its policy's rate: {rates}; rrt_mpc at each scenario's control rate"]
+    ppo_cfg = ({"policies": [{"vehicle": p.vehicle, "policy_dir": str(p.folder), "decision_hz": p.decision_hz}
+                             for p in policies]} if policies else {})
+    run = {
+        "format_version": 1, "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": opts.command, "scenarios": entries, "notes": list(notes),
+        "methods": {m: {"label": METHOD_LABELS.get(m, m), "description": METHOD_DESCRIPTIONS.get(m, ""),
+                        **(ppo_cfg if m == "ppo" else {})} for m in methods},
+        "versions": versions(), "fairness": FAIRNESS, "fingerprints": fingerprints,
+    }
+    write_text_atomic(out / "run.json", json.dumps(run, indent=2) + "\n")
+
+
+def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
+    """Fly every cell, then score and report (see the module docstring). Returns the run folder."""
+    from tqdm import tqdm
+
+    from compare.viz.animate import VIDEO_CHOICES
+
+    if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
+        raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
+    scenarios = list(scenarios)
+    policies = select_policies(scenarios, opts)
+    cells, notes = plan_cells(scenarios, opts, policies)
+    if not cells:
+        raise ValueError("nothing to fly: no (scenario, method) left after --methods")
+    out = Path(opts.out_dir)
+    flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if c.method == "ppo"}
+    used = [f for fp, f in policies.items() if fp in flown]
+    fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
+    if opts.resume:  # before anything is written: a refused folder stays as it was
+        fingerprints = check_resume(out, fingerprints)
+    out.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temporaries(out)
+    for n in notes:  # cells left out (also in run.json and the report)
+        log.warning("%s", n)
+    write_run_files(scenarios, opts, cells, notes, fingerprints, used)
+    folders = {f.vehicle_fingerprint: f.folder for f in used}
+    todo = [c for c in cells
+            if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
+    try:
+        if opts.jobs <= 1:
+            runner = CellRunner(scenarios, out, folders)
+            for c in todo:
+                runner.run(c)
+                bar.update(1)
+        else:
+            _fly_in_processes(scenarios, out, folders, opts.jobs, todo, bar)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
+        raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
+    finally:
+        bar.close()
+    log.info("flew %d episodes in %.1f s", len(todo), time.perf_counter() - t0)
+    finalize(out, report=opts.report)
+    if opts.videos != "none":
+        from compare.viz.animate import render_videos
+        from compare.viz.flights import flight_groups
+        groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
+        render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress)
+    return out
+
+
+def policy_facts(policy: Path | None) -> PolicyFacts:
+    """Load the whole policy folder (network, statistics, config) as plain data and return what a run
+    needs of it: a broken or foreign policy is an error before the run folder exists."""
+    from rl.agent import DEFAULT_POLICY_DIR, load_policy
+    from uam_fdm.vehicle.params import load_vehicle
+
+    nav = load_policy(policy).nav
+    return PolicyFacts(Path(policy if policy is not None else DEFAULT_POLICY_DIR).resolve(), nav.vehicle,
+                       load_vehicle(nav.vehicle).fingerprint(), float(nav.control_hz), float(nav.decision_hz))
+
+
+def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str, PolicyFacts]:
+    """The learned pilot's policy for each vehicle that flies ppo, by vehicle fingerprint: the one given
+    with --policy for that vehicle, else the shipped one trained for it (none: ppo is not flown there).
+
+    Raises:
+        ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
+    """
+    from rl.agent import shipped_policy_dir
+
+    if opts.methods is not None and "ppo" not in opts.methods:
+        return {}
+    chosen: dict[str, PolicyFacts] = {}
+    for folder in opts.policies:
+        facts = policy_facts(folder)
+        first = chosen.get(facts.vehicle_fingerprint)
+        if first is not None:
+            raise ValueError(f"--policy {folder}: a second policy for vehicle {facts.vehicle!r} "
+                             f"(the first: {first.folder}); give one per vehicle")
+        chosen[facts.vehicle_fingerprint] = facts
+    for sc in scenarios:
+        fp = sc.vehicle.fingerprint()
+        if "ppo" not in sc.methods or fp in chosen:
+            continue
+        shipped = shipped_policy_dir(sc.vehicle.name)
+        if shipped is not None:
+            facts = policy_facts(shipped)
+            if facts.vehicle_fingerprint == fp:  # a vehicle file that reuses a preset's name is not that preset
+                chosen[fp] = facts
+    return chosen
+
+
+def finalize(run_dir: Path, report: bool = True) -> Path:
+    """Score the saved episodes (metrics.csv, summary.json), build the report and the viewer; never simulates."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "run.json").is_file():
+        raise ValueError(f"{run_dir}: not a run folder (run.json is missing)")
+    _remove_stale_temporaries(run_dir)
+    files = episode_files(run_dir)
+    if not files:
+        raise ValueError(f"{run_dir}: no saved episodes to report")
+    rows, unreadable = [], []
+    for f in files:
+        try:
+            saved = load_episode(f)
+        except ValueError as exc:  # one corrupt or truncated file must not cost the report of the rest
+            log.warning("skipping unreadable episode file %s", exc)  # the message names the file
+            unreadable.append(f.name)
+            continue
+        rows.append(episode_metrics(saved))
+    if not rows:
+        raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")
+    write_metrics_csv(rows, run_dir / "metrics.csv")
+    rows = read_metrics_csv(run_dir / "metrics.csv")
+    summary = summarize(rows)
+    # Per scenario too: a run may mix vehicles (a quadrotor's and a multicopter's energies do not average).
+    summary["by_scenario"] = {name: summarize([r for r in rows if r.scenario == name])
+                              for name in sorted({r.scenario for r in rows})}
+    write_summary_json(summary, run_dir / "summary.json")
+    if report:
+        from compare.viz.report import build_report
+        from compare.viz.viewer import build_viewer
+        # the skipped files were named above: the report lists them on its failures page without a second warning
+        build_report(run_dir, warn_unreadable=False)
+        build_viewer(run_dir, warn_unreadable=False)
+    return run_dir

@@ -1,0 +1,144 @@
+"""THE episode loop: flies any agent through the same simulator and records what happened.
+
+The runner owns the clock: the agent decides once per decision (timed with one stopwatch,
+`time.perf_counter`; an actuation may be held for several control periods), the simulator
+advances each control period at the physics rate, and
+clearance to the city and the ground is checked at every physics step with the city's exact
+clearance (the same geometry FCL holds). The episode ends on success (inside the goal radius),
+collision, leaving the flight volume, a non-finite state or the timeout; an agent that cannot fly
+the task (e.g. no path found) ends it before the first step. The end rules are `uam_fdm.episode`'s,
+the same the learned pilot's training environment applies.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from uam_fdm import episode
+from uam_fdm.pilot import Agent, Observation, RotorCommand, Task, VelocityCommand, World
+from uam_fdm.vehicle.ground_effect import height_above_surface
+from uam_fdm.vehicle.model import hover_state
+from uam_fdm.sim import Simulator
+from uam_fdm.air.wind import WindField
+
+OUTCOMES = episode.OUTCOMES + ("planner_failure",)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """One flown episode, sampled at the physics rate (row 0 is the initial state).
+
+    Attributes:
+        t_s: (M,) time [s].
+        states: (M, 13 + n) vehicle state (see `uam_fdm.vehicle.model`).
+        rotor_commands: (M, n) rotor-speed command applied during the step ending at each row
+            [rad/s] (row 0: the hover trim the episode starts from).
+        wind_enu_m_s: (M, 3) wind the vehicle flew in [m/s] (held per decision period).
+        clearance_m: (M,) signed distance from the vehicle's collision sphere to the nearest
+            building or the ground [m].
+        decision_t_s: (D,) times of the agent's decisions [s].
+        compute_s: (D,) wall time of each decision [s].
+        energy_J: rotor shaft energy over the flight [J].
+        outcome: one of OUTCOMES.
+        plan_time_s: planning time the agent reported at reset [s].
+        detail: why the episode ended, in words.
+    """
+
+    t_s: np.ndarray
+    states: np.ndarray
+    rotor_commands: np.ndarray
+    wind_enu_m_s: np.ndarray
+    clearance_m: np.ndarray
+    decision_t_s: np.ndarray
+    compute_s: np.ndarray
+    energy_J: float
+    outcome: str
+    plan_time_s: float
+    detail: str = ""
+
+    @property
+    def success(self) -> bool:
+        return self.outcome == "success"
+
+
+def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int) -> Trajectory:
+    """Fly `agent` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period)."""
+    p, dyn, city = world.vehicle, world.dynamics, world.city
+    radius = p.collision_radius_m
+    sim = Simulator(dyn, world.atmosphere, wind)
+    start = np.asarray(task.start_m, float)
+    x0 = hover_state(p, start, task.start_yaw_rad, density_ratio=world.atmosphere.density_ratio(start[2]))
+    sim.reset(x0)
+    info = agent.reset(world, task, seed)
+    hover = x0[dyn.layout.rotor]
+    times, states, cmds, winds, clear = [[0.0]], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
+    clear.append(np.array([_clearance(city, x0[None, 0:3], radius)[0]]))
+    decision_t, compute = [], []
+    goal = np.asarray(task.goal_m, float)
+    outcome, detail = "timeout", f"not at the goal after {task.timeout_s:g} s"
+    if not info.ok:
+        outcome, detail = "planner_failure", f"{info.status}: {info.detail}"
+    lo, hi = np.asarray(city.bounds_min_m, float), np.asarray(city.bounds_max_m, float)
+    held = 0
+    while info.ok and not episode.timed_out(sim.state.t_s, task.timeout_s):
+        s = sim.state
+        if held <= 0:  # a decision (else the previous actuation is still held)
+            obs = Observation(s.t_s, s.x.copy())
+            t0 = time.perf_counter()
+            act = agent.act(obs)
+            compute.append(time.perf_counter() - t0)
+            decision_t.append(s.t_s)
+            held = int(getattr(act, "hold_periods", 1))
+            if held < 1:
+                raise ValueError(f"agent {agent.name!r} asked to hold its actuation for {held} periods")
+        held -= 1
+        # ground effect: the height above the surface below, from the clearance at the period's start
+        height = float(height_above_surface(city, s.x[None, 0:3], clear[-1][-1:], p)[0])
+        env = sim.env(s.x, s.t_s, height)
+        if isinstance(act, RotorCommand):
+            r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float), height)
+        elif isinstance(act, VelocityCommand):
+            r = sim.advance_velocity(act.as_vector(), height)
+        else:
+            raise TypeError(f"agent {agent.name!r} returned {type(act).__name__}, not an Actuation")
+        n_sub = r.states.shape[0]
+        t_sub = s.t_s + dyn.dt_s * np.arange(1, n_sub + 1)
+        times.append(t_sub)
+        states.append(r.states)
+        cmds.append(r.rotor_commands)
+        winds.append(np.tile(env[:3], (n_sub, 1)))
+        finite = bool(np.all(np.isfinite(r.states)))
+        c = _clearance(city, r.states[:, 0:3], radius) if finite else np.full(n_sub, np.nan)
+        clear.append(c)
+        code = int(episode.period_outcome(r.states[None], episode.collided(c[None]), lo, hi, goal,
+                                          task.goal_radius_m)[0])
+        if code != episode.RUNNING:
+            outcome = episode.OUTCOME_OF_CODE[code]
+            detail = _detail(code, r.states, c, t_sub, s.t_s, sim.state.t_s, task, city)
+            break
+    return Trajectory(
+        t_s=np.concatenate(times), states=np.concatenate(states), rotor_commands=np.concatenate(cmds),
+        wind_enu_m_s=np.concatenate(winds), clearance_m=np.concatenate(clear),
+        decision_t_s=np.array(decision_t), compute_s=np.array(compute), energy_J=sim.state.energy_J,
+        outcome=outcome, plan_time_s=info.plan_time_s, detail=detail)
+
+
+def _detail(code: int, states: np.ndarray, clearance: np.ndarray, t_sub: np.ndarray, t_start_s: float,
+            t_end_s: float, task: Task, city) -> str:
+    """Why the period ended the episode, in words (the substep where it happened)."""
+    if code == episode.NONFINITE:
+        return f"state became non-finite at t = {t_start_s:.2f} s"
+    if code == episode.COLLISION:
+        k = int(np.argmax(clearance < 0.0))
+        return f"collision at t = {t_sub[k]:.3f} s, clearance {clearance[k]:.3f} m"
+    if code == episode.OUT_OF_BOUNDS:
+        k = int(np.argmin(city.in_bounds(states[:, 0:3])))
+        return f"left the flight volume at t = {t_sub[k]:.3f} s"
+    return f"within {task.goal_radius_m:g} m of the goal at t = {t_end_s:.2f} s"
+
+
+def _clearance(city, points: np.ndarray, radius: float) -> np.ndarray:
+    """Signed clearance of the sphere to buildings and the ground (the city includes the ground)."""
+    return np.asarray(city.clearance(points, radius).distance_m)

@@ -1,0 +1,519 @@
+"""Per-episode metrics, `metrics.csv`, and the per-method summary with bootstrap confidence intervals.
+
+One `EpisodeMetrics` row per saved episode (scenario, episode, method, seed) is computed from the
+episode file alone, so metrics never need the world that produced the flight. `summarize` aggregates
+the rows per method (mean and percentile-bootstrap CI) and pairs methods on the episodes both flew
+(mean difference and its CI). Every file is written atomically: a temporary file in the same folder,
+then `os.replace`, so a reader sees the old file or the new one, never half of one.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from dataclasses import astuple, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from compare.episode_loop import OUTCOMES
+from compare.results.trajectory import SavedEpisode
+from uam_fdm.files.atomic import write_text_atomic
+
+CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
+"""Clearances [m] below which the time spent is counted (`time_below_2m_s`, `time_below_5m_s`)."""
+
+KNOWN_OUTCOMES = OUTCOMES + ("solver_failure",)
+"""Outcomes an episode may end with (the runner's, plus the tracker's `solver_failure`)."""
+
+TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
+                   "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m")
+"""The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
+method like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
+without them read as NaN."""
+
+SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
+                   "time_s", "path_length_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
+                   "plan_time_s") + TRACKER_METRICS
+"""Fields aggregated by `summarize`, in report order."""
+
+SUCCESS_ONLY_METRICS = ("time_s", "path_length_m", "energy_kj")
+"""Metrics averaged over successful episodes only (a crash after 3 s is not a fast flight)."""
+
+
+@dataclass(frozen=True)
+class EpisodeMetrics:
+    """The scores of one episode; the field order is the `metrics.csv` column order.
+
+    Attributes:
+        scenario, episode, method, seed: the comparison cell.
+        map: the city's name. vehicle: the vehicle preset name.
+        outcome: how the episode ended (one of `KNOWN_OUTCOMES`).
+        success: reached the goal radius before the timeout without collision.
+        collision: the collision sphere touched a building or the ground.
+        failure_reason: "" on success, else the outcome, or "solver_failure" when the episode says so
+            (`meta.extra["failure_reason"]`: the classical pilot's MPC failed on many solves).
+        min_clearance_m: least signed clearance of the collision sphere over the flight [m]
+            (physics rate, NaN samples ignored; NaN when there is none).
+        time_below_2m_s, time_below_5m_s: flight time with clearance below 2 m / 5 m [s].
+        time_s: flight time, the last sample's time [s].
+        path_length_m: length of the flown polyline [m].
+        straight_line_m: distance from start to goal [m].
+        spl: success weighted by path length, success × straight / max(path, straight) [-].
+        energy_kj: rotor shaft energy [kJ].
+        compute_ms_mean, compute_ms_max: wall time per decision [ms] (NaN without decisions).
+        plan_time_s: planning time at reset, plus every replan of the classical pilot [s] (for the PPO
+            pilot: computing its route field, the geodesic distance-to-go its observation uses; NaN for a
+            pilot that reports none). A decision that replans also counts that time in compute_ms_max.
+        mpc_solve_ms_median, mpc_solve_ms_p95: the MPC solver's wall time per decision [ms].
+        mpc_failures: MPC solves that failed (a fallback command was flown) [count].
+        replans_tracking, replans_clearance: replans because the tracking error exceeded its threshold,
+            and because the MPC's prediction came closer to an obstacle than its margin [count].
+        tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
+            curve over the decisions [m].
+        planner_margin_m, mpc_margin_m: the clearance margins flown beyond the collision radius (the
+            reference's, and the MPC's soft constraint) [m].
+        The tracker columns (`TRACKER_METRICS`) are NaN for a pilot without a tracker (ppo) and, where an
+        older episode file did not record them, for the classical pilot too (counts as floats for that).
+    """
+
+    scenario: str
+    episode: int
+    method: str
+    seed: int
+    map: str
+    vehicle: str
+    outcome: str
+    success: bool
+    collision: bool
+    failure_reason: str
+    min_clearance_m: float
+    time_below_2m_s: float
+    time_below_5m_s: float
+    time_s: float
+    path_length_m: float
+    straight_line_m: float
+    spl: float
+    energy_kj: float
+    compute_ms_mean: float
+    compute_ms_max: float
+    plan_time_s: float
+    mpc_solve_ms_median: float = math.nan
+    mpc_solve_ms_p95: float = math.nan
+    mpc_failures: float = math.nan
+    replans_tracking: float = math.nan
+    replans_clearance: float = math.nan
+    tracking_rms_m: float = math.nan
+    tracking_max_m: float = math.nan
+    planner_margin_m: float = math.nan
+    mpc_margin_m: float = math.nan
+
+
+COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
+"""`metrics.csv` columns, in order."""
+
+# Field kinds as written in the annotations (strings under `from __future__ import annotations`).
+_KINDS = {f.name: str(f.type) for f in fields(EpisodeMetrics)}
+
+
+def below_field(threshold_m: float) -> str:
+    """Name of the time-below-clearance field for a threshold [m], e.g. 2.0 → `time_below_2m_s`."""
+    return f"time_below_{threshold_m:g}m_s"
+
+
+# ---------------------------------------------------------------------------------------------------
+# One episode
+# ---------------------------------------------------------------------------------------------------
+
+def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
+    """Score one saved episode.
+
+    The outcome, energy and planning time come from the episode's metadata; everything else from its
+    trajectory arrays (physics rate, row 0 the initial state).
+
+    Args:
+        saved: an episode as returned by `compare.results.trajectory.load_episode` (or built in memory).
+
+    Returns:
+        The episode's `EpisodeMetrics`.
+
+    Raises:
+        ValueError: unknown outcome or inconsistent array lengths, naming the episode.
+    """
+    meta, traj = saved.meta, saved.trajectory
+    key = meta.key
+    if meta.outcome not in KNOWN_OUTCOMES:
+        raise ValueError(f"episode {key.stem}: unknown outcome {meta.outcome!r}, "
+                         f"expected one of {', '.join(KNOWN_OUTCOMES)}")
+    t = np.asarray(traj.t_s, dtype=float)
+    states = np.asarray(traj.states, dtype=float)
+    clearance = np.asarray(traj.clearance_m, dtype=float)
+    if t.ndim != 1 or t.size == 0 or states.shape[0] != t.size or clearance.shape != t.shape:
+        raise ValueError(f"episode {key.stem}: t_s {t.shape}, states {states.shape} and clearance_m "
+                         f"{clearance.shape} do not have the same non-zero number of samples")
+    compute_ms = 1e3 * np.asarray(traj.compute_s, dtype=float).ravel()
+    success = meta.outcome == "success"
+    path_m = _path_length_m(states[:, 0:3])
+    straight_m = float(np.linalg.norm(np.subtract(meta.goal_m, meta.start_m, dtype=float)))
+    below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
+    finite_clearance = clearance[~np.isnan(clearance)]
+    does_not_plan = key.method == "ppo" and meta.plan_time_s == 0
+    return EpisodeMetrics(
+        scenario=key.scenario, episode=int(key.episode), method=key.method, seed=int(key.seed),
+        map=meta.map_name, vehicle=meta.vehicle, outcome=meta.outcome,
+        success=success, collision=meta.outcome == "collision",
+        failure_reason="" if success else str((meta.extra or {}).get("failure_reason") or meta.outcome),
+        min_clearance_m=float(finite_clearance.min()) if finite_clearance.size else math.nan,
+        **below,
+        time_s=float(t[-1]),
+        path_length_m=path_m,
+        straight_line_m=straight_m,
+        spl=_spl(success, path_m, straight_m),
+        energy_kj=float(meta.energy_J) / 1e3,
+        compute_ms_mean=float(compute_ms.mean()) if compute_ms.size else math.nan,
+        compute_ms_max=float(compute_ms.max()) if compute_ms.size else math.nan,
+        plan_time_s=math.nan if does_not_plan else float(meta.plan_time_s),
+        **_tracker_fields(meta.extra or {}),
+    )
+
+
+def _tracker_fields(extra: dict) -> dict[str, float]:
+    """The tracker columns from an episode's metadata: its `tracker` report (`compare.campaign.tracker_extra`),
+    or, in an episode saved before that existed, the few counters it kept at the top level; NaN where
+    absent (a pilot without a tracker)."""
+    def num(v: Any) -> float:
+        return math.nan if v is None or isinstance(v, (str, dict, list)) else float(v)
+
+    tracker = extra.get("tracker")
+    if isinstance(tracker, dict):
+        return {name: num(tracker.get(name)) for name in TRACKER_METRICS}
+    old = {"mpc_solve_ms_median": extra.get("mpc_solve_ms_median"), "mpc_failures": extra.get("mpc_failures"),
+           "replans_tracking": extra.get("replans")}  # before clearance replans, every replan was a tracking one
+    return {name: num(old.get(name)) for name in TRACKER_METRICS}
+
+
+def _path_length_m(positions_m: np.ndarray) -> float:
+    """Length of the polyline through (M, 3) positions [m].
+
+    Segments touching a non-finite state are skipped, so a `nonfinite` episode's path is the flight up
+    to the blow-up.
+    """
+    segments = np.linalg.norm(np.diff(positions_m, axis=0), axis=1)
+    return float(np.sum(segments[np.isfinite(segments)]))
+
+
+def _time_below_s(t_s: np.ndarray, clearance_m: np.ndarray, threshold_m: float) -> float:
+    """Time [s] with clearance below `threshold_m`.
+
+    Each sample after row 0 stands for the physics step ending at it (its dt from `diff(t_s)`), so on
+    the runner's uniform grid this is (count of samples below) × dt. NaN clearances do not count.
+    """
+    dt = np.diff(t_s)
+    below = clearance_m[1:] < threshold_m
+    return float(np.sum(dt[below]))
+
+
+def _spl(success: bool, path_m: float, straight_m: float) -> float:
+    """Success weighted by path length: 1 for a straight-line success, 0 for any failure."""
+    if not success:
+        return 0.0
+    longest = max(path_m, straight_m)
+    return 1.0 if longest == 0.0 else straight_m / longest
+
+
+# ---------------------------------------------------------------------------------------------------
+# metrics.csv
+# ---------------------------------------------------------------------------------------------------
+
+def _row_order(row: EpisodeMetrics) -> tuple[str, int, str, int]:
+    return (row.scenario, row.episode, row.method, row.seed)
+
+
+def write_metrics_csv(rows: Iterable[EpisodeMetrics], path: Path) -> Path:
+    """Write `metrics.csv` atomically, one row per episode sorted by (scenario, episode, method, seed).
+
+    Booleans are written 0/1, floats with `repr` precision (so they read back exactly), NaN as `nan`.
+
+    Returns:
+        The path written.
+    """
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(COLUMNS)
+    for row in sorted(rows, key=_row_order):
+        writer.writerow([_format_cell(_KINDS[name], value) for name, value in zip(COLUMNS, astuple(row))])
+    return write_text_atomic(Path(path), buf.getvalue())
+
+
+def read_metrics_csv(path: Path) -> list[EpisodeMetrics]:
+    """Read a `metrics.csv` written by `write_metrics_csv`, rows in file order.
+
+    Raises:
+        ValueError: empty file, missing or unknown columns, a short row or an unreadable cell, naming
+            the file (and the column and line where it applies).
+    """
+    path = Path(path)
+    with path.open(newline="", encoding="utf-8") as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"{path}: empty file, expected a header with columns {', '.join(COLUMNS)}")
+        missing = [c for c in COLUMNS if c not in header and c not in TRACKER_METRICS]  # older files: NaN
+        if missing:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+        unknown = [c for c in header if c not in COLUMNS]
+        if unknown:
+            raise ValueError(f"{path}: unknown column(s) {', '.join(unknown)}")
+        repeated = sorted(c for c, k in Counter(header).items() if k > 1)
+        if repeated:
+            raise ValueError(f"{path}: repeated column(s) {', '.join(repeated)}")
+        rows = []
+        for cells in reader:
+            if len(cells) != len(header):
+                raise ValueError(f"{path}: line {reader.line_num}: {len(cells)} cells, expected {len(header)}")
+            values = {name: _parse_cell(_KINDS[name], text, f"{path}: line {reader.line_num}, column {name}")
+                      for name, text in zip(header, cells)}  # absent tracker columns keep their NaN default
+            rows.append(EpisodeMetrics(**values))
+    return rows
+
+
+def _format_cell(kind: str, value: Any) -> str:
+    if kind == "bool":
+        return "1" if value else "0"
+    if kind == "float":
+        return repr(float(value))   # shortest exact repr; NaN → 'nan'
+    return str(value)
+
+
+def _parse_cell(kind: str, text: str, where: str) -> Any:
+    try:
+        if kind == "bool":
+            return {"0": False, "1": True}[text]
+        if kind == "int":
+            return int(text)
+        if kind == "float":
+            return float(text)
+    except (KeyError, ValueError):
+        raise ValueError(f"{where}: cannot read {text!r} as {kind}") from None
+    return text
+
+
+# ---------------------------------------------------------------------------------------------------
+# summary.json
+# ---------------------------------------------------------------------------------------------------
+
+def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
+              seed: int = 0) -> dict:
+    """Aggregate episode rows per method and per pair of methods, with percentile-bootstrap CIs.
+
+    Per method and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and a
+    percentile bootstrap CI of the mean (episodes resampled with replacement); `n` is the count used;
+    with n == 0 every number is None, with n == 1 the CI is the mean. `time_s`, `path_length_m` and
+    `energy_kj` are over successful episodes only (`"over": "successes"`), the rest over all
+    episodes (`"over": "all"`).
+
+    Paired: for each pair of methods a < b (sorted names, key "a - b"), the episodes both flew with
+    the same (scenario, episode, seed); per metric the mean of the differences a − b and a bootstrap
+    CI of that mean (pairs resampled). For the success-only metrics only pairs where both succeeded.
+
+    Each CI draws from a fresh `numpy.random.default_rng(seed)`, so a method's numbers depend only on
+    its own episodes, and the same rows (in any order) give the same summary.
+
+    Args:
+        rows: episode metrics, one per (scenario, episode, method, seed).
+        resamples: bootstrap resamples (≥ 1).
+        confidence: CI level in (0, 1).
+        seed: bootstrap seed.
+
+    Returns:
+        A JSON-ready dict: `bootstrap` (settings), `metrics`, `methods`, `paired`.
+
+    Raises:
+        ValueError: bad bootstrap settings or two rows for the same cell.
+    """
+    if int(resamples) != resamples or resamples < 1:
+        raise ValueError(f"resamples must be a positive integer, got {resamples!r}")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    boot = _Bootstrap(int(resamples), float(confidence), int(seed))
+    by_method = _group_by_method(rows)
+    methods = sorted(by_method)
+    paired = {}
+    for i, a in enumerate(methods):
+        for b in methods[i + 1:]:
+            paired[f"{a} - {b}"] = _paired_summary(by_method[a], by_method[b], boot)
+    return {
+        "bootstrap": {"resamples": boot.resamples, "confidence": boot.confidence, "seed": boot.seed,
+                      "method": "percentile"},
+        "metrics": list(SUMMARY_METRICS),
+        "methods": {m: _method_summary(by_method[m], boot) for m in methods},
+        "paired": paired,
+    }
+
+
+@dataclass(frozen=True)
+class _Bootstrap:
+    resamples: int
+    confidence: float
+    seed: int
+
+    def mean_ci(self, x: np.ndarray) -> tuple[float | None, float | None, float | None]:
+        """Mean of `x` and its percentile bootstrap CI (None × 3 for an empty sample)."""
+        n = x.size
+        if n == 0:
+            return None, None, None
+        mean = float(np.mean(x))
+        if n == 1:
+            return mean, mean, mean
+        rng = np.random.default_rng(self.seed)
+        idx = rng.integers(0, n, size=(self.resamples, n))   # one row per resample
+        means = x[idx].mean(axis=1)
+        tail = (1.0 - self.confidence) / 2.0
+        lo, hi = np.quantile(means, [tail, 1.0 - tail])
+        return mean, float(lo), float(hi)
+
+
+def _group_by_method(rows: Iterable[EpisodeMetrics]) -> dict[str, list[EpisodeMetrics]]:
+    """Rows per method, each list sorted by cell; rejects duplicate cells."""
+    by_method: dict[str, list[EpisodeMetrics]] = {}
+    seen: set[tuple[str, int, str, int]] = set()
+    for row in sorted(rows, key=_row_order):
+        cell = _row_order(row)
+        if cell in seen:
+            raise ValueError(f"two rows for scenario {row.scenario!r}, episode {row.episode}, "
+                             f"method {row.method!r}, seed {row.seed}")
+        seen.add(cell)
+        by_method.setdefault(row.method, []).append(row)
+    return by_method
+
+
+def _over(metric: str) -> str:
+    return "successes" if metric in SUCCESS_ONLY_METRICS else "all"
+
+
+def _values(rows: Sequence[EpisodeMetrics], metric: str) -> np.ndarray:
+    return np.array([float(getattr(r, metric)) for r in rows], dtype=float)
+
+
+def _method_summary(rows: list[EpisodeMetrics], boot: _Bootstrap) -> dict:
+    reasons = Counter(r.failure_reason for r in rows if r.failure_reason)
+    out: dict[str, Any] = {"episodes": len(rows), "failure_reasons": dict(sorted(reasons.items()))}
+    for metric in SUMMARY_METRICS:
+        used = [r for r in rows if r.success] if metric in SUCCESS_ONLY_METRICS else rows
+        x = _values(used, metric)
+        x = x[~np.isnan(x)]
+        mean, lo, hi = boot.mean_ci(x)
+        out[metric] = {"mean": mean, "ci_low": lo, "ci_high": hi, "n": int(x.size), "over": _over(metric)}
+    return out
+
+
+def _paired_summary(rows_a: list[EpisodeMetrics], rows_b: list[EpisodeMetrics], boot: _Bootstrap) -> dict:
+    a = {(r.scenario, r.episode, r.seed): r for r in rows_a}
+    b = {(r.scenario, r.episode, r.seed): r for r in rows_b}
+    common = sorted(a.keys() & b.keys())
+    out: dict[str, Any] = {"episodes": len(common)}
+    for metric in SUMMARY_METRICS:
+        if metric in TRACKER_METRICS:
+            continue
+        cells = [c for c in common
+                 if metric not in SUCCESS_ONLY_METRICS or (a[c].success and b[c].success)]
+        d = _values([a[c] for c in cells], metric) - _values([b[c] for c in cells], metric)
+        d = d[~np.isnan(d)]
+        mean, lo, hi = boot.mean_ci(d)
+        out[metric] = {"mean_diff": mean, "ci_low": lo, "ci_high": hi, "n": int(d.size),
+                       "over": _over(metric)}
+    return out
+
+
+def write_summary_json(summary: dict, path: Path) -> Path:
+    """Write a summary as `summary.json` atomically (indent 2, NaN and infinities as null).
+
+    Returns:
+        The path written.
+    """
+    text = json.dumps(_json_ready(summary), indent=2, allow_nan=False) + "\n"
+    return write_text_atomic(Path(path), text)
+
+
+def _json_ready(value: Any) -> Any:
+    """Plain JSON types: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {str(k): _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+# ---------------------------------------------------------------------------------------------------
+# The methods table of the report
+# ---------------------------------------------------------------------------------------------------
+
+def _percent(v: float) -> str:
+    return f"{100.0 * v:.0f}%"
+
+
+def _fixed(decimals: int):
+    return lambda v: f"{v:.{decimals}f}"
+
+
+# metric → (column header, number format)
+_TABLE_COLUMNS = {
+    "success": ("success", _percent),
+    "collision": ("collision", _percent),
+    "min_clearance_m": ("min clearance [m]", _fixed(2)),
+    **{below_field(th): (f"time < {th:g} m clear [s]", _fixed(2)) for th in CLEARANCE_THRESHOLDS_M},
+    "time_s": ("time [s] (successes)", _fixed(1)),
+    "path_length_m": ("path [m] (successes)", _fixed(1)),
+    "spl": ("SPL", _fixed(2)),
+    "energy_kj": ("energy [kJ] (successes)", _fixed(1)),
+    "compute_ms_mean": ("compute mean [ms]", _fixed(2)),
+    "compute_ms_max": ("compute max [ms]", _fixed(2)),
+    "plan_time_s": ("plan time [s]", _fixed(2)),
+    "mpc_solve_ms_median": ("MPC solve median [ms]", _fixed(2)),
+    "mpc_solve_ms_p95": ("MPC solve p95 [ms]", _fixed(2)),
+    "mpc_failures": ("MPC failures", _fixed(1)),
+    "replans_tracking": ("replans (tracking error)", _fixed(2)),
+    "replans_clearance": ("replans (predicted clearance)", _fixed(2)),
+    "tracking_rms_m": ("tracking RMS [m]", _fixed(3)),
+    "tracking_max_m": ("tracking max [m]", _fixed(3)),
+    "planner_margin_m": ("planner margin [m]", _fixed(2)),
+    "mpc_margin_m": ("MPC margin [m]", _fixed(2)),
+}
+
+
+def methods_table(summary: dict) -> list[list[str]]:
+    """The per-method table of a summary as text cells, "mean [ci_low, ci_high]" per metric.
+
+    Args:
+        summary: as returned by `summarize` (or read back from `summary.json`).
+
+    Returns:
+        A header row, then one row per method: name, episode count, one cell per summarised metric
+        ("n/a" where no episode counted, e.g. the planning time of a pilot that does not plan).
+    """
+    metrics = list(summary["metrics"])
+    header = ["method", "episodes"] + [_TABLE_COLUMNS.get(m, (m, None))[0] for m in metrics]
+    table = [header]
+    for method, stats in summary["methods"].items():
+        row = [method, str(stats["episodes"])]
+        for m in metrics:
+            fmt = _TABLE_COLUMNS.get(m, (m, lambda v: f"{v:.3g}"))[1]
+            row.append(_format_stat(stats[m], fmt))
+        table.append(row)
+    return table
+
+
+def _format_stat(stat: dict, fmt) -> str:
+    if stat.get("mean") is None:
+        return "n/a"
+    return f"{fmt(stat['mean'])} [{fmt(stat['ci_low'])}, {fmt(stat['ci_high'])}]"

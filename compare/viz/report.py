@@ -1,0 +1,645 @@
+"""The PDF report of a comparison run, built from the run folder's saved files only (never simulating).
+
+A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, `episodes/*.npz`,
+`metrics.csv` and `summary.json`.  `build_report` writes, in order:
+
+1. title page(s) "uam-compare report": scenarios, methods, software versions, command, date, fairness;
+2. "Metrics": per-method mean [95 % CI] table, paired differences, per-episode table;
+3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
+   3D snapshots over time;
+4. "PPO training: reward convergence" from the policy folder's `reward_curve.csv`;
+5. "Failures": every unsuccessful episode, and top-down views of up to six of them.
+
+It works on an interrupted run (the episodes and metric rows present are used; a missing
+`metrics.csv` is noted instead of failing).  The PDF is written under a temporary name and renamed;
+every page is also saved as a PNG under `RUN_DIR/figures/`.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from matplotlib import rc_context
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
+
+from compare.viz import figures as F
+from compare.results.trajectory import episode_files, load_episode
+from uam_fdm.files.atomic import atomic_path
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.city.plot import save_figure
+from uam_fdm.city.mapfile import load_map_file
+
+logger = logging.getLogger(__name__)
+
+# (summary key, row label with unit, scale, decimals)
+SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
+    ("success", "success [%]", 100.0, 0),
+    ("collision", "collision [%]", 100.0, 0),
+    ("min_clearance_m", "min clearance [m]", 1.0, 2),
+    ("time_below_2m_s", "time below 2 m clearance [s]", 1.0, 2),
+    ("time_below_5m_s", "time below 5 m clearance [s]", 1.0, 2),
+    ("time_s", "flight time [s]", 1.0, 1),
+    ("path_length_m", "path length [m]", 1.0, 1),
+    ("spl", "SPL (success weighted by path length) [-]", 1.0, 3),
+    ("energy_kj", "rotor energy [kJ]", 1.0, 2),
+    ("compute_ms_mean", "compute per decision, mean [ms]", 1.0, 2),
+    ("compute_ms_max", "compute per decision, max [ms]", 1.0, 2),
+    ("plan_time_s", "plan time [s]", 1.0, 3),
+    ("mpc_solve_ms_median", "MPC solve, median per episode [ms]", 1.0, 2),
+    ("mpc_solve_ms_p95", "MPC solve, p95 per episode [ms]", 1.0, 2),
+    ("mpc_failures", "MPC failed solves per episode", 1.0, 2),
+    ("replans_tracking", "replans per episode: tracking error", 1.0, 2),
+    ("replans_clearance", "replans per episode: predicted clearance", 1.0, 2),
+    ("tracking_rms_m", "tracking RMS (distance to the reference) [m]", 1.0, 3),
+    ("tracking_max_m", "tracking max (distance to the reference) [m]", 1.0, 3),
+    ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
+    ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
+)
+TRACKER_METHOD = "rrt_mpc"  # the pilot whose tracker columns get a page per scenario
+MAX_FAILURE_PLOTS = 6
+PNG_DPI = 130
+_STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<method>.+)__s(?P<seed>-?\d+)$")
+
+
+@dataclass
+class _Run:
+    """What every page needs: the folder, its provenance and the per-method labels and colours."""
+
+    run_dir: Path
+    info: dict
+    methods: list[str]
+    labels: dict[str, str]
+    colors: dict[str, str]
+    scenarios: list[str]
+    maps: dict[str, BuildingMap | None] = field(default_factory=dict)
+    unreadable: list[str] = field(default_factory=list)  # episode files skipped, for the failures page
+    skip_log_level: int = logging.WARNING  # INFO when the caller has already warned about them
+
+    def skip(self, path: Path, exc: Exception) -> None:
+        """Leave out an unreadable episode file: log why (the message names it) and list it."""
+        logger.log(self.skip_log_level, "skipping unreadable episode file %s", exc)
+        if path.name not in self.unreadable:
+            self.unreadable.append(path.name)
+
+    def label(self, method: str) -> str:
+        return self.labels.get(method, method)
+
+    def map_of(self, scenario: str) -> BuildingMap | None:
+        if scenario not in self.maps:
+            path = self.run_dir / "maps" / f"{scenario}.yaml"
+            try:
+                self.maps[scenario] = load_map_file(path)
+            except ValueError as exc:  # ConfigError is a ValueError; a missing file is one too
+                logger.warning("scenario %s: no city drawn (%s)", scenario, exc)
+                self.maps[scenario] = None
+        return self.maps[scenario]
+
+
+def load_run_info(run_dir: Path) -> dict:
+    """Read `RUN_DIR/run.json`.
+
+    Raises:
+        ValueError: the file is missing or not a JSON object, naming the folder.
+    """
+    path = Path(run_dir) / "run.json"
+    if not path.is_file():
+        raise ValueError(f"{run_dir}: not a run folder (no run.json)")
+    try:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{run_dir}: run.json is not readable JSON ({exc})") from exc
+    if not isinstance(info, dict):
+        raise ValueError(f"{run_dir}: run.json must hold a JSON object")  # noqa: TRY004 (bad file, not bad argument)
+    return info
+
+
+def read_metrics_csv(path: Path) -> list[dict[str, str]] | None:
+    """Rows of a `metrics.csv` as dicts of strings, or None when the file does not exist."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    with path.open(newline="", encoding="utf-8") as f:
+        return [dict(r) for r in csv.DictReader(f)]
+
+
+def read_reward_curve(path: Path) -> F.RewardCurve | None:
+    """A policy's `reward_curve.csv` as a `RewardCurve`, or None if the file is absent.
+
+    Reads `rl.train`'s format (one row per PPO update: timesteps, mean_episode_reward,
+    train_success_rate, train_collision_rate, train_timeout_rate, train_episodes, difficulty,
+    success_rate, collision_rate, eval_episodes, wall_s; the validation columns empty on rows without
+    an evaluation) and older files with only some of these columns: an absent column or an empty or
+    unreadable cell is NaN. Rows without a timestep (e.g. a half-written last line) are left out.
+
+    Raises:
+        ValueError: the file exists but lacks `timesteps` or `mean_episode_reward`, or has no rows,
+            naming the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    rows = read_metrics_csv(path) or []
+    need = ("timesteps", "mean_episode_reward")
+    if not rows or any(k not in rows[0] for k in need):
+        raise ValueError(f"{path}: needs columns {', '.join(need)} and at least one row")
+    names = (*need, "success_rate", *F.CURVE_FIELDS)
+    col = {k: np.array([_float(r.get(k)) for r in rows]) for k in names}
+    keep = np.isfinite(col["timesteps"])
+    if not np.any(keep):
+        raise ValueError(f"{path}: no row has a timestep")
+    return F.RewardCurve(**{k: v[keep] for k, v in col.items()})
+
+
+def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: bool = True) -> Path:
+    """Write the run's PDF report (and its pages as PNGs under RUN_DIR/figures/).
+
+    An unreadable (corrupt, truncated) episode file is left out, logged and listed on the failures page.
+
+    Args:
+        run_dir: the run folder.
+        out: the PDF path (default RUN_DIR/report.pdf); written atomically.
+        warn_unreadable: log skipped episode files as warnings (False: at INFO, the caller has warned).
+
+    Returns:
+        The PDF path.
+
+    Raises:
+        ValueError: `run_dir` has no readable run.json.
+    """
+    run_dir = Path(run_dir)
+    run = _make_run(run_dir, load_run_info(run_dir))
+    run.skip_log_level = logging.WARNING if warn_unreadable else logging.INFO
+    out = Path(out) if out is not None else run_dir / "report.pdf"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    groups = _episode_groups(run)
+    with atomic_path(out, suffix=".pdf.tmp") as tmp:
+        # TrueType (Type 42) fonts: text stays searchable and journals accept the pages
+        metadata = {"Title": "uam-compare report", "Creator": "uam-compare",
+                    "Subject": str(run.info.get("command", "")), "CreationDate": None}
+        with rc_context({"pdf.fonttype": 42}), PdfPages(tmp, metadata=metadata) as pdf:
+            pages = _PageWriter(pdf, run_dir / "figures")
+            n_present = sum(len(paths) for paths in groups.values())
+            pages.add_all(F.text_pages("uam-compare report", _title_blocks(run, n_present)), "title")
+            rows = read_metrics_csv(run_dir / "metrics.csv")
+            for name, figs in _metrics_pages(run, rows):
+                pages.add_all(figs, name)
+            failures = _episode_pages(run, groups, pages)
+            policies = ppo_policies(run.info)
+            for k, pol in enumerate(policies or [{}]):  # one convergence page per policy flown
+                suffix = "" if k == 0 else f"_{pol.get('vehicle') or k}"
+                pages.add(_training_figure(pol, len(policies) > 1), f"training_reward_curve{suffix}")
+            _failure_pages(run, failures, rows, run.unreadable, pages)
+    logger.info("report %s: %d pages", out, pages.count)
+    return out
+
+
+# ---- assembly helpers -----------------------------------------------------------------------------------
+class _PageWriter:
+    """Adds figures to the PDF and saves each as a PNG, then releases it."""
+
+    def __init__(self, pdf: PdfPages, fig_dir: Path) -> None:
+        self.pdf, self.fig_dir, self.count = pdf, fig_dir, 0
+
+    def add(self, fig: Figure, name: str) -> None:
+        save_figure(fig, self.fig_dir / f"{_slug(name)}.png", dpi=PNG_DPI)
+        self.pdf.savefig(fig)
+        fig.clear()  # Figure-API figures are not registered with pyplot: clearing frees their artists
+        self.count += 1
+
+    def add_all(self, figs: Sequence[Figure], name: str) -> None:
+        for k, fig in enumerate(figs):
+            self.add(fig, name if len(figs) == 1 else f"{name}_{k + 1}")
+
+
+def _make_run(run_dir: Path, info: dict) -> _Run:
+    meth_cfg = info.get("methods") if isinstance(info.get("methods"), Mapping) else {}
+    scen = [s for s in info.get("scenarios") or [] if isinstance(s, Mapping)]
+    methods = list(meth_cfg)
+    for s in scen:
+        methods += [m for m in s.get("methods") or [] if m not in methods]
+    labels = {m: str((c or {}).get("label") or m) for m, c in meth_cfg.items()}
+    return _Run(run_dir, info, methods, labels, F.method_colors(methods), [str(s.get("name")) for s in scen])
+
+
+def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[Path]]:
+    """Episode files grouped by (scenario, episode, seed), in run.json scenario order."""
+    groups: dict[tuple[str, int, int], list[Path]] = {}
+    for path in episode_files(run.run_dir):
+        m = _STEM.match(path.stem)
+        if m is not None:
+            scenario, episode, method, seed = m["scenario"], int(m["episode"]), m["method"], int(m["seed"])
+        else:  # not named by EpisodeKey.stem: ask the file
+            try:
+                k = load_episode(path).meta.key
+            except ValueError as exc:
+                run.skip(path, exc)
+                continue
+            scenario, episode, method, seed = k.scenario, k.episode, k.method, k.seed
+        if method not in run.methods:  # a method run.json does not list still gets its own colour
+            run.methods.append(method)
+        groups.setdefault((scenario, episode, seed), []).append(path)
+    run.colors = F.method_colors(run.methods)
+    for s in sorted({k[0] for k in groups}):
+        if s not in run.scenarios:
+            run.scenarios.append(s)
+    return dict(sorted(groups.items(), key=lambda kv: (run.scenarios.index(kv[0][0]), kv[0][1], kv[0][2])))
+
+
+def _method_rank(run: _Run, method: str) -> int:
+    return run.methods.index(method) if method in run.methods else len(run.methods)
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def _float(v: object) -> float:
+    try:
+        return float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _fmt(v: object, digits: int, scale: float = 1.0) -> str:
+    f = _float(v)
+    return f"{f * scale:.{digits}f}" if math.isfinite(f) else "n/a"
+
+
+def format_ci(stat: object, scale: float = 1.0, digits: int = 2) -> str:
+    """"mean [low, high]" of a summary entry {mean | mean_diff, ci_low, ci_high}, scaled; "n/a" if missing."""
+    if not isinstance(stat, Mapping):
+        return "n/a"
+    mean = _float(stat.get("mean", stat.get("mean_diff")))
+    if not math.isfinite(mean):
+        return "n/a"
+    lo, hi = _float(stat.get("ci_low")), _float(stat.get("ci_high"))
+    text = f"{mean * scale:.{digits}f}"
+    if math.isfinite(lo) and math.isfinite(hi):
+        text += f" [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"
+    return text
+
+
+# ---- 1. title -------------------------------------------------------------------------------------------
+def _planned_episodes(run: _Run) -> int:
+    total = 0
+    for s in _scenario_entries(run):
+        eps = s.get("episodes")
+        n_eps = len(eps) if isinstance(eps, list) else _float(eps)
+        total += int(n_eps if math.isfinite(n_eps) else 0) * len(s.get("seeds") or [0]) * len(
+            s.get("methods") or run.methods)
+    return total
+
+
+def _scenario_entries(run: _Run) -> list[Mapping]:
+    return [s for s in run.info.get("scenarios") or [] if isinstance(s, Mapping)]
+
+
+def _shear_words(shear: object) -> str:
+    """The steady wind's profile from run.json's wind.shear (absent in runs before it existed: uniform)."""
+    if not isinstance(shear, Mapping) or shear.get("law") in (None, "uniform"):
+        return "the same at every height"
+    ref = _fmt(shear.get("reference_height_m"), 0)
+    if shear.get("law") == "power":
+        return f"given at {ref} m, power-law shear alpha {_fmt(shear.get('exponent'), 2)}"
+    return f"given at {ref} m, log-law shear z0 {_fmt(shear.get('roughness_m'), 2)} m"
+
+
+def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
+    info = run.info
+    planned = _planned_episodes(run)
+    coverage = f"Episodes in this report: {n_present} of {planned} planned."
+    if n_present < planned:
+        coverage += " The run is incomplete (interrupted): the report covers the episodes saved so far."
+    blocks = [("p", f"Created {info.get('created_utc', 'n/a')} by: {info.get('command', 'n/a')}"),
+              ("p", f"Run folder: {run.run_dir}"), ("p", coverage), ("h", "Scenarios")]
+    for s in _scenario_entries(run):
+        atm, wind = s.get("atmosphere") or {}, s.get("wind") or {}
+        seeds = s.get("seeds") or []
+        eps = s.get("episodes")
+        n_eps = len(eps) if isinstance(eps, list) else eps
+        blocks += [
+            ("p", f"{s.get('name')}: {s.get('description', '')}"),
+            ("p", (f"    map {s.get('map_name')} · vehicle {s.get('vehicle')} "
+                   f"({s.get('vehicle_summary', 'n/a')})")),
+            ("p", (f"    atmosphere: field elevation {_fmt(atm.get('elevation_m'), 0)} m, "
+                   f"ISA offset {_fmt(atm.get('isa_offset_k'), 1)} K, "
+                   f"density {_fmt(atm.get('density_kg_m3'), 3)} kg/m³")),
+            ("p", (f"    wind: steady {wind.get('steady_enu_m_s')} m/s (ENU), {_shear_words(wind.get('shear'))}, "
+                   f"turbulence {wind.get('turbulence')}")),
+            ("p", (f"    {n_eps} episodes × seeds {seeds}; methods "
+                   f"{', '.join(run.label(m) for m in s.get('methods') or [])}; "
+                   f"physics {s.get('physics_hz')} Hz, control {s.get('control_hz')} Hz; "
+                   f"source {s.get('source', 'n/a')}"))]
+    blocks.append(("h", "Methods"))
+    for m, cfg in (info.get("methods") or {}).items():
+        cfg = cfg or {}
+        blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.get('description', '')}"))
+        if m == "ppo":
+            for pol in ppo_policies(info):
+                rate = f"; decides at {pol['decision_hz']:g} Hz" if pol.get("decision_hz") else ""
+                who = f"for {pol['vehicle']}: " if pol.get("vehicle") else ""
+                blocks.append(("p", f"    {who}policy {pol.get('policy_dir')}{rate}"))
+    run_notes = [str(n) for n in info.get("notes") or []]
+    if run_notes:  # e.g. cells left out, the pilots' decision rates
+        blocks += [("h", "Notes"), *(("p", n) for n in run_notes)]
+    versions = info.get("versions") or {}
+    blocks += [("h", "Software versions"),
+               ("p", " · ".join(f"{k} {v}" for k, v in versions.items()) or "n/a"),
+               ("h", "Fairness"), ("p", str(info.get("fairness") or "n/a"))]
+    return blocks
+
+
+# ---- 2. metrics -----------------------------------------------------------------------------------------
+def _metrics_pages(run: _Run, rows: list[dict[str, str]] | None) -> list[tuple[str, list[Figure]]]:
+    if rows is None:
+        note = (f"metrics.csv was not found in {run.run_dir}: the metrics tables are skipped. "
+                "The uam-compare CLI recomputes metrics from the saved episodes before building the report.")
+        return [("metrics", F.text_pages("Metrics", [("p", note)]))]
+    summary = _read_summary(run.run_dir / "summary.json")
+    out = [("metrics_summary", _summary_pages(run, rows, summary))]
+    paired = (summary or {}).get("paired")
+    if isinstance(paired, Mapping) and paired:
+        out.append(("metrics_paired", _paired_pages(run, paired)))
+    tracker = _tracker_pages(run, rows)
+    if tracker:
+        out.append(("metrics_tracker", tracker))
+    out.append(("metrics_episodes", _episode_table_pages(run, rows)))
+    return out
+
+
+def _tracker_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
+    """The classical pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from
+    metrics.csv; nothing when it did not fly (or the file predates the tracker columns)."""
+    mine = [r for r in rows if r.get("method") == TRACKER_METHOD]
+    if not mine or all(not math.isfinite(_float(r.get("planner_margin_m"))) for r in mine):
+        return []
+    table = []
+    for scenario in dict.fromkeys(r.get("scenario", "") for r in mine):
+        rs = [r for r in mine if r.get("scenario") == scenario]
+        col = {k: np.array([_float(r.get(k)) for r in rs]) for k in
+               ("success", "min_clearance_m", "planner_margin_m", "mpc_margin_m", "tracking_rms_m", "tracking_max_m",
+                "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking", "replans_clearance")}
+        ratio = col["min_clearance_m"] / col["planner_margin_m"]
+
+        def agg(f, x: np.ndarray, digits: int) -> str:
+            x = x[np.isfinite(x)]
+            return f"{f(x):.{digits}f}" if x.size else "n/a"
+
+        table.append([scenario, str(len(rs)), agg(np.mean, 100.0 * col["success"], 0),
+                      agg(np.max, col["planner_margin_m"], 2) + " / " + agg(np.max, col["mpc_margin_m"], 2),
+                      agg(np.min, col["min_clearance_m"], 2), agg(np.min, ratio, 2),
+                      agg(np.mean, col["tracking_rms_m"], 3), agg(np.max, col["tracking_max_m"], 2),
+                      agg(np.median, col["mpc_solve_ms_median"], 2), agg(np.max, col["mpc_solve_ms_p95"], 2),
+                      agg(np.sum, col["mpc_failures"], 0),
+                      agg(np.sum, col["replans_tracking"], 0) + " / " + agg(np.sum, col["replans_clearance"], 0)])
+    header = ["scenario", "episodes", "success [%]", "margin planner / MPC [m]", "min clearance [m]",
+              "min clearance / margin", "tracking RMS [m]", "tracking max [m]", "solve median [ms]",
+              "solve p95 max [ms]", "failures", "replans track / clear"]
+    notes = ["Margins: from the vehicle's measured tracking error in the scenario's forecast turbulence and air "
+             "(docs/planner.md). Target: min clearance / margin >= 0.5.",
+             "Min clearance: least over the episodes. Tracking: distance to the reference curve (RMS: mean over "
+             "episodes; max: over all).",
+             "Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
+             "episodes."]
+    return F.table_pages(f"Metrics: the {run.label(TRACKER_METHOD)} tracker per scenario", header, table,
+                         rows_per_page=26, notes=notes, font_size=7)
+
+
+def _read_summary(path: Path) -> dict | None:
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        logger.warning("%s unreadable (%s): means without confidence intervals", path, exc)
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _summary_pages(run: _Run, rows: list[dict[str, str]], summary: dict | None) -> list[Figure]:
+    notes = []
+    if summary is not None and isinstance(summary.get("methods"), Mapping):
+        stats = summary["methods"]
+        boot = summary.get("bootstrap")
+        notes.append("Cells: mean [95 % confidence interval] over episodes (from summary.json)."
+                     + (f" Bootstrap: {', '.join(f'{k}={v}' for k, v in boot.items())}."
+                        if isinstance(boot, Mapping) else ""))
+    else:
+        stats = _means_from_rows(rows)
+        notes.append("summary.json missing: cells are plain means over the metrics.csv rows (no intervals).")
+    methods = [m for m in run.methods if m in stats] + [m for m in stats if m not in run.methods]
+    keys = [k for k, *_ in SUMMARY_ROWS]
+    listed = summary.get("metrics") if summary else None
+    extra = [k for k in (listed or []) if k not in keys]
+    spec = list(SUMMARY_ROWS) + [(k, k, 1.0, 3) for k in extra]
+    table = [["episodes"] + [str((stats.get(m) or {}).get("episodes", "n/a")) for m in methods]]
+    for key, label, scale, digits in spec:
+        table.append([label] + [format_ci((stats.get(m) or {}).get(key), scale, digits) for m in methods])
+    reasons = []
+    for m in methods:
+        fr = (stats.get(m) or {}).get("failure_reasons")
+        if isinstance(fr, Mapping):
+            reasons.append(", ".join(f"{k}: {v}" for k, v in fr.items()) or "none")
+        else:
+            reasons.append("n/a")
+    table.append(["failure reasons"] + reasons)
+    header = ["metric"] + [run.label(m) for m in methods]
+    return F.table_pages("Metrics: per method, mean [95 % CI]", header, table, rows_per_page=30, notes=notes,
+                         font_size=9)
+
+
+def _means_from_rows(rows: list[dict[str, str]]) -> dict[str, dict]:
+    out: dict[str, dict] = {}
+    for method in dict.fromkeys(r.get("method", "") for r in rows):
+        mine = [r for r in rows if r.get("method") == method]
+        entry: dict = {"episodes": len(mine)}
+        for key, *_ in SUMMARY_ROWS:
+            vals = np.array([_float(r.get(key)) for r in mine])
+            vals = vals[np.isfinite(vals)]
+            entry[key] = {"mean": float(vals.mean()) if len(vals) else None}
+        reasons: dict[str, int] = {}
+        for r in mine:
+            if _float(r.get("success")) != 1.0:
+                reason = r.get("failure_reason") or r.get("outcome") or "unknown"
+                reasons[reason] = reasons.get(reason, 0) + 1
+        entry["failure_reasons"] = reasons
+        out[method] = entry
+    return out
+
+
+def _paired_pages(run: _Run, paired: Mapping) -> list[Figure]:
+    pairs = list(paired)
+    header = ["metric"] + [" − ".join(run.label(m.strip()) for m in p.split(" - ")) for p in pairs]
+    table = [["paired episodes"] + [str((paired[p] or {}).get("episodes", "n/a")) for p in pairs]]
+    for key, label, scale, digits in SUMMARY_ROWS:
+        if any(isinstance(paired[p], Mapping) and key in paired[p] for p in pairs):
+            table.append([label] + [format_ci((paired[p] or {}).get(key), scale, digits) for p in pairs])
+    note = ("Cells: mean of the per-episode difference (first method minus second, same scenario, episode "
+            "and seed) [95 % confidence interval].")
+    return F.table_pages("Metrics: paired differences", header, table, notes=[note], font_size=9)
+
+
+def _episode_table_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
+    def order(r: dict[str, str]) -> tuple:
+        s = r.get("scenario", "")
+        return (run.scenarios.index(s) if s in run.scenarios else len(run.scenarios), s,
+                _float(r.get("episode")), _float(r.get("seed")),
+                _method_rank(run, r.get("method", "")))
+
+    table = [[r.get("scenario", ""), r.get("episode", ""), r.get("seed", ""), run.label(r.get("method", "")),
+              r.get("outcome", ""), _fmt(r.get("min_clearance_m"), 2), _fmt(r.get("time_s"), 1),
+              _fmt(r.get("energy_kj"), 2)] for r in sorted(rows, key=order)]
+    header = ["scenario", "episode", "seed", "method", "outcome", "min clearance [m]", "time [s]",
+              "energy [kJ]"]
+    return F.table_pages("Metrics: per episode", header, table, rows_per_page=26,
+                         notes=[f"{len(rows)} rows of metrics.csv."])
+
+
+# ---- 3. episodes ----------------------------------------------------------------------------------------
+def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
+                   pages: _PageWriter) -> list[F.FlightTrace]:
+    """Three pages per (scenario, episode, seed); returns the failed flights' traces (unreadable files: `run.skip`)."""
+    failures: list[F.FlightTrace] = []
+    for (scenario, ep, seed), paths in groups.items():
+        traces = []
+        for path in paths:
+            try:
+                saved = load_episode(path)
+            except ValueError as exc:
+                run.skip(path, exc)
+                continue
+            m = saved.meta.key.method
+            traces.append(F.trace_from_episode(saved, run.label(m), run.colors.get(m, "0.3")))
+        if not traces:
+            continue
+        traces.sort(key=lambda t: _method_rank(run, t.method))
+        failures += [t for t in traces if t.episode.outcome != "success"]
+        bmap = run.map_of(scenario)
+        title = f"Episode {scenario} #{ep} seed {seed}" + ("" if bmap is not None else " (map file missing)")
+        name = f"episode_{scenario}__ep{ep:03d}__s{seed}"
+        pages.add(F.episode_paths_figure(f"{title}: paths", traces, bmap), f"{name}_paths")
+        pages.add(F.episode_timeseries_figure(f"{title}: clearance, speed and rotors over time", traces),
+                  f"{name}_timeseries")
+        pages.add(F.episode_snapshots_figure(f"{title}: snapshots over time", traces, bmap),
+                  f"{name}_snapshots")
+    return failures
+
+
+# ---- 4. training ----------------------------------------------------------------------------------------
+def ppo_policies(info: Mapping) -> list[dict]:
+    """The learned pilot's policies recorded in run.json (vehicle, policy_dir, decision_hz), one per
+    vehicle; a run written before policies per vehicle has one, without its vehicle."""
+    ppo = (info.get("methods") or {}).get("ppo") or {}
+    if isinstance(ppo.get("policies"), list):
+        return [p for p in ppo["policies"] if isinstance(p, dict)]
+    if ppo.get("policy_dir"):
+        return [{"vehicle": None, "policy_dir": ppo["policy_dir"], "decision_hz": ppo.get("decision_hz")}]
+    return []
+
+
+def _training_figure(policy: Mapping, name_vehicle: bool) -> Figure:
+    title = "PPO training: reward convergence"
+    if name_vehicle and policy.get("vehicle"):
+        title += f" ({policy['vehicle']})"
+    policy_dir = policy.get("policy_dir")
+    if not policy_dir:
+        return F.reward_curve_figure(title, None,
+                                     "No PPO policy folder is recorded in run.json: no reward curve.")
+    path = Path(policy_dir) / "reward_curve.csv"
+    try:
+        curve = read_reward_curve(path)
+    except (OSError, ValueError) as exc:
+        return F.reward_curve_figure(title, None, f"The reward curve could not be read: {exc}")
+    if curve is None:
+        return F.reward_curve_figure(title, None, f"No reward curve: {path} does not exist.")
+    prov: dict = {}
+    try:
+        loaded = json.loads((Path(policy_dir) / "provenance.json").read_text(encoding="utf-8"))
+        prov = loaded if isinstance(loaded, dict) else {}
+    except (OSError, ValueError):
+        pass  # an older policy folder without provenance: no marker
+    kept = _float(prov.get("kept_timesteps"))
+    return F.reward_curve_figure(title, curve, _training_note(path, curve, prov),
+                                 kept_timesteps=kept if math.isfinite(kept) else None,
+                                 subtitle=_training_subtitle(prov, curve))
+
+
+def _training_subtitle(prov: Mapping, curve: F.RewardCurve) -> str:
+    method = str(prov.get("method") or "")
+    # a run still training has no provenance yet; its per-update columns say rl.train wrote it (plain PPO)
+    per_update = not prov and bool(np.any(np.isfinite(curve.difficulty)))
+    if method.lower() == "ppo from scratch" or per_update:
+        what = "Plain PPO from scratch (no demonstrations, no pre-trained weights)"
+    elif method:
+        what = f"Training method: {method}"
+    elif prov.get("preset"):
+        what = f"Training preset {prov['preset']!r} (an older policy folder: method not recorded)"
+    else:
+        what = "Training method not recorded (an older policy folder)"
+    return (f"{what}.\nTraining episodes (training cities, at the curriculum's difficulty) vs. "
+            "validation (held-out cities, full difficulty).")
+
+
+def _training_note(path: Path, curve: F.RewardCurve, prov: Mapping) -> str:
+    parts = [f"from {path}"]
+    steps = _float(prov.get("timesteps"))
+    wall = _float(prov.get("wall_time_s"))
+    if not math.isfinite(steps):  # no provenance (a run still in progress): its last row
+        steps = float(curve.timesteps[-1])
+        wall = float(curve.wall_s[-1])
+        parts.append("no provenance.json (run in progress?)")
+    if math.isfinite(steps):
+        parts.append(f"{steps / 1e6:.1f} M timesteps"
+                     + (f" in {wall / 60:.0f} min" if math.isfinite(wall) else ""))
+    seed = prov.get("seed")
+    if seed is not None:
+        parts.append(f"seed {seed}")
+    return " · ".join(parts)
+
+
+# ---- 5. failures ----------------------------------------------------------------------------------------
+def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[dict[str, str]] | None,
+                   unreadable: list[str], pages: _PageWriter) -> None:
+    by_key = {(r.get("scenario"), r.get("episode"), r.get("method"), r.get("seed")): r for r in rows or []}
+    table, seen = [], set()
+    for t in failures:
+        k = t.episode.key
+        key = (k.scenario, str(k.episode), k.method, str(k.seed))
+        seen.add(key)
+        reason = (by_key.get(key) or {}).get("failure_reason") or t.episode.outcome
+        table.append([k.scenario, str(k.episode), str(k.seed), t.label, reason, _short(t.episode.detail),
+                      f"{t.end_t_s:.1f}"])
+    for key, r in by_key.items():  # failed rows whose trajectory file is missing
+        if key not in seen and _float(r.get("success")) != 1.0:
+            table.append([r.get("scenario", ""), r.get("episode", ""), r.get("seed", ""),
+                          run.label(r.get("method", "")), r.get("failure_reason") or r.get("outcome", ""),
+                          "(no trajectory file)", _fmt(r.get("time_s"), 1)])
+    notes = [f"Unreadable episode files skipped: {', '.join(unreadable)}"] if unreadable else []
+    if not table:
+        pages.add_all(F.text_pages("Failures", [("p", "No failures: every episode in this report succeeded.")]
+                                   + [("p", n) for n in notes]), "failures")
+        return
+    header = ["scenario", "episode", "seed", "method", "failure reason", "detail", "time [s]"]
+    pages.add_all(F.table_pages("Failures", header, table, notes=notes), "failures_table")
+    items = [(t, run.map_of(t.episode.key.scenario)) for t in failures[:MAX_FAILURE_PLOTS]]
+    if items:
+        shown = f"{len(items)} of {len(failures)}" if len(failures) > len(items) else f"{len(items)}"
+        pages.add(F.failure_paths_figure(f"Failures: where the flights ended ({shown})", items),
+                  "failures_paths")
+
+
+def _short(text: str, n: int = 70) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[:n - 1] + "…"
+
+
+__all__ = ["SUMMARY_ROWS", "build_report", "format_ci", "load_run_info", "read_metrics_csv",
+           "read_reward_curve"]

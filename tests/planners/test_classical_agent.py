@@ -1,0 +1,128 @@
+"""The plan-and-track pilot flies a small three-building map to the goal without collision."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from compare.episode_loop import run_episode
+from planners.agent import ClassicalAgent, ClassicalConfig
+from planners.mpc import MPCSolution
+from uam_fdm.pilot import Agent, Observation, Task, World
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.vehicle.model import hover_state
+from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField
+
+
+def _three_buildings(scale: float) -> BuildingMap:
+    """Three towers between start and goal; `scale` stretches the layout for a bigger vehicle."""
+    s = scale
+    return BuildingMap([Building(0, (40 * s, 0.0), (12 * s, 30 * s), 60.0 * s),
+                        Building(1, (70 * s, 25 * s), (14 * s, 14 * s), 45.0 * s),
+                        Building(2, (70 * s, -25 * s), (14 * s, 14 * s), 45.0 * s, yaw_rad=0.4)],
+                       (-20 * s, -60 * s, 0.0), (130 * s, 60 * s, 80.0 * s), name="three_buildings")
+
+
+@pytest.mark.parametrize("name, scale", [("small_quad", 1.0), ("uam_multicopter", 3.0)])
+def test_plan_and_track_reaches_goal_without_collision(name, scale, vehicles, compiled_dynamics):
+    p = vehicles[name]
+    city = _three_buildings(scale)
+    world = World(p, compiled_dynamics[name], city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=300.0))
+    task = Task(start_m=(0.0, 0.0, 15.0 * scale), goal_m=(110.0 * scale, 0.0, 20.0 * scale),
+                goal_radius_m=2.0 + p.collision_radius_m, timeout_s=90.0)
+    wind = WindField.from_conditions(WindConditions((1.5, 0.5, 0.0), TurbulenceLevel.LIGHT), seed=2,
+                                     duration_s=task.timeout_s + 1.0, airspeed_m_s=5.0, heights_m=(20.0 * scale,))
+    agent = ClassicalAgent()
+    assert isinstance(agent, Agent)
+    traj = run_episode(world, agent, task, wind, seed=5)
+    assert traj.outcome == "success", traj.detail
+    assert traj.clearance_m.min() > 0.0
+    assert traj.plan_time_s > 0.0 and agent.plan.ok and agent.reference.ok
+    assert agent.stats.mpc_failures <= 0.02 * agent.stats.mpc_solves
+    # The planned path really goes around the first tower (a straight line would hit it).
+    assert not city.segment_free(task.start_m, task.goal_m, p.collision_radius_m)
+
+
+def test_unreachable_goal_is_a_planner_failure_not_an_exception(vehicles, compiled_dynamics):
+    p = vehicles["small_quad"]
+    city = BuildingMap([Building(0, (50.0, 0.0), (20.0, 20.0), 40.0)], (0, -30, 0), (100, 30, 60))
+    world = World(p, compiled_dynamics["small_quad"], city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
+    task = Task(start_m=(5.0, 0.0, 10.0), goal_m=(50.0, 0.0, 20.0), timeout_s=10.0)   # goal inside the building
+    traj = run_episode(world, ClassicalAgent(), task, WindField.calm(), seed=1)
+    assert traj.outcome == "planner_failure" and "invalid_goal" in traj.detail
+    assert len(traj.t_s) == 1 and np.isfinite(traj.plan_time_s)
+
+
+def _wall_world(p, dynamics) -> World:
+    """A 40 m wall whose face runs along y = 3 m, beside a straight 60 m flight along y = 0 at 10 m."""
+    city = BuildingMap([Building(0, (30.0, 4.0), (40.0, 2.0), 40.0)], (-10.0, -30.0, 0.0), (80.0, 30.0, 50.0))
+    return World(p, dynamics, city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none")
+
+
+def _fake_prediction(agent: ClassicalAgent, start: np.ndarray, end: np.ndarray) -> MPCSolution:
+    """A last MPC solution whose predicted positions run in a straight line from `start` to `end`."""
+    n = agent._tracker.config.horizon_steps
+    pred = np.zeros((n + 1, 13))
+    pred[:, 0:3] = np.linspace(start, end, n + 1)
+    pred[:, 6] = 1.0
+    return MPCSolution(np.zeros(4), True, "fake", 1, 1e-3, False, pred, 0.0)
+
+
+def test_a_predicted_clearance_violation_replans_from_the_current_state(vehicles, compiled_dynamics):
+    p = vehicles["small_quad"]
+    world = _wall_world(p, compiled_dynamics["small_quad"])
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=30.0)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, max_clearance_replans=2, replan_cooldown_s=1.0)
+    agent = ClassicalAgent(cfg)
+    assert agent.reset(world, task, seed=3).ok
+    assert (agent.margins.planner_m, agent.margins.mpc_m) == (1.0, 0.5)
+
+    def obs_at(t: float) -> Observation:
+        pos = agent.reference.sample(t - agent._t_ref0)[0]
+        return Observation(t, hover_state(p, pos))
+
+    # a prediction that stays 3 m from the wall: tracked, no replan
+    o = obs_at(1.0)
+    agent.last_solution = _fake_prediction(agent, o.x[0:3], o.x[0:3] + (8.0, 0.0, 0.0))
+    agent.act(o)
+    assert agent.stats.replans_by_cause == {"tracking": 0, "clearance": 0}
+    # a prediction bending to 0.2 m from the wall's face (sphere clearance 0.2 - 0.42 < the MPC's 0.5 m)
+    plan_before, reference_before = agent.stats.plan_time_s, agent.reference
+    o = obs_at(1.2)
+    o.x[3:6] = (3.0, 0.0, 0.0)                          # moving east at 3 m/s
+    agent.last_solution = _fake_prediction(agent, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
+    assert agent.predicted_clearance_m(agent.last_solution.predicted_states[1:, 0:3]) < 0.0
+    agent.act(o)
+    assert agent.stats.replans_by_cause == {"tracking": 0, "clearance": 1}
+    assert agent.reference is not reference_before and agent._t_ref0 == 1.2          # from the current state
+    assert np.allclose(agent.plan.path_m[0], o.x[0:3])
+    assert np.linalg.norm(agent.reference.vel_m_s[0]) == pytest.approx(3.0, abs=0.3)  # no stop to replan
+    assert agent.stats.plan_time_s > plan_before and agent.stats.replan_time_s > 0.0  # counted as planning
+    # within the cooldown: no second replan; after it: one more, then the budget (2) is spent
+    for t, expected in ((1.7, 1), (2.3, 2), (3.5, 2)):
+        o = obs_at(t)
+        agent.last_solution = _fake_prediction(agent, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
+        agent.act(o)
+        assert agent.stats.replans_by_cause["clearance"] == expected, t
+    report = agent.episode_report()
+    assert (report.replans_clearance, report.replans_tracking, report.replans) == (2, 0, 2)
+    assert report.plan_time_s == agent.stats.plan_time_s and report.replan_time_s < report.plan_time_s
+    assert report.mpc_solves == 5 and report.planner_margin_m == 1.0 and report.mpc_margin_m == 0.5
+    assert np.isfinite(report.mpc_solve_ms_median) and report.tracking_max_m >= report.tracking_rms_m >= 0.0
+
+
+def test_margins_follow_the_forecast_turbulence_and_density(vehicles, compiled_dynamics):
+    """The agent asks the shipped table for its vehicle, the world's forecast level and the field's density."""
+    from planners.margins import MarginRule, load_tracking_table, margins_for
+
+    p = vehicles["small_quad"]
+    table, rule = load_tracking_table(), MarginRule()
+    city = _wall_world(p, compiled_dynamics["small_quad"]).city
+    for level in ("none", "light", "moderate"):
+        for cond in (AtmosphereConditions(), AtmosphereConditions(2500.0, 25.0)):
+            atm = Atmosphere.from_jsbsim(cond, z_max_m=100.0)
+            world = World(p, compiled_dynamics["small_quad"], city, atm, level)
+            task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0))
+            got = ClassicalAgent().margins_for(world, task)
+            want = margins_for(table, rule, p, level, atm.density_ratio(0.0), 1.0, 0.5)
+            assert (got.planner_m, got.mpc_m) == (want.planner_m, want.mpc_m) and got.planner_m >= rule.floor_m

@@ -1,0 +1,128 @@
+"""Training plumbing on tiny configurations (seconds, not a real training run), and the baseline pilot."""
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rl.agent import load_policy
+from rl.env import UAMNavEnv
+from rl.evaluation import evaluate, paired_counts, wilson_interval
+from rl.expert import PotentialFieldPilot
+from rl.nav import FixedEpisodes, NavConfig, NavWorld
+from rl.observation import obs_size
+from rl.train import CURVE_COLUMNS, PRESETS, Curriculum, TrainConfig, train
+from uam_fdm.pilot import Task
+from uam_fdm.city.buildings import Building, BuildingMap
+
+TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
+
+
+def _rows(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_train_writes_a_loadable_policy_and_resumes(tmp_path):
+    cfg = TrainConfig(total_timesteps=2 * 8 * 64, n_envs=8, nav=TINY_NAV, eval_every=8 * 64, eval_episodes=3,
+                      checkpoint_every=8 * 64)
+    out = tmp_path / "pol"
+    res = train(cfg, out, progress=False, command="test", log=lambda *_: None)
+    for name in ("model.zip", "obs_norm.npz", "vecnormalize.npz", "config.json", "reward_curve.csv",
+                 "provenance.json", "curriculum.json"):
+        assert (out / name).is_file(), name
+    assert not (out / "best").exists() and sorted(p.name for p in (out / "checkpoints").iterdir())
+    rows = _rows(out / "reward_curve.csv")
+    assert tuple(rows[0]) == CURVE_COLUMNS
+    # one row per PPO update (512 decisions each), validation filled where it ran, and the final evaluation
+    assert [int(r["timesteps"]) for r in rows] == [512, 1024, 1024]
+    assert all(r["eval_episodes"] == "3" for r in rows) and float(rows[0]["difficulty"]) == 0.25
+    prov = json.loads((out / "provenance.json").read_text())
+    assert prov["command"] == "test" and prov["seed"] == 0 and prov["validation_of_kept_model"]["episodes"] == 3
+    assert prov["method"] == "PPO from scratch" and "validation" in prov["pools"]["selection"]
+    assert 0.0 <= res.success_rate <= 1.0 and res.pool == "validation"
+    assert TrainConfig.from_dict(json.loads((out / "config.json").read_text())) == cfg
+    policy = load_policy(out)
+    assert policy.act_batch(np.zeros((2, obs_size(TINY_NAV.perception)), dtype=np.float32)).shape == (2, 3)
+    ckpt = sorted((out / "checkpoints").iterdir())[0]
+    more = replace(cfg, total_timesteps=3 * 8 * 64)
+    train(more, tmp_path / "resumed", resume=ckpt, progress=False, log=lambda *_: None)
+    assert json.loads((tmp_path / "resumed" / "provenance.json").read_text())["timesteps"] == 3 * 8 * 64
+
+
+def _open_field(n_tasks: int = 32, seed: int = 0) -> FixedEpisodes:
+    """An empty 200 m field with short legs: an easy task that PPO learns within seconds."""
+    city = BuildingMap([], (0, 0, 0), (200, 200, 60), name="open-field")
+    rng = np.random.default_rng(seed)
+    tasks = []
+    for _ in range(n_tasks):
+        start = rng.uniform([60, 60, 8], [140, 140, 20])
+        ang = rng.uniform(-np.pi, np.pi)
+        goal = start + np.array([25 * np.cos(ang), 25 * np.sin(ang), rng.uniform(-3, 3)])
+        tasks.append((0, Task(tuple(start), tuple(goal), 3.0, 15.0)))
+    return FixedEpisodes((city,), tuple(tasks))
+
+
+def test_tiny_training_run_increases_the_return(tmp_path):
+    """Plain PPO on an easy configuration: the training return rises (seeded, seconds)."""
+    nav = replace(TINY_NAV, turbulence="none", steady_wind_max_m_s=0.0, city_pool_size=1)
+    world = NavWorld(nav, fixed=_open_field())
+    cfg = TrainConfig(total_timesteps=24 * 32 * 64, n_envs=32, nav=nav, curriculum=Curriculum(start=1.0),
+                      eval_every=10**9, eval_episodes=2, checkpoint_every=0, seed=3)
+    train(cfg, tmp_path / "easy", progress=False, log=lambda *_: None, world=world)
+    ret = [float(r["mean_episode_reward"]) for r in _rows(tmp_path / "easy" / "reward_curve.csv")
+           if r["mean_episode_reward"]]
+    first, last = np.mean(ret[:4]), np.mean(ret[-4:])
+    assert last > first + 20.0, (first, last, ret)
+
+
+def test_presets_keep_the_paper_network():
+    assert set(PRESETS) == {"paper"}
+    assert PRESETS["paper"].net_arch == (128, 128) and PRESETS["paper"].clip_range == 0.2
+    with pytest.raises(ValueError, match="preset"):
+        TrainConfig(preset="huge")
+    with pytest.raises(ValueError, match="curriculum"):
+        Curriculum(start=0.0)
+    with pytest.raises(ValueError, match="collision_weight"):
+        TrainConfig(collision_weight=-1.0)
+
+
+def test_discount_keeps_its_horizon_in_seconds():
+    pr = PRESETS["paper"]
+    assert pr.gamma(10.0) == 0.99 and pr.gamma(50.0) == pytest.approx(0.998)
+    # the weight of a reward 10 s ahead is the same at either rate (1/e in the continuous limit)
+    assert pr.gamma(50.0) ** 500 == pytest.approx(pr.gamma(10.0) ** 100, rel=5e-3)
+    assert TrainConfig().to_dict()["ppo"]["gamma"] == 0.99
+
+
+def test_potential_field_flies_past_a_building_in_the_way():
+    city = BuildingMap([Building(0, (60.0, 60.0), (20.0, 18.0), 40.0)], (0, 0, 0), (120, 100, 60), name="block")
+    cfg = NavConfig(city_pool_size=1, turbulence="none", steady_wind_max_m_s=0.0, decision_hz=50.0)
+    fixed = FixedEpisodes((city,), ((0, Task((20.0, 50.0, 10.0), (100.0, 50.0, 10.0), 3.0, 60.0)),))
+    env = UAMNavEnv(world=NavWorld(cfg, fixed=fixed))
+    obs, _ = env.reset(seed=0)
+    pilot = PotentialFieldPilot(env.batch)
+    min_clear = np.inf
+    for _ in range(5000):
+        obs, _, term, trunc, info = env.step(pilot(obs[None], env.batch)[0].astype(np.float32))
+        min_clear = min(min_clear, info["clearance_m"])
+        if term or trunc:
+            break
+    assert info["outcome"] == "success" and min_clear > 0.5  # the line passes 1 m from the wall: pushed away
+
+
+def test_evaluate_counts_outcomes_with_intervals():
+    res = evaluate(lambda o, _b: np.zeros((len(o), 3)), replace(TINY_NAV, turbulence="none"), 3, seed=0)
+    assert res.episodes == 3 and sum(res.outcomes.values()) == 3
+    assert res.outcomes.get("timeout", 0) == 3 and res.per_episode == ("timeout",) * 3  # hovering never arrives
+    assert res.success_ci95 == wilson_interval(0, 3) and res.success_ci95[0] == 0.0
+    assert paired_counts(res, res) == {"only_a": 0, "only_b": 0, "both": 0, "neither": 3}
+
+
+def test_wilson_interval_matches_the_formula():
+    lo, hi = wilson_interval(95, 100)
+    assert lo == pytest.approx(0.8882, abs=1e-4) and hi == pytest.approx(0.9785, abs=1e-4)
+    assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(50, 50)[1] == 1.0
