@@ -422,8 +422,8 @@ def _simplify(ss: og.SimpleSetup, si: ob.SpaceInformation, path: og.PathGeometri
 
 
 # ---- the public entry point ----------------------------------------------------------------------------
-def plan_path(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[float], radius_m: float,
-              config: PlannerConfig = PlannerConfig(), seed: int = 0) -> PlanResult:
+def plan_path(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: Sequence[float] | np.ndarray,
+              radius_m: float, config: PlannerConfig = PlannerConfig(), seed: int = 0) -> PlanResult:
     """Plan a collision-free path for a sphere from start to goal.
 
     Args:
@@ -477,8 +477,8 @@ class _Common(TypedDict):
     required_clearance_m: float
 
 
-def _checked_query(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[float], radius_m: float,
-                   margin_m: float, seed: int
+def _checked_query(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: Sequence[float] | np.ndarray,
+                   radius_m: float, margin_m: float, seed: int
                    ) -> tuple[tuple[float, float, float], tuple[float, float, float], float, np.ndarray, np.ndarray]:
     """The query's arguments checked: (start, goal, radius [m], lo, hi), lo/hi the bounds shrunk by
     radius + margin (ENU metres). Raises ValueError on bad arguments (see `plan_path`)."""
@@ -562,7 +562,7 @@ def _empty() -> np.ndarray:
     return a
 
 
-def _point(p: Sequence[float], name: str) -> tuple[float, float, float]:
+def _point(p: Sequence[float] | np.ndarray, name: str) -> tuple[float, float, float]:
     a = np.asarray(p, dtype=float).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{name} must be 3 finite numbers (ENU metres), got {p!r}")
