@@ -76,7 +76,7 @@ def demo_flight(preset: str, seed: int = 0) -> DemoResult:
             target += 1
             continue
         v_cmd = gain * error
-        v_cmd *= min(1.0, speed / max(np.linalg.norm(v_cmd), 1e-9))
+        v_cmd *= min(1.0, speed / max(float(np.linalg.norm(v_cmd)), 1e-9))
         states.append(sim.advance_velocity(np.append(v_cmd, 0.0)).states)
     traj = np.concatenate(states)
     wall = time.perf_counter() - t0
@@ -96,7 +96,7 @@ def demo_flight(preset: str, seed: int = 0) -> DemoResult:
         waypoints=len(waypoints), flight_time_s=t_flight,
         path_length_m=float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1))),
         max_speed_m_s=float(np.linalg.norm(vel, axis=1).max()), max_tilt_deg=float(tilt.max()),
-        final_position_m=tuple(float(v) for v in pos[-1]), max_cross_track_m=float(d.max()),
+        final_position_m=(float(pos[-1, 0]), float(pos[-1, 1]), float(pos[-1, 2])), max_cross_track_m=float(d.max()),
         energy_kj=sim.state.energy_J / 1e3, mean_shaft_power_kw=sim.state.energy_J / t_flight / 1e3,
         wall_time_s=wall,
     )

@@ -33,6 +33,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -158,7 +159,7 @@ def margins_for(table: TrackingErrorTable | None, rule: MarginRule, vehicle: Veh
     """
     level = TurbulenceLevel.parse(turbulence)
     levels = table.measured_levels(vehicle) if table is not None else []
-    if not levels:
+    if table is None or not levels:
         return Margins(float(fixed_planner_m), float(fixed_mpc_m), math.nan,
                        f"fixed: no tracking-error entry for vehicle {vehicle.name!r}")
     rows = table.rows_for(vehicle, level)
@@ -207,10 +208,10 @@ def load_tracking_table(path: Path | str = DEFAULT_TABLE_PATH) -> TrackingErrorT
         if not isinstance(r, dict):
             raise ValueError(f"{where}: expected an object")
         try:
-            values = {"vehicle": str(r["vehicle"]), "fingerprint": str(r["fingerprint"]),
-                      "turbulence": TurbulenceLevel.parse(r["turbulence"]),
-                      "density_ratio": float(r["density_ratio"]), "episodes": int(r["episodes"]),
-                      "samples": int(r["samples"]), **{k: float(r[k]) for k in PERCENTILES}}
+            values: dict[str, Any] = {"vehicle": str(r["vehicle"]), "fingerprint": str(r["fingerprint"]),
+                                      "turbulence": TurbulenceLevel.parse(r["turbulence"]),
+                                      "density_ratio": float(r["density_ratio"]), "episodes": int(r["episodes"]),
+                                      "samples": int(r["samples"]), **{k: float(r[k]) for k in PERCENTILES}}
         except KeyError as exc:
             raise ValueError(f"{where}: missing key {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:

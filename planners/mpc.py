@@ -45,6 +45,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -165,19 +166,20 @@ class MPCTracker:
         self.params = params
         config = config if config is not None else MPCConfig()
         input_mode = config.input_mode or ("rotors" if params.n_rotors == 4 else "wrench")
-        if config.step_s is None:
-            config = dataclasses.replace(config, step_s=max(0.05, 1.25 * params.motor_time_constant_s))
-        if config.horizon_steps is None:
-            config = dataclasses.replace(config, horizon_steps=15 if input_mode == "rotors" else 20)
-        if config.qp_solver is None:
-            config = dataclasses.replace(config, qp_solver="hpipm" if config.solver == "rti" else "qrqp")
+        # the settings left to the vehicle, resolved; `self.config` holds them from here on
+        step_s = config.step_s if config.step_s is not None else max(0.05, 1.25 * params.motor_time_constant_s)
+        horizon_steps = (config.horizon_steps if config.horizon_steps is not None
+                         else 15 if input_mode == "rotors" else 20)
+        self._qp_solver = (config.qp_solver if config.qp_solver is not None
+                           else "hpipm" if config.solver == "rti" else "qrqp")
+        config = dataclasses.replace(config, step_s=step_s, horizon_steps=horizon_steps, qp_solver=self._qp_solver)
         self.config = config
-        motor_lag = (params.motor_time_constant_s >= config.step_s / 2.5
+        motor_lag = (params.motor_time_constant_s >= step_s / 2.5
                      if config.motor_lag is None else config.motor_lag)
-        self.model = PredictionModel(params, input_mode, motor_lag, config.step_s)
+        self.model = PredictionModel(params, input_mode, motor_lag, step_s)
         self.solver_name = config.solver
         max_tilt = np.radians(params.controller.max_tilt_deg) if config.tilt_constraint else None
-        self.ocp = build_tracking_ocp(self.model, config.weights, config.horizon_steps, config.n_halfspaces,
+        self.ocp = build_tracking_ocp(self.model, config.weights, horizon_steps, config.n_halfspaces,
                                       max_tilt)
         self.layout: OcpLayout = self.ocp.layout
         self._solver, self.backend = self._make_solver(cache_dir)
@@ -186,6 +188,16 @@ class MPCTracker:
     @property
     def input_mode(self) -> str:
         return self.model.input_mode
+
+    @property
+    def step_s(self) -> float:
+        """Shooting interval [s] (`MPCConfig.step_s`, resolved)."""
+        return self.model.step_s
+
+    @property
+    def horizon_steps(self) -> int:
+        """Shooting intervals N (`MPCConfig.horizon_steps`, resolved)."""
+        return self.layout.n_stages
 
     @property
     def motor_lag(self) -> bool:
@@ -241,7 +253,8 @@ class MPCTracker:
                     raise RuntimeError("compiled=True but the MPC could not be compiled (see the log)")
             if backend == "vm":
                 functions = [f.expand() for f in functions]
-            return GaussNewtonRTI(self.ocp, *functions, cfg.qp_solver, cfg.rti_iterations), backend
+            qp_data, merit_data = functions
+            return GaussNewtonRTI(self.ocp, qp_data, merit_data, self._qp_solver, cfg.rti_iterations), backend
         opts = self._nlp_options()
         nlp = self.ocp.nlp()
         if cfg.compiled is not False:
@@ -272,7 +285,7 @@ class MPCTracker:
             # the clearance half-spaces (a reference may run through a wall the MPC must respect).
             return lay.pack(np.tile(x0, (n + 1, 1)), np.tile(u_hover, (n, 1)), np.zeros(n))
         # Shift the previous solution forward by the time elapsed (linear interpolation between stages).
-        frac = min(shift_s / self.config.step_s, 1.0)
+        frac = min(shift_s / self.step_s, 1.0)
         xs, us = lay.states(self._w), lay.inputs(self._w)
         xs = (1 - frac) * xs + frac * np.vstack([xs[1:], xs[-1:]])
         us = (1 - frac) * us + frac * np.vstack([us[1:], us[-1:]])
@@ -303,10 +316,10 @@ class MPCTracker:
         x0 = np.concatenate([self.model.physical_state(x_full), u_prev])
         ref = np.vstack([np.asarray(ref_pos_m, float).T, np.asarray(ref_vel_m_s, float).T])
         env = make_env(density_ratio=density_ratio, height_above_surface_m=height_above_surface_m)
-        params = pack_parameters(cfg.horizon_steps, cfg.n_halfspaces, ref, yaw_ref_rad, env, u_hover,
+        params = pack_parameters(self.horizon_steps, cfg.n_halfspaces, ref, yaw_ref_rad, env, u_hover,
                                  normals, offsets)
         lbx, ubx = self.ocp.bounds(x0)
-        args = {"x0": self._initial_guess(x0, u_hover, elapsed_s), "p": params, "lbx": lbx, "ubx": ubx,
+        args: dict[str, Any] = {"x0": self._initial_guess(x0, u_hover, elapsed_s), "p": params, "lbx": lbx, "ubx": ubx,
                 "lbg": self.ocp.lbg, "ubg": self.ocp.ubg}
         if self._lam_x is not None:
             args.update(lam_x0=self._lam_x, lam_g0=self._lam_g)
@@ -322,7 +335,7 @@ class MPCTracker:
             iterations = int(stats.get("iter_count", -1))
             qp_iterations = int(stats.get("qp_iter_count", -1))
         except RuntimeError as exc:   # a solver that raises is a failed solve like any other
-            sol, success, iterations, qp_iterations = None, False, -1, -1
+            success, iterations, qp_iterations = False, -1, -1
             status = "solver_error: " + str(exc).strip().splitlines()[-1][:160]
         solve_time = time.perf_counter() - t0
         self.n_solves += 1
@@ -345,8 +358,8 @@ class MPCTracker:
 
     def _fallback_input(self, u_hover: np.ndarray, status: str) -> tuple[np.ndarray, str]:
         """The shifted previous plan's input while it still covers now, else hover trim."""
-        if self._w is not None and self._plan_age_s < self.config.step_s * (self.config.horizon_steps - 1):
-            k = int(self._plan_age_s / self.config.step_s)
+        if self._w is not None and self._plan_age_s < self.step_s * (self.horizon_steps - 1):
+            k = int(self._plan_age_s / self.step_s)
             return self.layout.inputs(self._w)[k].copy(), f"fallback_shifted({status})"
         return u_hover.copy(), f"fallback_hover({status})"
 

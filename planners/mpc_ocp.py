@@ -381,7 +381,7 @@ def build_tracking_ocp(model: PredictionModel, weights: MPCWeights, n_stages: in
     for k in range(n_stages):
         x, u, col = xs[k], us[k], lay.x_start(k)
         res_args = (x, u, p_ref[:, k], p_yaw, p_uhover)
-        path_args = (x, u) if k == 0 else (x, u, p_normals[:, k - 1], p_offsets[:, k - 1])
+        path_args: tuple[ca.MX, ...] = (x, u) if k == 0 else (x, u, p_normals[:, k - 1], p_offsets[:, k - 1])
         path_name = "path_first" if k == 0 else "path"
         lo, hi = _path_bounds(model, k_h, max_tilt_rad, first=k == 0)
         # The NLP: residuals, gap rows x_{k+1} − F(x_k, u_k), path rows.

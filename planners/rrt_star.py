@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import TypedDict
 
 import numpy as np
 from ompl import base as ob
@@ -214,7 +215,7 @@ class FreeSpace:
 
     def path_ok(self, path_m: np.ndarray) -> bool:
         """Whether every edge of a polyline (K, 3) is valid."""
-        pts = [tuple(float(v) for v in p) for p in path_m]
+        pts = [_xyz(p) for p in path_m]
         return all(self.edge_ok(a, b) for a, b in itertools.pairwise(pts))
 
 
@@ -332,9 +333,25 @@ def ompl_seed(seed: int) -> int:
     return int(seed) % (2**32 - 1) + 1
 
 
-def _solve(free: FreeSpace, lo: np.ndarray, hi: np.ndarray, start: tuple, goal: tuple,
-           config: PlannerConfig, seed: int) -> dict:
-    """Build the OMPL problem, solve, simplify; return NumPy and plain numbers only."""
+@dataclass
+class _Solved:
+    """What `_solve` hands back: NumPy and plain numbers only (positions world ENU, metres)."""
+
+    solve_time_s: float
+    progress: _Progress
+    status: str  # OMPL's status string
+    exact: bool
+    approximate: bool
+    path: np.ndarray  # (K, 3), simplified; (0, 3) without a solution
+    raw_path: np.ndarray  # (K, 3), as the planner found it
+    ompl_clearance: float
+    motion_checks: int
+    simplify_polls: int
+
+
+def _solve(free: FreeSpace, lo: np.ndarray, hi: np.ndarray, start: tuple[float, float, float],
+           goal: tuple[float, float, float], config: PlannerConfig, seed: int) -> _Solved:
+    """Build the OMPL problem, solve, simplify."""
     ou.RNG.setSeed(ompl_seed(seed))  # before any OMPL object exists: every RNG below derives from it
     space = ob.RealVectorStateSpace(3)
     bounds = ob.RealVectorBounds(3)
@@ -363,24 +380,23 @@ def _solve(free: FreeSpace, lo: np.ndarray, hi: np.ndarray, start: tuple, goal: 
     status = ss.solve(ob.PlannerTerminationCondition(_termination(planner, progress, budget,
                                                                   config.time_budget_s, t0)))
     solve_time = time.perf_counter() - t0
-    out = {"solve_time_s": solve_time, "progress": progress, "status": status.asString(),
-           "exact": status == ob.PlannerStatus.EXACT_SOLUTION,
-           "approximate": status == ob.PlannerStatus.APPROXIMATE_SOLUTION, "path": np.zeros((0, 3)),
-           "raw_path": np.zeros((0, 3)), "ompl_clearance": math.nan, "motion_checks": 0,
-           "simplify_polls": 0}
+    exact = status == ob.PlannerStatus.EXACT_SOLUTION
+    raw_xyz, path_xyz, ompl_clearance, simplify_polls = np.zeros((0, 3)), np.zeros((0, 3)), math.nan, 0
     if bool(status):
         path = ss.getSolutionPath()
-        out["raw_path"] = _states_xyz(path)
+        raw_xyz = _states_xyz(path)
         if math.isnan(progress.first_time_s):  # RRTConnect has no bestCost: its first is its only solution
             progress.first_time_s, progress.first_iterations = solve_time, progress.iterations
             progress.first_cost = path.length()
-        if config.simplify and out["exact"]:
-            out["simplify_polls"], capped = _simplify(ss, si, path, config.time_budget_s)
+        if config.simplify and exact:
+            simplify_polls, capped = _simplify(ss, si, path, config.time_budget_s)
             progress.wall_cap_hit |= capped
-        out["path"] = _states_xyz(path)
-        out["ompl_clearance"] = float(path.clearance())
-    out["motion_checks"] = motion.calls
-    return out
+        path_xyz = _states_xyz(path)
+        ompl_clearance = float(path.clearance())
+    return _Solved(solve_time_s=solve_time, progress=progress, status=status.asString(), exact=exact,
+                   approximate=status == ob.PlannerStatus.APPROXIMATE_SOLUTION, path=path_xyz,
+                   raw_path=raw_xyz, ompl_clearance=ompl_clearance, motion_checks=motion.calls,
+                   simplify_polls=simplify_polls)
 
 
 def _simplify(ss: og.SimpleSetup, si: ob.SpaceInformation, path: og.PathGeometric, wall_s: float
@@ -406,8 +422,8 @@ def _simplify(ss: og.SimpleSetup, si: ob.SpaceInformation, path: og.PathGeometri
 
 
 # ---- the public entry point ----------------------------------------------------------------------------
-def plan_path(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[float], radius_m: float,
-              config: PlannerConfig = PlannerConfig(), seed: int = 0) -> PlanResult:
+def plan_path(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: Sequence[float] | np.ndarray,
+              radius_m: float, config: PlannerConfig = PlannerConfig(), seed: int = 0) -> PlanResult:
     """Plan a collision-free path for a sphere from start to goal.
 
     Args:
@@ -432,6 +448,40 @@ def plan_path(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[floa
     """
     t_start = time.perf_counter()
     city = city.planning_map()
+    start, goal, r, lo, hi = _checked_query(city, start_m, goal_m, radius_m, config.safety_margin_m, seed)
+    common = _Common(algorithm=config.algorithm, seed=int(seed), radius_m=r,
+                     required_clearance_m=config.safety_margin_m)
+    for name, p in (("start", start), ("goal", goal)):
+        problem = _endpoint_problem(city, p, r)
+        if problem:
+            return _failed(f"invalid_{name}", f"{name} {list(p)}: {problem}", t_start, common)
+    free = FreeSpace(city, r, config.safety_margin_m, (start, goal))
+    # The sampling box: bounds shrunk by R, stretched to hold a (relaxed) start and goal.
+    lo = np.minimum(lo, np.minimum(start, goal))
+    hi = np.maximum(hi, np.maximum(start, goal))
+
+    with _ompl_log_silenced():
+        solved = _solve(free, lo, hi, start, goal, config, int(seed))
+    result = _result(solved, free, goal, config, t_start, common)
+    logger.debug("plan %s seed %d: %s, %.1f m, %d it, %.3f s", config.algorithm, seed, result.status,
+                 result.length_m, result.iterations, result.plan_time_s)
+    return result
+
+
+class _Common(TypedDict):
+    """The `PlanResult` fields every outcome of a query shares."""
+
+    algorithm: str
+    seed: int
+    radius_m: float
+    required_clearance_m: float
+
+
+def _checked_query(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: Sequence[float] | np.ndarray,
+                   radius_m: float, margin_m: float, seed: int
+                   ) -> tuple[tuple[float, float, float], tuple[float, float, float], float, np.ndarray, np.ndarray]:
+    """The query's arguments checked: (start, goal, radius [m], lo, hi), lo/hi the bounds shrunk by
+    radius + margin (ENU metres). Raises ValueError on bad arguments (see `plan_path`)."""
     start = _point(start_m, "start_m")
     goal = _point(goal_m, "goal_m")
     r = float(radius_m)
@@ -439,63 +489,52 @@ def plan_path(city: BuildingMap, start_m: Sequence[float], goal_m: Sequence[floa
         raise ValueError(f"radius_m must be finite and >= 0, got {radius_m!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    R = r + config.safety_margin_m
+    R = r + margin_m
     lo = np.asarray(city.bounds_min_m, dtype=float) + R
     hi = np.asarray(city.bounds_max_m, dtype=float) - R
     if np.any(hi <= lo):
         raise ValueError(f"radius + margin {R} m leaves no room inside the map bounds")
+    return start, goal, r, lo, hi
 
-    base = {"algorithm": config.algorithm, "seed": int(seed), "radius_m": r,
-            "required_clearance_m": config.safety_margin_m}
-    for name, p in (("start", start), ("goal", goal)):
-        problem = _endpoint_problem(city, p, r)
-        if problem:
-            return _failed(f"invalid_{name}", f"{name} {list(p)}: {problem}", t_start, **base)
-    free = FreeSpace(city, r, config.safety_margin_m, (start, goal))
-    # The sampling box: bounds shrunk by R, stretched to hold a (relaxed) start and goal.
-    lo = np.minimum(lo, np.minimum(start, goal))
-    hi = np.maximum(hi, np.maximum(start, goal))
 
-    with _ompl_log_silenced():
-        out = _solve(free, lo, hi, start, goal, config, int(seed))
-    progress: _Progress = out["progress"]
-    path = out["path"]
+def _result(solved: _Solved, free: FreeSpace, goal: tuple[float, float, float], config: PlannerConfig,
+            t_start: float, common: _Common) -> PlanResult:
+    """The PlanResult of a solved query: the path finished at the goal, classified and measured."""
+    progress = solved.progress
+    path = solved.path
     goal_appended = False
     # OMPL stops within the goal tolerance; finish exactly at the goal when that piece is free.
-    if out["exact"] and len(path) and tuple(path[-1]) != goal and free.edge_ok(tuple(map(float, path[-1])), goal):
+    if solved.exact and len(path) and tuple(path[-1]) != goal and free.edge_ok(_xyz(path[-1]), goal):
         path = np.vstack([path, goal])
         goal_appended = True
-    status, message = _classify(out, free, path, config)
+    status, message = _classify(solved, free, path, config)
     length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))) if len(path) else math.nan
-    raw = out["raw_path"]
+    raw = solved.raw_path
     raw_length = float(np.sum(np.linalg.norm(np.diff(raw, axis=0), axis=1))) if len(raw) else math.nan
-    min_clear = path_min_clearance(city, path, r, config.clearance_spacing_m) if len(path) else math.nan
+    min_clear = path_min_clearance(free.city, path, free.r, config.clearance_spacing_m) if len(path) else math.nan
     path.setflags(write=False)
-    result = PlanResult(
+    return PlanResult(
         status=status, path_m=path, length_m=length, raw_length_m=raw_length,
-        plan_time_s=time.perf_counter() - t_start, solve_time_s=out["solve_time_s"],
+        plan_time_s=time.perf_counter() - t_start, solve_time_s=solved.solve_time_s,
         first_solution_time_s=progress.first_time_s, first_solution_iterations=progress.first_iterations,
         first_solution_length_m=progress.first_cost, iterations=progress.iterations,
-        wall_cap_hit=progress.wall_cap_hit, min_clearance_m=min_clear, ompl_clearance_m=out["ompl_clearance"],
-        message=message, extra={"ompl_status": out["status"], "motion_checks": out["motion_checks"],
-               "simplify_polls": out["simplify_polls"], "goal_appended": goal_appended}, **base)
-    logger.debug("plan %s seed %d: %s, %.1f m, %d it, %.3f s", config.algorithm, seed, status, length,
-                 progress.iterations, result.plan_time_s)
-    return result
+        wall_cap_hit=progress.wall_cap_hit, min_clearance_m=min_clear, ompl_clearance_m=solved.ompl_clearance,
+        message=message, extra={"ompl_status": solved.status, "motion_checks": solved.motion_checks,
+               "simplify_polls": solved.simplify_polls, "goal_appended": goal_appended}, **common)
 
 
-def _classify(out: dict, free: FreeSpace, path: np.ndarray, config: PlannerConfig) -> tuple[str, str]:
-    progress: _Progress = out["progress"]
-    if out["exact"]:
+def _classify(solved: _Solved, free: FreeSpace, path: np.ndarray, config: PlannerConfig) -> tuple[str, str]:
+    progress = solved.progress
+    if solved.exact:
         if not free.path_ok(path):
             return "invalid_path", "the final path failed the exact swept-sphere re-check"
         return "exact", ""
     if progress.wall_cap_hit:
         return "timeout", (f"wall-time cap {config.time_budget_s} s hit after {progress.iterations} of "
                            f"{config.iteration_budget} iterations, without a path")
-    if out["approximate"]:
+    if solved.approximate:
         return "approximate", "the planner only got near the goal (no path within the budget)"
-    return "no_solution", f"no path after {progress.iterations} iterations ({out['status']})"
+    return "no_solution", f"no path after {progress.iterations} iterations ({solved.status})"
 
 
 def _endpoint_problem(city: BuildingMap, p: tuple[float, float, float], r: float) -> str:
@@ -508,13 +547,13 @@ def _endpoint_problem(city: BuildingMap, p: tuple[float, float, float], r: float
     return ""
 
 
-def _failed(status: str, message: str, t_start: float, **base: object) -> PlanResult:
+def _failed(status: str, message: str, t_start: float, common: _Common) -> PlanResult:
     nan = math.nan
     return PlanResult(status=status, path_m=_empty(), length_m=nan, raw_length_m=nan,
                       plan_time_s=time.perf_counter() - t_start, solve_time_s=0.0, first_solution_time_s=nan,
                       first_solution_iterations=-1, first_solution_length_m=nan, iterations=0,
                       wall_cap_hit=False, min_clearance_m=nan, ompl_clearance_m=nan, message=message,
-                      **base)  # type: ignore[arg-type]
+                      **common)
 
 
 def _empty() -> np.ndarray:
@@ -523,8 +562,13 @@ def _empty() -> np.ndarray:
     return a
 
 
-def _point(p: Sequence[float], name: str) -> tuple[float, float, float]:
+def _point(p: Sequence[float] | np.ndarray, name: str) -> tuple[float, float, float]:
     a = np.asarray(p, dtype=float).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{name} must be 3 finite numbers (ENU metres), got {p!r}")
     return float(a[0]), float(a[1]), float(a[2])
+
+
+def _xyz(p: np.ndarray) -> tuple[float, float, float]:
+    """A position (3,) as a tuple of Python floats (the form `FreeSpace` keys its endpoints by)."""
+    return float(p[0]), float(p[1]), float(p[2])

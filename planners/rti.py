@@ -123,7 +123,7 @@ class GaussNewtonRTI:
         # extra steps only need a good first control, and the rough QPs are half as costly.
         qp = self._qp_accurate if self.iterations > 1 else self._qp
         qp_iterations, status, success, sol, penalty = 0, "not_run", True, None, 0.0
-        for it in range(n_steps):
+        for it in range(n_steps):  # noqa: B007 (read after the loop: the steps taken)
             hess, grad, jac, g, f = self._qp_data(w, p)
             g = np.asarray(g).ravel()
             sol = qp(h=hess, g=grad, a=jac, lba=lbg - g, uba=ubg - g, lbx=lbx - w, ubx=ubx - w)

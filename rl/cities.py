@@ -50,9 +50,13 @@ class CityDistribution:
     def params(self, seed: int) -> CityGenParams:
         """The generator parameters of city `seed` (its own PCG64 stream, separate from the layout's)."""
         rng = np.random.Generator(np.random.PCG64([int(seed), 0x5EED]))
-        u = lambda r: float(rng.uniform(r[0], r[1]))
+
+        def u(r: tuple[float, float]) -> float:
+            return float(rng.uniform(r[0], r[1]))
+
         w, d = u(self.extent_m), u(self.extent_m)
-        lots = tuple(int(rng.integers(self.lots_per_block[0], self.lots_per_block[1] + 1)) for _ in range(2))
+        lots_lo, lots_hi = self.lots_per_block
+        lots = (int(rng.integers(lots_lo, lots_hi + 1)), int(rng.integers(lots_lo, lots_hi + 1)))
         block = (u(self.block_size_m), u(self.block_size_m))
         fill_lo = u(self.fill_low)
         fill_hi = min(0.9, fill_lo + float(rng.uniform(0.05, 0.2)))
@@ -122,7 +126,8 @@ class TaskDistribution:
             goal = np.array([start[0] + horiz * math.cos(heading), start[1] + horiz * math.sin(heading), goal_alt])
             if not (np.all(goal[:2] >= lo[:2]) and np.all(goal[:2] <= hi[:2])):
                 continue
-            if city.clearance_one(*start, radius_m) < need or city.clearance_one(*goal, radius_m) < need:
+            if (city.clearance_one(start[0], start[1], start[2], radius_m) < need
+                    or city.clearance_one(goal[0], goal[1], goal[2], radius_m) < need):
                 continue
             d = float(np.linalg.norm(goal - start))
             timeout = self.timeout_base_s + self.timeout_per_speed * d / max_speed_m_s
@@ -130,7 +135,8 @@ class TaskDistribution:
                 if max_vertical_speed_m_s is None:
                     raise ValueError("timeout_per_climb needs the vehicle's max_vertical_speed_m_s")
                 timeout += self.timeout_per_climb * abs(dz) / max_vertical_speed_m_s
-            return Task(tuple(map(float, start)), tuple(map(float, goal)), self.goal_radius_m, round(timeout, 2))
+            return Task((float(start[0]), float(start[1]), float(start[2])),
+                        (float(goal[0]), float(goal[1]), float(goal[2])), self.goal_radius_m, round(timeout, 2))
         raise RuntimeError(f"no free start/goal pair in {city.name!r} after {attempts} draws")
 
 

@@ -11,7 +11,7 @@ holds each reward term of the step; the final step's info has `outcome` and `is_
 """
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -37,7 +37,7 @@ class UAMNavEnv(gym.Env):
         world: a prebuilt shared world (saves rebuilding cities and the compiled model).
     """
 
-    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, config: NavConfig | None = None, render_mode: str | None = None,
                  fixed: FixedEpisodes | None = None, world: NavWorld | None = None) -> None:

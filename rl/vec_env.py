@@ -52,7 +52,13 @@ class UAMNavVecEnv(VecEnv):
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 3)
 
-    def step_wait(self):
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        """`VecEnv.step` (step_async, then step_wait), typed with this environment's array observations."""
+        self.step_async(actions)
+        return self.step_wait()
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        assert self._actions is not None, "step_async comes before step_wait"
         obs, rew, term, trunc, infos = self.batch.step(self._actions)
         done = term | trunc
         ended = np.flatnonzero(done)

@@ -28,8 +28,8 @@ def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray
     The one rule every flight uses (the runner's `Simulator` and the learned pilot's batched
     environment alike): the wind sampled at the period's midpoint in time and at the vehicle's
     altitude at the period's start (the caller passes it: `WindField.wind_enu_m_s(t + T/2, z)` or
-    `WindBank.wind_enu_m_s`), the density ratio at the vehicle's altitude at the period's start (clamped to the table), and
-    the height above the surface below at the period's start (the caller's, from
+    `WindBank.wind_enu_m_s`), the density ratio at the vehicle's altitude at the period's start (clamped to the
+    table), and the height above the surface below at the period's start (the caller's, from
     `uam_fdm.vehicle.ground_effect.height_above_surface`; None: open ground at z = 0, so h = z).
 
     Args:
@@ -87,7 +87,8 @@ class Simulator:
         return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s, z), z,
                           height_above_surface_m)
 
-    def step(self, x: np.ndarray, u: np.ndarray, t_s: float, height_above_surface_m: float | None = None) -> PeriodResult:
+    def step(self, x: np.ndarray, u: np.ndarray, t_s: float,
+             height_above_surface_m: float | None = None) -> PeriodResult:
         """One control period from state x at time t_s with rotor-speed commands u [rad/s] held."""
         return self.dynamics.period_rotor(x, u, self.env(x, t_s, height_above_surface_m))
 
@@ -115,7 +116,8 @@ class Simulator:
         """Advance the held state one control period with rotor commands u [rad/s]."""
         s = self.state
         r = self.step(s.x, u, s.t_s, height_above_surface_m)
-        self._state = SimState(s.t_s + self.control_period_s, r.final_state, s.ctrl_state, s.energy_J + r.energy_J)
+        self._state = SimState(s.t_s + self.control_period_s, r.final_state, s.ctrl_state,
+                               s.energy_J + float(r.energy_J))
         return r
 
     def advance_velocity(self, cmd: np.ndarray, height_above_surface_m: float | None = None) -> PeriodResult:
@@ -123,7 +125,7 @@ class Simulator:
         s = self.state
         r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s, height_above_surface_m)
         self._state = SimState(s.t_s + self.control_period_s, r.final_state, r.ctrl_state,
-                               s.energy_J + r.energy_J)
+                               s.energy_J + float(r.energy_J))
         return r
 
 
@@ -153,7 +155,7 @@ class BatchSimulator:
         heights above the surface below (M,) [m] from the caller (None: open ground, h = z)."""
         m = x.shape[0]
         if m == 1 and isinstance(self.winds, WindBank):
-            return self._env_one(x, t_s, 0 if idx is None else int(np.asarray(idx).reshape(-1)[0]),
+            return self._env_one(self.winds, x, t_s, 0 if idx is None else int(np.asarray(idx).reshape(-1)[0]),
                                  height_above_surface_m)
         t = np.asarray(t_s, dtype=float)
         t_mid = (t if t.shape == (m,) else np.broadcast_to(t, (m,))) + 0.5 * self.control_period_s
@@ -167,13 +169,14 @@ class BatchSimulator:
             return period_env(self.atmosphere, wind[0], float(x[0, 2]), height_above_surface_m)[None]
         return period_env(self.atmosphere, wind, x[:, 2], height_above_surface_m)
 
-    def _env_one(self, x: np.ndarray, t_s: np.ndarray | float, i: int,
+    def _env_one(self, bank: WindBank, x: np.ndarray, t_s: np.ndarray | float, i: int,
                  height_above_surface_m: np.ndarray | None) -> np.ndarray:
-        """`env` (1, 5) of vehicle i alone, in plain Python (the same numbers: `WindBank._wind_one` and
-        the scalar density lookup); NumPy's per-call overhead on one row dominated a single vehicle."""
+        """`env` (1, 5) of vehicle i of `bank` (this simulator's winds) alone, in plain Python (the same numbers:
+        `WindBank._wind_one` and the scalar density lookup); NumPy's per-call overhead on one row dominated a
+        single vehicle."""
         t_mid = float(np.asarray(t_s, dtype=float).reshape(-1)[0]) + 0.5 * self.control_period_s
         z = float(x[0, 2])
-        we, wn, wu = self.winds._wind_one(i, t_mid, z)
+        we, wn, wu = bank._wind_one(i, t_mid, z)
         h = z if height_above_surface_m is None else float(np.asarray(height_above_surface_m).reshape(-1)[0])
         return np.array([[we, wn, wu, self.atmosphere.density_ratio_clamped(z), h]])
 

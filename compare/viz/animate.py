@@ -14,11 +14,12 @@ from __future__ import annotations
 import logging
 import math
 import shutil
+import subprocess
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import matplotlib
 import numpy as np
@@ -29,6 +30,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle
 from matplotlib.text import Text
+from mpl_toolkits.mplot3d import Axes3D
+from mpl_toolkits.mplot3d.art3d import Line3D
 from PIL import GifImagePlugin, Image
 from tqdm import tqdm
 
@@ -51,7 +54,7 @@ _MIN_FIG_IN = (12.8, 7.2)
 _SIDE_IN = 3.85   # width of the side column (top-down map and readouts), from the right edge [in]
 _HEAD_IN = 0.86   # height of the title lines [in]
 _ELEV_DEG, _AZIM_DEG = 35.0, -60.0  # draw_map_3d's view
-_MARKER = {"linestyle": "none", "markersize": 9, "markeredgecolor": "k", "markeredgewidth": 1.0}
+_MARKER: dict[str, Any] = {"linestyle": "none", "markersize": 9, "markeredgecolor": "k", "markeredgewidth": 1.0}
 
 
 @dataclass(frozen=True)
@@ -264,7 +267,7 @@ class _Scene:
                                f"{opts.width_px}x{opts.height_px}")  # _figure_inches failed: a bug
         region, lo, hi = group.region()
         self._title(group)
-        self.ax3 = fig.add_axes(self._box(0.0, _HEAD_IN, self.w_in - _SIDE_IN - 0.6, self.h_in - _HEAD_IN),
+        self.ax3: Axes3D = fig.add_axes(self._box(0.0, _HEAD_IN, self.w_in - _SIDE_IN - 0.6, self.h_in - _HEAD_IN),
                                 projection="3d")
         self.ax2 = fig.add_axes(self._box(self.w_in - _SIDE_IN, _HEAD_IN, _SIDE_IN - 0.27, 3.02))
         self._static(group, region, lo, hi)
@@ -278,7 +281,8 @@ class _Scene:
         self._background = self.canvas.copy_from_bbox(fig.bbox)
         self.ax3.set_visible(True)
 
-    def _box(self, left_in: float, top_in: float, width_in: float, height_in: float) -> tuple[float, ...]:
+    def _box(self, left_in: float, top_in: float, width_in: float,
+             height_in: float) -> tuple[float, float, float, float]:
         """Figure fractions (left, bottom, width, height) of a box given in inches from the top-left corner."""
         w, h = self.w_in, self.h_in
         return (left_in / w, 1.0 - (top_in + height_in) / h, width_in / w, height_in / h)
@@ -311,8 +315,8 @@ class _Scene:
         ax2.set_xlim(lo[0], hi[0])
         ax2.set_ylim(lo[1], hi[1])
         ax2.tick_params(labelsize=7)
-        ax2.xaxis.label.set_size(8)
-        ax2.yaxis.label.set_size(8)
+        ax2.xaxis.label.set_fontsize(8)
+        ax2.yaxis.label.set_fontsize(8)
         ax2.add_patch(Circle(meta.goal_m[:2], meta.goal_radius_m, fill=False, ec="k", lw=0.8, ls=":"))
         s, g = np.asarray(meta.start_m, float), np.asarray(meta.goal_m, float)
         ax3.plot(*s, **START_STYLE)
@@ -332,7 +336,12 @@ class _Scene:
         ax3, ax2 = self.ax3, self.ax2
         self.clock = self._side_text(4.32, "", fontsize=13, fontweight="bold", family="monospace")
         step_in = min(0.76, 1.87 / max(len(self.tracks), 1))
-        self.trail3, self.drop3, self.mark3, self.trail2, self.mark2, self.readouts = [], [], [], [], [], []
+        self.trail3: list[Line3D] = []
+        self.drop3: list[Line3D] = []
+        self.mark3: list[Line3D] = []
+        self.trail2: list[Line2D] = []
+        self.mark2: list[Line2D] = []
+        self.readouts: list[Text] = []
         for i, tr in enumerate(self.tracks):
             c, top_in = tr.pilot.color, 4.75 + i * step_in
             self._side_text(top_in, tr.pilot.label, fontsize=11, fontweight="bold", color=c)
@@ -394,19 +403,27 @@ def _set_marker_state(mark: Line2D, track: _Track, k: int) -> None:
 class _PipeWriter(FFMpegWriter):
     """FFMpegWriter fed with pixels already rendered (its grab_frame would redraw the whole figure)."""
 
+    @property
+    def _ffmpeg(self) -> subprocess.Popen:
+        """The ffmpeg process (`MovieWriter.setup` starts it; matplotlib's stubs omit the attribute)."""
+        return self._proc  # type: ignore[attr-defined]
+
     def write_rgba(self, rgba: memoryview) -> None:
-        self._proc.stdin.write(rgba)
+        stdin = self._ffmpeg.stdin
+        assert stdin is not None  # the writer opens ffmpeg with stdin=PIPE
+        stdin.write(rgba)
 
     def abort(self) -> None:
         """Stop ffmpeg without waiting for it to finish the file (the caller discards it)."""
-        self._proc.kill()
-        self._proc.communicate()
+        self._ffmpeg.kill()
+        self._ffmpeg.communicate()
 
 
 def _write_mp4(frames: Iterator[memoryview], path: Path, fig: Figure, fps: float, bar: tqdm,
                title: str) -> None:
     """H.264 (yuv420p, CRF 23, moov atom first so browsers start playing at once) through ffmpeg."""
-    writer = _PipeWriter(fps=fps, codec="libx264", metadata={"title": title},
+    # matplotlib's stub says int; the writer passes the rate to ffmpeg as given, fractions included
+    writer = _PipeWriter(fps=fps, codec="libx264", metadata={"title": title},  # type: ignore[arg-type]
                          extra_args=["-pix_fmt", "yuv420p", "-crf", "23", "-preset", "medium",
                                      "-movflags", "+faststart"])
     writer.setup(fig, str(path), dpi=fig.dpi)
@@ -455,7 +472,8 @@ def _write_gif(frames: Iterator[memoryview], path: Path, size: tuple[int, int], 
 
 def _rgb(rgba: memoryview, size: tuple[int, int]) -> Image.Image:
     """An RGB copy of a canvas buffer (the buffer itself changes with the next frame)."""
-    return Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1).convert("RGB")
+    # Pillow reads any buffer; its stub lists bytes and array-interface objects only
+    return Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1).convert("RGB")  # type: ignore[arg-type]
 
 
 def _write_all(fp: IO[bytes], chunks: list[bytes]) -> None:

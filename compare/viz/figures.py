@@ -14,6 +14,7 @@ import math
 import textwrap
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -21,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.mplot3d import Axes3D
 
 from compare.results.trajectory import EpisodeMeta, SavedEpisode
 from uam_fdm.city.buildings import BuildingMap, Prism
@@ -33,9 +35,10 @@ FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:b
 PAGE_SIZE_IN = (11.69, 8.27)  # A4 landscape
 MAX_PLOT_POINTS = 2000
 CROP_MARGIN_M = 30.0
-START_STYLE = {"marker": "^", "color": "tab:green", "markeredgecolor": "k", "markersize": 9,
-                "linestyle": "none"}
-GOAL_STYLE = {"marker": "*", "color": "gold", "markeredgecolor": "k", "markersize": 13, "linestyle": "none"}
+START_STYLE: dict[str, Any] = {"marker": "^", "color": "tab:green", "markeredgecolor": "k", "markersize": 9,
+                               "linestyle": "none"}
+GOAL_STYLE: dict[str, Any] = {"marker": "*", "color": "gold", "markeredgecolor": "k", "markersize": 13,
+                              "linestyle": "none"}
 
 
 def method_colors(methods: Iterable[str]) -> dict[str, str]:
@@ -211,6 +214,7 @@ def curriculum_stages(curve: RewardCurve) -> list[tuple[float, float, float]]:
     its own last update, so the stages tile the run. Empty when the curve has no difficulty column.
     """
     d, t = curve.difficulty, curve.timesteps
+    assert d is not None  # __post_init__ fills a missing column with NaN
     stages: list[tuple[float, float, float]] = []
     for i in np.flatnonzero(np.isfinite(d) & np.isfinite(t)):
         if stages and abs(stages[-1][2] - d[i]) < 1e-9:
@@ -349,7 +353,7 @@ def table_pages(title: str, header: Sequence[str], rows: Sequence[Sequence[str]]
 
 
 # ---- episode pages --------------------------------------------------------------------------------------
-def _draw_city_3d(ax: Axes, region_map: BuildingMap | None, lo: np.ndarray, hi: np.ndarray) -> None:
+def _draw_city_3d(ax: Axes3D, region_map: BuildingMap | None, lo: np.ndarray, hi: np.ndarray) -> None:
     ax.computed_zorder = False  # paths drawn after the buildings stay visible in front of them
     if region_map is not None:
         draw_map_3d(ax, region_map)
@@ -584,6 +588,7 @@ def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "",
     ax.set_xlim(min(0.0, float(np.nanmin(x))), float(np.nanmax(x)) * 1.01 if np.nanmax(x) > 0 else 1.0)
     ax2.set_ylim(-2.0, 102.0)
     ax2.set_ylabel("success rate [%]", color=SUCCESS_COLOR)
+    assert curve.train_success_rate is not None  # __post_init__ fills a missing column with NaN
     train_ok = np.isfinite(curve.train_success_rate)
     if np.any(train_ok):
         ts = moving_average(_pct(curve.train_success_rate), window)

@@ -52,7 +52,8 @@ def building_mesh(bmap: BuildingMap) -> go.Mesh3d:
 
     Vertices carry (building id, height) as customdata for the hover text; colour is by height.
     """
-    xs, ys, zs, ii, jj, kk, ids, heights = [], [], [], [], [], [], [], []
+    xs: list[float] = []
+    ys, zs, ii, jj, kk, ids, heights = [], [], [], [], [], [], []
     for b in bmap.buildings:
         fp = b.footprint_xy_m()
         n, base = len(fp), len(xs)

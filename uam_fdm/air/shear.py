@@ -116,6 +116,7 @@ class WindShear:
         """
         z = np.maximum(np.asarray(z_m, dtype=np.float64), self.floor_m)
         if self.law is ShearLaw.POWER:
+            assert self.exponent is not None  # __post_init__ requires it for the power law
             return np.power(z / self.reference_height_m, self.exponent)
         if self.law is ShearLaw.LOG:
             z0 = float(self.roughness_m)  # type: ignore[arg-type]

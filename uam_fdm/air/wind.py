@@ -320,7 +320,7 @@ def gust_series(
         )
 
     n_samples = int(math.ceil(duration_s / dt_s - 1e-9)) + 1
-    t_s = dt_s * np.arange(n_samples)
+    t_s = dt_s * np.arange(n_samples, dtype=np.float64)
     level = conditions.turbulence
     if level is TurbulenceLevel.NONE:
         gusts = np.zeros((n_samples, 3))

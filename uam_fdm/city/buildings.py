@@ -19,11 +19,11 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import fcl
 import numpy as np
+from numpy.typing import ArrayLike
 
 from uam_fdm.city import distance as clearance_np
 
@@ -202,8 +202,8 @@ class BuildingMap:
     def __init__(
         self,
         buildings: Sequence[Obstacle],
-        bounds_min_m: Sequence[float],
-        bounds_max_m: Sequence[float],
+        bounds_min_m: ArrayLike,
+        bounds_max_m: ArrayLike,
         no_fly: Sequence[NoFlyZone] = (),
         name: str = "",
     ) -> None:
@@ -222,7 +222,7 @@ class BuildingMap:
         """
         self._init(tuple(buildings), bounds_min_m, bounds_max_m, tuple(no_fly), str(name))
 
-    def _init(self, parts: tuple[Obstacle, ...], lo: Sequence[float], hi: Sequence[float],
+    def _init(self, parts: tuple[Obstacle, ...], lo: ArrayLike, hi: ArrayLike,
               no_fly: tuple[NoFlyZone, ...], name: str, footprints_inside: bool = True) -> None:
         lo_a = np.array(lo, dtype=float).reshape(3)
         hi_a = np.array(hi, dtype=float).reshape(3)
@@ -405,7 +405,8 @@ class BuildingMap:
         """Whether one sphere (centre ENU metres, radius metres) is clear: clearance_one(...) > 0."""
         return self.clearance_one(x, y, z, radius_m) > 0.0
 
-    def segment_free(self, a_m: Sequence[float], b_m: Sequence[float], radius_m: float = 0.0) -> bool:
+    def segment_free(self, a_m: Sequence[float] | np.ndarray, b_m: Sequence[float] | np.ndarray,
+                     radius_m: float = 0.0) -> bool:
         """Whether a sphere moving straight from a to b stays clear of buildings and the ground.
 
         Exact, no sampling, so no tunnelling through thin walls: the swept sphere is the capsule of

@@ -18,7 +18,7 @@ import argparse
 import dataclasses
 import math
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,7 +41,7 @@ MIN_BUILDING_SIZE_M = 1.0    # smallest footprint side: lot size x fill_range lo
 
 def _check_params(p: Any, source: str, prefix: str) -> None:
     """Value checks shared by the dataclass and the loader (ConfigError names the field)."""
-    get = p.get if isinstance(p, Mapping) else (lambda k: getattr(p, k))
+    get: Callable[[str], Any] = p.get if isinstance(p, Mapping) else (lambda k: getattr(p, k))
 
     def fail(k: str, reason: str) -> None:
         raise ConfigError(source, f"{prefix}{k}", f"{reason}, got {get(k)!r}")

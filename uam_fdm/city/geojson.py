@@ -25,7 +25,7 @@ import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import shapely
@@ -87,8 +87,11 @@ def load_footprints(path: Path, height_key: str, origin_lonlat: Sequence[float] 
         height = props.get(height_key) if isinstance(props, dict) else None
         if height is None:
             raise ConfigError(src, f"{key}.properties.{height_key}", "missing: every footprint needs a height [m]")
-        if isinstance(height, bool) or not isinstance(height, (int, float)) or not (math.isfinite(height) and height > 0):
-            raise ConfigError(src, f"{key}.properties.{height_key}", f"must be a positive number of metres, got {height!r}")
+        if (isinstance(height, bool) or not isinstance(height, (int, float))
+                or not (math.isfinite(height) and height > 0)):
+            raise ConfigError(src, f"{key}.properties.{height_key}",
+                              f"must be a positive number of metres, got {height!r}")
+        assert isinstance(geom, dict)  # gtype would be None otherwise
         coords = geom.get("coordinates")
         polygons = [coords] if gtype == "Polygon" else coords
         if not isinstance(polygons, list) or not polygons:
@@ -120,7 +123,8 @@ def _ring(ring: Any, src: str, key: str) -> np.ndarray:
     out = []
     for pos in ring:
         if (not isinstance(pos, list) or len(pos) < 2
-                or not all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) for c in pos[:2])):
+                or not all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c)
+                           for c in pos[:2])):
             raise ConfigError(src, key, f"positions must be [x, y] finite numbers, got {pos!r}")
         out.append((float(pos[0]), float(pos[1])))
     return np.array(out)
@@ -321,9 +325,9 @@ def convex_decomposition(poly: np.ndarray) -> list[np.ndarray]:
     pieces: dict[int, dict[int, list[int]]] = {}
     owner = list(range(len(tris)))  # union-find over triangles: the piece each belongs to
     edge_tri: dict[tuple[int, int], int] = {}
-    for t, (a, b, c) in enumerate(tris):
-        pieces[t] = {a: [c, b], b: [a, c], c: [b, a]}
-        for edge in ((a, b), (b, c), (c, a)):
+    for t, (i, j, k) in enumerate(tris):
+        pieces[t] = {i: [k, j], j: [i, k], k: [j, i]}
+        for edge in ((i, j), (j, k), (k, i)):
             edge_tri.setdefault(edge, t)
 
     def find(t: int) -> int:
@@ -350,9 +354,9 @@ def convex_decomposition(poly: np.ndarray) -> list[np.ndarray]:
             u_links = (a[u][0], b[u][1])
             v_links = (b[v][0], a[v][1])
             merged = pieces[large]
-            for w, links in pieces.pop(small).items():
+            for w, w_links in pieces.pop(small).items():
                 if w not in (u, v):
-                    merged[w] = links
+                    merged[w] = w_links
             merged[u] = list(u_links)
             merged[v] = list(v_links)
             owner[small] = large
@@ -383,7 +387,7 @@ def _triangulate(poly: np.ndarray) -> list[tuple[int, int, int]]:
         corners = [index.get(p) for p in map(tuple, shapely.get_coordinates(tri)[:3].tolist())]
         if None in corners:
             raise ValueError("footprint could not be triangulated on its own vertices")
-        a, b, c = corners
+        a, b, c = cast("list[int]", corners)  # no None left (checked above)
         tris.append((a, b, c) if _cross(poly[a], poly[b], poly[c]) > 0.0 else (a, c, b))
     area = sum(abs(_cross(poly[a], poly[b], poly[c])) for a, b, c in tris) / 2.0
     if abs(area - _signed_area(poly)) > 1e-9 * abs(_signed_area(poly)):
@@ -392,7 +396,7 @@ def _triangulate(poly: np.ndarray) -> list[tuple[int, int, int]]:
 
 
 # ---- geometry helpers ----------------------------------------------------------------------------------
-def _cross(a: Sequence[float], b: Sequence[float], c: Sequence[float]) -> float:
+def _cross(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray, c: Sequence[float] | np.ndarray) -> float:
     """z of (b - a) x (c - b): > 0 for a left turn at b."""
     return float((b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0]))
 

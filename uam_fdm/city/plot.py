@@ -17,6 +17,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle
 from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.mplot3d import Axes3D
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 from uam_fdm.city.buildings import BuildingMap
@@ -69,7 +70,7 @@ def _polygon_patch(xy: np.ndarray) -> Polygon:
     return Polygon(xy, closed=True, fill=False, ec="tab:red", hatch="//", lw=0.8)
 
 
-def draw_map_3d(ax: Axes, bmap: BuildingMap, *, shade: bool = True) -> Poly3DCollection:
+def draw_map_3d(ax: Axes3D, bmap: BuildingMap, *, shade: bool = True) -> Poly3DCollection:
     """Draw buildings as shaded prisms into a 3D Axes (ENU metres, true proportions).
 
     Args:
@@ -88,8 +89,8 @@ def draw_map_3d(ax: Axes, bmap: BuildingMap, *, shade: bool = True) -> Poly3DCol
         h = p.height_m
         base = np.array(cmap(norm(h)))
         k = len(fp)
-        top = np.column_stack([fp, np.full(k, h)])
-        faces.append(top)
+        roof = np.column_stack([fp, np.full(k, h)])
+        faces.append(roof)
         colors.append(_shaded(base, np.array([0.0, 0.0, 1.0]), shade))
         for i in range(k):
             a, b = fp[i], fp[(i + 1) % k]

@@ -96,7 +96,8 @@ def compile_source(source: bytes, name: str, cache_dir: Path | None = None,
         return None
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     flags = (*opt_flags, "-fPIC", "-shared")
-    key = hashlib.sha256(source + repr((cc, flags, ca.__version__)).encode()).hexdigest()[:20]
+    version = ca.__version__  # type: ignore[attr-defined]  # set in casadi/__init__.py, absent from its stubs
+    key = hashlib.sha256(source + repr((cc, flags, version)).encode()).hexdigest()[:20]
     lib_path = cache_dir / f"{name}_{key}.so"
     if lib_path.exists():
         return lib_path

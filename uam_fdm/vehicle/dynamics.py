@@ -43,7 +43,8 @@ def control_ratio_problem(physics_hz: float, control_hz: float) -> str | None:
     if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
         return f"physics_hz {physics_hz:g} Hz must be a positive integer multiple of control_hz {control_hz:g} Hz"
     if round(ratio) > MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD:
-        return (f"control_hz {control_hz:g} Hz gives {round(ratio)} physics steps per control period at {physics_hz:g} Hz; "
+        return (f"control_hz {control_hz:g} Hz gives {round(ratio)} physics steps per control period at "
+                f"{physics_hz:g} Hz; "
                 f"at most {MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD} (control_hz >= "
                 f"{physics_hz / MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD:g} Hz)")
     return None
@@ -92,6 +93,7 @@ def _period_functions(p: VehicleParams, rk4: ca.Function, ctrl: ca.Function,
     env = ca.MX.sym("env", N_ENV)
     dt = ca.MX.sym("dt")
 
+    energy: ca.MX | int  # the sum of the substeps' energies, starting from 0
     x, states, energy = x0, [], 0
     for _ in range(n_sub):
         x, e = rk4(x, u, env, dt)
@@ -212,14 +214,14 @@ class VehicleDynamics:
         """One control period with rotor commands u (n,) [rad/s] held; env held over the period."""
         r = self.period_rotor_batch(np.asarray(x, float)[None], np.asarray(u, float)[None],
                                     np.asarray(env, float)[None])
-        return PeriodResult(r.states[0], r.rotor_commands[0], r.ctrl_state[0], float(r.energy_J[0]))
+        return PeriodResult(r.states[0], r.rotor_commands[0], r.ctrl_state[0], float(np.asarray(r.energy_J)[0]))
 
     def period_velocity(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray,
                         env: np.ndarray) -> PeriodResult:
         """One control period under the velocity controller; cmd = [v_e, v_n, v_u, yaw_ref]."""
         r = self.period_velocity_batch(np.asarray(x, float)[None], np.asarray(ctrl_state, float)[None],
                                        np.asarray(cmd, float)[None], np.asarray(env, float)[None])
-        return PeriodResult(r.states[0], r.rotor_commands[0], r.ctrl_state[0], float(r.energy_J[0]))
+        return PeriodResult(r.states[0], r.rotor_commands[0], r.ctrl_state[0], float(np.asarray(r.energy_J)[0]))
 
     # -- batched -------------------------------------------------------------------------------
     def period_rotor_batch(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> PeriodResult:

@@ -92,6 +92,7 @@ def _address(a: np.ndarray) -> int:
     vehicle's evaluation. Read-only or empty arrays (no writable buffer to view) take the slow way.
     """
     try:
-        return ctypes.addressof(ctypes.c_char.from_buffer(a))
+        # NumPy's stubs give ndarray the buffer protocol only for Python >= 3.12
+        return ctypes.addressof(ctypes.c_char.from_buffer(a))  # type: ignore[arg-type]
     except (TypeError, ValueError):
         return a.ctypes.data

@@ -53,13 +53,15 @@ def thrust_gain(height_over_radius: np.ndarray | float, speed_over_induced: np.n
     return 1.0 / (1.0 - k / (1.0 + np.asarray(speed_over_induced, dtype=float) ** 2))
 
 
-def cheeseman_bennett(height_over_radius: np.ndarray | float, speed_over_induced: np.ndarray | float = 0.0) -> np.ndarray:
+def cheeseman_bennett(height_over_radius: np.ndarray | float,
+                      speed_over_induced: np.ndarray | float = 0.0) -> np.ndarray:
     """The published law, without the cut-off or floor (for tests and figures)."""
     k = (0.25 / np.asarray(height_over_radius, dtype=float)) ** 2
     return 1.0 / (1.0 - k / (1.0 + np.asarray(speed_over_induced, dtype=float) ** 2))
 
 
-def thrust_gain_expr(p: VehicleParams, rot: ca.SX, omega: ca.SX, v_air_body: ca.SX, height_m: ca.SX) -> ca.SX:
+def thrust_gain_expr(p: VehicleParams, rot: ca.SX, omega: ca.SX, v_air_body: ca.SX,
+                     height_m: ca.SX) -> ca.SX | ca.DM:
     """The gain (n,) of each rotor as a CasADi expression (the model's; `thrust_gain` in NumPy).
 
     Args:

@@ -113,7 +113,7 @@ def drag_force_body(p: VehicleParams, v_air_body: ca.SX, sigma: ca.SX) -> ca.SX:
             - sigma * ca.DM(p.drag_quadratic_N_s2_m2) * airspeed * v_air_body)
 
 
-def ground_effect_gain(p: VehicleParams, x: ca.SX, env: ca.SX) -> ca.SX:
+def ground_effect_gain(p: VehicleParams, x: ca.SX, env: ca.SX) -> ca.SX | ca.DM:
     """Each rotor's ground-effect thrust gain G_i (n,) in state x and environment env."""
     lay = StateLayout(p.n_rotors)
     rot = quat_to_rotation(x[lay.quat])
@@ -121,7 +121,7 @@ def ground_effect_gain(p: VehicleParams, x: ca.SX, env: ca.SX) -> ca.SX:
 
 
 def dynamics_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX,
-                  gain: ca.SX | None = None) -> tuple[ca.SX, ca.SX]:
+                  gain: ca.SX | ca.DM | None = None) -> tuple[ca.SX, ca.SX]:
     """Continuous dynamics ẋ and shaft power P [W] as CasADi expressions (see module docstring).
 
     `gain`: the rotors' ground-effect gains (n,) if the caller holds them (the RK4 step does), else
@@ -174,7 +174,7 @@ def rk4_step_expr(p: VehicleParams, x: ca.SX, u: ca.SX, env: ca.SX, dt: ca.SX) -
     gain = ca.SX.sym("gain", p.n_rotors)
     f = ca.Function("f_aug", [x, u, env, gain], list(dynamics_expr(p, x, u, env, gain)))
     g = ground_effect_gain(p, x, env)
-    x_next, energy = rk4_expr(lambda s: f(s, u, env, g), x, dt)
+    x_next, energy = rk4_expr(lambda s: f.call([s, u, env, g]), x, dt)
     return x_next, energy
 
 
