@@ -20,7 +20,6 @@ missing cells, after checking that the folder is a run saved from the same input
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import os
@@ -36,14 +35,19 @@ from pathlib import Path
 import numpy as np
 
 from compare.fingerprint import check_resume, run_fingerprints
-from compare.results.metrics import (
-    episode_metrics,
-    read_metrics_csv,
-    summarize,
-    write_metrics_csv,
-    write_summary_json,
-)
+from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
 from compare.episode_loop import run_episode
+from compare.results.run_info import (
+    RUN_INFO_NAME,
+    AtmosphereInfo,
+    MethodInfo,
+    PolicyRecord,
+    RunInfo,
+    ScenarioInfo,
+    WindInfo,
+    write_run_info,
+)
+from compare.results.summary import summarize_run, write_summary_json
 from compare.scenario import Scenario
 from compare.seeding import cell_seed
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
@@ -191,7 +195,8 @@ class RunEstimate:
         cells: episodes to fly (scenario x episode x seed x method).
         flight_s: simulated flight time of all cells [s].
         wall_h: wall time with `jobs` processes [h] (WALL_S_PER_FLIGHT_S per simulated second).
-        disk_gb: episode files, uncompressed [GB] (float64 time, state, commands, wind, clearance per physics step).
+        disk_gb: episode files, uncompressed [GB] (float64 time, state, commands, wind, clearance and shaft
+            power per physics step).
     """
 
     cells: int
@@ -215,7 +220,7 @@ def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate
         flight_s += t
         wall_s += t * WALL_S_PER_FLIGHT_S.get(c.method, max(WALL_S_PER_FLIGHT_S.values()))
         n = sc.vehicle.n_rotors
-        n_bytes += t * sc.physics_hz * 8 * (1 + (13 + n) + n + 3 + 1)  # t, state, commands, wind, clearance
+        n_bytes += t * sc.physics_hz * 8 * (1 + (13 + n) + n + 3 + 1 + 1)  # t, state, commands, wind, clearance, power
     workers = max(1, min(opts.jobs, os.cpu_count() or 1))
     return RunEstimate(len(cells), flight_s, wall_s / workers / 3600.0, n_bytes / 1e9)
 
@@ -236,7 +241,6 @@ class CellRunner:
 
     def world(self, si: int):
         from uam_fdm.pilot import World
-        from uam_fdm.air.atmosphere import Atmosphere
         from uam_fdm.vehicle.dynamics import VehicleDynamics
 
         if si not in self._worlds:
@@ -244,10 +248,8 @@ class CellRunner:
             key = (sc.vehicle.fingerprint(), sc.physics_hz, sc.control_hz)
             if key not in self._dynamics:
                 self._dynamics[key] = VehicleDynamics(sc.vehicle, sc.physics_hz, sc.control_hz)
-            top = float(sc.city.bounds_max_m[2]) + 100.0
-            atm = Atmosphere.from_jsbsim(sc.atmosphere, z_max_m=top, z_min_m=-50.0)
             # the forecast turbulence level (a category) is the pilots' to know; its gusts are not
-            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, atm, sc.wind.turbulence)
+            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
         return self._worlds[si]
 
     def agent(self, method: str, sc: Scenario):
@@ -404,43 +406,39 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
                     fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
     """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, and the learned pilot's
     policy folders, their vehicles and decision rates) and maps/*.yaml."""
-    from uam_fdm.air.atmosphere import Atmosphere
     from uam_fdm.city.generator import map_yaml_text
 
     out = opts.out_dir
-    entries = []
-    for si, sc in enumerate(scenarios):
-        methods = sorted({c.method for c in cells if c.scenario == si})
-        seeds = sorted({c.seed for c in cells if c.scenario == si})
-        p = sc.vehicle
-        rho = Atmosphere.from_jsbsim(sc.atmosphere, z_max_m=50.0, z_min_m=0.0).density_kg_m3(0.0)
-        entries.append({
-            "name": sc.name, "source": str(sc.source), "description": sc.description, "map_name": sc.city.name or sc.name,
-            "vehicle": sc.vehicle_name,
-            "vehicle_summary": f"{p.mass_kg:g} kg, {p.n_rotors} rotors, collision radius {p.collision_radius_m:g} m",
-            "atmosphere": {"elevation_m": sc.atmosphere.elevation_m, "isa_offset_k": sc.atmosphere.isa_offset_k,
-                           "density_kg_m3": round(float(rho), 4)},
-            "wind": {"steady_enu_m_s": list(sc.wind.steady_enu_m_s), "turbulence": sc.wind.turbulence.value,
-                     "shear": sc.wind.shear.to_dict()},
-            "episodes": len(sc.episodes), "seeds": seeds, "methods": methods,
-            "physics_hz": sc.physics_hz, "control_hz": sc.control_hz,
-        })
+    for sc in scenarios:
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
     methods = sorted({c.method for c in cells})
     if "ppo" in methods and policies:
         rates = "; ".join(f"for {p.vehicle} at {p.decision_hz:g} Hz (each command held for "
                           f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
         notes = [*notes, f"ppo decides at its policy's rate: {rates}; rrt_mpc at each scenario's control rate"]
-    ppo_cfg = ({"policies": [{"vehicle": p.vehicle, "policy_dir": str(p.folder), "decision_hz": p.decision_hz}
-                             for p in policies]} if policies else {})
-    run = {
-        "format_version": 1, "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "command": opts.command, "scenarios": entries, "notes": list(notes),
-        "methods": {m: {"label": METHOD_LABELS.get(m, m), "description": METHOD_DESCRIPTIONS.get(m, ""),
-                        **(ppo_cfg if m == "ppo" else {})} for m in methods},
-        "versions": versions(), "fairness": FAIRNESS, "fingerprints": fingerprints,
-    }
-    write_text_atomic(out / "run.json", json.dumps(run, indent=2) + "\n")
+    records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz) for p in policies)
+    info = RunInfo(
+        created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
+        scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
+        notes=tuple(notes),
+        methods={m: MethodInfo(METHOD_LABELS.get(m, m), METHOD_DESCRIPTIONS.get(m, ""), records if m == "ppo" else ())
+                 for m in methods},
+        versions=versions(), fairness=FAIRNESS, fingerprints=fingerprints)
+    write_run_info(info, out)
+
+
+def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
+    """What run.json records of a scenario flown as `cells` (its own cells)."""
+    p = sc.vehicle
+    rho = sc.air.density_kg_m3(0.0)
+    return ScenarioInfo(
+        name=sc.name, source=str(sc.source), description=sc.description, map_name=sc.city.name or sc.name,
+        vehicle=sc.vehicle_name,
+        vehicle_summary=f"{p.mass_kg:g} kg, {p.n_rotors} rotors, collision radius {p.collision_radius_m:g} m",
+        atmosphere=AtmosphereInfo(sc.atmosphere.elevation_m, sc.atmosphere.isa_offset_k, round(float(rho), 4)),
+        wind=WindInfo(tuple(sc.wind.steady_enu_m_s), sc.wind.turbulence.value, sc.wind.shear),
+        episodes=len(sc.episodes), seeds=tuple(sorted({c.seed for c in cells})),
+        methods=tuple(sorted({c.method for c in cells})), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
@@ -539,8 +537,8 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
 def finalize(run_dir: Path, report: bool = True) -> Path:
     """Score the saved episodes (metrics.csv, summary.json), build the report and the viewer; never simulates."""
     run_dir = Path(run_dir)
-    if not (run_dir / "run.json").is_file():
-        raise ValueError(f"{run_dir}: not a run folder (run.json is missing)")
+    if not (run_dir / RUN_INFO_NAME).is_file():
+        raise ValueError(f"{run_dir}: not a run folder ({RUN_INFO_NAME} is missing)")
     _remove_stale_temporaries(run_dir)
     files = episode_files(run_dir)
     if not files:
@@ -558,11 +556,8 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
         raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")
     write_metrics_csv(rows, run_dir / "metrics.csv")
     rows = read_metrics_csv(run_dir / "metrics.csv")
-    summary = summarize(rows)
-    # Per scenario too: a run may mix vehicles (a quadrotor's and a multicopter's energies do not average).
-    summary["by_scenario"] = {name: summarize([r for r in rows if r.scenario == name])
-                              for name in sorted({r.scenario for r in rows})}
-    write_summary_json(summary, run_dir / "summary.json")
+    # per scenario too: a run may mix vehicles (a quadrotor's and a multicopter's energies do not average)
+    write_summary_json(summarize_run(rows), run_dir / "summary.json")
     if report:
         from compare.viz.report import build_report
         from compare.viz.viewer import build_viewer

@@ -123,13 +123,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _print_summary(run_dir: Path) -> None:
     """Per scenario (vehicles differ between scenarios, so their energies do not average): one row per method."""
-    import json
+    from compare.results.summary import methods_table, read_summary_json
 
-    from compare.results.metrics import methods_table
-
-    summary = json.loads((run_dir / "summary.json").read_text())
+    summary = read_summary_json(run_dir / "summary.json")
     wanted = ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")
-    blocks = summary.get("by_scenario") or {"all": summary}
+    blocks = summary.by_scenario or {"all": summary}
     lines = []
     for name, part in blocks.items():
         full = methods_table(part)

@@ -44,6 +44,9 @@ class Trajectory:
         outcome: one of OUTCOMES.
         plan_time_s: planning time the agent reported at reset [s].
         detail: why the episode ended, in words.
+        shaft_power_W: (M,) total rotor shaft power Σ Q_i·Ω_i of the model at each row's state, in the air
+            density held over the control period that produced it (row 0: the first period's) [W]; the
+            integrand of `energy_J`. None in an episode file saved before it was recorded.
     """
 
     t_s: np.ndarray
@@ -57,6 +60,7 @@ class Trajectory:
     outcome: str
     plan_time_s: float
     detail: str = ""
+    shaft_power_W: np.ndarray | None = None
 
     @property
     def success(self) -> bool:
@@ -75,6 +79,7 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
     hover = x0[dyn.layout.rotor]
     times, states, cmds, winds, clear = [[0.0]], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
     clear.append(np.array([_clearance(city, x0[None, 0:3], radius)[0]]))
+    power = [np.array([dyn.shaft_power_W(x0, sim.env(x0, 0.0))])]  # P(Ω, σ): needs no height above ground
     decision_t, compute = [], []
     goal = np.asarray(task.goal_m, float)
     outcome, detail = "timeout", f"not at the goal after {task.timeout_s:g} s"
@@ -109,6 +114,7 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         states.append(r.states)
         cmds.append(r.rotor_commands)
         winds.append(np.tile(env[:3], (n_sub, 1)))
+        power.append(dyn.shaft_power_batch_W(r.states, env))
         finite = bool(np.all(np.isfinite(r.states)))
         c = _clearance(city, r.states[:, 0:3], radius) if finite else np.full(n_sub, np.nan)
         clear.append(c)
@@ -122,7 +128,7 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         t_s=np.concatenate(times), states=np.concatenate(states), rotor_commands=np.concatenate(cmds),
         wind_enu_m_s=np.concatenate(winds), clearance_m=np.concatenate(clear),
         decision_t_s=np.array(decision_t), compute_s=np.array(compute), energy_J=sim.state.energy_J,
-        outcome=outcome, plan_time_s=info.plan_time_s, detail=detail)
+        outcome=outcome, plan_time_s=info.plan_time_s, detail=detail, shaft_power_W=np.concatenate(power))
 
 
 def _detail(code: int, states: np.ndarray, clearance: np.ndarray, t_sub: np.ndarray, t_start_s: float,

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from compare.results.run_info import RUN_INFO_NAME, read_run_info
 from compare.scenario import Scenario
 from uam_fdm.files.version import code_version
 
@@ -133,18 +134,19 @@ def check_resume(out: Path, now: dict) -> dict:
     out = Path(out)
     if not out.exists() or not any(out.iterdir()):
         return now
-    path = out / "run.json"
+    path = out / RUN_INFO_NAME
     if not path.is_file():
-        raise ValueError(f"{out}: cannot resume: not a run folder of uam-compare (no run.json); nothing was "
+        raise ValueError(f"{out}: cannot resume: not a run folder of uam-compare (no {RUN_INFO_NAME}); nothing was "
                          f"written (give --out a new or empty folder)")
     try:
-        saved = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot resume: not readable JSON ({exc}); nothing was written") from exc
-    if not isinstance(saved, dict) or not isinstance(saved.get("scenarios"), list):
-        raise ValueError(f"{path}: cannot resume: not a run.json of uam-compare; nothing was written")
-    fps = saved.get("fingerprints")
-    if not isinstance(fps, dict):
+        saved = read_run_info(out)
+    except ValueError as exc:  # the message names the file
+        raise ValueError(f"{out}: cannot resume: {exc}; nothing was written") from exc
+    if not saved.scenarios:
+        raise ValueError(f"{path}: cannot resume: not a run.json of uam-compare (it lists no scenarios); nothing "
+                         f"was written")
+    fps = saved.fingerprints
+    if fps is None:
         # Refused rather than trusted: without the saved hashes nothing says whether the scenarios
         # (maps are kept only to 1 cm), the policy (kept only by path) or the code changed since.
         raise ValueError(f"{out}: cannot resume: the run predates input fingerprints (its run.json has none), so "

@@ -114,6 +114,8 @@ _ATMOSPHERE_KEYS = ("elevation_m", "isa_offset_k", "wind_mps", "wind_reference_h
 _SHEAR_KEYS = ("law", "exponent", "roughness_m")
 _EPISODE_KEYS = ("start", "goal", "goal_radius_m", "timeout_s")
 _NAME_RE = re.compile(r"[A-Za-z0-9_.-]+")
+AIR_BELOW_FIELD_M = 50.0  # the atmosphere table's reach below the field (z = 0) [m]
+AIR_ABOVE_CEILING_M = 100.0  # ... and above the flight volume's ceiling [m]
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,7 @@ class Scenario:
         vehicle_name: the preset name when the scenario names a preset, else `vehicle.name`.
         city: the buildings, bounds and no-fly zones (ENU metres).
         atmosphere: field elevation [m MSL] and ISA temperature offset [K].
+        air: the atmosphere table flown in (`flight_atmosphere`), built once when the scenario is loaded.
         wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
         episodes: the tasks, in file order.
         seeds: the seeds each episode is flown with.
@@ -158,6 +161,7 @@ class Scenario:
     methods: tuple[str, ...]
     physics_hz: float
     control_hz: float
+    air: Atmosphere
     raw: dict = field(default_factory=dict)
 
     def __repr__(self) -> str:
@@ -212,11 +216,20 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     methods = _optional(data, "methods", METHODS, source, _methods)
     physics_hz, control_hz = _rates(data, source, vehicle)
     episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
-    _check_hover(episodes, vehicle, atmosphere, source)
+    air = flight_atmosphere(atmosphere, city)
+    _check_hover(episodes, vehicle, air, source)
     return Scenario(name=name, description=description, source=source, vehicle=vehicle,
                     vehicle_name=vehicle_name, city=city, atmosphere=atmosphere, wind=wind,
                     episodes=episodes, seeds=seeds, methods=methods, physics_hz=physics_hz,
-                    control_hz=control_hz, raw=copy.deepcopy(dict(data)))
+                    control_hz=control_hz, air=air, raw=copy.deepcopy(dict(data)))
+
+
+def flight_atmosphere(conditions: AtmosphereConditions, city: BuildingMap) -> Atmosphere:
+    """The atmosphere table a scenario is flown in: JSBSim's for `conditions`, from `AIR_BELOW_FIELD_M` below
+    the field to `AIR_ABOVE_CEILING_M` above the flight volume's ceiling (a vehicle that leaves the volume
+    ends its episode within a control period, well inside the table)."""
+    top = float(city.bounds_max_m[2]) + AIR_ABOVE_CEILING_M
+    return Atmosphere.from_jsbsim(conditions, z_max_m=top, z_min_m=-AIR_BELOW_FIELD_M)
 
 
 def builtin_sets() -> list[str]:
@@ -475,11 +488,11 @@ def _check_point(p: tuple[float, float, float], city: BuildingMap, radius: float
                                        f"{radius:g} m of one)")
 
 
-def _check_hover(episodes: tuple[EpisodeSpec, ...], vehicle: VehicleParams, conditions: AtmosphereConditions,
-                 source: str) -> None:
+def _check_hover(episodes: tuple[EpisodeSpec, ...], vehicle: VehicleParams, air: Atmosphere, source: str) -> None:
     """Raise when the vehicle's maximum thrust does not exceed its weight at the highest start or goal."""
     z_top = max(max(e.task.start_m[2], e.task.goal_m[2]) for e in episodes)
-    sigma = float(Atmosphere.from_jsbsim(conditions, z_max_m=z_top + 10.0, z_min_m=0.0).density_ratio(z_top))
+    conditions = air.conditions
+    sigma = float(air.density_ratio(z_top))
     if vehicle.max_thrust_N(sigma) <= vehicle.weight_N:
         raise ConfigError(source, "atmosphere", f"{vehicle.name} cannot hover at z = {z_top:g} m above a field at "
                                                 f"{conditions.elevation_m:g} m MSL, ISA{conditions.isa_offset_k:+g} K: "

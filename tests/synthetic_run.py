@@ -1,6 +1,9 @@
 """A synthetic run folder (no simulation) for tests of what reads run folders: report, animation, viewer.
 
 Two methods x two episodes x one seed over a four-building map; PPO's episode 1 ends in a collision.
+Episode 0's files carry the per-step shaft power (`synthetic_power_W`); episode 1's are in the format saved
+before it was recorded, and metrics.csv lacks the tracker columns (an older run's), so every reader is
+checked on old files too.
 """
 from __future__ import annotations
 
@@ -37,8 +40,13 @@ def toy_map() -> BuildingMap:
     return BuildingMap(parts, (0.0, 0.0, 0.0), (200.0, 200.0, 80.0), name="toy")
 
 
+def synthetic_power_W(t_s: np.ndarray) -> np.ndarray:
+    """The shaft power [W] saved with episode 0's flights: a shape no formula of the rotor speeds gives."""
+    return 180.0 + 40.0 * np.sin(0.5 * t_s) + 2.0 * t_s
+
+
 def trajectory(n: int, duration_s: float, bend_m: float, stop_frac: float, outcome: str,
-                seed: int) -> Trajectory:
+                seed: int, shaft_power: bool = False) -> Trajectory:
     """A smooth synthetic flight from START towards GOAL (bent sideways by `bend_m`), cut at `stop_frac`."""
     rng = np.random.default_rng(seed)
     t = np.linspace(0.0, duration_s, n)
@@ -56,11 +64,11 @@ def trajectory(n: int, duration_s: float, bend_m: float, stop_frac: float, outco
                       wind_enu_m_s=np.tile([2.0, 1.0, 0.0], (n, 1)), clearance_m=clearance,
                       decision_t_s=decisions, compute_s=np.full(len(decisions), 2e-3),
                       energy_J=1000.0 * duration_s, outcome=outcome, plan_time_s=0.3,
-                      detail=f"synthetic {outcome}")
+                      detail=f"synthetic {outcome}", shaft_power_W=synthetic_power_W(t) if shaft_power else None)
 
 
 def write_run(run_dir: Path, policy_dir: Path | None) -> None:
-    """Two methods x two episodes x one seed; PPO's episode 1 ends in a collision."""
+    """Two methods x two episodes x one seed; PPO's episode 1 ends in a collision (see the module docstring)."""
     (run_dir / "maps").mkdir(parents=True)
     (run_dir / "maps" / f"{SCENARIO}.yaml").write_text(map_yaml_text(toy_map()), encoding="utf-8")
     # (episode, method): samples, duration [s], sideways bend [m], fraction of the way flown, outcome
@@ -74,7 +82,7 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
         extra = {"torque_coeff_Nm_s2": 1.2e-7, "density_ratio": 0.95} if ep == 0 else {"mpc_failures": 0}
         meta = EpisodeMeta(key, "toy", "small_quad", START, GOAL, 3.0, 60.0, 0.42, 4, 1000.0 * dur, outcome,
                            0.3 if method == "rrt_mpc" else 0.0, f"synthetic {outcome}", extra)
-        traj = trajectory(n, dur, bend, stop, outcome, ep)
+        traj = trajectory(n, dur, bend, stop, outcome, ep, shaft_power=ep == 0)
         save_episode(run_dir / "episodes" / f"{key.stem}.npz", meta, traj)
         ok = outcome == "success"
         rows.append([SCENARIO, ep, method, 0, "toy", "small_quad", outcome, int(ok), int(not ok),
@@ -85,7 +93,7 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
         w.writerow(METRIC_COLUMNS)
         w.writerows(rows)
     stat = {"mean": 0.5, "ci_low": 0.0, "ci_high": 1.0, "n": 2}
-    summary = {"bootstrap": {"resamples": 1000, "seed": 0, "level": 0.95},
+    summary = {"bootstrap": {"resamples": 1000, "confidence": 0.95, "seed": 0, "method": "percentile"},
                "metrics": ["success", "collision", "min_clearance_m", "time_s", "energy_kj"],
                "methods": {"ppo": {"episodes": 2, "failure_reasons": {"collision": 1}, "success": stat,
                                    "collision": stat, "min_clearance_m": {**stat, "mean": 4.1},

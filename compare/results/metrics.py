@@ -1,19 +1,18 @@
-"""Per-episode metrics, `metrics.csv`, and the per-method summary with bootstrap confidence intervals.
+"""Per-episode metrics and `metrics.csv`.
 
 One `EpisodeMetrics` row per saved episode (scenario, episode, method, seed) is computed from the
-episode file alone, so metrics never need the world that produced the flight. `summarize` aggregates
-the rows per method (mean and percentile-bootstrap CI) and pairs methods on the episodes both flew
-(mean difference and its CI). Every file is written atomically: a temporary file in the same folder,
-then `os.replace`, so a reader sees the old file or the new one, never half of one.
+episode file alone, so metrics never need the world that produced the flight. `metrics.csv` is written
+by `write_metrics_csv` and read by `read_metrics_csv`, nowhere else; it is written atomically (a
+temporary file in the same folder, then `os.replace`), so a reader sees the old file or the new one,
+never half of one. The summary over episodes is `compare.results.summary`'s.
 """
 from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -35,14 +34,6 @@ TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "r
 """The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
 method like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
-
-SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
-                   "time_s", "path_length_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
-                   "plan_time_s") + TRACKER_METRICS
-"""Fields aggregated by `summarize`, in report order."""
-
-SUCCESS_ONLY_METRICS = ("time_s", "path_length_m", "energy_kj")
-"""Metrics averaged over successful episodes only (a crash after 3 s is not a fast flight)."""
 
 
 @dataclass(frozen=True)
@@ -229,7 +220,8 @@ def _spl(success: bool, path_m: float, straight_m: float) -> float:
 # metrics.csv
 # ---------------------------------------------------------------------------------------------------
 
-def _row_order(row: EpisodeMetrics) -> tuple[str, int, str, int]:
+def cell_order(row: EpisodeMetrics) -> tuple[str, int, str, int]:
+    """The row's cell (scenario, episode, method, seed): the order of `metrics.csv` and a row's identity."""
     return (row.scenario, row.episode, row.method, row.seed)
 
 
@@ -244,7 +236,7 @@ def write_metrics_csv(rows: Iterable[EpisodeMetrics], path: Path) -> Path:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(COLUMNS)
-    for row in sorted(rows, key=_row_order):
+    for row in sorted(rows, key=cell_order):
         writer.writerow([_format_cell(_KINDS[name], value) for name, value in zip(COLUMNS, astuple(row))])
     return write_text_atomic(Path(path), buf.getvalue())
 
@@ -300,220 +292,3 @@ def _parse_cell(kind: str, text: str, where: str) -> Any:
     except (KeyError, ValueError):
         raise ValueError(f"{where}: cannot read {text!r} as {kind}") from None
     return text
-
-
-# ---------------------------------------------------------------------------------------------------
-# summary.json
-# ---------------------------------------------------------------------------------------------------
-
-def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
-              seed: int = 0) -> dict:
-    """Aggregate episode rows per method and per pair of methods, with percentile-bootstrap CIs.
-
-    Per method and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and a
-    percentile bootstrap CI of the mean (episodes resampled with replacement); `n` is the count used;
-    with n == 0 every number is None, with n == 1 the CI is the mean. `time_s`, `path_length_m` and
-    `energy_kj` are over successful episodes only (`"over": "successes"`), the rest over all
-    episodes (`"over": "all"`).
-
-    Paired: for each pair of methods a < b (sorted names, key "a - b"), the episodes both flew with
-    the same (scenario, episode, seed); per metric the mean of the differences a − b and a bootstrap
-    CI of that mean (pairs resampled). For the success-only metrics only pairs where both succeeded.
-
-    Each CI draws from a fresh `numpy.random.default_rng(seed)`, so a method's numbers depend only on
-    its own episodes, and the same rows (in any order) give the same summary.
-
-    Args:
-        rows: episode metrics, one per (scenario, episode, method, seed).
-        resamples: bootstrap resamples (≥ 1).
-        confidence: CI level in (0, 1).
-        seed: bootstrap seed.
-
-    Returns:
-        A JSON-ready dict: `bootstrap` (settings), `metrics`, `methods`, `paired`.
-
-    Raises:
-        ValueError: bad bootstrap settings or two rows for the same cell.
-    """
-    if int(resamples) != resamples or resamples < 1:
-        raise ValueError(f"resamples must be a positive integer, got {resamples!r}")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    boot = _Bootstrap(int(resamples), float(confidence), int(seed))
-    by_method = _group_by_method(rows)
-    methods = sorted(by_method)
-    paired = {}
-    for i, a in enumerate(methods):
-        for b in methods[i + 1:]:
-            paired[f"{a} - {b}"] = _paired_summary(by_method[a], by_method[b], boot)
-    return {
-        "bootstrap": {"resamples": boot.resamples, "confidence": boot.confidence, "seed": boot.seed,
-                      "method": "percentile"},
-        "metrics": list(SUMMARY_METRICS),
-        "methods": {m: _method_summary(by_method[m], boot) for m in methods},
-        "paired": paired,
-    }
-
-
-@dataclass(frozen=True)
-class _Bootstrap:
-    resamples: int
-    confidence: float
-    seed: int
-
-    def mean_ci(self, x: np.ndarray) -> tuple[float | None, float | None, float | None]:
-        """Mean of `x` and its percentile bootstrap CI (None × 3 for an empty sample)."""
-        n = x.size
-        if n == 0:
-            return None, None, None
-        mean = float(np.mean(x))
-        if n == 1:
-            return mean, mean, mean
-        rng = np.random.default_rng(self.seed)
-        idx = rng.integers(0, n, size=(self.resamples, n))   # one row per resample
-        means = x[idx].mean(axis=1)
-        tail = (1.0 - self.confidence) / 2.0
-        lo, hi = np.quantile(means, [tail, 1.0 - tail])
-        return mean, float(lo), float(hi)
-
-
-def _group_by_method(rows: Iterable[EpisodeMetrics]) -> dict[str, list[EpisodeMetrics]]:
-    """Rows per method, each list sorted by cell; rejects duplicate cells."""
-    by_method: dict[str, list[EpisodeMetrics]] = {}
-    seen: set[tuple[str, int, str, int]] = set()
-    for row in sorted(rows, key=_row_order):
-        cell = _row_order(row)
-        if cell in seen:
-            raise ValueError(f"two rows for scenario {row.scenario!r}, episode {row.episode}, "
-                             f"method {row.method!r}, seed {row.seed}")
-        seen.add(cell)
-        by_method.setdefault(row.method, []).append(row)
-    return by_method
-
-
-def _over(metric: str) -> str:
-    return "successes" if metric in SUCCESS_ONLY_METRICS else "all"
-
-
-def _values(rows: Sequence[EpisodeMetrics], metric: str) -> np.ndarray:
-    return np.array([float(getattr(r, metric)) for r in rows], dtype=float)
-
-
-def _method_summary(rows: list[EpisodeMetrics], boot: _Bootstrap) -> dict:
-    reasons = Counter(r.failure_reason for r in rows if r.failure_reason)
-    out: dict[str, Any] = {"episodes": len(rows), "failure_reasons": dict(sorted(reasons.items()))}
-    for metric in SUMMARY_METRICS:
-        used = [r for r in rows if r.success] if metric in SUCCESS_ONLY_METRICS else rows
-        x = _values(used, metric)
-        x = x[~np.isnan(x)]
-        mean, lo, hi = boot.mean_ci(x)
-        out[metric] = {"mean": mean, "ci_low": lo, "ci_high": hi, "n": int(x.size), "over": _over(metric)}
-    return out
-
-
-def _paired_summary(rows_a: list[EpisodeMetrics], rows_b: list[EpisodeMetrics], boot: _Bootstrap) -> dict:
-    a = {(r.scenario, r.episode, r.seed): r for r in rows_a}
-    b = {(r.scenario, r.episode, r.seed): r for r in rows_b}
-    common = sorted(a.keys() & b.keys())
-    out: dict[str, Any] = {"episodes": len(common)}
-    for metric in SUMMARY_METRICS:
-        if metric in TRACKER_METRICS:
-            continue
-        cells = [c for c in common
-                 if metric not in SUCCESS_ONLY_METRICS or (a[c].success and b[c].success)]
-        d = _values([a[c] for c in cells], metric) - _values([b[c] for c in cells], metric)
-        d = d[~np.isnan(d)]
-        mean, lo, hi = boot.mean_ci(d)
-        out[metric] = {"mean_diff": mean, "ci_low": lo, "ci_high": hi, "n": int(d.size),
-                       "over": _over(metric)}
-    return out
-
-
-def write_summary_json(summary: dict, path: Path) -> Path:
-    """Write a summary as `summary.json` atomically (indent 2, NaN and infinities as null).
-
-    Returns:
-        The path written.
-    """
-    text = json.dumps(_json_ready(summary), indent=2, allow_nan=False) + "\n"
-    return write_text_atomic(Path(path), text)
-
-
-def _json_ready(value: Any) -> Any:
-    """Plain JSON types: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {str(k): _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-# ---------------------------------------------------------------------------------------------------
-# The methods table of the report
-# ---------------------------------------------------------------------------------------------------
-
-def _percent(v: float) -> str:
-    return f"{100.0 * v:.0f}%"
-
-
-def _fixed(decimals: int):
-    return lambda v: f"{v:.{decimals}f}"
-
-
-# metric → (column header, number format)
-_TABLE_COLUMNS = {
-    "success": ("success", _percent),
-    "collision": ("collision", _percent),
-    "min_clearance_m": ("min clearance [m]", _fixed(2)),
-    **{below_field(th): (f"time < {th:g} m clear [s]", _fixed(2)) for th in CLEARANCE_THRESHOLDS_M},
-    "time_s": ("time [s] (successes)", _fixed(1)),
-    "path_length_m": ("path [m] (successes)", _fixed(1)),
-    "spl": ("SPL", _fixed(2)),
-    "energy_kj": ("energy [kJ] (successes)", _fixed(1)),
-    "compute_ms_mean": ("compute mean [ms]", _fixed(2)),
-    "compute_ms_max": ("compute max [ms]", _fixed(2)),
-    "plan_time_s": ("plan time [s]", _fixed(2)),
-    "mpc_solve_ms_median": ("MPC solve median [ms]", _fixed(2)),
-    "mpc_solve_ms_p95": ("MPC solve p95 [ms]", _fixed(2)),
-    "mpc_failures": ("MPC failures", _fixed(1)),
-    "replans_tracking": ("replans (tracking error)", _fixed(2)),
-    "replans_clearance": ("replans (predicted clearance)", _fixed(2)),
-    "tracking_rms_m": ("tracking RMS [m]", _fixed(3)),
-    "tracking_max_m": ("tracking max [m]", _fixed(3)),
-    "planner_margin_m": ("planner margin [m]", _fixed(2)),
-    "mpc_margin_m": ("MPC margin [m]", _fixed(2)),
-}
-
-
-def methods_table(summary: dict) -> list[list[str]]:
-    """The per-method table of a summary as text cells, "mean [ci_low, ci_high]" per metric.
-
-    Args:
-        summary: as returned by `summarize` (or read back from `summary.json`).
-
-    Returns:
-        A header row, then one row per method: name, episode count, one cell per summarised metric
-        ("n/a" where no episode counted, e.g. the planning time of a pilot that does not plan).
-    """
-    metrics = list(summary["metrics"])
-    header = ["method", "episodes"] + [_TABLE_COLUMNS.get(m, (m, None))[0] for m in metrics]
-    table = [header]
-    for method, stats in summary["methods"].items():
-        row = [method, str(stats["episodes"])]
-        for m in metrics:
-            fmt = _TABLE_COLUMNS.get(m, (m, lambda v: f"{v:.3g}"))[1]
-            row.append(_format_stat(stats[m], fmt))
-        table.append(row)
-    return table
-
-
-def _format_stat(stat: dict, fmt) -> str:
-    if stat.get("mean") is None:
-        return "n/a"
-    return f"{fmt(stat['mean'])} [{fmt(stat['ci_low'])}, {fmt(stat['ci_high'])}]"

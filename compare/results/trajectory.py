@@ -8,6 +8,7 @@ half-written episode: a file either exists complete or not at all.
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 import zlib
 from dataclasses import asdict, dataclass
@@ -20,6 +21,10 @@ from uam_fdm.files.atomic import atomic_open
 
 FORMAT_VERSION = 1
 _ARRAYS = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m", "decision_t_s", "compute_s")
+# Arrays added after format 1 was fixed: absent from older files (None when loaded), so files of either age
+# read with either code.
+_OPTIONAL_ARRAYS = ("shaft_power_W",)
+_STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<method>.+)__s(?P<seed>-?\d+)$")
 
 
 @dataclass(frozen=True)
@@ -35,6 +40,15 @@ class EpisodeKey:
     def stem(self) -> str:
         """File stem, e.g. `default-suburb__ep003__ppo__s0`."""
         return f"{self.scenario}__ep{self.episode:03d}__{self.method}__s{self.seed}"
+
+    @classmethod
+    def from_stem(cls, stem: str) -> EpisodeKey | None:
+        """The key whose `stem` is `stem`, or None when `stem` is not one (a file named otherwise)."""
+        m = _STEM.match(stem)
+        if m is None:
+            return None
+        key = cls(m["scenario"], int(m["episode"]), m["method"], int(m["seed"]))
+        return key if key.stem == stem else None  # e.g. "ep7" is not written by `stem` (it pads to "ep007")
 
 
 @dataclass(frozen=True)
@@ -85,6 +99,8 @@ def save_episode(path: Path, meta: EpisodeMeta, traj: Trajectory) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
+    arrays.update({name: np.asarray(getattr(traj, name)) for name in _OPTIONAL_ARRAYS
+                   if getattr(traj, name) is not None})
     header = {"format_version": FORMAT_VERSION, "meta": asdict(meta)}
     with atomic_open(path, "wb") as f:
         np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)
@@ -103,6 +119,7 @@ def load_episode(path: Path) -> SavedEpisode:
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["meta_json"]))
             arrays = {name: np.array(z[name]) for name in _ARRAYS}
+            arrays.update({name: np.array(z[name]) if name in z.files else None for name in _OPTIONAL_ARRAYS})
     # a truncated or damaged file fails inside zipfile/zlib (BadZipFile, EOFError, zlib.error on a bad CRC)
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise ValueError(f"{path}: not a saved episode, or truncated or corrupt ({exc})") from exc
@@ -120,6 +137,9 @@ def load_episode(path: Path) -> SavedEpisode:
     n = len(arrays["t_s"])
     if arrays["states"].ndim != 2 or len(arrays["states"]) != n or len(arrays["clearance_m"]) != n:
         raise ValueError(f"{path}: not a saved episode (time, state and clearance rows disagree)")
+    power = arrays["shaft_power_W"]
+    if power is not None and power.shape != (n,):
+        raise ValueError(f"{path}: shaft_power_W has shape {power.shape}, expected ({n},) like t_s")
     traj = Trajectory(**arrays, energy_J=meta.energy_J, outcome=meta.outcome, plan_time_s=meta.plan_time_s,
                       detail=meta.detail)
     return SavedEpisode(meta, traj)

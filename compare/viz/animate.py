@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from compare.viz.figures import GOAL_STYLE, START_STYLE, trace_from_episode
 from compare.viz.flights import FlightGroup, Pilot, sample_flight
+from compare.results.run_info import WindInfo
 from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
@@ -224,16 +225,15 @@ def _figure_inches(px: int, dpi: float) -> float:
     return inches
 
 
-def _wind_words(wind: dict | None) -> str:
-    if not wind:
+def _wind_words(wind: WindInfo | None) -> str:
+    if wind is None or (wind.steady_enu_m_s is None and wind.turbulence is None):
         return "wind not recorded"
     words = []
-    steady = wind.get("steady_enu_m_s")
-    if steady is not None:
-        v = np.asarray(steady, float)
+    if wind.steady_enu_m_s is not None:
+        v = np.asarray(wind.steady_enu_m_s, float)
         words.append(f"wind ({', '.join(f'{c:.1f}' for c in v)}) m/s ENU" if np.any(v) else "no steady wind")
-    turb = wind.get("turbulence")
-    words.append(f"{turb} turbulence" if turb not in (None, "", "none", False) else "no turbulence")
+    turb = wind.turbulence
+    words.append(f"{turb} turbulence" if turb not in (None, "", "none") else "no turbulence")
     return ", ".join(words)
 
 

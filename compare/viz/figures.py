@@ -62,8 +62,8 @@ class FlightTrace:
         label: the method's display label; color: its matplotlib colour.
         t_s: (K,) time [s]; pos_m: (K, 3) position, world ENU [m]; speed_m_s: (K,) ground speed [m/s].
         clearance_m: (K,) signed clearance of the collision sphere [m] (the minimum sample is kept).
-        rotor_kw: (K,) total rotor shaft power km·σ·ΣΩ³ [kW] when the episode saved `torque_coeff_Nm_s2`
-            and `density_ratio` in `meta.extra`, else None.
+        rotor_kw: (K,) total rotor shaft power Σ Q_i·Ω_i [kW], the model's at each step as the episode file
+            saved it (`Trajectory.shaft_power_W`); None for a file saved before it was recorded.
         rotor_mean_rad_s: (K,) mean rotor speed [rad/s].
         bbox_min_m, bbox_max_m: (3,) extent of the full (not reduced) path with start and goal, ENU [m].
     """
@@ -114,11 +114,8 @@ def trace_from_episode(ep: SavedEpisode, label: str, color: str,
     keep = [int(np.nanargmin(clear))] if np.any(np.isfinite(clear)) else []
     idx = downsample_indices(len(rows), max_points, keep)
     rotors = x[idx, 13:13 + meta.n_rotors]
-    extra = meta.extra or {}
-    rotor_kw = None
-    if "torque_coeff_Nm_s2" in extra and "density_ratio" in extra:
-        km_sigma = float(extra["torque_coeff_Nm_s2"]) * float(extra["density_ratio"])
-        rotor_kw = km_sigma * np.sum(rotors ** 3, axis=1) / 1e3
+    power = tr.shaft_power_W
+    rotor_kw = None if power is None else np.asarray(power, float)[rows][idx] / 1e3
     ends = np.vstack([x[:, 0:3], meta.start_m, meta.goal_m])
     return FlightTrace(
         episode=meta, label=label, color=color, t_s=t_s[idx], pos_m=x[idx, 0:3],
@@ -427,7 +424,9 @@ def episode_paths_figure(title: str, traces: Sequence[FlightTrace], bmap: Buildi
 def episode_timeseries_figure(title: str, traces: Sequence[FlightTrace]) -> Figure:
     """Clearance (with contact and 2 m / 5 m margins), speed and rotor power (or mean rotor speed) over time.
 
-    Rotor power km·σ·ΣΩ³ is drawn only when every trace has it; otherwise all show mean rotor speed.
+    Rotor shaft power (the model's, saved per step in the episode file) is drawn only when every trace has
+    it; otherwise (an episode file saved before it was recorded) all show mean rotor speed, and the panel
+    says why.
     """
     fig = Figure(figsize=PAGE_SIZE_IN, layout="constrained")
     fig.suptitle(title, fontsize=15, fontweight="bold")
@@ -448,8 +447,9 @@ def episode_timeseries_figure(title: str, traces: Sequence[FlightTrace]) -> Figu
     ax_v.set_ylabel("speed [m/s]")
     ax_v.set_title("ground speed", fontsize=10)
     ax_p.set_ylabel("rotor power [kW]" if power else "mean rotor speed [rad/s]")
-    ax_p.set_title("total rotor shaft power km·σ·ΣΩ³" if power
-                   else "mean rotor speed (rotor torque coefficient not saved)", fontsize=10)
+    ax_p.set_title("total rotor shaft power Σ Q·Ω (the flight model's, per step)" if power
+                   else "mean rotor speed (shaft power not in this episode file: saved before it was recorded)",
+                   fontsize=10)
     ax_p.set_xlabel("time [s]")
     for ax in (ax_c, ax_v, ax_p):
         ax.grid(alpha=0.3)
@@ -538,6 +538,52 @@ def _draw_stages(ax: Axes, curve: RewardCurve) -> int:
     return rows
 
 
+def _draw_return(ax: Axes, curve: RewardCurve, x: np.ndarray, window: int, smooth_fraction: float) -> list:
+    """The training return per update (faint) and its moving average over `window` updates, against x [M
+    timesteps]; returns the legend handles."""
+    handles: list = []
+    raw = np.isfinite(curve.mean_episode_reward)
+    if np.any(raw):
+        if window == 1:  # too few rows to smooth (e.g. an older file with a row per evaluation only)
+            handles += ax.plot(x[raw], curve.mean_episode_reward[raw], color=RETURN_COLOR, lw=1.8, marker=".",
+                               label="training return (not smoothed: too few rows)")
+        else:
+            handles += ax.plot(x[raw], curve.mean_episode_reward[raw], color=RETURN_COLOR, lw=0.7, alpha=0.35,
+                               label="training return, per update")
+            smooth = moving_average(curve.mean_episode_reward, window)
+            ok = np.isfinite(smooth)
+            handles += ax.plot(x[ok], smooth[ok], color=RETURN_COLOR, lw=2.2,
+                               label=f"training return, moving average ({window} updates ≈ "
+                                     f"{100 * smooth_fraction:g} % of the run)")
+        if np.nanmin(curve.mean_episode_reward) < 0 < np.nanmax(curve.mean_episode_reward):
+            ax.axhline(0.0, color="0.6", lw=0.6, zorder=0.5)
+    ax.set_xlabel("training timesteps [millions of decisions, all vehicles together]")
+    ax.set_ylabel("training return per episode (mean over each update) [-]", color="#b35900")
+    ax.grid(alpha=0.3)
+    ax.set_xlim(min(0.0, float(np.nanmin(x))), float(np.nanmax(x)) * 1.01 if np.nanmax(x) > 0 else 1.0)
+    return handles
+
+
+def _draw_success_rates(ax2: Axes, curve: RewardCurve, x: np.ndarray, window: int) -> list:
+    """The training success rate (moving average over `window` updates) and the validation success rate
+    (markers), in percent, against x [M timesteps]; returns the legend handles."""
+    handles: list = []
+    ax2.set_ylim(-2.0, 102.0)
+    ax2.set_ylabel("success rate [%]", color=SUCCESS_COLOR)
+    train_ok = np.isfinite(curve.train_success_rate)
+    if np.any(train_ok):
+        ts = moving_average(_pct(curve.train_success_rate), window)
+        ok = np.isfinite(ts)
+        handles += ax2.plot(x[ok], ts[ok], color=SUCCESS_COLOR, lw=1.0, alpha=0.6,
+                            label="training success rate, moving average (at the curriculum's difficulty)")
+    val = curve.has_validation
+    if np.any(val):
+        handles += ax2.plot(x[val], _pct(curve.success_rate)[val], color=SUCCESS_COLOR, marker="o", ms=4.5,
+                            lw=1.5, markeredgecolor="white", markeredgewidth=0.6,
+                            label="validation success rate (held-out cities, full difficulty)")
+    return handles
+
+
 def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "",
                         kept_timesteps: float | None = None, subtitle: str = "",
                         smooth_fraction: float = SMOOTH_FRACTION) -> Figure:
@@ -566,40 +612,7 @@ def reward_curve_figure(title: str, curve: RewardCurve | None, note: str = "",
     x = curve.timesteps / 1e6
     window = smoothing_window(len(x), smooth_fraction)
     stage_rows = _draw_stages(ax2, curve)
-    handles: list = []
-    raw = np.isfinite(curve.mean_episode_reward)
-    if np.any(raw):
-        if window == 1:  # too few rows to smooth (e.g. an older file with a row per evaluation only)
-            handles += ax.plot(x[raw], curve.mean_episode_reward[raw], color=RETURN_COLOR, lw=1.8, marker=".",
-                               label="training return (not smoothed: too few rows)")
-        else:
-            handles += ax.plot(x[raw], curve.mean_episode_reward[raw], color=RETURN_COLOR, lw=0.7, alpha=0.35,
-                               label="training return, per update")
-            smooth = moving_average(curve.mean_episode_reward, window)
-            ok = np.isfinite(smooth)
-            handles += ax.plot(x[ok], smooth[ok], color=RETURN_COLOR, lw=2.2,
-                               label=f"training return, moving average ({window} updates ≈ "
-                                     f"{100 * smooth_fraction:g} % of the run)")
-        if np.nanmin(curve.mean_episode_reward) < 0 < np.nanmax(curve.mean_episode_reward):
-            ax.axhline(0.0, color="0.6", lw=0.6, zorder=0.5)
-    ax.set_xlabel("training timesteps [millions of decisions, all vehicles together]")
-    ax.set_ylabel("training return per episode (mean over each update) [-]", color="#b35900")
-    ax.grid(alpha=0.3)
-    ax.set_xlim(min(0.0, float(np.nanmin(x))), float(np.nanmax(x)) * 1.01 if np.nanmax(x) > 0 else 1.0)
-    ax2.set_ylim(-2.0, 102.0)
-    ax2.set_ylabel("success rate [%]", color=SUCCESS_COLOR)
-    assert curve.train_success_rate is not None  # __post_init__ fills a missing column with NaN
-    train_ok = np.isfinite(curve.train_success_rate)
-    if np.any(train_ok):
-        ts = moving_average(_pct(curve.train_success_rate), window)
-        ok = np.isfinite(ts)
-        handles += ax2.plot(x[ok], ts[ok], color=SUCCESS_COLOR, lw=1.0, alpha=0.6,
-                            label="training success rate, moving average (at the curriculum's difficulty)")
-    val = curve.has_validation
-    if np.any(val):
-        handles += ax2.plot(x[val], _pct(curve.success_rate)[val], color=SUCCESS_COLOR, marker="o", ms=4.5,
-                            lw=1.5, markeredgecolor="white", markeredgewidth=0.6,
-                            label="validation success rate (held-out cities, full difficulty)")
+    handles = _draw_return(ax, curve, x, window, smooth_fraction) + _draw_success_rates(ax2, curve, x, window)
     if kept_timesteps is not None:
         handles.append(ax.axvline(kept_timesteps / 1e6, color=KEPT_COLOR, ls="--", lw=1.3,
                                   label=f"kept checkpoint ({kept_timesteps / 1e6:.2f} M timesteps)"))

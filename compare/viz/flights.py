@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from compare.viz.figures import crop_map, flight_region, method_colors, trace_from_episode
-from compare.viz.report import load_run_info
+from compare.results.run_info import WindInfo, read_run_info
 from compare.results.trajectory import SavedEpisode, episode_files, load_episode
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
@@ -61,7 +61,7 @@ class FlightGroup:
         pilots: one per method that flew it.
         city: the scenario's map (from the run folder's `maps/<scenario>.yaml`).
         description: the scenario's one-line description (may be empty).
-        wind: the scenario's wind block from run.json ({"steady_enu_m_s": [...], "turbulence": ...}) or {}.
+        wind: the scenario's wind as run.json records it (None when it does not).
     """
 
     scenario: str
@@ -70,7 +70,7 @@ class FlightGroup:
     pilots: tuple[Pilot, ...]
     city: BuildingMap
     description: str = ""
-    wind: dict | None = None
+    wind: WindInfo | None = None
 
     @property
     def spec(self) -> str:
@@ -112,14 +112,12 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
             unreadable, naming the folder or file.
     """
     run_dir = Path(run_dir)
-    info = load_run_info(run_dir)
+    info = read_run_info(run_dir)
     files = episode_files(run_dir)
     if not files:
         raise ValueError(f"{run_dir}: no saved episodes (episodes/*.npz) to show")
-    methods_info = info.get("methods") or {}
-    scen_info = {s.get("name"): s for s in info.get("scenarios") or [] if isinstance(s, dict)}
-    scen_order = {name: i for i, name in enumerate(scen_info)}
-    method_order = {m: i for i, m in enumerate(methods_info)}
+    scen_order = {s.name: i for i, s in enumerate(info.scenarios)}
+    method_order = {m: i for i, m in enumerate(info.methods)}
     by_cell: dict[tuple[str, int, int], list[SavedEpisode]] = {}
     unreadable = []
     for f in files:
@@ -144,11 +142,10 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
             maps[scenario] = load_map_file(run_dir / "maps" / f"{scenario}.yaml")
         eps = sorted(by_cell[(scenario, episode, seed)],
                      key=lambda e: (method_order.get(e.meta.key.method, len(method_order)), e.meta.key.method))
-        pilots = tuple(Pilot(e, str((methods_info.get(e.meta.key.method) or {}).get("label", e.meta.key.method)),
-                             colors[e.meta.key.method]) for e in eps)
-        sc = scen_info.get(scenario, {})
+        pilots = tuple(Pilot(e, info.label(e.meta.key.method), colors[e.meta.key.method]) for e in eps)
+        sc = info.scenario(scenario)
         groups.append(FlightGroup(scenario, episode, seed, pilots, maps[scenario],
-                                  description=str(sc.get("description", "")), wind=sc.get("wind") or {}))
+                                  description=sc.description if sc else "", wind=sc.wind if sc else None))
     return groups
 
 

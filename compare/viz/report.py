@@ -31,7 +31,11 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from compare.viz import figures as F
-from compare.results.trajectory import episode_files, load_episode
+from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
+from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
+from compare.results.summary import BootstrapSettings, MethodSummary, PairedSummary, Stat, Summary, read_summary_json
+from compare.results.trajectory import EpisodeKey, episode_files, load_episode
+from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import save_figure
@@ -66,7 +70,6 @@ SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
 TRACKER_METHOD = "rrt_mpc"  # the pilot whose tracker columns get a page per scenario
 MAX_FAILURE_PLOTS = 6
 PNG_DPI = 130
-_STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<method>.+)__s(?P<seed>-?\d+)$")
 
 
 @dataclass
@@ -74,7 +77,7 @@ class _Run:
     """What every page needs: the folder, its provenance and the per-method labels and colours."""
 
     run_dir: Path
-    info: dict
+    info: RunInfo
     methods: list[str]
     labels: dict[str, str]
     colors: dict[str, str]
@@ -103,33 +106,6 @@ class _Run:
         return self.maps[scenario]
 
 
-def load_run_info(run_dir: Path) -> dict:
-    """Read `RUN_DIR/run.json`.
-
-    Raises:
-        ValueError: the file is missing or not a JSON object, naming the folder.
-    """
-    path = Path(run_dir) / "run.json"
-    if not path.is_file():
-        raise ValueError(f"{run_dir}: not a run folder (no run.json)")
-    try:
-        info = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{run_dir}: run.json is not readable JSON ({exc})") from exc
-    if not isinstance(info, dict):
-        raise ValueError(f"{run_dir}: run.json must hold a JSON object")  # noqa: TRY004 (bad file, not bad argument)
-    return info
-
-
-def read_metrics_csv(path: Path) -> list[dict[str, str]] | None:
-    """Rows of a `metrics.csv` as dicts of strings, or None when the file does not exist."""
-    path = Path(path)
-    if not path.is_file():
-        return None
-    with path.open(newline="", encoding="utf-8") as f:
-        return [dict(r) for r in csv.DictReader(f)]
-
-
 def read_reward_curve(path: Path) -> F.RewardCurve | None:
     """A policy's `reward_curve.csv` as a `RewardCurve`, or None if the file is absent.
 
@@ -146,7 +122,8 @@ def read_reward_curve(path: Path) -> F.RewardCurve | None:
     path = Path(path)
     if not path.is_file():
         return None
-    rows = read_metrics_csv(path) or []
+    with path.open(newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
     need = ("timesteps", "mean_episode_reward")
     if not rows or any(k not in rows[0] for k in need):
         raise ValueError(f"{path}: needs columns {', '.join(need)} and at least one row")
@@ -175,7 +152,7 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
         ValueError: `run_dir` has no readable run.json.
     """
     run_dir = Path(run_dir)
-    run = _make_run(run_dir, load_run_info(run_dir))
+    run = _make_run(run_dir, read_run_info(run_dir))
     run.skip_log_level = logging.WARNING if warn_unreadable else logging.INFO
     out = Path(out) if out is not None else run_dir / "report.pdf"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -183,18 +160,18 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
     with atomic_path(out, suffix=".pdf.tmp") as tmp:
         # TrueType (Type 42) fonts: text stays searchable and journals accept the pages
         metadata = {"Title": "uam-compare report", "Creator": "uam-compare",
-                    "Subject": str(run.info.get("command", "")), "CreationDate": None}
+                    "Subject": run.info.command, "CreationDate": None}
         with rc_context({"pdf.fonttype": 42}), PdfPages(tmp, metadata=metadata) as pdf:
             pages = _PageWriter(pdf, run_dir / "figures")
             n_present = sum(len(paths) for paths in groups.values())
             pages.add_all(F.text_pages("uam-compare report", _title_blocks(run, n_present)), "title")
-            rows = read_metrics_csv(run_dir / "metrics.csv")
-            for name, figs in _metrics_pages(run, rows):
+            rows, why = _read_metrics(run_dir / "metrics.csv")
+            for name, figs in _metrics_pages(run, rows, why):
                 pages.add_all(figs, name)
             failures = _episode_pages(run, groups, pages)
             policies = ppo_policies(run.info)
-            for k, pol in enumerate(policies or [{}]):  # one convergence page per policy flown
-                suffix = "" if k == 0 else f"_{pol.get('vehicle') or k}"
+            for k, pol in enumerate(policies or [None]):  # one convergence page per policy flown
+                suffix = "" if k == 0 or pol is None else f"_{pol.vehicle or k}"
                 pages.add(_training_figure(pol, len(policies) > 1), f"training_reward_curve{suffix}")
             _failure_pages(run, failures, rows, run.unreadable, pages)
     logger.info("report %s: %d pages", out, pages.count)
@@ -219,33 +196,28 @@ class _PageWriter:
             self.add(fig, name if len(figs) == 1 else f"{name}_{k + 1}")
 
 
-def _make_run(run_dir: Path, info: dict) -> _Run:
-    meth_cfg = info.get("methods") if isinstance(info.get("methods"), Mapping) else {}
-    scen = [s for s in info.get("scenarios") or [] if isinstance(s, Mapping)]
-    methods = list(meth_cfg)
-    for s in scen:
-        methods += [m for m in s.get("methods") or [] if m not in methods]
-    labels = {m: str((c or {}).get("label") or m) for m, c in meth_cfg.items()}
-    return _Run(run_dir, info, methods, labels, F.method_colors(methods), [str(s.get("name")) for s in scen])
+def _make_run(run_dir: Path, info: RunInfo) -> _Run:
+    methods = list(info.methods)
+    for s in info.scenarios:
+        methods += [m for m in s.methods if m not in methods]
+    labels = {m: c.label for m, c in info.methods.items()}
+    return _Run(run_dir, info, methods, labels, F.method_colors(methods), [s.name for s in info.scenarios])
 
 
 def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[Path]]:
     """Episode files grouped by (scenario, episode, seed), in run.json scenario order."""
     groups: dict[tuple[str, int, int], list[Path]] = {}
     for path in episode_files(run.run_dir):
-        m = _STEM.match(path.stem)
-        if m is not None:
-            scenario, episode, method, seed = m["scenario"], int(m["episode"]), m["method"], int(m["seed"])
-        else:  # not named by EpisodeKey.stem: ask the file
+        k = EpisodeKey.from_stem(path.stem)
+        if k is None:  # not named by EpisodeKey.stem: ask the file
             try:
                 k = load_episode(path).meta.key
             except ValueError as exc:
                 run.skip(path, exc)
                 continue
-            scenario, episode, method, seed = k.scenario, k.episode, k.method, k.seed
-        if method not in run.methods:  # a method run.json does not list still gets its own colour
-            run.methods.append(method)
-        groups.setdefault((scenario, episode, seed), []).append(path)
+        if k.method not in run.methods:  # a method run.json does not list still gets its own colour
+            run.methods.append(k.method)
+        groups.setdefault((k.scenario, k.episode, k.seed), []).append(path)
     run.colors = F.method_colors(run.methods)
     for s in sorted({k[0] for k in groups}):
         if s not in run.scenarios:
@@ -273,43 +245,35 @@ def _fmt(v: object, digits: int, scale: float = 1.0) -> str:
     return f"{f * scale:.{digits}f}" if math.isfinite(f) else "n/a"
 
 
-def format_ci(stat: object, scale: float = 1.0, digits: int = 2) -> str:
-    """"mean [low, high]" of a summary entry {mean | mean_diff, ci_low, ci_high}, scaled; "n/a" if missing."""
-    if not isinstance(stat, Mapping):
+def format_ci(stat: Stat | None, scale: float = 1.0, digits: int = 2) -> str:
+    """"mean [low, high]" of a summary's `Stat` (a paired one: the mean difference), scaled; "n/a" if missing."""
+    if stat is None or stat.mean is None or not math.isfinite(stat.mean):
         return "n/a"
-    mean = _float(stat.get("mean", stat.get("mean_diff")))
-    if not math.isfinite(mean):
-        return "n/a"
-    lo, hi = _float(stat.get("ci_low")), _float(stat.get("ci_high"))
-    text = f"{mean * scale:.{digits}f}"
+    text = f"{stat.mean * scale:.{digits}f}"
+    lo, hi = _float(stat.ci_low), _float(stat.ci_high)
     if math.isfinite(lo) and math.isfinite(hi):
         text += f" [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"
     return text
 
 
+def _num(v: float | None) -> str:
+    """A recorded number as written short ("500" for 500.0), "n/a" when not recorded."""
+    return "n/a" if v is None else f"{v:g}"
+
+
 # ---- 1. title -------------------------------------------------------------------------------------------
 def _planned_episodes(run: _Run) -> int:
-    total = 0
-    for s in _scenario_entries(run):
-        eps = s.get("episodes")
-        n_eps = len(eps) if isinstance(eps, list) else _float(eps)
-        total += int(n_eps if math.isfinite(n_eps) else 0) * len(s.get("seeds") or [0]) * len(
-            s.get("methods") or run.methods)
-    return total
+    return sum((s.episodes or 0) * len(s.seeds or [0]) * len(s.methods or run.methods) for s in run.info.scenarios)
 
 
-def _scenario_entries(run: _Run) -> list[Mapping]:
-    return [s for s in run.info.get("scenarios") or [] if isinstance(s, Mapping)]
-
-
-def _shear_words(shear: object) -> str:
+def _shear_words(shear: WindShear | None) -> str:
     """The steady wind's profile from run.json's wind.shear (absent in runs before it existed: uniform)."""
-    if not isinstance(shear, Mapping) or shear.get("law") in (None, "uniform"):
+    if shear is None or shear.law is ShearLaw.UNIFORM:
         return "the same at every height"
-    ref = _fmt(shear.get("reference_height_m"), 0)
-    if shear.get("law") == "power":
-        return f"given at {ref} m, power-law shear alpha {_fmt(shear.get('exponent'), 2)}"
-    return f"given at {ref} m, log-law shear z0 {_fmt(shear.get('roughness_m'), 2)} m"
+    ref = _fmt(shear.reference_height_m, 0)
+    if shear.law is ShearLaw.POWER:
+        return f"given at {ref} m, power-law shear alpha {_fmt(shear.exponent, 2)}"
+    return f"given at {ref} m, log-law shear z0 {_fmt(shear.roughness_m, 2)} m"
 
 
 def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
@@ -318,56 +282,74 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
     coverage = f"Episodes in this report: {n_present} of {planned} planned."
     if n_present < planned:
         coverage += " The run is incomplete (interrupted): the report covers the episodes saved so far."
-    blocks = [("p", f"Created {info.get('created_utc', 'n/a')} by: {info.get('command', 'n/a')}"),
+    blocks = [("p", f"Created {info.created_utc or 'n/a'} by: {info.command or 'n/a'}"),
               ("p", f"Run folder: {run.run_dir}"), ("p", coverage), ("h", "Scenarios")]
-    for s in _scenario_entries(run):
-        atm, wind = s.get("atmosphere") or {}, s.get("wind") or {}
-        seeds = s.get("seeds") or []
-        eps = s.get("episodes")
-        n_eps = len(eps) if isinstance(eps, list) else eps
-        blocks += [
-            ("p", f"{s.get('name')}: {s.get('description', '')}"),
-            ("p", (f"    map {s.get('map_name')} · vehicle {s.get('vehicle')} "
-                   f"({s.get('vehicle_summary', 'n/a')})")),
-            ("p", (f"    atmosphere: field elevation {_fmt(atm.get('elevation_m'), 0)} m, "
-                   f"ISA offset {_fmt(atm.get('isa_offset_k'), 1)} K, "
-                   f"density {_fmt(atm.get('density_kg_m3'), 3)} kg/m³")),
-            ("p", (f"    wind: steady {wind.get('steady_enu_m_s')} m/s (ENU), {_shear_words(wind.get('shear'))}, "
-                   f"turbulence {wind.get('turbulence')}")),
-            ("p", (f"    {n_eps} episodes × seeds {seeds}; methods "
-                   f"{', '.join(run.label(m) for m in s.get('methods') or [])}; "
-                   f"physics {s.get('physics_hz')} Hz, control {s.get('control_hz')} Hz; "
-                   f"source {s.get('source', 'n/a')}"))]
+    for s in info.scenarios:
+        blocks += _scenario_blocks(run, s)
     blocks.append(("h", "Methods"))
-    for m, cfg in (info.get("methods") or {}).items():
-        cfg = cfg or {}
-        blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.get('description', '')}"))
+    for m, cfg in info.methods.items():
+        blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.description}"))
         if m == "ppo":
             for pol in ppo_policies(info):
-                rate = f"; decides at {pol['decision_hz']:g} Hz" if pol.get("decision_hz") else ""
-                who = f"for {pol['vehicle']}: " if pol.get("vehicle") else ""
-                blocks.append(("p", f"    {who}policy {pol.get('policy_dir')}{rate}"))
-    run_notes = [str(n) for n in info.get("notes") or []]
-    if run_notes:  # e.g. cells left out, the pilots' decision rates
-        blocks += [("h", "Notes"), *(("p", n) for n in run_notes)]
-    versions = info.get("versions") or {}
+                rate = f"; decides at {pol.decision_hz:g} Hz" if pol.decision_hz else ""
+                who = f"for {pol.vehicle}: " if pol.vehicle else ""
+                blocks.append(("p", f"    {who}policy {pol.policy_dir}{rate}"))
+    if info.notes:  # e.g. cells left out, the pilots' decision rates
+        blocks += [("h", "Notes"), *(("p", n) for n in info.notes)]
     blocks += [("h", "Software versions"),
-               ("p", " · ".join(f"{k} {v}" for k, v in versions.items()) or "n/a"),
-               ("h", "Fairness"), ("p", str(info.get("fairness") or "n/a"))]
+               ("p", " · ".join(f"{k} {v}" for k, v in info.versions.items()) or "n/a"),
+               ("h", "Fairness"), ("p", info.fairness or "n/a")]
     return blocks
 
 
+def _scenario_blocks(run: _Run, s: ScenarioInfo) -> list[tuple[str, str]]:
+    atm, wind = s.atmosphere, s.wind
+    steady = "n/a" if wind.steady_enu_m_s is None else str(list(wind.steady_enu_m_s))
+    return [
+        ("p", f"{s.name}: {s.description}"),
+        ("p", f"    map {s.map_name} · vehicle {s.vehicle} ({s.vehicle_summary or 'n/a'})"),
+        ("p", (f"    atmosphere: field elevation {_fmt(atm.elevation_m, 0)} m, "
+               f"ISA offset {_fmt(atm.isa_offset_k, 1)} K, "
+               f"density {_fmt(atm.density_kg_m3, 3)} kg/m³")),
+        ("p", (f"    wind: steady {steady} m/s (ENU), {_shear_words(wind.shear)}, "
+               f"turbulence {wind.turbulence or 'n/a'}")),
+        ("p", (f"    {_num(s.episodes)} episodes × seeds {list(s.seeds)}; methods "
+               f"{', '.join(run.label(m) for m in s.methods)}; "
+               f"physics {_num(s.physics_hz)} Hz, control {_num(s.control_hz)} Hz; "
+               f"source {s.source or 'n/a'}"))]
+
+
 # ---- 2. metrics -----------------------------------------------------------------------------------------
-def _metrics_pages(run: _Run, rows: list[dict[str, str]] | None) -> list[tuple[str, list[Figure]]]:
+def _read_metrics(path: Path) -> tuple[list[EpisodeMetrics] | None, str]:
+    """The rows of metrics.csv, or None and why (the file is missing or unreadable: logged)."""
+    if not path.is_file():
+        return None, f"metrics.csv was not found in {path.parent}"
+    try:
+        return read_metrics_csv(path), ""
+    except (OSError, ValueError) as exc:
+        logger.warning("%s unreadable (%s): the metrics tables are skipped", path, exc)
+        return None, f"metrics.csv could not be read ({exc})"
+
+
+def _read_summary(path: Path) -> Summary | None:
+    if not path.is_file():
+        return None
+    try:
+        return read_summary_json(path)
+    except ValueError as exc:  # the message names the file
+        logger.warning("summary unreadable (%s): means without confidence intervals", exc)
+        return None
+
+
+def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> list[tuple[str, list[Figure]]]:
     if rows is None:
-        note = (f"metrics.csv was not found in {run.run_dir}: the metrics tables are skipped. "
+        note = (f"{why}: the metrics tables are skipped. "
                 "The uam-compare CLI recomputes metrics from the saved episodes before building the report.")
         return [("metrics", F.text_pages("Metrics", [("p", note)]))]
     summary = _read_summary(run.run_dir / "summary.json")
     out = [("metrics_summary", _summary_pages(run, rows, summary))]
-    paired = (summary or {}).get("paired")
-    if isinstance(paired, Mapping) and paired:
-        out.append(("metrics_paired", _paired_pages(run, paired)))
+    if summary is not None and summary.paired:
+        out.append(("metrics_paired", _paired_pages(run, summary.paired)))
     tracker = _tracker_pages(run, rows)
     if tracker:
         out.append(("metrics_tracker", tracker))
@@ -375,128 +357,118 @@ def _metrics_pages(run: _Run, rows: list[dict[str, str]] | None) -> list[tuple[s
     return out
 
 
-def _tracker_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
+def _column(rows: Sequence[EpisodeMetrics], name: str) -> np.ndarray:
+    """One metrics.csv column of `rows` as floats (booleans as 0/1)."""
+    return np.array([float(getattr(r, name)) for r in rows])
+
+
+def _tracker_pages(run: _Run, rows: list[EpisodeMetrics]) -> list[Figure]:
     """The classical pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from
     metrics.csv; nothing when it did not fly (or the file predates the tracker columns)."""
-    mine = [r for r in rows if r.get("method") == TRACKER_METHOD]
-    if not mine or all(not math.isfinite(_float(r.get("planner_margin_m"))) for r in mine):
+    mine = [r for r in rows if r.method == TRACKER_METHOD]
+    if not mine or all(not math.isfinite(r.planner_margin_m) for r in mine):
         return []
-    table = []
-    for scenario in dict.fromkeys(r.get("scenario", "") for r in mine):
-        rs = [r for r in mine if r.get("scenario") == scenario]
-        col = {k: np.array([_float(r.get(k)) for r in rs]) for k in
-               ("success", "min_clearance_m", "planner_margin_m", "mpc_margin_m", "tracking_rms_m", "tracking_max_m",
-                "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking", "replans_clearance")}
-        ratio = col["min_clearance_m"] / col["planner_margin_m"]
-
-        def agg(f, x: np.ndarray, digits: int) -> str:
-            x = x[np.isfinite(x)]
-            return f"{f(x):.{digits}f}" if x.size else "n/a"
-
-        table.append([scenario, str(len(rs)), agg(np.mean, 100.0 * col["success"], 0),
-                      agg(np.max, col["planner_margin_m"], 2) + " / " + agg(np.max, col["mpc_margin_m"], 2),
-                      agg(np.min, col["min_clearance_m"], 2), agg(np.min, ratio, 2),
-                      agg(np.mean, col["tracking_rms_m"], 3), agg(np.max, col["tracking_max_m"], 2),
-                      agg(np.median, col["mpc_solve_ms_median"], 2), agg(np.max, col["mpc_solve_ms_p95"], 2),
-                      agg(np.sum, col["mpc_failures"], 0),
-                      agg(np.sum, col["replans_tracking"], 0) + " / " + agg(np.sum, col["replans_clearance"], 0)])
+    table = [_tracker_row(scenario, [r for r in mine if r.scenario == scenario])
+             for scenario in dict.fromkeys(r.scenario for r in mine)]
     header = ["scenario", "episodes", "success [%]", "margin planner / MPC [m]", "min clearance [m]",
               "min clearance / margin", "tracking RMS [m]", "tracking max [m]", "solve median [ms]",
               "solve p95 max [ms]", "failures", "replans track / clear"]
-    notes = ["Margins: from the vehicle's measured tracking error in the scenario's forecast turbulence and air "
-             "(docs/planner.md). Target: min clearance / margin >= 0.5.",
-             "Min clearance: least over the episodes. Tracking: distance to the reference curve (RMS: mean over "
-             "episodes; max: over all).",
-             "Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
-             "episodes."]
+    notes = [("Margins: from the vehicle's measured tracking error in the scenario's forecast turbulence and air "
+              "(docs/planner.md). Target: min clearance / margin >= 0.5."),
+             ("Min clearance: least over the episodes. Tracking: distance to the reference curve (RMS: mean over "
+              "episodes; max: over all)."),
+             ("Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
+              "episodes.")]
     return F.table_pages(f"Metrics: the {run.label(TRACKER_METHOD)} tracker per scenario", header, table,
                          rows_per_page=26, notes=notes, font_size=7)
 
 
-def _read_summary(path: Path) -> dict | None:
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        logger.warning("%s unreadable (%s): means without confidence intervals", path, exc)
-        return None
-    return data if isinstance(data, dict) else None
+def _tracker_row(scenario: str, rs: list[EpisodeMetrics]) -> list[str]:
+    """One scenario's row of the tracker table."""
+    col = {k: _column(rs, k) for k in
+           ("success", "min_clearance_m", "planner_margin_m", "mpc_margin_m", "tracking_rms_m", "tracking_max_m",
+            "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking", "replans_clearance")}
+    ratio = col["min_clearance_m"] / col["planner_margin_m"]
+
+    def agg(f, x: np.ndarray, digits: int) -> str:
+        x = x[np.isfinite(x)]
+        return f"{f(x):.{digits}f}" if x.size else "n/a"
+
+    return [scenario, str(len(rs)), agg(np.mean, 100.0 * col["success"], 0),
+            agg(np.max, col["planner_margin_m"], 2) + " / " + agg(np.max, col["mpc_margin_m"], 2),
+            agg(np.min, col["min_clearance_m"], 2), agg(np.min, ratio, 2),
+            agg(np.mean, col["tracking_rms_m"], 3), agg(np.max, col["tracking_max_m"], 2),
+            agg(np.median, col["mpc_solve_ms_median"], 2), agg(np.max, col["mpc_solve_ms_p95"], 2),
+            agg(np.sum, col["mpc_failures"], 0),
+            agg(np.sum, col["replans_tracking"], 0) + " / " + agg(np.sum, col["replans_clearance"], 0)]
 
 
-def _summary_pages(run: _Run, rows: list[dict[str, str]], summary: dict | None) -> list[Figure]:
+def _bootstrap_words(b: BootstrapSettings) -> str:
+    fields = (("resamples", b.resamples), ("confidence", b.confidence), ("seed", b.seed), ("method", b.method))
+    return ", ".join(f"{k}={v}" for k, v in fields if v is not None)
+
+
+def _summary_pages(run: _Run, rows: list[EpisodeMetrics], summary: Summary | None) -> list[Figure]:
     notes = []
-    if summary is not None and isinstance(summary.get("methods"), Mapping):
-        stats = summary["methods"]
-        boot = summary.get("bootstrap")
+    if summary is not None:
+        stats = dict(summary.methods)
+        boot = _bootstrap_words(summary.bootstrap)
         notes.append("Cells: mean [95 % confidence interval] over episodes (from summary.json)."
-                     + (f" Bootstrap: {', '.join(f'{k}={v}' for k, v in boot.items())}."
-                        if isinstance(boot, Mapping) else ""))
+                     + (f" Bootstrap: {boot}." if boot else ""))
     else:
         stats = _means_from_rows(rows)
         notes.append("summary.json missing: cells are plain means over the metrics.csv rows (no intervals).")
     methods = [m for m in run.methods if m in stats] + [m for m in stats if m not in run.methods]
     keys = [k for k, *_ in SUMMARY_ROWS]
-    listed = summary.get("metrics") if summary else None
-    extra = [k for k in (listed or []) if k not in keys]
+    extra = [k for k in (summary.metrics if summary else ()) if k not in keys]
     spec = list(SUMMARY_ROWS) + [(k, k, 1.0, 3) for k in extra]
-    table = [["episodes"] + [str((stats.get(m) or {}).get("episodes", "n/a")) for m in methods]]
+    table = [["episodes"] + [str(stats[m].episodes) for m in methods]]
     for key, label, scale, digits in spec:
-        table.append([label] + [format_ci((stats.get(m) or {}).get(key), scale, digits) for m in methods])
-    reasons = []
-    for m in methods:
-        fr = (stats.get(m) or {}).get("failure_reasons")
-        if isinstance(fr, Mapping):
-            reasons.append(", ".join(f"{k}: {v}" for k, v in fr.items()) or "none")
-        else:
-            reasons.append("n/a")
+        table.append([label] + [format_ci(stats[m].stats.get(key), scale, digits) for m in methods])
+    reasons = [", ".join(f"{k}: {v}" for k, v in stats[m].failure_reasons.items()) or "none" for m in methods]
     table.append(["failure reasons"] + reasons)
     header = ["metric"] + [run.label(m) for m in methods]
     return F.table_pages("Metrics: per method, mean [95 % CI]", header, table, rows_per_page=30, notes=notes,
                          font_size=9)
 
 
-def _means_from_rows(rows: list[dict[str, str]]) -> dict[str, dict]:
-    out: dict[str, dict] = {}
-    for method in dict.fromkeys(r.get("method", "") for r in rows):
-        mine = [r for r in rows if r.get("method") == method]
-        entry: dict = {"episodes": len(mine)}
+def _means_from_rows(rows: list[EpisodeMetrics]) -> dict[str, MethodSummary]:
+    """Per method, plain means of the finite values of every `SUMMARY_ROWS` metric (no intervals)."""
+    out: dict[str, MethodSummary] = {}
+    for method in dict.fromkeys(r.method for r in rows):
+        mine = [r for r in rows if r.method == method]
+        stats = {}
         for key, *_ in SUMMARY_ROWS:
-            vals = np.array([_float(r.get(key)) for r in mine])
+            vals = _column(mine, key)
             vals = vals[np.isfinite(vals)]
-            entry[key] = {"mean": float(vals.mean()) if len(vals) else None}
+            stats[key] = Stat(float(vals.mean()) if len(vals) else None, None, None, len(vals))
         reasons: dict[str, int] = {}
         for r in mine:
-            if _float(r.get("success")) != 1.0:
-                reason = r.get("failure_reason") or r.get("outcome") or "unknown"
+            if not r.success:
+                reason = r.failure_reason or r.outcome or "unknown"
                 reasons[reason] = reasons.get(reason, 0) + 1
-        entry["failure_reasons"] = reasons
-        out[method] = entry
+        out[method] = MethodSummary(len(mine), reasons, stats)
     return out
 
 
-def _paired_pages(run: _Run, paired: Mapping) -> list[Figure]:
-    pairs = list(paired)
-    header = ["metric"] + [" − ".join(run.label(m.strip()) for m in p.split(" - ")) for p in pairs]
-    table = [["paired episodes"] + [str((paired[p] or {}).get("episodes", "n/a")) for p in pairs]]
+def _paired_pages(run: _Run, pairs: Sequence[PairedSummary]) -> list[Figure]:
+    header = ["metric"] + [f"{run.label(p.first)} − {run.label(p.second)}" for p in pairs]
+    table = [["paired episodes"] + [str(p.episodes) for p in pairs]]
     for key, label, scale, digits in SUMMARY_ROWS:
-        if any(isinstance(paired[p], Mapping) and key in paired[p] for p in pairs):
-            table.append([label] + [format_ci((paired[p] or {}).get(key), scale, digits) for p in pairs])
+        if any(key in p.stats for p in pairs):
+            table.append([label] + [format_ci(p.stats.get(key), scale, digits) for p in pairs])
     note = ("Cells: mean of the per-episode difference (first method minus second, same scenario, episode "
             "and seed) [95 % confidence interval].")
     return F.table_pages("Metrics: paired differences", header, table, notes=[note], font_size=9)
 
 
-def _episode_table_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
-    def order(r: dict[str, str]) -> tuple:
-        s = r.get("scenario", "")
-        return (run.scenarios.index(s) if s in run.scenarios else len(run.scenarios), s,
-                _float(r.get("episode")), _float(r.get("seed")),
-                _method_rank(run, r.get("method", "")))
+def _episode_table_pages(run: _Run, rows: list[EpisodeMetrics]) -> list[Figure]:
+    def order(r: EpisodeMetrics) -> tuple:
+        return (run.scenarios.index(r.scenario) if r.scenario in run.scenarios else len(run.scenarios), r.scenario,
+                r.episode, r.seed, _method_rank(run, r.method))
 
-    table = [[r.get("scenario", ""), r.get("episode", ""), r.get("seed", ""), run.label(r.get("method", "")),
-              r.get("outcome", ""), _fmt(r.get("min_clearance_m"), 2), _fmt(r.get("time_s"), 1),
-              _fmt(r.get("energy_kj"), 2)] for r in sorted(rows, key=order)]
+    table = [[r.scenario, str(r.episode), str(r.seed), run.label(r.method), r.outcome, _fmt(r.min_clearance_m, 2),
+              _fmt(r.time_s, 1), _fmt(r.energy_kj, 2)] for r in sorted(rows, key=order)]
     header = ["scenario", "episode", "seed", "method", "outcome", "min clearance [m]", "time [s]",
               "energy [kJ]"]
     return F.table_pages("Metrics: per episode", header, table, rows_per_page=26,
@@ -534,22 +506,17 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
 
 
 # ---- 4. training ----------------------------------------------------------------------------------------
-def ppo_policies(info: Mapping) -> list[dict]:
+def ppo_policies(info: RunInfo) -> list[PolicyRecord]:
     """The learned pilot's policies recorded in run.json (vehicle, policy_dir, decision_hz), one per
     vehicle; a run written before policies per vehicle has one, without its vehicle."""
-    ppo = (info.get("methods") or {}).get("ppo") or {}
-    if isinstance(ppo.get("policies"), list):
-        return [p for p in ppo["policies"] if isinstance(p, dict)]
-    if ppo.get("policy_dir"):
-        return [{"vehicle": None, "policy_dir": ppo["policy_dir"], "decision_hz": ppo.get("decision_hz")}]
-    return []
+    return list(info.policies("ppo"))
 
 
-def _training_figure(policy: Mapping, name_vehicle: bool) -> Figure:
+def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:
     title = "PPO training: reward convergence"
-    if name_vehicle and policy.get("vehicle"):
-        title += f" ({policy['vehicle']})"
-    policy_dir = policy.get("policy_dir")
+    if name_vehicle and policy is not None and policy.vehicle:
+        title += f" ({policy.vehicle})"
+    policy_dir = policy.policy_dir if policy is not None else ""
     if not policy_dir:
         return F.reward_curve_figure(title, None,
                                      "No PPO policy folder is recorded in run.json: no reward curve.")
@@ -606,22 +573,22 @@ def _training_note(path: Path, curve: F.RewardCurve, prov: Mapping) -> str:
 
 
 # ---- 5. failures ----------------------------------------------------------------------------------------
-def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[dict[str, str]] | None,
+def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeMetrics] | None,
                    unreadable: list[str], pages: _PageWriter) -> None:
-    by_key = {(r.get("scenario"), r.get("episode"), r.get("method"), r.get("seed")): r for r in rows or []}
+    by_key = {cell_order(r): r for r in rows or []}
     table, seen = [], set()
     for t in failures:
         k = t.episode.key
-        key = (k.scenario, str(k.episode), k.method, str(k.seed))
+        key = (k.scenario, k.episode, k.method, k.seed)
         seen.add(key)
-        reason = (by_key.get(key) or {}).get("failure_reason") or t.episode.outcome
+        row = by_key.get(key)
+        reason = (row.failure_reason if row is not None else "") or t.episode.outcome
         table.append([k.scenario, str(k.episode), str(k.seed), t.label, reason, _short(t.episode.detail),
                       f"{t.end_t_s:.1f}"])
     for key, r in by_key.items():  # failed rows whose trajectory file is missing
-        if key not in seen and _float(r.get("success")) != 1.0:
-            table.append([r.get("scenario", ""), r.get("episode", ""), r.get("seed", ""),
-                          run.label(r.get("method", "")), r.get("failure_reason") or r.get("outcome", ""),
-                          "(no trajectory file)", _fmt(r.get("time_s"), 1)])
+        if key not in seen and not r.success:
+            table.append([r.scenario, str(r.episode), str(r.seed), run.label(r.method), r.failure_reason or r.outcome,
+                          "(no trajectory file)", _fmt(r.time_s, 1)])
     notes = [f"Unreadable episode files skipped: {', '.join(unreadable)}"] if unreadable else []
     if not table:
         pages.add_all(F.text_pages("Failures", [("p", "No failures: every episode in this report succeeded.")]
@@ -641,5 +608,4 @@ def _short(text: str, n: int = 70) -> str:
     return text if len(text) <= n else text[:n - 1] + "…"
 
 
-__all__ = ["SUMMARY_ROWS", "build_report", "format_ci", "load_run_info", "read_metrics_csv",
-           "read_reward_curve"]
+__all__ = ["SUMMARY_ROWS", "build_report", "format_ci", "read_reward_curve"]

@@ -27,7 +27,7 @@ from matplotlib import colormaps
 from matplotlib.colors import to_hex
 
 from compare.viz.flights import FlightGroup, flight_groups, sample_flight
-from compare.viz.report import load_run_info
+from compare.results.run_info import WindInfo, read_run_info
 from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.city.buildings import BuildingMap
 
@@ -149,11 +149,11 @@ def group_payload(group: FlightGroup, opts: ViewerOptions) -> dict:
                "aspectmode": "manual",
                "aspectratio": {"x": 1.0, "y": float(extent[1] / extent[0]), "z": float(top / extent[0])},
                "camera": {"eye": {"x": -0.9, "y": -1.3, "z": 0.9}}})
-    wind = group.wind or {}
+    wind = group.wind or WindInfo()
     return {
         "spec": group.spec, "scenario": group.scenario, "episode": group.episode, "seed": group.seed,
         "description": group.description, "vehicle": meta.vehicle, "map": meta.map_name,
-        "wind": {"steady_enu_m_s": wind.get("steady_enu_m_s"), "turbulence": wind.get("turbulence")},
+        "wind": {"steady_enu_m_s": wind.steady_enu_m_s and list(wind.steady_enu_m_s), "turbulence": wind.turbulence},
         "t": _r(t, opts.round_s), "duration_s": round(float(t[-1]), 3), "pilots": pilots,
         "figure": json.loads(pio.to_json(fig, validate=True, remove_uids=True)),
     }
@@ -171,10 +171,9 @@ def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_un
     Unreadable episode files are left out (see `compare.viz.flights.flight_groups`, `warn_unreadable`).
     """
     run_dir = Path(run_dir)
-    info = load_run_info(run_dir)
+    info = read_run_info(run_dir)
     groups = flight_groups(run_dir, warn_unreadable=warn_unreadable)
-    payload = {"run": {"folder": run_dir.name, "command": info.get("command", ""),
-                       "created_utc": info.get("created_utc", "")},
+    payload = {"run": {"folder": run_dir.name, "command": info.command, "created_utc": info.created_utc},
                "groups": [group_payload(g, opts) for g in groups]}
     assets = resources.files("compare.viz") / "viewer_assets"
     page = (assets / "viewer.html").read_text(encoding="utf-8")

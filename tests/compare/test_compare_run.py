@@ -15,6 +15,7 @@ from pypdf import PdfReader
 
 from compare.cli import main
 from compare.results.metrics import COLUMNS, TRACKER_METRICS
+from compare.results.trajectory import load_episode
 from rl.agent import DEFAULT_POLICY_DIR
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -56,6 +57,11 @@ def test_run_writes_every_output(tiny_run):
         assert int(stream["nb_read_frames"]) == round(min(duration, 30.0) * 20)
     episodes = sorted(p.name for p in (tiny_run / "episodes").glob("*.npz"))
     assert episodes == ["tiny__ep000__ppo__s0.npz", "tiny__ep000__rrt_mpc__s0.npz"]
+    for name in episodes:  # the model's shaft power per step, saved: its integral is the flight's energy
+        ep = load_episode(tiny_run / "episodes" / name)
+        t, power = ep.trajectory.t_s, ep.trajectory.shaft_power_W
+        assert power.shape == t.shape and np.all(power > 0.0)
+        assert np.trapezoid(power, t) == pytest.approx(ep.meta.energy_J, rel=1e-3)
     assert list(tiny_run.rglob(".*tmp*")) == []  # no temporary files left behind
     rows = _rows(tiny_run / "metrics.csv")
     assert list(rows[0].keys()) == list(COLUMNS)

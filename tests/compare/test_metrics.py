@@ -11,15 +11,24 @@ import numpy as np
 import pytest
 
 from compare.results import metrics as M
+from compare.results import summary as S
 from compare.results.metrics import (
     CLEARANCE_THRESHOLDS_M,
     COLUMNS,
     EpisodeMetrics,
     episode_metrics,
-    methods_table,
     read_metrics_csv,
-    summarize,
     write_metrics_csv,
+)
+from compare.results.summary import (
+    BootstrapSettings,
+    Stat,
+    Summary,
+    methods_table,
+    read_summary_json,
+    summarize,
+    summarize_run,
+    summary_to_json,
     write_summary_json,
 )
 from compare.episode_loop import Trajectory
@@ -135,10 +144,11 @@ def test_tracker_metrics_are_summarised_but_not_paired():
     rows = [row("rrt_mpc", episode=e, planner_margin_m=1.0 + e, replans_clearance=float(e)) for e in range(2)]
     rows += [row("ppo", episode=e) for e in range(2)]
     s = summarize(rows, resamples=50)
-    assert s["methods"]["rrt_mpc"]["planner_margin_m"]["mean"] == 1.5
-    assert s["methods"]["rrt_mpc"]["replans_clearance"]["n"] == 2
-    assert s["methods"]["ppo"]["planner_margin_m"]["n"] == 0 and s["methods"]["ppo"]["planner_margin_m"]["mean"] is None
-    assert not set(M.TRACKER_METRICS) & set(s["paired"]["ppo - rrt_mpc"])
+    assert s.methods["rrt_mpc"].stats["planner_margin_m"].mean == 1.5
+    assert s.methods["rrt_mpc"].stats["replans_clearance"].n == 2
+    assert s.methods["ppo"].stats["planner_margin_m"].n == 0 and s.methods["ppo"].stats["planner_margin_m"].mean is None
+    (pair,) = s.paired
+    assert pair.name == "ppo - rrt_mpc" and not set(M.TRACKER_METRICS) & set(pair.stats)
 
 
 def test_threshold_fields_follow_the_constant():
@@ -214,6 +224,30 @@ def test_saved_episode_round_trip_scores_the_same(tmp_path):
     assert same(episode_metrics(loaded), episode_metrics(saved))
     m = episode_metrics(loaded)
     assert m.path_length_m == pytest.approx(19.0) and m.time_below_2m_s == pytest.approx(2 * DT)
+
+
+def test_saved_shaft_power_round_trip_and_older_files(tmp_path):
+    """The per-step shaft power is saved and read back exactly; a file without it (saved before it was recorded)
+    reads as None, and a column of the wrong length is an error naming the file."""
+    saved = make_episode()
+    power = np.array([100.0, 101.5, 99.25, 120.0])
+    with_power = SavedEpisode(saved.meta, Trajectory(**{**saved.trajectory.__dict__, "shaft_power_W": power}))
+    path = save_episode(tmp_path / "new.npz", with_power.meta, with_power.trajectory)
+    np.testing.assert_array_equal(load_episode(path).trajectory.shaft_power_W, power)
+    old = save_episode(tmp_path / "old.npz", saved.meta, saved.trajectory)
+    assert load_episode(old).trajectory.shaft_power_W is None
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    np.savez(tmp_path / "short.npz", **{**arrays, "shaft_power_W": power[:2]})
+    with pytest.raises(ValueError, match=r"short\.npz: shaft_power_W has shape \(2,\)"):
+        load_episode(tmp_path / "short.npz")
+
+
+def test_episode_key_stem_parses_back():
+    for key in (EpisodeKey("suburb-quad", 3, "ppo", 0), EpisodeKey("a__b", 120, "rrt_mpc", 4294967295)):
+        assert EpisodeKey.from_stem(key.stem) == key
+    for stem in ("notes", "town__ep7__ppo__s0", "town__ep007__ppo__sx", "town__ep007__s0"):
+        assert EpisodeKey.from_stem(stem) is None, stem
 
 
 # --------------------------------------------------------------------------------------------------
@@ -325,42 +359,42 @@ def comparison_rows() -> list[EpisodeMetrics]:
 def test_summary_per_method_on_known_data():
     rows = comparison_rows()
     s = summarize(rows, resamples=500, seed=3)
-    assert s["bootstrap"] == {"resamples": 500, "confidence": 0.95, "seed": 3, "method": "percentile"}
-    assert s["metrics"] == list(M.SUMMARY_METRICS)
-    assert list(s["methods"]) == ["ppo", "rrt_mpc"]
-    ppo, mpc = s["methods"]["ppo"], s["methods"]["rrt_mpc"]
-    assert ppo["episodes"] == 10 and ppo["failure_reasons"] == {"timeout": 1}
-    assert mpc["episodes"] == 8 and mpc["failure_reasons"] == {"collision": 1, "timeout": 1}
-    assert ppo["success"]["mean"] == pytest.approx(0.9) and ppo["success"]["n"] == 10
-    assert mpc["collision"]["mean"] == pytest.approx(1 / 8)
+    assert s.bootstrap == BootstrapSettings(resamples=500, confidence=0.95, seed=3, method="percentile")
+    assert s.metrics == S.SUMMARY_METRICS and s.by_scenario is None
+    assert list(s.methods) == ["ppo", "rrt_mpc"]
+    ppo, mpc = s.methods["ppo"], s.methods["rrt_mpc"]
+    assert ppo.episodes == 10 and ppo.failure_reasons == {"timeout": 1}
+    assert mpc.episodes == 8 and mpc.failure_reasons == {"collision": 1, "timeout": 1}
+    assert ppo.stats["success"].mean == pytest.approx(0.9) and ppo.stats["success"].n == 10
+    assert mpc.stats["collision"].mean == pytest.approx(1 / 8)
     # success-only metrics: PPO's failed episode 3 is left out
     succ = [ep for ep in range(10) if ep != 3]
-    assert ppo["time_s"]["mean"] == pytest.approx(np.mean([10.0 + ep for ep in succ]))
-    assert ppo["time_s"]["n"] == 9 and ppo["time_s"]["over"] == "successes"
-    assert ppo["path_length_m"]["over"] == "successes" and ppo["energy_kj"]["over"] == "successes"
-    assert ppo["min_clearance_m"]["over"] == "all" and ppo["min_clearance_m"]["n"] == 10
+    assert ppo.stats["time_s"].mean == pytest.approx(np.mean([10.0 + ep for ep in succ]))
+    assert ppo.stats["time_s"].n == 9 and ppo.stats["time_s"].over == "successes"
+    assert ppo.stats["path_length_m"].over == "successes" and ppo.stats["energy_kj"].over == "successes"
+    assert ppo.stats["min_clearance_m"].over == "all" and ppo.stats["min_clearance_m"].n == 10
     # NaNs dropped per metric; PPO does not plan → n = 0 and nulls
-    assert ppo["compute_ms_mean"]["n"] == 9 and ppo["compute_ms_mean"]["mean"] == pytest.approx(0.5)
-    assert ppo["plan_time_s"] == {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "over": "all"}
-    assert mpc["plan_time_s"]["mean"] == pytest.approx(1.0 + 0.1 * 5.5)
+    assert ppo.stats["compute_ms_mean"].n == 9 and ppo.stats["compute_ms_mean"].mean == pytest.approx(0.5)
+    assert ppo.stats["plan_time_s"] == Stat(mean=None, ci_low=None, ci_high=None, n=0, over="all")
+    assert mpc.stats["plan_time_s"].mean == pytest.approx(1.0 + 0.1 * 5.5)
     for stats in (ppo, mpc):
-        for metric in M.SUMMARY_METRICS:
-            st = stats[metric]
-            if st["n"]:
-                assert st["ci_low"] <= st["mean"] <= st["ci_high"], (metric, st)
+        for metric in S.SUMMARY_METRICS:
+            st = stats.stats[metric]
+            if st.n:
+                assert st.ci_low <= st.mean <= st.ci_high, (metric, st)
     # the CI of a spread sample has width and stays inside the data's range
-    clear = ppo["min_clearance_m"]
-    assert 1.0 <= clear["ci_low"] < clear["mean"] < clear["ci_high"] <= 5.5
+    clear = ppo.stats["min_clearance_m"]
+    assert 1.0 <= clear.ci_low < clear.mean < clear.ci_high <= 5.5
 
 
 def test_ci_edge_cases_and_confidence():
     s = summarize([row("ppo", 0, compute_ms_max=7.0), row("ppo", 1, success=False)], resamples=200)
-    ppo = s["methods"]["ppo"]
-    assert ppo["time_s"] == {"mean": 20.0, "ci_low": 20.0, "ci_high": 20.0, "n": 1, "over": "successes"}
+    ppo = s.methods["ppo"]
+    assert ppo.stats["time_s"] == Stat(mean=20.0, ci_low=20.0, ci_high=20.0, n=1, over="successes")
     rows = [row("ppo", ep, min_clearance_m=float(ep % 7)) for ep in range(40)]
-    wide = summarize(rows, resamples=1000, confidence=0.99)["methods"]["ppo"]["min_clearance_m"]
-    narrow = summarize(rows, resamples=1000, confidence=0.5)["methods"]["ppo"]["min_clearance_m"]
-    assert wide["ci_high"] - wide["ci_low"] > narrow["ci_high"] - narrow["ci_low"] > 0
+    wide = summarize(rows, resamples=1000, confidence=0.99).methods["ppo"].stats["min_clearance_m"]
+    narrow = summarize(rows, resamples=1000, confidence=0.5).methods["ppo"].stats["min_clearance_m"]
+    assert wide.ci_high - wide.ci_low > narrow.ci_high - narrow.ci_low > 0
     with pytest.raises(ValueError, match="confidence"):
         summarize(rows, confidence=1.0)
     with pytest.raises(ValueError, match="resamples"):
@@ -372,22 +406,22 @@ def test_ci_edge_cases_and_confidence():
 def test_paired_differences_only_over_matched_episodes():
     rows = comparison_rows() + [row("rrt_mpc", 3, seed=1)]     # seed 1: PPO never flew it
     s = summarize(rows, resamples=500)
-    assert list(s["paired"]) == ["ppo - rrt_mpc"]
-    p = s["paired"]["ppo - rrt_mpc"]
-    assert p["episodes"] == 8
+    (p,) = s.paired
+    assert (p.first, p.second, p.name) == ("ppo", "rrt_mpc", "ppo - rrt_mpc")
+    assert p.episodes == 8
     eps = range(2, 10)
     ppo_ok = {ep: ep != 3 for ep in eps}
     mpc_ok = {ep: ep not in (5, 6) for ep in eps}
-    assert p["success"]["n"] == 8
-    assert p["success"]["mean_diff"] == pytest.approx(np.mean([ppo_ok[e] - mpc_ok[e] for e in eps]))
+    assert p.stats["success"].n == 8
+    assert p.stats["success"].mean == pytest.approx(np.mean([ppo_ok[e] - mpc_ok[e] for e in eps]))
     clear = np.mean([(1.0 + 0.5 * e) - (2.0 + 0.25 * e) for e in eps])
-    assert p["min_clearance_m"]["mean_diff"] == pytest.approx(clear)
-    assert p["min_clearance_m"]["ci_low"] <= clear <= p["min_clearance_m"]["ci_high"]
+    assert p.stats["min_clearance_m"].mean == pytest.approx(clear)
+    assert p.stats["min_clearance_m"].ci_low <= clear <= p.stats["min_clearance_m"].ci_high
     both = [e for e in eps if ppo_ok[e] and mpc_ok[e]]                    # 2, 4, 7, 8, 9
-    assert p["time_s"]["n"] == len(both) == 5 and p["time_s"]["over"] == "successes"
-    assert p["time_s"]["mean_diff"] == pytest.approx(np.mean([(10.0 + e) - (12.0 + 2 * e) for e in both]))
-    assert p["compute_ms_mean"]["n"] == 8                 # PPO's NaN is on episode 0, not matched
-    assert p["plan_time_s"]["n"] == 0 and p["plan_time_s"]["mean_diff"] is None
+    assert p.stats["time_s"].n == len(both) == 5 and p.stats["time_s"].over == "successes"
+    assert p.stats["time_s"].mean == pytest.approx(np.mean([(10.0 + e) - (12.0 + 2 * e) for e in both]))
+    assert p.stats["compute_ms_mean"].n == 8                 # PPO's NaN is on episode 0, not matched
+    assert p.stats["plan_time_s"].n == 0 and p.stats["plan_time_s"].mean is None
 
 
 def test_summary_json_is_deterministic_and_nan_free(tmp_path):
@@ -402,14 +436,46 @@ def test_summary_json_is_deterministic_and_nan_free(tmp_path):
     loaded = json.loads(text)
     assert list(loaded["paired"]) == ["a_star - ppo", "a_star - rrt_mpc", "ppo - rrt_mpc"]
     assert loaded["methods"]["ppo"]["plan_time_s"]["mean"] is None
-    assert summarize(rows, seed=1)["methods"] != summarize(rows, seed=0)["methods"]   # the seed drives the CIs
+    assert loaded["paired"]["ppo - rrt_mpc"]["success"]["mean_diff"] is not None  # the file's name for it
+    assert summarize(rows, seed=1).methods != summarize(rows, seed=0).methods   # the seed drives the CIs
+
+
+def test_summary_json_round_trip(tmp_path):
+    """write → read gives the same Summary (per scenario too), and writing it again the same bytes."""
+    rows = comparison_rows() + [row("ppo", ep, scenario="city", success=ep != 1) for ep in range(3)]
+    s = summarize_run(rows)
+    assert list(s.by_scenario) == ["city", "town"]
+    assert s.by_scenario["city"] == summarize([r for r in rows if r.scenario == "city"])
+    path = write_summary_json(s, tmp_path / "summary.json")
+    back = read_summary_json(path)
+    assert back == s
+    assert write_summary_json(back, tmp_path / "again.json").read_bytes() == path.read_bytes()
+    assert summary_to_json(back) == json.loads(path.read_text())
+    # a summary without intervals or per-scenario parts (hand-written, or older) still reads
+    (tmp_path / "old.json").write_text(json.dumps({
+        "bootstrap": {"resamples": 10}, "metrics": ["success"],
+        "methods": {"ppo": {"episodes": 2, "success": {"mean": 0.5, "ci_low": None, "ci_high": None, "n": 2}}}}))
+    old = read_summary_json(tmp_path / "old.json")
+    assert old.by_scenario is None and old.paired == () and old.bootstrap == BootstrapSettings(resamples=10)
+    assert old.methods["ppo"].stats["success"] == Stat(0.5, None, None, 2) and old.methods["ppo"].failure_reasons == {}
+    assert isinstance(old, Summary) and methods_table(old)[1] == ["ppo", "2", "50%"]
+
+
+def test_bad_summary_json_names_the_file_and_key(tmp_path):
+    bad = tmp_path / "summary.json"
+    bad.write_text('{"methods": {"ppo": {"episodes": 2, "success": {"mean": "high"}}}}')
+    with pytest.raises(ValueError, match=r"summary\.json: methods\.ppo\.success\.mean: expected a number"):
+        read_summary_json(bad)
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match=r"summary\.json: not readable JSON"):
+        read_summary_json(bad)
 
 
 def test_methods_table():
     table = methods_table(summarize(comparison_rows(), resamples=300))
     header = table[0]
     assert header[:4] == ["method", "episodes", "success", "collision"]
-    assert len(header) == 2 + len(M.SUMMARY_METRICS)
+    assert len(header) == 2 + len(S.SUMMARY_METRICS)
     assert [r[0] for r in table[1:]] == ["ppo", "rrt_mpc"] and all(len(r) == len(header) for r in table)
     ppo = dict(zip(header, table[1]))
     assert ppo["episodes"] == "10"

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import csv
+import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +18,7 @@ from synthetic_run import (
     SCENARIO,
     START,
     UPDATE_STEPS,
+    synthetic_power_W,
     toy_map,
     trajectory,
     write_reward_curve,
@@ -42,7 +45,7 @@ from compare.viz.figures import (
 )
 from compare.viz.report import build_report, read_reward_curve
 from compare.episode_loop import Trajectory
-from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
 
 # 1 title + 3 metrics (per method, paired, per episode) + 2 episodes x 3 + 1 training
 # + 2 failures (table, paths)
@@ -141,6 +144,54 @@ def test_reward_curve_file_absent_and_no_failures(tmp_path: Path) -> None:
     assert "plain means" in texts[1]
     assert "reward_curve.csv does not exist" in texts[6].replace("\n", "")
     assert "No failures" in texts[7]
+
+
+def test_report_reads_an_old_run_folder(tmp_path: Path) -> None:
+    """A run folder as the first versions wrote it: one ppo policy_dir (no policies per vehicle), no wind shear,
+    notes or fingerprints in run.json, no tracker columns in metrics.csv, no shaft power in the episode files."""
+    run_dir = tmp_path / "run"
+    write_run(run_dir, tmp_path / "policy")
+    info = json.loads((run_dir / "run.json").read_text())
+    info["methods"]["ppo"] = {"label": LABELS["ppo"], "description": "Learned pilot.",
+                              "policy_dir": str(tmp_path / "policy"), "decision_hz": 10.0}
+    assert "shear" not in info["scenarios"][0]["wind"] and "fingerprints" not in info and "notes" not in info
+    (run_dir / "run.json").write_text(json.dumps(info))
+    for path in (run_dir / "episodes").glob("*.npz"):
+        ep = load_episode(path)
+        save_episode(path, ep.meta, replace(ep.trajectory, shaft_power_W=None))
+        assert load_episode(path).trajectory.shaft_power_W is None
+    texts = _texts(build_report(run_dir))
+    assert len(texts) == FULL_PAGES
+    assert f"policy {tmp_path / 'policy'}; decides at 10 Hz" in texts[0].replace("\n", " ")
+    assert "the same at every height" in texts[0] and "4 of 4 planned" in texts[0]
+    assert "50 [0, 100]" in texts[1] and "-4.0 [-8.0, 1.0]" in texts[2]
+    for page in (texts[5], texts[8]):  # the time series: mean rotor speed, and why
+        assert "mean rotor speed [rad/s]" in page and "shaft power not in this episode file" in page.replace("\n", " ")
+    assert "reward convergence" in texts[10] and "kept checkpoint" in texts[10]
+
+
+def test_power_is_the_saved_per_step_column(tmp_path: Path) -> None:
+    """The time series draws the shaft power the episode file saved per step (not a formula of the rotor speeds)."""
+    run_dir = tmp_path / "run"
+    write_run(run_dir, None)
+    saved = load_episode(run_dir / "episodes" / f"{EpisodeKey(SCENARIO, 0, 'ppo', 0).stem}.npz")
+    t = np.asarray(saved.trajectory.t_s)
+    np.testing.assert_array_equal(saved.trajectory.shaft_power_W, synthetic_power_W(t))
+    trace = trace_from_episode(saved, LABELS["ppo"], METHOD_COLORS["ppo"])
+    assert len(trace.t_s) < len(t)  # reduced for drawing: the samples kept are the saved ones
+    np.testing.assert_array_equal(trace.rotor_kw, synthetic_power_W(trace.t_s) / 1e3)
+    fig = episode_timeseries_figure("Episode x", [trace])
+    ax_p = fig.axes[2]
+    (line,) = ax_p.get_lines()
+    np.testing.assert_array_equal(line.get_ydata(), synthetic_power_W(trace.t_s) / 1e3)
+    assert ax_p.get_ylabel() == "rotor power [kW]"
+    # an episode file without the column (saved before it was recorded): mean rotor speed, and the panel says why
+    old = load_episode(run_dir / "episodes" / f"{EpisodeKey(SCENARIO, 1, 'ppo', 0).stem}.npz")
+    old_trace = trace_from_episode(old, LABELS["ppo"], METHOD_COLORS["ppo"])
+    assert old_trace.rotor_kw is None
+    fig = episode_timeseries_figure("Episode x", [trace, old_trace])
+    assert fig.axes[2].get_ylabel() == "mean rotor speed [rad/s]"
+    assert "shaft power not in this episode file" in fig.axes[2].get_title()
 
 
 def test_missing_run_json_names_the_folder(tmp_path: Path) -> None:

@@ -23,7 +23,7 @@ from uam_fdm.vehicle.params import VehicleParams
 
 log = logging.getLogger(__name__)
 
-_BATCHED = ("rk4_step", "controller", "period_rotor", "period_velocity")
+_BATCHED = ("rk4_step", "controller", "period_rotor", "period_velocity", "shaft_power")
 # A control period is unrolled into one generated function of this many RK4 steps at most: its code,
 # compile time and memory grow with the count (10 at 500 Hz / 50 Hz is ~0.5 MB of machine code).
 MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD = 100
@@ -198,6 +198,12 @@ class VehicleDynamics:
     def shaft_power_W(self, x: np.ndarray, env: np.ndarray) -> float:
         """Total rotor shaft power Σ Q_i Ω_i [W]."""
         return float(self.functions["shaft_power"](x, env))
+
+    def shaft_power_batch_W(self, x: np.ndarray, env: np.ndarray) -> np.ndarray:
+        """Total rotor shaft power Σ Q_i Ω_i [W] of N states x (N, nx), in one environment env (N_ENV,) or one
+        per state (N, N_ENV); returns (N,)."""
+        x = np.asarray(x, float)
+        return self._eval("shaft_power", x.shape[0], x, np.asarray(env, float))[0][:, 0]
 
     def physics_step(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> tuple[np.ndarray, float]:
         """One RK4 physics step of dt_s: (x_next, shaft energy [J])."""

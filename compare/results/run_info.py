@@ -1,0 +1,323 @@
+"""A run's provenance, `RUN_DIR/run.json`: what was flown, by which pilots, with which software.
+
+`RunInfo` is written by `write_run_info` and read by `read_run_info`, nowhere else. The file's format
+(version 1) is unchanged since the first runs; folders written by older versions read too: a key they
+lack reads as empty (None, "", no entries), and a run that recorded the learned pilot's one policy as
+`methods.ppo.policy_dir` (before policies per vehicle) reads as one `PolicyRecord` without a vehicle.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from uam_fdm.air.shear import WindShear
+from uam_fdm.files.atomic import write_text_atomic
+
+RUN_INFO_NAME = "run.json"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class AtmosphereInfo:
+    """The scenario's air: field elevation [m MSL], ISA temperature offset [K], density at the field [kg/m³]."""
+
+    elevation_m: float | None = None
+    isa_offset_k: float | None = None
+    density_kg_m3: float | None = None
+
+
+@dataclass(frozen=True)
+class WindInfo:
+    """The scenario's wind: steady wind at its reference height (world ENU [m/s]), the turbulence level's
+    name, and the shear (None in runs saved before shear existed: the same wind at every height)."""
+
+    steady_enu_m_s: tuple[float, float, float] | None = None
+    turbulence: str | None = None
+    shear: WindShear | None = None
+
+
+@dataclass(frozen=True)
+class ScenarioInfo:
+    """One scenario of a run as flown.
+
+    Attributes:
+        name, source, description: the scenario's name, file and free text.
+        map_name: the city's name. vehicle: the vehicle's preset name; vehicle_summary: mass, rotors, radius.
+        atmosphere, wind: the conditions flown.
+        episodes: episode count; seeds: the seeds flown; methods: the pilots flown (method names).
+        physics_hz, control_hz: physics and control rates [Hz].
+    """
+
+    name: str
+    source: str = ""
+    description: str = ""
+    map_name: str = ""
+    vehicle: str = ""
+    vehicle_summary: str = ""
+    atmosphere: AtmosphereInfo = AtmosphereInfo()
+    wind: WindInfo = WindInfo()
+    episodes: int | None = None
+    seeds: tuple[int, ...] = ()
+    methods: tuple[str, ...] = ()
+    physics_hz: float | None = None
+    control_hz: float | None = None
+
+
+@dataclass(frozen=True)
+class PolicyRecord:
+    """A learned pilot's policy a run flew: the vehicle it was trained for (None in runs saved before
+    policies per vehicle), its folder, and its decision rate [Hz] (None where not recorded)."""
+
+    vehicle: str | None
+    policy_dir: str
+    decision_hz: float | None = None
+
+
+@dataclass(frozen=True)
+class MethodInfo:
+    """A pilot as the run describes it: display label, description, and (the learned pilot) its policies."""
+
+    label: str
+    description: str = ""
+    policies: tuple[PolicyRecord, ...] = ()
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """The contents of `run.json`.
+
+    Attributes:
+        created_utc: creation time, ISO 8601 UTC ("2026-11-21T08:00:00Z").
+        command: the command line that made the run.
+        scenarios: the scenarios, in run order.
+        notes: remarks for the report (cells left out, the pilots' decision rates).
+        methods: the pilots by method name, in run order.
+        versions: software versions by package name.
+        fairness: the fairness statement.
+        fingerprints: hashes of the inputs (`compare.fingerprint.run_fingerprints`; None in runs saved before
+            they were recorded).
+        format_version: the file format.
+    """
+
+    created_utc: str = ""
+    command: str = ""
+    scenarios: tuple[ScenarioInfo, ...] = ()
+    notes: tuple[str, ...] = ()
+    methods: Mapping[str, MethodInfo] = field(default_factory=dict)
+    versions: Mapping[str, str] = field(default_factory=dict)
+    fairness: str = ""
+    fingerprints: Mapping[str, Any] | None = None
+    format_version: int = FORMAT_VERSION
+
+    def label(self, method: str) -> str:
+        """The method's display label (its name when the run does not describe it)."""
+        m = self.methods.get(method)
+        return m.label if m is not None else method
+
+    def scenario(self, name: str) -> ScenarioInfo | None:
+        """The scenario named `name`, or None."""
+        return next((s for s in self.scenarios if s.name == name), None)
+
+    def policies(self, method: str = "ppo") -> tuple[PolicyRecord, ...]:
+        """The policies the run records for `method` (none for a pilot without one)."""
+        m = self.methods.get(method)
+        return m.policies if m is not None else ()
+
+
+# ---- writing ----------------------------------------------------------------------------------------------
+def write_run_info(info: RunInfo, run_dir: Path) -> Path:
+    """Write `RUN_DIR/run.json` atomically (indent 2); returns its path."""
+    return write_text_atomic(Path(run_dir) / RUN_INFO_NAME, json.dumps(run_info_to_json(info), indent=2) + "\n")
+
+
+def run_info_to_json(info: RunInfo) -> dict[str, Any]:
+    """`info` as the plain data of `run.json`, keys in the file's order."""
+    out: dict[str, Any] = {
+        "format_version": info.format_version, "created_utc": info.created_utc, "command": info.command,
+        "scenarios": [_scenario_json(s) for s in info.scenarios], "notes": list(info.notes),
+        "methods": {m: _method_json(c) for m, c in info.methods.items()},
+        "versions": dict(info.versions), "fairness": info.fairness,
+    }
+    if info.fingerprints is not None:
+        out["fingerprints"] = info.fingerprints
+    return out
+
+
+def _scenario_json(s: ScenarioInfo) -> dict[str, Any]:
+    atm, wind = s.atmosphere, s.wind
+    wind_json: dict[str, Any] = {"steady_enu_m_s": None if wind.steady_enu_m_s is None else list(wind.steady_enu_m_s),
+                                 "turbulence": wind.turbulence}
+    if wind.shear is not None:
+        wind_json["shear"] = wind.shear.to_dict()
+    return {
+        "name": s.name, "source": s.source, "description": s.description, "map_name": s.map_name,
+        "vehicle": s.vehicle, "vehicle_summary": s.vehicle_summary,
+        "atmosphere": {"elevation_m": atm.elevation_m, "isa_offset_k": atm.isa_offset_k,
+                       "density_kg_m3": atm.density_kg_m3},
+        "wind": wind_json, "episodes": s.episodes, "seeds": list(s.seeds), "methods": list(s.methods),
+        "physics_hz": s.physics_hz, "control_hz": s.control_hz,
+    }
+
+
+def _method_json(m: MethodInfo) -> dict[str, Any]:
+    out: dict[str, Any] = {"label": m.label, "description": m.description}
+    if m.policies:
+        out["policies"] = [{"vehicle": p.vehicle, "policy_dir": p.policy_dir, "decision_hz": p.decision_hz}
+                           for p in m.policies]
+    return out
+
+
+# ---- reading ----------------------------------------------------------------------------------------------
+def read_run_info(run_dir: Path) -> RunInfo:
+    """Read `RUN_DIR/run.json` (any version this tool wrote; see the module docstring).
+
+    Raises:
+        ValueError: no run.json, not readable JSON, or a value of the wrong kind, naming the file and the key.
+    """
+    path = Path(run_dir) / RUN_INFO_NAME
+    if not path.is_file():
+        raise ValueError(f"{run_dir}: not a run folder (no {RUN_INFO_NAME})")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not readable JSON ({exc})") from exc
+    return run_info_from_json(data, str(path))
+
+
+def run_info_from_json(data: Any, where: str) -> RunInfo:
+    """`RunInfo` from the plain data of a run.json (`where`: the file, for messages)."""
+    r = _Reader(where)
+    top = r.mapping(data, "<root>")
+    version = r.integer(top, "format_version", "format_version")
+    if version is not None and version != FORMAT_VERSION:
+        raise ValueError(f"{where}: format_version {version}, expected {FORMAT_VERSION}")
+    fingerprints = top.get("fingerprints")
+    return RunInfo(
+        created_utc=r.text(top, "created_utc", "created_utc"), command=r.text(top, "command", "command"),
+        scenarios=tuple(_scenario_info(r, s, f"scenarios[{i}]")
+                        for i, s in enumerate(r.sequence(top, "scenarios", "scenarios"))),
+        notes=tuple(str(n) for n in r.sequence(top, "notes", "notes")),
+        methods={str(m): _method_info(r, c, str(m), f"methods.{m}")
+                 for m, c in r.mapping(top.get("methods"), "methods").items()},
+        versions={str(k): str(v) for k, v in r.mapping(top.get("versions"), "versions").items()},
+        fairness=r.text(top, "fairness", "fairness"),
+        fingerprints=None if fingerprints is None else r.mapping(fingerprints, "fingerprints"),
+    )
+
+
+def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:
+    s = r.mapping(value, key)
+    atm = r.mapping(s.get("atmosphere"), f"{key}.atmosphere")
+    wind = r.mapping(s.get("wind"), f"{key}.wind")
+    if isinstance(s.get("episodes"), list):  # tolerated: the episodes listed rather than counted
+        s = {**s, "episodes": len(s["episodes"])}
+    return ScenarioInfo(
+        name=r.text(s, "name", f"{key}.name"), source=r.text(s, "source", f"{key}.source"),
+        description=r.text(s, "description", f"{key}.description"),
+        map_name=r.text(s, "map_name", f"{key}.map_name"), vehicle=r.text(s, "vehicle", f"{key}.vehicle"),
+        vehicle_summary=r.text(s, "vehicle_summary", f"{key}.vehicle_summary"),
+        atmosphere=AtmosphereInfo(*(r.number(atm, k, f"{key}.atmosphere.{k}")
+                                    for k in ("elevation_m", "isa_offset_k", "density_kg_m3"))),
+        wind=WindInfo(r.vector3(wind, "steady_enu_m_s", f"{key}.wind.steady_enu_m_s"),
+                      r.text(wind, "turbulence", f"{key}.wind.turbulence") or None,
+                      r.shear(wind.get("shear"), f"{key}.wind.shear")),
+        episodes=r.integer(s, "episodes", f"{key}.episodes"),
+        seeds=tuple(r.integer({"seed": v}, "seed", f"{key}.seeds[{i}]")
+                    for i, v in enumerate(r.sequence(s, "seeds", f"{key}.seeds"))),
+        methods=tuple(str(m) for m in r.sequence(s, "methods", f"{key}.methods")),
+        physics_hz=r.number(s, "physics_hz", f"{key}.physics_hz"),
+        control_hz=r.number(s, "control_hz", f"{key}.control_hz"),
+    )
+
+
+def _method_info(r: _Reader, value: Any, method: str, key: str) -> MethodInfo:
+    c = r.mapping(value, key)
+    if c.get("policies") is not None:
+        policies = tuple(_policy(r, p, f"{key}.policies[{i}]")
+                         for i, p in enumerate(r.sequence(c, "policies", f"{key}.policies")))
+    elif c.get("policy_dir"):  # before policies per vehicle: one policy, its vehicle not recorded
+        policies = (PolicyRecord(None, r.text(c, "policy_dir", f"{key}.policy_dir"),
+                                 r.number(c, "decision_hz", f"{key}.decision_hz")),)
+    else:
+        policies = ()
+    return MethodInfo(r.text(c, "label", f"{key}.label") or method, r.text(c, "description", f"{key}.description"),
+                      policies)
+
+
+def _policy(r: _Reader, value: Any, key: str) -> PolicyRecord:
+    p = r.mapping(value, key)
+    return PolicyRecord(r.text(p, "vehicle", f"{key}.vehicle") or None, r.text(p, "policy_dir", f"{key}.policy_dir"),
+                        r.number(p, "decision_hz", f"{key}.decision_hz"))
+
+
+@dataclass(frozen=True)
+class _Reader:
+    """Typed reads of run.json values: absent or null reads as empty (None, "", no entries); a value of the
+    wrong kind raises ValueError naming the file, the key and the value."""
+
+    where: str
+
+    def fail(self, key: str, value: Any, expected: str) -> ValueError:
+        return ValueError(f"{self.where}: {key}: expected {expected}, got {value!r}")
+
+    def mapping(self, value: Any, key: str) -> Mapping[str, Any]:
+        if value is None:
+            return {}
+        if not isinstance(value, Mapping):
+            raise self.fail(key, value, "a JSON object")
+        return value
+
+    def sequence(self, d: Mapping[str, Any], name: str, key: str) -> list[Any]:
+        value = d.get(name)
+        if value is None:
+            return []
+        if not isinstance(value, list):
+            raise self.fail(key, value, "a JSON list")
+        return value
+
+    def text(self, d: Mapping[str, Any], name: str, key: str) -> str:
+        value = d.get(name)
+        if value is None:
+            return ""
+        if not isinstance(value, str):
+            raise self.fail(key, value, "a string")
+        return value
+
+    def number(self, d: Mapping[str, Any], name: str, key: str) -> float | None:
+        value = d.get(name)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.fail(key, value, "a finite number")
+        return float(value)
+
+    def integer(self, d: Mapping[str, Any], name: str, key: str) -> int | None:
+        value = d.get(name)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(key, value, "an integer")
+        return value
+
+    def vector3(self, d: Mapping[str, Any], name: str, key: str) -> tuple[float, float, float] | None:
+        values = self.sequence(d, name, key)
+        if name not in d or d[name] is None:
+            return None
+        numbers = [self.number({name: v}, name, f"{key}[{i}]") for i, v in enumerate(values)]
+        if len(numbers) != 3 or any(v is None for v in numbers):
+            raise self.fail(key, d[name], "3 numbers")
+        return (numbers[0], numbers[1], numbers[2])  # type: ignore[return-value]
+
+    def shear(self, value: Any, key: str) -> WindShear | None:
+        if value is None:
+            return None
+        d = self.mapping(value, key)
+        try:
+            return WindShear(**{k: d[k] for k in ("law", "reference_height_m", "exponent", "roughness_m")
+                                if d.get(k) is not None})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{self.where}: {key}: {exc}") from None
