@@ -36,6 +36,7 @@ from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import save_figure
 from uam_fdm.city.mapfile import load_map_file
+from uam_fdm.episode import Outcome
 
 logger = logging.getLogger(__name__)
 
@@ -63,7 +64,6 @@ SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
     ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
     ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
 )
-TRACKER_METHOD = "rrt_mpc"  # the pilot whose tracker columns get a page per scenario
 MAX_FAILURE_PLOTS = 6
 PNG_DPI = 130
 _STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<method>.+)__s(?P<seed>-?\d+)$")
@@ -342,11 +342,10 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
     for m, cfg in (info.get("methods") or {}).items():
         cfg = cfg or {}
         blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.get('description', '')}"))
-        if m == "ppo":
-            for pol in ppo_policies(info):
-                rate = f"; decides at {pol['decision_hz']:g} Hz" if pol.get("decision_hz") else ""
-                who = f"for {pol['vehicle']}: " if pol.get("vehicle") else ""
-                blocks.append(("p", f"    {who}policy {pol.get('policy_dir')}{rate}"))
+        for pol in ppo_policies(info, m):  # a pilot that flies policies: one per vehicle
+            rate = f"; decides at {pol['decision_hz']:g} Hz" if pol.get("decision_hz") else ""
+            who = f"for {pol['vehicle']}: " if pol.get("vehicle") else ""
+            blocks.append(("p", f"    {who}policy {pol.get('policy_dir')}{rate}"))
     run_notes = [str(n) for n in info.get("notes") or []]
     if run_notes:  # e.g. cells left out, the pilots' decision rates
         blocks += [("h", "Notes"), *(("p", n) for n in run_notes)]
@@ -368,17 +367,18 @@ def _metrics_pages(run: _Run, rows: list[dict[str, str]] | None) -> list[tuple[s
     paired = (summary or {}).get("paired")
     if isinstance(paired, Mapping) and paired:
         out.append(("metrics_paired", _paired_pages(run, paired)))
-    tracker = _tracker_pages(run, rows)
+    tracker = [fig for m in run.methods for fig in _tracker_pages(run, rows, m)]
     if tracker:
         out.append(("metrics_tracker", tracker))
     out.append(("metrics_episodes", _episode_table_pages(run, rows)))
     return out
 
 
-def _tracker_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
-    """The classical pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from
-    metrics.csv; nothing when it did not fly (or the file predates the tracker columns)."""
-    mine = [r for r in rows if r.get("method") == TRACKER_METHOD]
+def _tracker_pages(run: _Run, rows: list[dict[str, str]], method: str) -> list[Figure]:
+    """A pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from metrics.csv;
+    nothing for a pilot without tracker columns (e.g. the learned pilot), one that did not fly, or a file
+    that predates the tracker columns."""
+    mine = [r for r in rows if r.get("method") == method]
     if not mine or all(not math.isfinite(_float(r.get("planner_margin_m"))) for r in mine):
         return []
     table = []
@@ -409,7 +409,7 @@ def _tracker_pages(run: _Run, rows: list[dict[str, str]]) -> list[Figure]:
              "episodes; max: over all).",
              "Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
              "episodes."]
-    return F.table_pages(f"Metrics: the {run.label(TRACKER_METHOD)} tracker per scenario", header, table,
+    return F.table_pages(f"Metrics: the {run.label(method)} tracker per scenario", header, table,
                          rows_per_page=26, notes=notes, font_size=7)
 
 
@@ -521,7 +521,7 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
         if not traces:
             continue
         traces.sort(key=lambda t: _method_rank(run, t.method))
-        failures += [t for t in traces if t.episode.outcome != "success"]
+        failures += [t for t in traces if t.episode.outcome != Outcome.SUCCESS]
         bmap = run.map_of(scenario)
         title = f"Episode {scenario} #{ep} seed {seed}" + ("" if bmap is not None else " (map file missing)")
         name = f"episode_{scenario}__ep{ep:03d}__s{seed}"
@@ -534,15 +534,19 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
 
 
 # ---- 4. training ----------------------------------------------------------------------------------------
-def ppo_policies(info: Mapping) -> list[dict]:
-    """The learned pilot's policies recorded in run.json (vehicle, policy_dir, decision_hz), one per
-    vehicle; a run written before policies per vehicle has one, without its vehicle."""
-    ppo = (info.get("methods") or {}).get("ppo") or {}
-    if isinstance(ppo.get("policies"), list):
-        return [p for p in ppo["policies"] if isinstance(p, dict)]
-    if ppo.get("policy_dir"):
-        return [{"vehicle": None, "policy_dir": ppo["policy_dir"], "decision_hz": ppo.get("decision_hz")}]
-    return []
+def ppo_policies(info: Mapping, method: str | None = None) -> list[dict]:
+    """The learned pilots' policies recorded in run.json (vehicle, policy_dir, decision_hz), one per
+    vehicle, of `method` (None: of every method that records policies); a run written before policies
+    per vehicle has one, without its vehicle."""
+    out = []
+    for name, cfg in (info.get("methods") or {}).items():
+        if (method is not None and name != method) or not isinstance(cfg, Mapping):
+            continue
+        if isinstance(cfg.get("policies"), list):
+            out += [p for p in cfg["policies"] if isinstance(p, dict)]
+        elif cfg.get("policy_dir"):
+            out.append({"vehicle": None, "policy_dir": cfg["policy_dir"], "decision_hz": cfg.get("decision_hz")})
+    return out
 
 
 def _training_figure(policy: Mapping, name_vehicle: bool) -> Figure:
