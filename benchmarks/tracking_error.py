@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 
 from planners.margins import DEFAULT_TABLE_PATH, TrackingErrorRow, write_tracking_table  # noqa: E402
 from uam_fdm.air.wind import TurbulenceLevel  # noqa: E402
+from uam_fdm.episode import Outcome  # noqa: E402
 
 # (name, field elevation [m], ISA offset [K]): sea level, and the full set's hot-and-high field
 AIRS = {"sea_level": (0.0, 0.0), "hot_high": (2500.0, 25.0)}
@@ -129,7 +130,7 @@ def table_rows(results: list[dict]) -> list[TrackingErrorRow]:
     rows = []
     for vehicle, turbulence, air in CONDITIONS:
         mine = [r for r in results if (r["job"]["vehicle"], r["job"]["turbulence"], r["job"]["air"])
-                == (vehicle, turbulence, air) and r["outcome"] != "planner_failure"]
+                == (vehicle, turbulence, air) and r["outcome"] != Outcome.PLANNER_FAILURE]
         if not mine:
             continue
         dev = np.concatenate([r["deviations_m"] for r in mine])
@@ -178,7 +179,7 @@ def main() -> None:
             continue
         dev = np.concatenate([r["deviations_m"] for r in mine])
         q = np.percentile(dev, [50, 95, 99])
-        ok = sum(r["outcome"] == "success" for r in mine)
+        ok = sum(r["outcome"] == Outcome.SUCCESS for r in mine)
         # the clearance figure that matters: least clearance over half the margin flown, per episode
         ratio = min(r["min_clearance_m"] / r["planner_margin_m"] for r in mine)
         key = f"{vehicle}/{turbulence}/{air}"

@@ -19,9 +19,7 @@ missing cells, after checking that the folder is a run saved from the same input
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
-import math
 import os
 import platform
 import sys
@@ -34,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compare import pilots
 from compare.fingerprint import check_resume, run_fingerprints
 from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
 from compare.episode_loop import run_episode
@@ -52,46 +51,21 @@ from compare.scenario import Scenario
 from compare.seeding import cell_seed
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.pilot import Agent
 
 log = logging.getLogger(__name__)
 
-METHOD_LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
-METHOD_DESCRIPTIONS = {
-    "ppo": "Learned pilot: policy network (2 x 128 tanh units, trained from scratch with PPO, no demonstrations; "
-           "see its provenance) choosing a 3D velocity command at its decision rate (held between decisions) "
-           "-> the vehicle's low-level velocity/attitude controller -> rotor speeds; sees only its local "
-           "observation (goal frame, horizontal rays and a roof-height map at its vehicle's scale, the route around "
-           "the buildings); one policy per vehicle, trained for it; "
-           "acts deterministically.",
-    "rrt_mpc": "Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
-               "reference -> CasADi NMPC (real-time iteration: one Gauss-Newton SQP step per decision, HPIPM) "
-               "commanding rotor speeds (through the wrench for many-rotor vehicles); clearance margins sized from "
-               "the vehicle's measured tracking error in the forecast turbulence and air density; replanning on "
-               "large tracking errors and when the MPC predicts it will come closer than its margin.",
-}
-FAIRNESS = (
-    "Both pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics rate; "
-    "the classical pilot decides at the scenario's control rate, the learned pilot at its policy's decision rate "
-    "(its command held by the same low-level controller in between; both rates are in run.json), and each "
-    "decision is timed with the same stopwatch. Both know the vehicle's parameters, the building map, the air "
-    "density, the forecast turbulence level (none/light/moderate/severe: the classical pilot sizes its clearance "
-    "margins from it, the learned pilot does not use it) and the full vehicle state at each decision (perfect "
-    "state estimation). Neither knows the wind: both "
-    "fly the same seeded steady wind and turbulence realisation in each episode. The classical pilot plans on the "
-    "whole map before take-off and when it replans (its planning time is reported separately) and commands rotor "
-    "speeds through its "
-    "MPC; the learned pilot sees only its observation (goal, a route around the buildings computed from the map "
-    "at take-off, velocity, altitude, rays and a roof-height map of the buildings near it) and commands a "
-    "velocity that the vehicle's low-level controller turns into rotor speeds. Clearance is measured at every "
-    "physics step from the vehicle's collision sphere to the buildings and the ground."
-)
+FAIRNESS_COMMON = (
+    "{every} pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics "
+    "rate, each at its own decision rate (the rates are in run.json), and each decision is timed with the same "
+    "stopwatch. {every} know the vehicle's parameters, the building map, the air density, the forecast turbulence "
+    "level (none/light/moderate/severe) and the full vehicle state at each decision (perfect state estimation). "
+    "{none} knows the wind: {all} fly the same seeded steady wind and turbulence realisation in each episode.")
+FAIRNESS_CLEARANCE = ("Clearance is measured at every physics step from the vehicle's collision sphere to the "
+                      "buildings and the ground.")
 VIDEOS_DIR = "videos"  # the run's animations, one file per animated cell
-# Upper-bound planning figures for `estimate_run` [wall s per simulated s, one process]: the tests'
-# tiny run flies at 0.15 (ppo) and 0.35 (rrt_mpc, small quad); the UAM's MPC is slower than real time.
-WALL_S_PER_FLIGHT_S = {"ppo": 0.2, "rrt_mpc": 1.0}
 WARN_RUN_HOURS = 3.0  # the CLI warns above these estimates before flying
 WARN_RUN_GB = 3.0
-SOLVER_FAILURE_SHARE = 0.25  # a failed classical episode with >= this share of failed MPC solves: "solver_failure"
 
 
 @dataclass(frozen=True)
@@ -159,26 +133,29 @@ def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
                policies: Mapping[str, PolicyFacts] | None) -> tuple[list[Cell], list[str]]:
     """The cells to fly, in a fixed order, and notes on cells left out (e.g. no policy for a vehicle).
 
-    `policies`: the learned pilot's policies by vehicle fingerprint (`select_policies`); None: not
-    known yet (an estimate), every ppo cell is kept.
+    `policies`: the policies of the pilots that need one (`compare.pilots.PilotSpec.needs_policy`), by
+    vehicle fingerprint (`select_policies`); None: not known yet (an estimate), every cell is kept.
 
     Raises:
-        ValueError: a scenario that flies the learned pilot runs its controller at another rate than
-            the policy was trained with (the policy's decisions would be held for the wrong time).
+        ValueError: a scenario that flies a policy runs its controller at another rate than the policy
+            was trained with (the policy's decisions would be held for the wrong time).
     """
     cells, notes = [], []
     for si, sc in enumerate(scenarios):
         methods = [m for m in sc.methods if opts.methods is None or m in opts.methods]
         policy = policies.get(sc.vehicle.fingerprint()) if policies is not None else None
-        if "ppo" in methods and policies is not None and policy is None:
-            methods.remove("ppo")
-            notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} (none shipped, none "
-                         f"given with --policy); ppo not flown")
-        if "ppo" in methods and policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
-            raise ValueError(
-                f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
-                f"{policy.control_hz:g} Hz controller (its config.json, nav.control_hz); fly this scenario at "
-                f"{policy.control_hz:g} Hz, without ppo (--methods rrt_mpc), or with a policy trained for it")
+        for m in [name for name in methods if pilots.pilot(name).needs_policy]:
+            if policies is not None and policy is None:
+                methods.remove(m)
+                notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} (none shipped, none "
+                             f"given with --policy); {m} not flown")
+            elif policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
+                others = ",".join(o for o in methods if o != m)
+                raise ValueError(
+                    f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
+                    f"{policy.control_hz:g} Hz controller (its config.json, nav.control_hz); fly this scenario at "
+                    f"{policy.control_hz:g} Hz, without {m}{f' (--methods {others})' if others else ''}, or with "
+                    f"a policy trained for it")
         seeds = opts.seeds if opts.seeds is not None else sc.seeds
         for ep in sc.episodes:
             for seed in seeds:
@@ -194,7 +171,7 @@ class RunEstimate:
     Attributes:
         cells: episodes to fly (scenario x episode x seed x method).
         flight_s: simulated flight time of all cells [s].
-        wall_h: wall time with `jobs` processes [h] (WALL_S_PER_FLIGHT_S per simulated second).
+        wall_h: wall time with `jobs` processes [h] (each pilot's `wall_s_per_flight_s` per simulated second).
         disk_gb: episode files, uncompressed [GB] (float64 time, state, commands, wind, clearance and shaft
             power per physics step).
     """
@@ -218,7 +195,7 @@ def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate
         sc = scenarios[c.scenario]
         t = sc.episodes[c.episode].task.timeout_s
         flight_s += t
-        wall_s += t * WALL_S_PER_FLIGHT_S.get(c.method, max(WALL_S_PER_FLIGHT_S.values()))
+        wall_s += t * pilots.pilot(c.method).wall_s_per_flight_s
         n = sc.vehicle.n_rotors
         n_bytes += t * sc.physics_hz * 8 * (1 + (13 + n) + n + 3 + 1 + 1)  # t, state, commands, wind, clearance, power
     workers = max(1, min(opts.jobs, os.cpu_count() or 1))
@@ -230,14 +207,15 @@ def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
 
 
 class CellRunner:
-    """Flies cells; holds per-process caches (worlds per scenario, one agent per method)."""
+    """Flies cells; holds per-process caches (worlds per scenario, one agent per method, or per method and
+    vehicle for a pilot that flies a policy)."""
 
     def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path]) -> None:
-        """`policies`: the learned pilot's policy folder by vehicle fingerprint."""
+        """`policies`: the policy folder of the pilots that need one, by vehicle fingerprint."""
         self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
         self._worlds: dict[int, object] = {}
         self._dynamics: dict[tuple, object] = {}
-        self._agents: dict[tuple[str, str], object] = {}
+        self._agents: dict[tuple[str, str], Agent] = {}
 
     def world(self, si: int):
         from uam_fdm.pilot import World
@@ -252,20 +230,11 @@ class CellRunner:
             self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
         return self._worlds[si]
 
-    def agent(self, method: str, sc: Scenario):
-        """The agent flying `method` in scenario `sc` (the learned pilot: the policy for its vehicle)."""
-        fp = sc.vehicle.fingerprint() if method == "ppo" else ""
+    def agent(self, method: str, sc: Scenario) -> Agent:
+        """The agent flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
+        fp = sc.vehicle.fingerprint() if pilots.pilot(method).needs_policy else ""
         if (method, fp) not in self._agents:
-            if method == "ppo":
-                from rl.agent import PolicyAgent, load_policy
-                if fp not in self.policies:
-                    raise ValueError(f"{sc.source}: no learned policy for vehicle {sc.vehicle_name!r}")
-                self._agents[method, fp] = PolicyAgent(load_policy(self.policies[fp], sc.vehicle))
-            elif method == "rrt_mpc":
-                from planners.agent import ClassicalAgent
-                self._agents[method, fp] = ClassicalAgent()
-            else:
-                raise ValueError(f"unknown method {method!r}")
+            self._agents[method, fp] = pilots.build(method, sc, self.policies.get(fp) if fp else None)
         return self._agents[method, fp]
 
     def run(self, c: Cell) -> Path:
@@ -284,33 +253,21 @@ class CellRunner:
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
         agent = self.agent(c.method, sc)
         traj = run_episode(world, agent, task, wind, agent_seed)
-        extra: dict = {"wind_seed": wind_seed, "agent_seed": agent_seed,
-                       "torque_coeff_Nm_s2": p.torque_coeff_Nm_s2,
-                       "density_ratio": float(world.atmosphere.density_ratio(task.start_m[2])),
-                       "mean_decision_ms": float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None}
-        plan_time_s = float(traj.plan_time_s)
-        report = agent.episode_report() if hasattr(agent, "episode_report") else None
-        if report is not None:  # the classical pilot: what its tracker did (typed columns of metrics.csv)
-            extra["tracker"] = tracker_extra(report)
-            plan_time_s = float(report.plan_time_s)  # planning at reset plus every replan
-            if (traj.outcome not in ("success", "planner_failure") and report.mpc_solves
-                    and report.mpc_failures >= SOLVER_FAILURE_SHARE * report.mpc_solves):
-                extra["failure_reason"] = "solver_failure"
+        report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
         key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
                            start_m=tuple(task.start_m), goal_m=tuple(task.goal_m), goal_radius_m=task.goal_radius_m,
                            timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
-                           energy_J=float(traj.energy_J), outcome=traj.outcome, plan_time_s=plan_time_s,
-                           detail=traj.detail, extra=extra)
+                           energy_J=float(traj.energy_J), outcome=traj.outcome,
+                           # planning at reset plus every replan, when the pilot reports it
+                           plan_time_s=float(traj.plan_time_s if report is None else report.plan_time_s),
+                           detail=traj.detail, wind_seed=wind_seed, agent_seed=agent_seed,
+                           torque_coeff_Nm_s2=p.torque_coeff_Nm_s2,
+                           density_ratio=float(world.atmosphere.density_ratio(task.start_m[2])),
+                           mean_decision_ms=float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None,
+                           failure_reason=None if report is None else report.failure_reason(traj.outcome),
+                           report=report)
         return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta, traj)
-
-
-def tracker_extra(report) -> dict:
-    """The classical pilot's end-of-episode report (`planners.agent.ClassicalReport`) as the JSON-ready
-    dict saved in the episode's metadata (`EpisodeMeta.extra["tracker"]`; NaN saved as null)."""
-    out = dataclasses.asdict(report)
-    out["replans"] = report.replans
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
 
 
 class RunInterrupted(Exception):
@@ -357,7 +314,7 @@ def _init_worker(scenarios: list[Scenario], out_dir: Path, policies: dict[str, P
     # worker neither prints its own traceback nor dies half-way through telling the parent.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    if any("ppo" in sc.methods for sc in scenarios):  # this process is ours: one torch thread is fastest
+    if any(pilots.pilot(m).uses_torch for sc in scenarios for m in sc.methods):  # one torch thread is fastest
         import torch
 
         torch.set_num_threads(1)
@@ -404,26 +361,28 @@ def versions() -> dict[str, str]:
 
 def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str],
                     fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
-    """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, and the learned pilot's
-    policy folders, their vehicles and decision rates) and maps/*.yaml."""
+    """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, the policy folders of the pilots
+    that fly one, their vehicles and decision rates, the methods in table order) and maps/*.yaml."""
     from uam_fdm.city.generator import map_yaml_text
 
     out = opts.out_dir
     for sc in scenarios:
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
-    methods = sorted({c.method for c in cells})
-    if "ppo" in methods and policies:
+    methods = pilots.ordered(c.method for c in cells)
+    specs = [pilots.pilot(m) for m in methods]
+    at_control_rate = [s.name for s in specs if not s.needs_policy]
+    if policies:
         rates = "; ".join(f"for {p.vehicle} at {p.decision_hz:g} Hz (each command held for "
                           f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
-        notes = [*notes, f"ppo decides at its policy's rate: {rates}; rrt_mpc at each scenario's control rate"]
+        rest = f"; {', '.join(at_control_rate)} at each scenario's control rate" if at_control_rate else ""
+        notes = [*notes, *(f"{s.name} decides at its policy's rate: {rates}{rest}" for s in specs if s.needs_policy)]
     records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz) for p in policies)
     info = RunInfo(
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
         notes=tuple(notes),
-        methods={m: MethodInfo(METHOD_LABELS.get(m, m), METHOD_DESCRIPTIONS.get(m, ""), records if m == "ppo" else ())
-                 for m in methods},
-        versions=versions(), fairness=FAIRNESS, fingerprints=fingerprints)
+        methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else ()) for s in specs},
+        versions=versions(), fairness=fairness(methods), fingerprints=fingerprints)
     write_run_info(info, out)
 
 
@@ -438,7 +397,14 @@ def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
         atmosphere=AtmosphereInfo(sc.atmosphere.elevation_m, sc.atmosphere.isa_offset_k, round(float(rho), 4)),
         wind=WindInfo(tuple(sc.wind.steady_enu_m_s), sc.wind.turbulence.value, sc.wind.shear),
         episodes=len(sc.episodes), seeds=tuple(sorted({c.seed for c in cells})),
-        methods=tuple(sorted({c.method for c in cells})), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
+        methods=tuple(pilots.ordered(c.method for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
+
+
+def fairness(methods: Sequence[str]) -> str:
+    """The run's fairness statement for the methods flown: what every pilot shares, then what each is given."""
+    every, none, all_ = ("Both", "Neither", "both") if len(methods) <= 2 else ("All", "None", "all")
+    common = FAIRNESS_COMMON.format(every=every, none=none, all=all_)
+    return " ".join([common, *(pilots.pilot(m).given for m in pilots.ordered(methods)), FAIRNESS_CLEARANCE])
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
@@ -455,7 +421,7 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     if not cells:
         raise ValueError("nothing to fly: no (scenario, method) left after --methods")
     out = Path(opts.out_dir)
-    flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if c.method == "ppo"}
+    flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if pilots.pilot(c.method).needs_policy}
     used = [f for fp, f in policies.items() if fp in flown]
     fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
@@ -504,15 +470,19 @@ def policy_facts(policy: Path | None) -> PolicyFacts:
 
 
 def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str, PolicyFacts]:
-    """The learned pilot's policy for each vehicle that flies ppo, by vehicle fingerprint: the one given
-    with --policy for that vehicle, else the shipped one trained for it (none: ppo is not flown there).
+    """The policy for each vehicle that flies a pilot that needs one (`PilotSpec.needs_policy`), by vehicle
+    fingerprint: the one given with --policy for that vehicle, else the shipped one trained for it (none:
+    that pilot is not flown there).
 
     Raises:
         ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
     """
     from rl.agent import shipped_policy_dir
 
-    if opts.methods is not None and "ppo" not in opts.methods:
+    def flies_policy(methods: Sequence[str]) -> bool:
+        return any(pilots.pilot(m).needs_policy for m in methods)
+
+    if opts.methods is not None and not flies_policy(opts.methods):
         return {}
     chosen: dict[str, PolicyFacts] = {}
     for folder in opts.policies:
@@ -524,7 +494,7 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
         chosen[facts.vehicle_fingerprint] = facts
     for sc in scenarios:
         fp = sc.vehicle.fingerprint()
-        if "ppo" not in sc.methods or fp in chosen:
+        if not flies_policy(sc.methods) or fp in chosen:
             continue
         shipped = shipped_policy_dir(sc.vehicle.name)
         if shipped is not None:

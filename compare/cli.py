@@ -9,6 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
+from compare.pilots import METHODS
 from uam_fdm.vehicle.params import preset_names
 
 INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
@@ -80,7 +81,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from compare.results.outputs import check_output_dir
     from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
-    from compare.scenario import METHODS, resolve_scenarios, seeds_problem
+    from compare.scenario import resolve_scenarios, seeds_problem
 
     if args.methods is not None:
         unknown = [m for m in args.methods if m not in METHODS]
@@ -282,7 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
     run.add_argument("scenario", nargs="?", default="default",
                      help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
-    run.add_argument("--methods", type=_csv_list, default=None, help="comma-separated subset of ppo,rrt_mpc")
+    run.add_argument("--methods", type=_csv_list, default=None,
+                     help=f"comma-separated methods to fly, of each scenario's own ({','.join(METHODS)})")
     run.add_argument("--policy", type=Path, action="append", default=[],
                      help="policy folder for ppo, for the vehicle it was trained for; repeat for other vehicles "
                           "(default: the shipped policy of each vehicle)")

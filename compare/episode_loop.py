@@ -17,13 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm import episode
+from uam_fdm.episode import Outcome
 from uam_fdm.pilot import Agent, Observation, RotorCommand, Task, VelocityCommand, World
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.model import hover_state
 from uam_fdm.sim import Simulator
 from uam_fdm.air.wind import WindField
-
-OUTCOMES = episode.OUTCOMES + ("planner_failure",)
 
 
 @dataclass(frozen=True)
@@ -41,7 +40,8 @@ class Trajectory:
         decision_t_s: (D,) times of the agent's decisions [s].
         compute_s: (D,) wall time of each decision [s].
         energy_J: rotor shaft energy over the flight [J].
-        outcome: one of OUTCOMES.
+        outcome: how it ended: an end rule's outcome, or `Outcome.PLANNER_FAILURE` when the agent could
+            not fly the task (before the first step).
         plan_time_s: planning time the agent reported at reset [s].
         detail: why the episode ended, in words.
         shaft_power_W: (M,) total rotor shaft power Σ Q_i·Ω_i of the model at each row's state, in the air
@@ -57,14 +57,14 @@ class Trajectory:
     decision_t_s: np.ndarray
     compute_s: np.ndarray
     energy_J: float
-    outcome: str
+    outcome: Outcome
     plan_time_s: float
     detail: str = ""
     shaft_power_W: np.ndarray | None = None
 
     @property
     def success(self) -> bool:
-        return self.outcome == "success"
+        return self.outcome == Outcome.SUCCESS
 
 
 def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int) -> Trajectory:
@@ -82,9 +82,9 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
     power = [np.array([dyn.shaft_power_W(x0, sim.env(x0, 0.0))])]  # P(Ω, σ): needs no height above ground
     decision_t, compute = [], []
     goal = np.asarray(task.goal_m, float)
-    outcome, detail = "timeout", f"not at the goal after {task.timeout_s:g} s"
+    outcome, detail = Outcome.TIMEOUT, f"not at the goal after {task.timeout_s:g} s"
     if not info.ok:
-        outcome, detail = "planner_failure", f"{info.status}: {info.detail}"
+        outcome, detail = Outcome.PLANNER_FAILURE, f"{info.status}: {info.detail}"
     lo, hi = np.asarray(city.bounds_min_m, float), np.asarray(city.bounds_max_m, float)
     held = 0
     while info.ok and not episode.timed_out(sim.state.t_s, task.timeout_s):

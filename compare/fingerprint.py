@@ -1,7 +1,8 @@
 """What a run's cells were computed from, as hashes: `--resume` completes a run only with the same inputs.
 
 `run_fingerprints` hashes, per scenario, its resolved content (map, vehicle parameters, atmosphere,
-wind and rates, episodes), each policy folder's files that ppo flies (one per vehicle), and the code version; the run
+wind and rates, episodes), the files of each policy folder flown (one per vehicle, for the pilots that fly a
+policy: `compare.pilots.PilotSpec.needs_policy`), and the code version; the run
 stores them in `run.json` under "fingerprints". `check_resume` reads a folder (never writes) and
 refuses, with every difference listed, a folder that is not a run of this tool or whose saved inputs
 differ from the ones given now: finished episodes are never mixed with episodes of other inputs.
@@ -78,8 +79,8 @@ def policy_fingerprint(folder: Path) -> dict[str, str]:
 
 
 def run_fingerprints(scenarios: Sequence[Scenario], policies: Mapping[str, Path]) -> dict:
-    """The "fingerprints" block of run.json: code, each scenario, and the policy folder ppo flies for
-    each vehicle (`policies`: folder by vehicle name; empty when ppo is not flown)."""
+    """The "fingerprints" block of run.json: code, each scenario, and the policy folder flown for each
+    vehicle (`policies`: folder by vehicle name; empty when no pilot that flies a policy is flown)."""
     out: dict = {"code": code_version(), "scenarios": {sc.name: scenario_fingerprint(sc) for sc in scenarios}}
     if policies:
         out["policies"] = {v: {"folder": str(Path(d).resolve()), "files": policy_fingerprint(d)}
@@ -99,7 +100,7 @@ def fingerprint_differences(saved: Mapping, now: Mapping) -> list[str]:
         if parts:
             diffs.append(f"scenario {name}: {', '.join(parts)} changed")
     saved_p, now_p = saved.get("policies") or {}, now.get("policies") or {}
-    for vehicle in sorted(set(saved_p) & set(now_p)):  # a vehicle that did not fly ppo before may start to
+    for vehicle in sorted(set(saved_p) & set(now_p)):  # a vehicle that flew no policy before may start to
         pa, pb = saved_p[vehicle] or {}, now_p[vehicle] or {}
         fa, fb = pa.get("files") or {}, pb.get("files") or {}
         changed = [f for f in sorted(set(fa) | set(fb)) if fa.get(f) != fb.get(f)]
@@ -123,8 +124,8 @@ def check_resume(out: Path, now: dict) -> dict:
     Reads only: a refused folder is left byte for byte as it was. A missing or empty folder is a fresh start.
 
     Returns:
-        The fingerprints to save: `now`, keeping the saved policy of each vehicle for which ppo is not
-        flown this time (its episodes are still in the folder, and a later resume that flies ppo for
+        The fingerprints to save: `now`, keeping the saved policy of each vehicle that flies no policy
+        this time (its episodes are still in the folder, and a later resume that flies the policy for
         that vehicle must match them).
 
     Raises:

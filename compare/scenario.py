@@ -43,7 +43,8 @@ the field (ground at z = 0), seconds, SI units::
                                #   top speed, plus 20 s to take off, turn and settle (at most 3600 s)
     seeds: [0]                 # optional, non-empty list of distinct integers in [0, 2**32 - 1];
                                #   every episode is flown once per seed; default [0]
-    methods: [ppo, rrt_mpc]    # optional, non-empty subset of {ppo, rrt_mpc}; default both
+    methods: [ppo, rrt_mpc]    # optional, non-empty list of registered methods (`compare.pilots`:
+                               #   ppo, rrt_mpc, apf); default [ppo, rrt_mpc]
     physics_hz: 500            # optional physics rate [Hz], in (0, 10000]; default 500; the
                                #   vehicle's motor_time_constant_s must span >= 2 physics steps
     control_hz: 50             # optional decision rate [Hz], > 0; default 50; physics_hz must be
@@ -74,6 +75,7 @@ from typing import Any
 
 import numpy as np
 
+from compare.pilots import DEFAULT_METHODS, METHODS
 from uam_fdm.pilot import Task
 from uam_fdm.air.atmosphere import (
     ELEVATION_RANGE_M,
@@ -92,7 +94,6 @@ from uam_fdm.air.wind import TurbulenceLevel, WindConditions
 from uam_fdm.files.yamlfile import load_yaml_file
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
-METHODS = ("ppo", "rrt_mpc")
 
 DEFAULT_GOAL_RADIUS_M = 3.0
 DEFAULT_SEEDS = (0,)
@@ -142,7 +143,7 @@ class Scenario:
         wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
         episodes: the tasks, in file order.
         seeds: the seeds each episode is flown with.
-        methods: the pilots to fly, in `METHODS` order.
+        methods: the pilots to fly, in `compare.pilots.METHODS` order.
         physics_hz: physics rate [Hz].
         control_hz: decision rate [Hz]; physics_hz is an integer multiple of it.
         raw: a copy of the parsed YAML mapping, for provenance.
@@ -213,7 +214,7 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     goal_radius = _optional(data, "goal_radius_m", DEFAULT_GOAL_RADIUS_M, source, _goal_radius)
     timeout = None if data.get("timeout_s") is None else _timeout(data["timeout_s"], source, "timeout_s")
     seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
-    methods = _optional(data, "methods", METHODS, source, _methods)
+    methods = _optional(data, "methods", DEFAULT_METHODS, source, _methods)
     physics_hz, control_hz = _rates(data, source, vehicle)
     episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
     air = flight_atmosphere(atmosphere, city)
@@ -399,8 +400,8 @@ def _methods(value: Any, source: str, key: str) -> tuple[str, ...]:
     if not isinstance(value, list) or not value:
         raise ConfigError(source, key, f"must be a non-empty list drawn from {', '.join(METHODS)}, got {value!r}")
     for i, m in enumerate(value):
-        if m not in METHODS:
-            raise ConfigError(source, f"{key}[{i}]", f"unknown method {m!r} (known: {', '.join(METHODS)})")
+        if not isinstance(m, str) or m not in METHODS:
+            raise ConfigError(source, f"{key}[{i}]", f"unknown method {m!r} (registered: {', '.join(METHODS)})")
         if m in value[:i]:
             raise ConfigError(source, f"{key}[{i}]", f"duplicate method {m!r}")
     return tuple(m for m in METHODS if m in value)

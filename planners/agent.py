@@ -26,6 +26,7 @@ from planners.margins import (
     margins_for,
 )
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
+from planners.report import ClassicalReport
 from planners.rrt_star import PlannerConfig, PlanResult, plan_path
 from planners.timing import Reference, TimingLimits, endpoint_allowance, time_parameterize
 from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
@@ -85,42 +86,6 @@ class ClassicalStats:
     mpc_iterations: list[int] = field(default_factory=list)
     mpc_statuses: dict[str, int] = field(default_factory=dict)
     deviations_m: list[float] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class ClassicalReport:
-    """What the classical pilot did in one episode (read by the runner into the episode's metadata).
-
-    Attributes:
-        plan_time_s: planning at reset plus every replan [s]; replan_time_s: the replans' share [s].
-        replans_tracking, replans_clearance: replans by cause (tracking error above the threshold;
-            the MPC's prediction inside its clearance margin).
-        mpc_solves, mpc_failures: MPC decisions and failed solves (fallback commands).
-        mpc_solve_ms_median, mpc_solve_ms_p95: solver wall time per decision [ms] (NaN: none).
-        mpc_statuses: solver return statuses and their counts.
-        tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
-            curve over the decisions (`Reference.deviation_m`) [m] (NaN: none).
-        planner_margin_m, mpc_margin_m: the margins flown [m]; margin_source: where they came from.
-    """
-
-    plan_time_s: float
-    replan_time_s: float
-    replans_tracking: int
-    replans_clearance: int
-    mpc_solves: int
-    mpc_failures: int
-    mpc_solve_ms_median: float
-    mpc_solve_ms_p95: float
-    mpc_statuses: dict[str, int]
-    tracking_rms_m: float
-    tracking_max_m: float
-    planner_margin_m: float
-    mpc_margin_m: float
-    margin_source: str
-
-    @property
-    def replans(self) -> int:
-        return self.replans_tracking + self.replans_clearance
 
 
 class ClassicalAgent:

@@ -20,7 +20,7 @@ import numpy as np
 
 from rl.cities import boxes_only
 from rl.nav import NavConfig, clearance_sensor, nearest_surface, observe_slots, route_for
-from rl.observation import PilotMemory, action_to_command, goal_heading, obs_size
+from rl.observation import PilotMemory, goal_heading, obs_size, velocity_command
 from rl.perception import Perception
 from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
 from rl.route import RouteBank, grid_shape
@@ -183,5 +183,8 @@ class PolicyAgent:
         nav = self.policy.nav
         action = self.policy.act_batch(self.observe(obs.t_s, obs.x))
         self._last_action = np.clip(action, -1.0, 1.0)
-        cmd = action_to_command(action, self._memory.heading_rad, self._world.vehicle, self._task.start_yaw_rad)[0]
-        return VelocityCommand(cmd[0:3], float(cmd[3]), hold_periods=nav.action_repeat)
+        return velocity_command(action, self._memory.heading_rad, self._world.vehicle, self._task.start_yaw_rad,
+                                nav.action_repeat)
+
+    def episode_report(self) -> None:
+        """Nothing beyond the trajectory (its route field's time is the reset's planning time)."""

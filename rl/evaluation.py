@@ -17,6 +17,7 @@ import numpy as np
 from rl.nav import NavBatch, NavConfig, NavWorld
 from rl.observation import ObservationScales
 from rl.vec_env import UAMNavVecEnv
+from uam_fdm.episode import Outcome
 
 VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
 POOLS = ("test", "validation")
@@ -107,7 +108,7 @@ def evaluate(pilot: Pilot, nav: NavConfig, episodes: int, seed: int = 0, pool: s
             times[i] = infos[i]["t_s"]
         done |= d
     counts = {k: outcomes.count(k) for k in sorted(set(outcomes))}
-    ns, nc = counts.get("success", 0), counts.get("collision", 0)
+    ns, nc = counts.get(Outcome.SUCCESS, 0), counts.get(Outcome.COLLISION, 0)
     return EvalResult(episodes, ns / episodes, nc / episodes, wilson_interval(ns, episodes),
                       wilson_interval(nc, episodes), counts, float(returns.mean()), float(times.mean()),
                       tuple(outcomes), pool, int(seed))
@@ -117,8 +118,8 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
     """On the same episodes: how many only `a` succeeded, only `b`, both, neither."""
     if a.episodes != b.episodes or a.seed != b.seed or a.pool != b.pool:
         raise ValueError("paired counts need evaluations of the same episodes (count, seed and pool)")
-    sa = np.array([o == "success" for o in a.per_episode])
-    sb = np.array([o == "success" for o in b.per_episode])
+    sa = np.array([o == Outcome.SUCCESS for o in a.per_episode])
+    sb = np.array([o == Outcome.SUCCESS for o in b.per_episode])
     return {"only_a": int((sa & ~sb).sum()), "only_b": int((~sa & sb).sum()), "both": int((sa & sb).sum()),
             "neither": int((~sa & ~sb).sum())}
 

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rl.perception import PerceptionConfig, PerceptionReading
+from uam_fdm.pilot import VelocityCommand
 from uam_fdm.vehicle.params import VehicleParams
 
 N_BASE = 18
@@ -245,6 +246,16 @@ def action_to_command(action: np.ndarray, heading_rad: np.ndarray, p: VehiclePar
     cmd[:, 2] = a[:, 2] * c.max_vertical_speed_m_s
     cmd[:, 3] = yaw_rad
     return cmd
+
+
+def velocity_command(action: np.ndarray, heading_rad: np.ndarray, p: VehicleParams, yaw_rad: float,
+                     hold_periods: int) -> VelocityCommand:
+    """The runner's actuation for one goal-frame action (1, 3) in [-1, 1] (`heading_rad` (1,) its goal
+    frame [rad]): `action_to_command`'s world velocity [m/s] and heading `yaw_rad` [rad], held for
+    `hold_periods` control periods; the runner flies it through the vehicle's low-level controller, as
+    the environment does. Every pilot of this package that flies the runner commands through it."""
+    cmd = action_to_command(action, heading_rad, p, yaw_rad)[0]
+    return VelocityCommand(cmd[0:3], float(cmd[3]), hold_periods=hold_periods)
 
 
 def world_velocity_to_action(v_frac: np.ndarray, heading_rad: np.ndarray) -> np.ndarray:

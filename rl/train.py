@@ -40,6 +40,7 @@ from rl.nav import NavConfig, NavWorld
 from rl.policy import TanhMeanPolicy
 from rl.policy_file import load_model_for_resume, restore_vec_normalize, save_obs_norm, save_vec_normalize
 from rl.vec_env import UAMNavVecEnv
+from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path, write_text_atomic
 from uam_fdm.files.version import code_version
 
@@ -263,8 +264,8 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         outs, rets = update["outcomes"], update["returns"]
         n = len(outs)
         rate = (lambda k: f"{outs.count(k) / n:.4f}") if n else (lambda k: "")
-        row = [model.num_timesteps, f"{np.mean(rets):.4f}" if rets else "", rate("success"), rate("collision"),
-               rate("timeout"), n, f"{base.batch.difficulty:.3f}",
+        row = [model.num_timesteps, f"{np.mean(rets):.4f}" if rets else "", rate(Outcome.SUCCESS),
+               rate(Outcome.COLLISION), rate(Outcome.TIMEOUT), n, f"{base.batch.difficulty:.3f}",
                f"{res.success_rate:.4f}" if res else "", f"{res.collision_rate:.4f}" if res else "",
                res.episodes if res else "", f"{time.perf_counter() - t_start:.1f}"]
         with open(curve_path, "a", newline="") as f:
@@ -296,7 +297,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
                     recent.append(info["outcome"])
             cur = cfg.curriculum
             if (base.batch.difficulty < 1.0 and len(recent) == recent.maxlen
-                    and recent.count("success") / len(recent) >= cur.gate):
+                    and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate):
                 base.batch.difficulty = min(1.0, base.batch.difficulty + cur.step)
                 recent.clear()
                 log(f"{self.num_timesteps:>11,d} steps  curriculum: difficulty {base.batch.difficulty:.2f}")

@@ -17,16 +17,63 @@ out_of_bounds   any substep's position lies outside the flight volume [lo, hi] (
 success         the position at the end of the period is within the goal radius
 timeout         none of the above and the clock has reached the task's time limit
 ==============  =================================================================================
+
+Every way an episode can end is one `Outcome`, named once here for the runner, the learned pilot's
+environment, the metrics and the report.
 """
 from __future__ import annotations
 
+import enum
 import math
 
 import numpy as np
 
-OUTCOMES = ("success", "collision", "out_of_bounds", "nonfinite", "timeout")
+
+class Outcome(str, enum.Enum):
+    """How an episode ended. A `str` whose value is the name written in episode files and metrics.csv;
+    it prints as that value (str, format and repr), so files, tables and logs read as before.
+
+    The first five are the end rules of the module table. `PLANNER_FAILURE`: the pilot could not fly
+    the task (its reset said so, e.g. no path found) and the episode ended before the first step.
+    `SOLVER_FAILURE` is never the runner's outcome: it is the failure reason a pilot's end-of-episode
+    report may give a failed episode (the classical pilot's MPC failed on many solves,
+    `planners.report.ClassicalReport.failure_reason`), and older files may carry it as the outcome.
+    """
+
+    SUCCESS = "success"
+    COLLISION = "collision"
+    OUT_OF_BOUNDS = "out_of_bounds"
+    NONFINITE = "nonfinite"
+    TIMEOUT = "timeout"
+    PLANNER_FAILURE = "planner_failure"
+    SOLVER_FAILURE = "solver_failure"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __repr__(self) -> str:
+        return repr(self.value)
+
+    @classmethod
+    def parse(cls, value: object, where: str) -> Outcome:
+        """The outcome named `value` (an `Outcome` or its name).
+
+        Raises:
+            ValueError: an unknown name, prefixed with `where` (e.g. the episode).
+        """
+        try:
+            return cls(value)
+        except ValueError:
+            raise ValueError(f"{where}: unknown outcome {value!r}, expected one of "
+                             f"{', '.join(o.value for o in cls)}") from None
+
+
 RUNNING, SUCCESS, COLLISION, OUT_OF_BOUNDS, NONFINITE, TIMEOUT = range(6)
-OUTCOME_OF_CODE = (None, "success", "collision", "out_of_bounds", "nonfinite", "timeout")
+OUTCOME_OF_CODE: tuple[Outcome | None, ...] = (None, Outcome.SUCCESS, Outcome.COLLISION, Outcome.OUT_OF_BOUNDS,
+                                               Outcome.NONFINITE, Outcome.TIMEOUT)
+"""The outcome of each end-rule code (None: still running)."""
+OUTCOMES: tuple[Outcome, ...] = OUTCOME_OF_CODE[1:]  # type: ignore[assignment]
+"""The outcomes the end rules give (a flight in the simulator)."""
 
 # Clocks accumulate a period of 1/control_hz at a time; a limit of e.g. 25.0 s is reached when the
 # accumulated time is within this of it (rounding of the repeated addition).

@@ -17,14 +17,20 @@ air density, the forecast turbulence level (the scenario's category: none, light
 and the full vehicle state at each decision (perfect state estimation). Neither knows the wind or
 its gusts: the steady wind and the turbulence realisation are the simulator's alone. (The classical
 pilot sizes its clearance margins from the forecast level; the learned pilot does not use it.)
+
+At the end of an episode the runner's caller asks the agent for its `episode_report()`: a typed
+`PilotReport` of what it did (the classical pilot: planning, replans, its MPC), saved with the
+episode and read back as the same type, or None when the pilot has nothing to add.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, Union, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, Union, runtime_checkable
 
 import numpy as np
 
+from uam_fdm.episode import Outcome
 from uam_fdm.air.atmosphere import Atmosphere
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.params import VehicleParams
@@ -116,9 +122,36 @@ class ResetInfo:
 
 
 @runtime_checkable
+class PilotReport(Protocol):
+    """What a pilot reports about one episode when it ends: a frozen dataclass, saved in the episode
+    file (`to_json`) and read back as the same type (`from_json`)."""
+
+    @property
+    def plan_time_s(self) -> float:
+        """Planning over the whole episode [s] (at reset and at every replan); it replaces the planning
+        time the runner measured around `reset`."""
+        ...
+
+    def failure_reason(self, outcome: Outcome) -> Outcome | None:
+        """A more specific reason than `outcome` for a failed episode (e.g. the solver), else None."""
+        ...
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready fields (NaN as null)."""
+        ...
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> PilotReport | None:
+        """The report saved by `to_json` (missing fields of older files as NaN or empty), or None when
+        `data` holds none of its fields."""
+        ...
+
+
+@runtime_checkable
 class Agent(Protocol):
     """A pilot. The runner calls `reset` once per episode, then `act` once per decision (every
-    control period, or every `hold_periods` of the previous actuation)."""
+    control period, or every `hold_periods` of the previous actuation); after the episode its caller
+    asks for `episode_report`."""
 
     name: str
 
@@ -128,4 +161,8 @@ class Agent(Protocol):
 
     def act(self, obs: Observation) -> Actuation:
         """Decide the actuation for the next decision period."""
+        ...
+
+    def episode_report(self) -> PilotReport | None:
+        """What the pilot did in the episode flown since `reset` (None: nothing beyond the trajectory)."""
         ...

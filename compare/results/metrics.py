@@ -19,15 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from compare.episode_loop import OUTCOMES
+from compare import pilots
 from compare.results.trajectory import SavedEpisode
+from planners.report import ClassicalReport
+from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.pilot import PilotReport
 
 CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 """Clearances [m] below which the time spent is counted (`time_below_2m_s`, `time_below_5m_s`)."""
-
-KNOWN_OUTCOMES = OUTCOMES + ("solver_failure",)
-"""Outcomes an episode may end with (the runner's, plus the tracker's `solver_failure`)."""
 
 TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
                    "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m")
@@ -43,11 +43,11 @@ class EpisodeMetrics:
     Attributes:
         scenario, episode, method, seed: the comparison cell.
         map: the city's name. vehicle: the vehicle preset name.
-        outcome: how the episode ended (one of `KNOWN_OUTCOMES`).
+        outcome: how the episode ended (an `uam_fdm.episode.Outcome`'s name).
         success: reached the goal radius before the timeout without collision.
         collision: the collision sphere touched a building or the ground.
-        failure_reason: "" on success, else the outcome, or "solver_failure" when the episode says so
-            (`meta.extra["failure_reason"]`: the classical pilot's MPC failed on many solves).
+        failure_reason: "" on success, else the outcome, or the episode's more specific failure reason
+            (`EpisodeMeta.failure_reason`, e.g. "solver_failure": the classical pilot's MPC failed on many solves).
         min_clearance_m: least signed clearance of the collision sphere over the flight [m]
             (physics rate, NaN samples ignored; NaN when there is none).
         time_below_2m_s, time_below_5m_s: flight time with clearance below 2 m / 5 m [s].
@@ -59,7 +59,8 @@ class EpisodeMetrics:
         compute_ms_mean, compute_ms_max: wall time per decision [ms] (NaN without decisions).
         plan_time_s: planning time at reset, plus every replan of the classical pilot [s] (for the PPO
             pilot: computing its route field, the geodesic distance-to-go its observation uses; NaN for a
-            pilot that reports none). A decision that replans also counts that time in compute_ms_max.
+            pilot that reports none: zero from a pilot that does not always plan, `PilotSpec.plans`).
+            A decision that replans also counts that time in compute_ms_max.
         mpc_solve_ms_median, mpc_solve_ms_p95: the MPC solver's wall time per decision [ms].
         mpc_failures: MPC solves that failed (a fallback command was flown) [count].
         replans_tracking, replans_clearance: replans because the tracking error exceeded its threshold,
@@ -133,13 +134,10 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
         The episode's `EpisodeMetrics`.
 
     Raises:
-        ValueError: unknown outcome or inconsistent array lengths, naming the episode.
+        ValueError: inconsistent array lengths, naming the episode.
     """
     meta, traj = saved.meta, saved.trajectory
     key = meta.key
-    if meta.outcome not in KNOWN_OUTCOMES:
-        raise ValueError(f"episode {key.stem}: unknown outcome {meta.outcome!r}, "
-                         f"expected one of {', '.join(KNOWN_OUTCOMES)}")
     t = np.asarray(traj.t_s, dtype=float)
     states = np.asarray(traj.states, dtype=float)
     clearance = np.asarray(traj.clearance_m, dtype=float)
@@ -147,17 +145,18 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
         raise ValueError(f"episode {key.stem}: t_s {t.shape}, states {states.shape} and clearance_m "
                          f"{clearance.shape} do not have the same non-zero number of samples")
     compute_ms = 1e3 * np.asarray(traj.compute_s, dtype=float).ravel()
-    success = meta.outcome == "success"
+    success = meta.outcome == Outcome.SUCCESS
     path_m = _path_length_m(states[:, 0:3])
     straight_m = float(np.linalg.norm(np.subtract(meta.goal_m, meta.start_m, dtype=float)))
     below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
     finite_clearance = clearance[~np.isnan(clearance)]
-    does_not_plan = key.method == "ppo" and meta.plan_time_s == 0
+    spec = pilots.PILOTS.get(key.method)
+    does_not_plan = spec is not None and not spec.plans and meta.plan_time_s == 0
     return EpisodeMetrics(
         scenario=key.scenario, episode=int(key.episode), method=key.method, seed=int(key.seed),
-        map=meta.map_name, vehicle=meta.vehicle, outcome=meta.outcome,
-        success=success, collision=meta.outcome == "collision",
-        failure_reason="" if success else str((meta.extra or {}).get("failure_reason") or meta.outcome),
+        map=meta.map_name, vehicle=meta.vehicle, outcome=meta.outcome.value,
+        success=success, collision=meta.outcome == Outcome.COLLISION,
+        failure_reason="" if success else (meta.failure_reason or meta.outcome).value,
         min_clearance_m=float(finite_clearance.min()) if finite_clearance.size else math.nan,
         **below,
         time_s=float(t[-1]),
@@ -168,23 +167,22 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
         compute_ms_mean=float(compute_ms.mean()) if compute_ms.size else math.nan,
         compute_ms_max=float(compute_ms.max()) if compute_ms.size else math.nan,
         plan_time_s=math.nan if does_not_plan else float(meta.plan_time_s),
-        **_tracker_fields(meta.extra or {}),
+        **_tracker_fields(meta.report),
     )
 
 
-def _tracker_fields(extra: dict) -> dict[str, float]:
-    """The tracker columns from an episode's metadata: its `tracker` report (`compare.campaign.tracker_extra`),
-    or, in an episode saved before that existed, the few counters it kept at the top level; NaN where
-    absent (a pilot without a tracker)."""
-    def num(v: Any) -> float:
-        return math.nan if v is None or isinstance(v, (str, dict, list)) else float(v)
-
-    tracker = extra.get("tracker")
-    if isinstance(tracker, dict):
-        return {name: num(tracker.get(name)) for name in TRACKER_METRICS}
-    old = {"mpc_solve_ms_median": extra.get("mpc_solve_ms_median"), "mpc_failures": extra.get("mpc_failures"),
-           "replans_tracking": extra.get("replans")}  # before clearance replans, every replan was a tracking one
-    return {name: num(old.get(name)) for name in TRACKER_METRICS}
+def _tracker_fields(report: PilotReport | None) -> dict[str, float]:
+    """The tracker columns from the pilot's end-of-episode report: the classical pilot's
+    (`planners.report.ClassicalReport`; NaN where an older episode file did not record a value), else
+    NaN (a pilot without a tracker)."""
+    if not isinstance(report, ClassicalReport):
+        return {}  # the fields' NaN defaults
+    r = report
+    return {"mpc_solve_ms_median": float(r.mpc_solve_ms_median), "mpc_solve_ms_p95": float(r.mpc_solve_ms_p95),
+            "mpc_failures": float(r.mpc_failures), "replans_tracking": float(r.replans_tracking),
+            "replans_clearance": float(r.replans_clearance), "tracking_rms_m": float(r.tracking_rms_m),
+            "tracking_max_m": float(r.tracking_max_m), "planner_margin_m": float(r.planner_margin_m),
+            "mpc_margin_m": float(r.mpc_margin_m)}
 
 
 def _path_length_m(positions_m: np.ndarray) -> float:

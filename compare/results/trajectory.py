@@ -1,9 +1,14 @@
 """Saved episodes: one `.npz` per (scenario, episode, method, seed), written atomically.
 
 A saved episode holds the runner's `Trajectory` arrays plus what the metrics and the report need
-to read it without the world that produced it (task, vehicle, map name, outcome). Files are written
-under a temporary name in the same folder and renamed, so an interrupted run never leaves a
-half-written episode: a file either exists complete or not at all.
+to read it without the world that produced it (task, vehicle, map name, outcome, the pilot's
+end-of-episode report). Files are written under a temporary name in the same folder and renamed, so
+an interrupted run never leaves a half-written episode: a file either exists complete or not at all.
+
+The metadata is JSON inside the file; `_meta_to_json` writes it and `_meta_from_json` reads it, and
+nothing else touches it. The run's context and the pilot's report sit under "extra" (the report as
+"tracker", the name the classical pilot's report was first saved under); a file saved before the
+report existed keeps the classical pilot's few counters at the top of "extra", read into its report.
 """
 from __future__ import annotations
 
@@ -11,13 +16,18 @@ import json
 import re
 import zipfile
 import zlib
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from compare import pilots
 from compare.episode_loop import Trajectory
+from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_open
+from uam_fdm.pilot import PilotReport
 
 FORMAT_VERSION = 1
 _ARRAYS = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m", "decision_t_s", "compute_s")
@@ -64,10 +74,19 @@ class EpisodeMeta:
         collision_radius_m: the vehicle's collision sphere [m].
         n_rotors: rotor count (to split the state vector).
         energy_J: rotor shaft energy over the flight [J].
-        outcome: one of `compare.episode_loop.OUTCOMES`.
-        plan_time_s: planning time reported by the agent at reset [s].
+        outcome: how it ended (a name is read as its `Outcome`; an unknown one is an error naming the episode).
+        plan_time_s: planning time of the episode [s]: the pilot's report's when it gives one (at reset
+            and every replan), else the runner's measure around reset.
         detail: why the episode ended.
-        extra: method-specific counters (e.g. MPC failures), JSON-serialisable.
+        wind_seed, agent_seed: the seeds of the episode's wind and of its pilot (None: not recorded).
+        torque_coeff_Nm_s2: the vehicle's rotor drag-torque coefficient at sea level [N m s²] and
+        density_ratio: the air density at the start over sea level's [-], for the rotor power
+            (None: not recorded).
+        mean_decision_ms: the mean wall time per decision [ms] (None: no decision).
+        failure_reason: a more specific reason for a failure than the outcome, from the pilot's report
+            (e.g. `Outcome.SOLVER_FAILURE`), else None.
+        report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
+            method's `compare.pilots.PilotSpec.report_type`), None when it gives none.
     """
 
     key: EpisodeKey
@@ -80,10 +99,22 @@ class EpisodeMeta:
     collision_radius_m: float
     n_rotors: int
     energy_J: float
-    outcome: str
+    outcome: Outcome
     plan_time_s: float
     detail: str = ""
-    extra: dict | None = None
+    wind_seed: int | None = None
+    agent_seed: int | None = None
+    torque_coeff_Nm_s2: float | None = None
+    density_ratio: float | None = None
+    mean_decision_ms: float | None = None
+    failure_reason: Outcome | None = None
+    report: PilotReport | None = None
+
+    def __post_init__(self) -> None:
+        where = f"episode {self.key.stem}"
+        object.__setattr__(self, "outcome", Outcome.parse(self.outcome, where))
+        if self.failure_reason is not None:
+            object.__setattr__(self, "failure_reason", Outcome.parse(self.failure_reason, where))
 
 
 @dataclass(frozen=True)
@@ -101,7 +132,7 @@ def save_episode(path: Path, meta: EpisodeMeta, traj: Trajectory) -> Path:
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
     arrays.update({name: np.asarray(getattr(traj, name)) for name in _OPTIONAL_ARRAYS
                    if getattr(traj, name) is not None})
-    header = {"format_version": FORMAT_VERSION, "meta": asdict(meta)}
+    header = {"format_version": FORMAT_VERSION, "meta": _meta_to_json(meta)}
     with atomic_open(path, "wb") as f:
         np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)
     return path
@@ -127,12 +158,8 @@ def load_episode(path: Path) -> SavedEpisode:
         version = header.get("format_version") if isinstance(header, dict) else None
         raise ValueError(f"{path}: episode format {version!r}, expected {FORMAT_VERSION}")
     try:
-        m = dict(header["meta"])
-        m["key"] = EpisodeKey(**m["key"])
-        for k in ("start_m", "goal_m"):
-            m[k] = tuple(float(v) for v in m[k])
-        meta = EpisodeMeta(**m)
-    except (KeyError, TypeError, ValueError) as exc:
+        meta = _meta_from_json(header["meta"])
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a saved episode (its metadata is incomplete: {exc})") from exc
     n = len(arrays["t_s"])
     if arrays["states"].ndim != 2 or len(arrays["states"]) != n or len(arrays["clearance_m"]) != n:
@@ -143,6 +170,50 @@ def load_episode(path: Path) -> SavedEpisode:
     traj = Trajectory(**arrays, energy_J=meta.energy_J, outcome=meta.outcome, plan_time_s=meta.plan_time_s,
                       detail=meta.detail)
     return SavedEpisode(meta, traj)
+
+
+_CONTEXT = ("wind_seed", "agent_seed", "torque_coeff_Nm_s2", "density_ratio", "mean_decision_ms")
+"""The run's context of an episode, saved under "extra"."""
+_REPORT_KEY = "tracker"
+
+
+def _meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
+    """The metadata as JSON-ready data (the one writer; `_meta_from_json` reads it back)."""
+    extra: dict[str, Any] = {name: getattr(meta, name) for name in _CONTEXT}
+    if meta.report is not None:
+        extra[_REPORT_KEY] = meta.report.to_json()
+    if meta.failure_reason is not None:
+        extra["failure_reason"] = meta.failure_reason.value
+    return {"key": asdict(meta.key), "map_name": meta.map_name, "vehicle": meta.vehicle,
+            "start_m": list(meta.start_m), "goal_m": list(meta.goal_m), "goal_radius_m": meta.goal_radius_m,
+            "timeout_s": meta.timeout_s, "collision_radius_m": meta.collision_radius_m, "n_rotors": meta.n_rotors,
+            "energy_J": meta.energy_J, "outcome": meta.outcome.value, "plan_time_s": meta.plan_time_s,
+            "detail": meta.detail, "extra": extra}
+
+
+def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
+    """The metadata `_meta_to_json` wrote, or an older file's (the one reader).
+
+    Raises:
+        KeyError, TypeError, ValueError: incomplete or malformed metadata.
+    """
+    key = EpisodeKey(**m["key"])
+    extra = m.get("extra") or {}
+    if not isinstance(extra, Mapping):
+        raise TypeError(f"extra must be a mapping, got {type(extra).__name__}")
+    spec = pilots.PILOTS.get(key.method)
+    report_type = spec.report_type if spec is not None else None
+    report = None
+    if report_type is not None:
+        saved = extra.get(_REPORT_KEY)
+        report = report_type.from_json(saved if isinstance(saved, Mapping) else extra)  # else: an older file's counters
+    context = {name: extra.get(name) for name in _CONTEXT}
+    return EpisodeMeta(
+        key=key, map_name=m["map_name"], vehicle=m["vehicle"], start_m=tuple(float(v) for v in m["start_m"]),
+        goal_m=tuple(float(v) for v in m["goal_m"]), goal_radius_m=m["goal_radius_m"], timeout_s=m["timeout_s"],
+        collision_radius_m=m["collision_radius_m"], n_rotors=m["n_rotors"], energy_J=m["energy_J"],
+        outcome=m["outcome"], plan_time_s=m["plan_time_s"], detail=m.get("detail", ""), **context,
+        failure_reason=extra.get("failure_reason") or None, report=report)
 
 
 def episode_files(run_dir: Path) -> list[Path]:

@@ -41,6 +41,7 @@ from compare.results.run_info import WindInfo
 from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
+from uam_fdm.episode import Outcome
 
 _log = logging.getLogger(__name__)
 
@@ -389,7 +390,7 @@ def _set_marker_state(mark: Line2D, track: _Track, k: int) -> None:
         mark.set_marker("o")
         mark.set_markerfacecolor(color)
         mark.set_markeredgecolor("k")
-    elif track.pilot.episode.meta.outcome == "success":
+    elif track.pilot.episode.meta.outcome == Outcome.SUCCESS:
         mark.set_marker("o")
         mark.set_markerfacecolor("white")
         mark.set_markeredgecolor(color)

@@ -5,8 +5,8 @@ Builders take data already loaded from a run folder (`FlightTrace`, tables of st
 never read files, never simulate and never touch pyplot's global state.  `compare.viz.report` loads
 the run, calls these builders in order and writes the PDF and PNGs.
 
-Colours are fixed per method (`METHOD_COLORS`, with a fallback cycle for unknown methods) so a
-method looks the same on every page.
+Colours are fixed per method (`METHOD_COLORS`, from `compare.pilots`, with a fallback cycle for
+unknown methods) so a method looks the same on every page.
 """
 from __future__ import annotations
 
@@ -24,12 +24,14 @@ from matplotlib.patches import Circle, Rectangle
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D
 
+from compare.pilots import PILOTS
 from compare.results.trajectory import EpisodeMeta, SavedEpisode
 from uam_fdm.city.buildings import BuildingMap, Prism
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
+from uam_fdm.episode import Outcome
 
 
-METHOD_COLORS: dict[str, str] = {"ppo": "tab:orange", "rrt_mpc": "tab:blue"}
+METHOD_COLORS: dict[str, str] = {name: spec.color for name, spec in PILOTS.items()}
 FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",
                                     "tab:olive", "tab:cyan", "tab:gray")
 PAGE_SIZE_IN = (11.69, 8.27)  # A4 landscape
@@ -407,7 +409,7 @@ def episode_paths_figure(title: str, traces: Sequence[FlightTrace], bmap: Buildi
         p = t.pos_m
         ax3.plot(p[:, 0], p[:, 1], p[:, 2], color=t.color, lw=1.8, label=_trace_legend(t))
         ax2.plot(p[:, 0], p[:, 1], color=t.color, lw=1.8, label=_trace_legend(t))
-        end = "o" if t.episode.outcome == "success" else "X"
+        end = "o" if t.episode.outcome == Outcome.SUCCESS else "X"
         ax3.plot(*p[-1], marker=end, color=t.color, markeredgecolor="k", markersize=8, linestyle="none")
         ax2.plot(*p[-1, :2], marker=end, color=t.color, markeredgecolor="k", markersize=8, linestyle="none")
     s, g = np.asarray(meta.start_m), np.asarray(meta.goal_m)
@@ -481,7 +483,7 @@ def episode_snapshots_figure(title: str, traces: Sequence[FlightTrace], bmap: Bu
         ax.plot(*meta.goal_m, **{**GOAL_STYLE, "markersize": 9})
         for t in traces:
             i = max(int(np.searchsorted(t.t_s, when, side="right")) - 1, 0)
-            ended = when > t.end_t_s and t.episode.outcome != "success"
+            ended = when > t.end_t_s and t.episode.outcome != Outcome.SUCCESS
             ax.plot(t.pos_m[:i + 1, 0], t.pos_m[:i + 1, 1], t.pos_m[:i + 1, 2], color=t.color, lw=1.2)
             ax.plot(*t.pos_m[i], marker="X" if ended else "o", color=t.color, markeredgecolor="k",
                     markersize=6, linestyle="none")

@@ -19,13 +19,15 @@ from compare.results.run_info import WindInfo, read_run_info
 from compare.results.trajectory import SavedEpisode, episode_files, load_episode
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
+from uam_fdm.episode import Outcome
 
 logger = logging.getLogger(__name__)
 
-# Words for an ended flight, by outcome (compare.episode_loop.OUTCOMES).
-OUTCOME_WORDS: dict[str, str] = {
-    "success": "arrived", "collision": "collided", "out_of_bounds": "left the volume",
-    "nonfinite": "diverged", "timeout": "timed out", "planner_failure": "no plan",
+# Words for an ended flight, by outcome.
+OUTCOME_WORDS: dict[Outcome, str] = {
+    Outcome.SUCCESS: "arrived", Outcome.COLLISION: "collided", Outcome.OUT_OF_BOUNDS: "left the volume",
+    Outcome.NONFINITE: "diverged", Outcome.TIMEOUT: "timed out", Outcome.PLANNER_FAILURE: "no plan",
+    Outcome.SOLVER_FAILURE: "solver failed",
 }
 
 
@@ -49,7 +51,7 @@ class Pilot:
 
     @property
     def outcome_words(self) -> str:
-        return OUTCOME_WORDS.get(self.episode.meta.outcome, self.episode.meta.outcome)
+        return OUTCOME_WORDS[self.episode.meta.outcome]
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import save_figure
 from uam_fdm.city.mapfile import load_map_file
+from uam_fdm.episode import Outcome
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +68,6 @@ SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
     ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
     ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
 )
-TRACKER_METHOD = "rrt_mpc"  # the pilot whose tracker columns get a page per scenario
 MAX_FAILURE_PLOTS = 6
 PNG_DPI = 130
 
@@ -289,11 +289,10 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
     blocks.append(("h", "Methods"))
     for m, cfg in info.methods.items():
         blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.description}"))
-        if m == "ppo":
-            for pol in ppo_policies(info):
-                rate = f"; decides at {pol.decision_hz:g} Hz" if pol.decision_hz else ""
-                who = f"for {pol.vehicle}: " if pol.vehicle else ""
-                blocks.append(("p", f"    {who}policy {pol.policy_dir}{rate}"))
+        for pol in ppo_policies(info, m):  # a pilot that flies policies: one per vehicle
+            rate = f"; decides at {pol.decision_hz:g} Hz" if pol.decision_hz else ""
+            who = f"for {pol.vehicle}: " if pol.vehicle else ""
+            blocks.append(("p", f"    {who}policy {pol.policy_dir}{rate}"))
     if info.notes:  # e.g. cells left out, the pilots' decision rates
         blocks += [("h", "Notes"), *(("p", n) for n in info.notes)]
     blocks += [("h", "Software versions"),
@@ -350,7 +349,7 @@ def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> li
     out = [("metrics_summary", _summary_pages(run, rows, summary))]
     if summary is not None and summary.paired:
         out.append(("metrics_paired", _paired_pages(run, summary.paired)))
-    tracker = _tracker_pages(run, rows)
+    tracker = [fig for m in run.methods for fig in _tracker_pages(run, rows, m)]
     if tracker:
         out.append(("metrics_tracker", tracker))
     out.append(("metrics_episodes", _episode_table_pages(run, rows)))
@@ -362,10 +361,11 @@ def _column(rows: Sequence[EpisodeMetrics], name: str) -> np.ndarray:
     return np.array([float(getattr(r, name)) for r in rows])
 
 
-def _tracker_pages(run: _Run, rows: list[EpisodeMetrics]) -> list[Figure]:
-    """The classical pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from
-    metrics.csv; nothing when it did not fly (or the file predates the tracker columns)."""
-    mine = [r for r in rows if r.method == TRACKER_METHOD]
+def _tracker_pages(run: _Run, rows: list[EpisodeMetrics], method: str) -> list[Figure]:
+    """A pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from metrics.csv;
+    nothing for a pilot without tracker columns (e.g. the learned pilot), one that did not fly, or a file
+    that predates the tracker columns."""
+    mine = [r for r in rows if r.method == method]
     if not mine or all(not math.isfinite(r.planner_margin_m) for r in mine):
         return []
     table = [_tracker_row(scenario, [r for r in mine if r.scenario == scenario])
@@ -379,7 +379,7 @@ def _tracker_pages(run: _Run, rows: list[EpisodeMetrics]) -> list[Figure]:
               "episodes; max: over all)."),
              ("Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
               "episodes.")]
-    return F.table_pages(f"Metrics: the {run.label(TRACKER_METHOD)} tracker per scenario", header, table,
+    return F.table_pages(f"Metrics: the {run.label(method)} tracker per scenario", header, table,
                          rows_per_page=26, notes=notes, font_size=7)
 
 
@@ -493,7 +493,7 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
         if not traces:
             continue
         traces.sort(key=lambda t: _method_rank(run, t.method))
-        failures += [t for t in traces if t.episode.outcome != "success"]
+        failures += [t for t in traces if t.episode.outcome != Outcome.SUCCESS]
         bmap = run.map_of(scenario)
         title = f"Episode {scenario} #{ep} seed {seed}" + ("" if bmap is not None else " (map file missing)")
         name = f"episode_{scenario}__ep{ep:03d}__s{seed}"
@@ -506,10 +506,11 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
 
 
 # ---- 4. training ----------------------------------------------------------------------------------------
-def ppo_policies(info: RunInfo) -> list[PolicyRecord]:
-    """The learned pilot's policies recorded in run.json (vehicle, policy_dir, decision_hz), one per
-    vehicle; a run written before policies per vehicle has one, without its vehicle."""
-    return list(info.policies("ppo"))
+def ppo_policies(info: RunInfo, method: str | None = None) -> list[PolicyRecord]:
+    """The policies run.json records (vehicle, policy_dir, decision_hz), one per vehicle, of `method`
+    (None: of every method that flies policies); a run written before policies per vehicle has one,
+    without its vehicle."""
+    return [pol for m in ([method] if method is not None else list(info.methods)) for pol in info.policies(m)]
 
 
 def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:

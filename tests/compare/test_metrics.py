@@ -32,6 +32,7 @@ from compare.results.summary import (
     write_summary_json,
 )
 from compare.episode_loop import Trajectory
+from planners.report import ClassicalReport
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
 from uam_fdm.files import atomic
 
@@ -45,7 +46,7 @@ POLYLINE = [(0.0, 0.0, 10.0), (3.0, 0.0, 10.0), (3.0, 4.0, 10.0), (3.0, 4.0, 22.
 def make_episode(positions=POLYLINE, clearance=(0.5, 1.5, 4.0, 1.0), compute_s=(0.001, 0.003, 0.002),
                  outcome="success", method="rrt_mpc", plan_time_s=0.7, energy_J=1234.5,
                  start=(0.0, 0.0, 10.0), goal=(3.0, 4.0, 22.0), scenario="town", episode=0, seed=0,
-                 t_s=None, extra=None) -> SavedEpisode:
+                 t_s=None, report=None) -> SavedEpisode:
     pos = np.asarray(positions, float)
     m = pos.shape[0]
     states = np.zeros((m, 13 + N_ROTORS))
@@ -60,7 +61,7 @@ def make_episode(positions=POLYLINE, clearance=(0.5, 1.5, 4.0, 1.0), compute_s=(
     meta = EpisodeMeta(key=EpisodeKey(scenario, episode, method, seed), map_name="town-map",
                        vehicle="small_quad", start_m=tuple(start), goal_m=tuple(goal), goal_radius_m=1.0,
                        timeout_s=60.0, collision_radius_m=0.3, n_rotors=N_ROTORS, energy_J=energy_J,
-                       outcome=outcome, plan_time_s=plan_time_s, detail="hand-made", extra=extra)
+                       outcome=outcome, plan_time_s=plan_time_s, detail="hand-made", report=report)
     return SavedEpisode(meta, traj)
 
 
@@ -111,17 +112,35 @@ TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures":
            "mpc_margin_m": 0.75, "mpc_statuses": {"ok": 3}, "margin_source": "table", "replans": 2}
 
 
+def _save_with_extra(tmp_path, extra: dict, method: str = "rrt_mpc") -> SavedEpisode:
+    """An episode file whose metadata's "extra" is `extra`, as written on disk, read back."""
+    saved = make_episode(method=method)
+    path = save_episode(tmp_path / "ep.npz", saved.meta, saved.trajectory)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("meta_json")))
+    header["meta"]["extra"] = extra
+    np.savez_compressed(path, meta_json=np.array(json.dumps(header)), **arrays)
+    return load_episode(path)
+
+
 def test_tracker_columns_come_from_the_episode_report(tmp_path):
-    m = episode_metrics(make_episode(extra={"tracker": TRACKER}))
+    report = ClassicalReport.from_json({**TRACKER, "plan_time_s": 0.7, "replan_time_s": 0.2, "mpc_solves": 3})
+    assert isinstance(report, ClassicalReport) and report.replans_clearance == 2
+    m = episode_metrics(make_episode(report=report))
     assert {k: getattr(m, k) for k in M.TRACKER_METRICS} == {k: float(TRACKER[k]) for k in M.TRACKER_METRICS}
     # a pilot without a tracker (ppo): NaN in every tracker column, finite elsewhere
     ppo = episode_metrics(make_episode(method="ppo", plan_time_s=0.0))
     assert all(math.isnan(getattr(ppo, k)) for k in M.TRACKER_METRICS)
+    # the report is saved in the episode file and read back as the same typed report
+    saved = make_episode(report=report)
+    loaded = load_episode(save_episode(tmp_path / "report.npz", saved.meta, saved.trajectory))
+    assert loaded.meta.report == report
     # NaN saved as null (no decision flown) reads back as NaN
-    empty = episode_metrics(make_episode(extra={"tracker": {**TRACKER, "tracking_rms_m": None}}))
+    empty = episode_metrics(_save_with_extra(tmp_path, {"tracker": {**TRACKER, "tracking_rms_m": None}}))
     assert math.isnan(empty.tracking_rms_m) and empty.replans_clearance == 2.0
     # an episode saved before the report: its old top-level counters, NaN for the rest
-    old = episode_metrics(make_episode(extra={"replans": 1, "mpc_failures": 0, "mpc_solve_ms_median": 1.5}))
+    old = episode_metrics(_save_with_extra(tmp_path, {"replans": 1, "mpc_failures": 0, "mpc_solve_ms_median": 1.5}))
     assert (old.replans_tracking, old.mpc_failures, old.mpc_solve_ms_median) == (1.0, 0.0, 1.5)
     assert math.isnan(old.replans_clearance) and math.isnan(old.planner_margin_m)
     # through metrics.csv and back, exactly

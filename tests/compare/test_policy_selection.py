@@ -24,7 +24,8 @@ def test_shipped_sets_fly_both_pilots_on_both_vehicles(tmp_path: Path, name: str
     cells, notes = plan_cells(scenarios, opts, policies)
     assert notes == []
     flown = {(scenarios[c.scenario].vehicle.name, c.method) for c in cells}
-    assert flown == {(v, m) for v in ("small_quad", "uam_multicopter") for m in ("ppo", "rrt_mpc")}
+    methods = ("ppo", "rrt_mpc") + (("apf",) if name == "full" else ())  # the full set adds the potential field
+    assert flown == {(v, m) for v in ("small_quad", "uam_multicopter") for m in methods}
 
 
 def test_a_given_policy_replaces_the_shipped_one_for_its_vehicle_only(tmp_path: Path) -> None:

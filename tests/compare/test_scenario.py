@@ -13,7 +13,7 @@ import yaml
 
 from scenario_box import BASE
 from compare.scenario import (
-    METHODS,
+    DEFAULT_METHODS,
     SCENARIO_DIR,
     Scenario,
     builtin_sets,
@@ -67,7 +67,7 @@ def test_every_shipped_scenario_loads(path: Path) -> None:
     s = load_scenario(path)
     assert s.name == path.stem
     assert s.source == str(path)
-    assert s.episodes and s.seeds and s.methods == METHODS  # both pilots on both vehicles
+    assert s.episodes and s.seeds and set(DEFAULT_METHODS) <= set(s.methods)  # both pilots on both vehicles
     for ep in s.episodes:
         a, b = ep.task.start_m, ep.task.goal_m
         distance = math.dist(a, b)
@@ -86,10 +86,10 @@ def test_default_set_contents() -> None:
     quad = by_name["suburb-quad"]
     assert quad.city.name == "suburb" and quad.vehicle_name == "small_quad"
     assert quad.wind.steady_enu_m_s == (2.0, 1.0, 0.0) and quad.wind.turbulence is TurbulenceLevel.LIGHT
-    assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.methods == METHODS
+    assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.methods == DEFAULT_METHODS
     assert len(by_name["downtown-quad"].episodes) == 2 and by_name["downtown-quad"].city.name == "downtown"
     uam = by_name["suburb-uam"]
-    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == METHODS
+    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == DEFAULT_METHODS
 
 
 def test_full_set_contents() -> None:
@@ -98,14 +98,14 @@ def test_full_set_contents() -> None:
         for level in ("none", "light", "moderate"):
             s = full[f"{city}-quad-{level}"]
             assert s.city.name == city and s.wind.turbulence is TurbulenceLevel.parse(level)
-            assert len(s.episodes) == 4 and s.seeds == (0, 1, 2)
+            assert len(s.episodes) == 4 and s.seeds == (0, 1, 2) and s.methods == ("ppo", "rrt_mpc", "apf")
         uam = full[f"{city}-uam"]
-        assert uam.methods == METHODS and len(uam.episodes) == 2 and uam.episodes[0].task.goal_radius_m == 10.0
+        assert uam.methods == ("ppo", "rrt_mpc", "apf") and len(uam.episodes) == 2 and uam.episodes[0].task.goal_radius_m == 10.0
     for name, level in (("hot-high-quad", "light"), ("hot-high-quad-moderate", "moderate")):
         hot = full[name]
         assert (hot.atmosphere.elevation_m, hot.atmosphere.isa_offset_k) == (2500.0, 25.0)
         assert hot.wind.turbulence is TurbulenceLevel.parse(level)
-        assert hot.episodes == full["suburb-quad-light"].episodes
+        assert hot.episodes == full["suburb-quad-light"].episodes and hot.methods == ("ppo", "rrt_mpc", "apf")
     assert len(full) == 14
 
 

@@ -1,0 +1,164 @@
+"""The pilots a comparison can fly, by method name: how each is built, what it needs, how it is shown.
+
+`PILOTS` is the one list of methods. Scenario files are checked against it, the campaign builds
+agents through it, and run.json, the metrics, the report and its figures take labels, colours,
+descriptions and the table order from it. Adding a pilot touches this file (one `PilotSpec`) and
+the pilot itself (an `uam_fdm.pilot.Agent`).
+
+The builders import their pilot's package only when called: reading a run folder, or checking a
+scenario, needs neither PyTorch nor CasADi.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from planners.report import ClassicalReport
+from uam_fdm.pilot import Agent, PilotReport
+
+if TYPE_CHECKING:  # the scenario module imports this one
+    from compare.scenario import Scenario
+
+Builder = Callable[["Scenario", "Path | None"], Agent]
+"""Builds a pilot for a scenario: (the scenario, the policy folder for its vehicle or None) -> agent."""
+
+
+@dataclass(frozen=True)
+class PilotSpec:
+    """One method of the comparison.
+
+    Attributes:
+        name: the method name (scenario files, --methods, file names, metrics.csv).
+        label: its display name in the report, the figures and the viewer.
+        color: its matplotlib colour on every page.
+        description: what the pilot is (run.json, the report's Methods section).
+        given: what it is given and how it decides, one sentence for the run's fairness statement.
+        build: makes the agent (`Builder`); one agent flies every cell of its method in a process (one
+            per vehicle when `needs_policy`).
+        default: flown when a scenario file does not list its methods.
+        needs_policy: flies a trained policy folder per vehicle (`--policy`, or the one shipped for the
+            vehicle); its cells are left out for a vehicle without one, and it decides at the policy's
+            rate. Other pilots decide at each scenario's control rate.
+        uses_torch: runs a PyTorch network (a worker process then keeps PyTorch to one thread).
+        plans: always plans at reset, so its planning time is reported even when zero; for the others
+            a zero planning time means none (metrics: NaN, "n/a").
+        report_type: the type of its `episode_report()` (None: it reports nothing), which reads the
+            report back from an episode file.
+        wall_s_per_flight_s: upper bound of wall time per simulated second, one process (run estimates).
+            The tests' tiny run (small quad) flies at 0.15 (ppo), 0.35 (rrt_mpc) and 0.08 (apf); the
+            UAM's MPC is slower than real time.
+    """
+
+    name: str
+    label: str
+    color: str
+    description: str
+    given: str
+    build: Builder
+    default: bool = False
+    needs_policy: bool = False
+    uses_torch: bool = False
+    plans: bool = False
+    report_type: type[PilotReport] | None = None
+    wall_s_per_flight_s: float = 1.0
+
+
+def _learned(sc: Scenario, policy: Path | None) -> Agent:
+    from rl.agent import PolicyAgent, load_policy
+
+    if policy is None:
+        raise ValueError(f"{sc.source}: no learned policy for vehicle {sc.vehicle_name!r}")
+    return PolicyAgent(load_policy(policy, sc.vehicle))
+
+
+def _classical(sc: Scenario, policy: Path | None) -> Agent:
+    from planners.agent import ClassicalAgent
+
+    return ClassicalAgent()
+
+
+def _potential_field(sc: Scenario, policy: Path | None) -> Agent:
+    from rl.apf_agent import PotentialFieldAgent
+
+    return PotentialFieldAgent()
+
+
+PILOTS: dict[str, PilotSpec] = {spec.name: spec for spec in (
+    PilotSpec(
+        name="ppo", label="PPO policy", color="tab:orange",
+        description="Learned pilot: policy network (2 x 128 tanh units, trained from scratch with PPO, no "
+                    "demonstrations; see its provenance) choosing a 3D velocity command at its decision rate (held "
+                    "between decisions) -> the vehicle's low-level velocity/attitude controller -> rotor speeds; "
+                    "sees only its local observation (goal frame, horizontal rays and a roof-height map at its "
+                    "vehicle's scale, the route around the buildings); one policy per vehicle, trained for it; "
+                    "acts deterministically.",
+        given="The learned pilot decides at its policy's decision rate (its command held by the same low-level "
+              "controller in between), does not use the forecast turbulence level, sees only its observation (goal, "
+              "a route around the buildings computed from the map at take-off, velocity, altitude, rays and a "
+              "roof-height map of the buildings near it) and commands a velocity that the vehicle's low-level "
+              "controller turns into rotor speeds.",
+        build=_learned, default=True, needs_policy=True, uses_torch=True, wall_s_per_flight_s=0.2),
+    PilotSpec(
+        name="rrt_mpc", label="RRT* + MPC", color="tab:blue",
+        description="Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
+                    "reference -> CasADi NMPC (real-time iteration: one Gauss-Newton SQP step per decision, HPIPM) "
+                    "commanding rotor speeds (through the wrench for many-rotor vehicles); clearance margins sized "
+                    "from the vehicle's measured tracking error in the forecast turbulence and air density; "
+                    "replanning on large tracking errors and when the MPC predicts it will come closer than its "
+                    "margin.",
+        given="The classical pilot decides at the scenario's control rate, sizes its clearance margins from the "
+              "forecast turbulence level, plans on the whole map before take-off and when it replans (its planning "
+              "time is reported separately) and commands rotor speeds through its MPC.",
+        build=_classical, default=True, plans=True, report_type=ClassicalReport, wall_s_per_flight_s=1.0),
+    PilotSpec(
+        name="apf", label="Potential field", color="tab:purple",
+        description="Reactive baseline: artificial potential field (attraction along the straight line to the "
+                    "goal, repulsion and a climb bias from the k = 5 nearest buildings within its range, slowing "
+                    "near them; the learned pilot's evaluation baseline, rl/expert.py) choosing a 3D velocity "
+                    "command every control period -> the same low-level controller -> rotor speeds; no planning, "
+                    "no memory, no learning.",
+        given="The potential-field pilot decides at the scenario's control rate, sees only its position, the "
+              "straight-line direction to the goal and the nearest points of the 5 nearest buildings within its "
+              "range (30 m for the small quad, scaled with the learned pilot's clearance scale for other vehicles; "
+              "exact distances from the map), uses neither the forecast turbulence level nor the air density, and "
+              "commands a velocity that the vehicle's low-level controller turns into rotor speeds.",
+        build=_potential_field, wall_s_per_flight_s=0.2),
+)}
+
+METHODS: tuple[str, ...] = tuple(PILOTS)
+"""Every registered method, in table order."""
+DEFAULT_METHODS: tuple[str, ...] = tuple(name for name, spec in PILOTS.items() if spec.default)
+"""The methods a scenario flies when its file does not list them."""
+
+
+def pilot(name: str) -> PilotSpec:
+    """The registered pilot `name`.
+
+    Raises:
+        ValueError: an unknown name, listing the registered ones.
+    """
+    spec = PILOTS.get(name)
+    if spec is None:
+        raise ValueError(f"unknown method {name!r} (registered: {', '.join(METHODS)})")
+    return spec
+
+
+def ordered(methods: Iterable[str]) -> list[str]:
+    """`methods` without repeats, registered ones in table order first, then any others by name."""
+    names = set(methods)
+    return [m for m in METHODS if m in names] + sorted(names - set(METHODS))
+
+
+def build(name: str, scenario: Scenario, policy: Path | None) -> Agent:
+    """Build the pilot `name` for `scenario` (`policy`: its vehicle's policy folder, for a pilot that
+    needs one).
+
+    Raises:
+        ValueError: an unknown method, or a pilot that needs a policy and has none (naming the file).
+    """
+    agent = pilot(name).build(scenario, policy)
+    if agent.name != name:  # the agent's own name labels its errors in the runner
+        raise ValueError(f"the builder of method {name!r} made an agent named {agent.name!r}")
+    return agent

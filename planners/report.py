@@ -1,0 +1,92 @@
+"""The classical pilot's end-of-episode report (a `uam_fdm.pilot.PilotReport`).
+
+Kept apart from `planners.agent` (which needs CasADi and OMPL) so that reading a saved episode
+needs neither.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from uam_fdm.episode import Outcome
+
+SOLVER_FAILURE_SHARE = 0.25
+"""A failed episode with at least this share of failed MPC solves failed because of the solver."""
+
+
+@dataclass(frozen=True)
+class ClassicalReport:
+    """What the classical pilot did in one episode (saved in the episode's metadata).
+
+    Attributes:
+        plan_time_s: planning at reset plus every replan [s]; replan_time_s: the replans' share [s].
+        replans_tracking, replans_clearance: replans by cause (tracking error above the threshold;
+            the MPC's prediction inside its clearance margin).
+        mpc_solves, mpc_failures: MPC decisions and failed solves (fallback commands).
+        mpc_solve_ms_median, mpc_solve_ms_p95: solver wall time per decision [ms] (NaN: none).
+        mpc_statuses: solver return statuses and their counts.
+        tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
+            curve over the decisions (`Reference.deviation_m`) [m] (NaN: none).
+        planner_margin_m, mpc_margin_m: the margins flown [m]; margin_source: where they came from.
+
+    Read from an episode file saved before a field existed, that field is NaN (a count too: the
+    counts' `float`), {} or "".
+    """
+
+    plan_time_s: float
+    replan_time_s: float
+    replans_tracking: int | float
+    replans_clearance: int | float
+    mpc_solves: int | float
+    mpc_failures: int | float
+    mpc_solve_ms_median: float
+    mpc_solve_ms_p95: float
+    mpc_statuses: dict[str, int]
+    tracking_rms_m: float
+    tracking_max_m: float
+    planner_margin_m: float
+    mpc_margin_m: float
+    margin_source: str
+
+    @property
+    def replans(self) -> int | float:
+        return self.replans_tracking + self.replans_clearance
+
+    def failure_reason(self, outcome: Outcome) -> Outcome | None:
+        """`Outcome.SOLVER_FAILURE` for an episode that failed in flight (not for want of a plan) with at
+        least `SOLVER_FAILURE_SHARE` of its MPC solves failed; else None."""
+        if outcome in (Outcome.SUCCESS, Outcome.PLANNER_FAILURE) or not self.mpc_solves:
+            return None
+        return Outcome.SOLVER_FAILURE if self.mpc_failures >= SOLVER_FAILURE_SHARE * self.mpc_solves else None
+
+    def to_json(self) -> dict[str, Any]:
+        """The fields plus `replans`, JSON-ready (NaN as null)."""
+        out = dataclasses.asdict(self)
+        out["replans"] = self.replans
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> ClassicalReport | None:
+        """The report `to_json` wrote, or None when `data` holds none of its fields. Also reads the few
+        counters an episode saved before the report kept at the top level of its metadata (`replans`
+        then counted tracking replans only)."""
+        if not any(f.name in data for f in dataclasses.fields(cls)) and "replans" not in data:
+            return None
+
+        def num(name: str, default: Any = None) -> float:
+            v = data.get(name, default)
+            return math.nan if v is None or isinstance(v, (str, dict, list)) else v
+
+        statuses = data.get("mpc_statuses")
+        return cls(
+            plan_time_s=num("plan_time_s"), replan_time_s=num("replan_time_s"),
+            replans_tracking=num("replans_tracking", data.get("replans")), replans_clearance=num("replans_clearance"),
+            mpc_solves=num("mpc_solves"), mpc_failures=num("mpc_failures"),
+            mpc_solve_ms_median=num("mpc_solve_ms_median"), mpc_solve_ms_p95=num("mpc_solve_ms_p95"),
+            mpc_statuses={str(k): int(v) for k, v in statuses.items()} if isinstance(statuses, Mapping) else {},
+            tracking_rms_m=num("tracking_rms_m"), tracking_max_m=num("tracking_max_m"),
+            planner_margin_m=num("planner_margin_m"), mpc_margin_m=num("mpc_margin_m"),
+            margin_source=str(data.get("margin_source") or ""))

@@ -1,0 +1,50 @@
+"""The potential-field pilot as an agent: the runner flies it exactly as the evaluation environment
+flies `rl.expert.PotentialFieldPilot` (same sensing, same command path, same low-level controller)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from compare.episode_loop import run_episode
+from rl.apf_agent import PotentialFieldAgent, gains_for
+from rl.env import UAMNavEnv
+from rl.evaluation import eval_config
+from rl.expert import PotentialField, PotentialFieldPilot
+from rl.nav import NavConfig, NavWorld
+from uam_fdm.pilot import Agent, World
+from uam_fdm.vehicle.params import load_vehicle
+
+
+@pytest.mark.parametrize("seed", [3])
+def test_apf_agent_flies_exactly_like_the_evaluation_environment(seed):
+    """One held-out episode (light turbulence), the field deciding every control period as in
+    `rl.evaluation.evaluate_potential_field`: the same states at every decision, the same outcome."""
+    nav = NavConfig()
+    base = NavWorld(replace(eval_config(nav, 3), decision_hz=nav.control_hz))
+    env = UAMNavEnv(world=base)
+    obs, _ = env.reset(seed=seed)
+    pilot = PotentialFieldPilot(env.batch, PotentialField())
+    task, wind, city = env.batch.task(0), env.batch.wind_field(0), base.cities[int(env.batch.city[0])]
+    env_states, outcome = [], None
+    for _ in range(100_000):
+        obs, _, term, trunc, info = env.step(pilot(obs[None], env.batch)[0])
+        env_states.append(env.state)
+        if term or trunc:
+            outcome = info["outcome"]
+            break
+    agent = PotentialFieldAgent()
+    assert isinstance(agent, Agent) and agent.name == "apf"
+    traj = run_episode(World(base.vehicle, base.dynamics, city, base.atmosphere), agent, task, wind, seed=0)
+    per_decision = base.dynamics.n_substeps
+    assert traj.outcome == outcome and agent.episode_report() is None
+    assert len(traj.decision_t_s) == len(env_states)
+    np.testing.assert_array_equal(traj.states[per_decision::per_decision], np.array(env_states))
+    assert traj.plan_time_s == 0.0
+
+
+def test_gains_scale_with_the_vehicles_task():
+    assert gains_for(load_vehicle("small_quad")) == PotentialField()
+    uam = gains_for(load_vehicle("uam_multicopter"))
+    assert uam.range_m == 4 * PotentialField().range_m and uam.k_buildings == PotentialField().k_buildings
