@@ -3,7 +3,7 @@
 For each query point (world ENU, metres) in its own city, `BoxSensor.query` returns the K nearest
 distinct buildings within the sensing range (nearest point on each building's surface and the
 signed distance to it) and the clearance to buildings and the ground. Distances are the exact
-point-to-box kernel of `uam_fdm.city.distance` (`box_signed_distance`, `box_signed_distance_one`), the
+point-to-box kernel of `uam_fdm.city.distance` (`box_signed_sq_distance`, `box_signed_distance_one`), the
 one `uam_fdm.city.buildings.BuildingMap.clearance` uses (which agrees with FCL to ~1e-12 m;
 tests/rl/test_rl_env.py::test_sensor_matches_fcl checks this sensor against FCL directly).
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm.city.buildings import Building, BuildingMap
-from uam_fdm.city.distance import box_frame_xy, box_signed_distance, box_signed_distance_one
+from uam_fdm.city.distance import box_frame_xy, box_signed_distance_one, box_signed_sq_distance, signed_sqrt
 
 
 @dataclass(frozen=True)
@@ -140,12 +140,12 @@ class BoxSensor:
         lx, ly = box_frame_xy(points[:, 0:1], points[:, 1:2], b[..., 0], b[..., 1], b[..., 2], b[..., 3])
         return lx, ly, points[:, 2:3] - b[..., 6], b
 
-    def _distances(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
-        """Signed point distances (N, C) to the boxes `flat` (exact; negative inside)."""
+    def _keys(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """Signed squared point distances (N, C) to the boxes `flat` (`box_signed_sq_distance`)."""
         b = self._tab[flat]  # (N, C, 7)
         half_h = b[..., 6]
-        return box_signed_distance(points[:, 0:1], points[:, 1:2], points[:, 2:3], b[..., 0], b[..., 1],
-                                   b[..., 2], b[..., 3], b[..., 4], b[..., 5], half_h, half_h)
+        return box_signed_sq_distance(points[:, 0:1], points[:, 1:2], points[:, 2:3], b[..., 0], b[..., 1],
+                                      b[..., 2], b[..., 3], b[..., 4], b[..., 5], half_h, half_h)
 
     def _nearest_points(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
         """Nearest points (N, C, 3) on the boxes `flat`: the clamp (inside a box: the point itself)."""
@@ -163,7 +163,7 @@ class BoxSensor:
         if len(p) == 1:
             return self._query_one(p, int(city[0]))
         flat = self._box_rows(p, city)
-        dist = self._distances(p, flat) - self.radius_m
+        dist = signed_sqrt(self._keys(p, flat)) - self.radius_m
         k = self.k
         rows = np.arange(len(p))[:, None]
         part = np.argpartition(dist, k - 1, axis=1)[:, :k] if dist.shape[1] > k else \
@@ -216,6 +216,6 @@ class BoxSensor:
         p = np.asarray(points_m, dtype=float).reshape(-1, 3)
         city = np.asarray(city, dtype=np.int64).reshape(-1)
         flat = self._box_rows(p, city)
-        dist = self._distances(p, flat)
-        d = np.minimum(dist.min(axis=1) - self.radius_m, self.range_m)
+        # the nearest box's distance: the square root of the least key (exact: sqrt is monotone)
+        d = np.minimum(signed_sqrt(self._keys(p, flat).min(axis=1)) - self.radius_m, self.range_m)
         return np.minimum(d, p[:, 2] - self.radius_m)

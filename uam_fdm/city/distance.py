@@ -128,16 +128,21 @@ def box_frame_xy(x: np.ndarray, y: np.ndarray, cx: np.ndarray, cy: np.ndarray, c
     """
     dx = x - cx
     dy = y - cy
+    # In place where the shapes allow (the batched paths: one temporary at a time, so a chunk's arrays
+    # stay in cache), else new arrays; the same doubles either way.
     lx = dx * cos
+    t = dy * sin
+    if isinstance(lx, np.ndarray) and isinstance(t, np.ndarray) and lx.shape == t.shape:
+        lx += t
+    else:
+        lx = lx + t
     ly = dy * cos
-    sy = dy * sin
-    sx = dx * sin
-    # In place where the shapes allow (the batched paths): two fewer temporaries, the same doubles.
-    if isinstance(lx, np.ndarray) and lx.shape == np.shape(sy) and np.shape(ly) == np.shape(sx):
-        lx += sy
-        ly -= sx
-        return lx, ly
-    return lx + sy, ly - sx
+    t = dx * sin
+    if isinstance(ly, np.ndarray) and isinstance(t, np.ndarray) and ly.shape == t.shape:
+        ly -= t
+    else:
+        ly = ly - t
+    return lx, ly
 
 
 def vertical_prism_key(out2_xy: np.ndarray, d_xy: np.ndarray, qz: np.ndarray) -> np.ndarray:
@@ -200,12 +205,14 @@ def box_signed_sq_distance(x: np.ndarray, y: np.ndarray, z: np.ndarray, cx: np.n
 
 
 def signed_sqrt(key: np.ndarray) -> np.ndarray:
-    """Signed distances [m] from signed squared distances sign(d)*d^2 [m^2].
+    """Signed distances [m] from an array (at least 1-D) of signed squared distances sign(d)*d^2 [m^2].
 
     Exact for the keys above: outside it is the square root of the sum of squares; inside,
     sqrt(d*d) == |d| in binary floating point, so the result is max(d_xy, qz) itself.
     """
-    return np.copysign(np.sqrt(np.abs(key)), key)
+    d = np.abs(key)
+    np.sqrt(d, out=d)
+    return np.copysign(d, key, out=d)
 
 
 def box_signed_distance(x: np.ndarray, y: np.ndarray, z: np.ndarray, cx: np.ndarray, cy: np.ndarray,
@@ -470,9 +477,10 @@ def footprint_distance_2d(xy: np.ndarray, a: PackedPrisms) -> np.ndarray:
     return out
 
 
-# One slab of a CellIndex column: per candidate (lower bound [m], ascending; its plain-Python distance
-# function; the shape tuple that function takes).
-_Slab = list[tuple[float, Callable[[float, float, float, tuple], float], tuple]]
+# A part for the per-point loop: its plain-Python distance function and the shape tuple it takes.
+_Part = tuple[Callable[[float, float, float, tuple], float], tuple]
+# One slab of a CellIndex column: its candidates' lower bounds [m] (ascending) and parts.
+_Slab = tuple[list[float], list[_Part]]
 
 
 class CellIndex:
@@ -524,7 +532,7 @@ class CellIndex:
         z_lo[a.box_part], z_hi[a.box_part] = a.box_zc - a.box_hz, a.box_zc + a.box_hz
         z_lo[a.prism_part], z_hi[a.prism_part] = a.prism_zc - a.prism_hz, a.prism_zc + a.prism_hz
         self._part_z_lo, self._part_z_hi = z_lo, z_hi
-        self._shapes = _python_shapes(a)
+        self._parts = _python_parts(a)
 
     def query(self, x: float, y: float, z: float) -> float | None:
         """Signed point distance to the nearest part or the ground (z = 0), or None if not indexed.
@@ -547,7 +555,7 @@ class CellIndex:
         if column is None:
             column = self._columns[iy * self._nx + ix] = self._build_column(ix, iy)
         best = z
-        for lb, distance_fn, shape in column[iz]:
+        for lb, (distance_fn, shape) in zip(*column[iz]):
             if lb > 0.0 and lb >= best:
                 break
             d = distance_fn(x, y, z, shape)
@@ -564,7 +572,7 @@ class CellIndex:
         return lb_z * lb_z, ub_z * ub_z, z_hi[:, 0] * z_hi[:, 0]
 
     def _build_column(self, ix: int, iy: int) -> list[_Slab]:
-        """Candidate lists (lower bound ascending, distance function, shape) for every slab of a column."""
+        """Candidate lists (lower bounds ascending, parts) for every slab of a column."""
         x0, y0 = self._x0 + ix * self._cell, self._y0 + iy * self._cell
         x1, y1 = x0 + self._cell, y0 + self._cell
         corners = footprint_distance_2d(np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]), self._a)
@@ -584,20 +592,20 @@ class CellIndex:
         order = np.lexsort((part, lb_kept, slab))  # by slab, then lower bound, then part index
         ends = np.searchsorted(slab[order], np.arange(1, self._nz + 1), side="left").tolist()
         lbs = lb_kept[order].tolist()
-        candidates = [(lb, *self._shapes[j]) for lb, j in zip(lbs, part[order].tolist())]
+        parts = [self._parts[j] for j in part[order].tolist()]
         column = []
         start = 0
         for end in ends:
-            column.append(candidates[start:end])
+            column.append((lbs[start:end], parts[start:end]))
             start = end
         return column
 
 
-def _python_shapes(a: PackedPrisms) -> list[tuple[Callable, tuple]]:
+def _python_parts(a: PackedPrisms) -> list[_Part]:
     """Per part, its plain-Python distance function and the plain tuple that function takes."""
-    shapes: list[tuple[Callable, tuple]] = [(_prism_distance_py, ())] * a.n_parts
+    parts: list[_Part] = [(_prism_distance_py, ())] * a.n_parts
     for r, j in enumerate(a.box_part.tolist()):
-        shapes[j] = (box_signed_distance_one, (
+        parts[j] = (box_signed_distance_one, (
             float(a.box_cx[r]), float(a.box_cy[r]), float(a.box_cos[r]), float(a.box_sin[r]),
             float(a.box_hx[r]), float(a.box_hy[r]), float(a.box_zc[r]), float(a.box_hz[r])))
     for r, j in enumerate(a.prism_part.tolist()):
@@ -605,8 +613,8 @@ def _python_shapes(a: PackedPrisms) -> list[tuple[Callable, tuple]]:
             (float(v[0]), float(v[1]), float(e[0]), float(e[1]), float(n[0]), float(n[1]), float(il))
             for v, e, n, il in zip(a.prism_v0[r], a.prism_e[r], a.prism_n[r], a.prism_inv_len2[r])
         )
-        shapes[j] = (_prism_distance_py, (edges, float(a.prism_zc[r]), float(a.prism_hz[r])))
-    return shapes
+        parts[j] = (_prism_distance_py, (edges, float(a.prism_zc[r]), float(a.prism_hz[r])))
+    return parts
 
 
 def _prism_distance_py(x: float, y: float, z: float, shape: tuple) -> float:

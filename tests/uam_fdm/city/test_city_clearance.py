@@ -129,13 +129,15 @@ def test_box_kernel_against_brute_force_and_its_scalar_twin() -> None:
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11)
     assert (got < 0).sum() >= n_pt // 3  # the inside points are inside
     np.testing.assert_array_equal(distance.signed_sqrt(distance.box_signed_sq_distance(*args)), got)
-    one = np.array([[distance.box_signed_distance_one(*p, _kernel_box(b)) for b in boxes] for p in pts.tolist()])
+    one = np.array([[distance.box_signed_distance_one(*p, _kernel_box(b)) for b in boxes]
+                    for p in pts.tolist()])
     np.testing.assert_array_equal(one, got)
     # Points on faces, edges and corners: distance 0 on every path.
     b = boxes[0]
     c, s = math.cos(b.yaw_rad), math.sin(b.yaw_rad)
     hx, hy = 0.5 * b.size_xy_m[0], 0.5 * b.size_xy_m[1]
-    for lx, ly, z in ((hx, 0.0, 1.0), (hx, hy, 0.5 * b.height_m), (-hx, -hy, b.height_m), (0.0, 0.0, b.height_m)):
+    on_surface = ((hx, 0.0, 1.0), (hx, hy, 0.5 * b.height_m), (-hx, -hy, b.height_m), (0.0, 0.0, b.height_m))
+    for lx, ly, z in on_surface:
         p = (b.center_xy_m[0] + c * lx - s * ly, b.center_xy_m[1] + s * lx + c * ly, z)
         assert abs(distance.box_signed_distance_one(*p, _kernel_box(b))) < 1e-12
 
@@ -149,8 +151,8 @@ def test_numpy_and_plain_python_paths_give_the_same_doubles(city: BuildingMap) -
     pts[:100] = rng.uniform([0.0, 0.0, 0.0], [40.0, 40.0, 50.0], size=(100, 3))  # around the first prism
     a = city._packed
     d_np = distance.part_distances(pts, a)
-    shapes = distance._python_shapes(a)
-    d_py = np.array([[fn(*p, shape) for fn, shape in shapes] for p in pts.tolist()])
+    parts = distance._python_parts(a)
+    d_py = np.array([[fn(*p, shape) for fn, shape in parts] for p in pts.tolist()])
     np.testing.assert_array_equal(d_py, d_np)
     assert (d_np < 0).any()
     indexed = city.in_bounds(pts) & (pts[:, 2] < 300.0)
@@ -161,8 +163,8 @@ def test_numpy_and_plain_python_paths_give_the_same_doubles(city: BuildingMap) -
 
 def _kernel_box(b: Building) -> tuple[float, ...]:
     """A box building as the kernel takes it: (cx, cy, cos, sin, hx, hy, zc, hz)."""
-    return (*b.center_xy_m, math.cos(b.yaw_rad), math.sin(b.yaw_rad), 0.5 * b.size_xy_m[0], 0.5 * b.size_xy_m[1],
-            0.5 * b.height_m, 0.5 * b.height_m)
+    return (*b.center_xy_m, math.cos(b.yaw_rad), math.sin(b.yaw_rad), 0.5 * b.size_xy_m[0],
+            0.5 * b.size_xy_m[1], 0.5 * b.height_m, 0.5 * b.height_m)
 
 
 def test_brute_force_reference_10k_points(city: BuildingMap) -> None:
