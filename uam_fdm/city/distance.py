@@ -33,6 +33,9 @@ import numpy as np
 
 # Points per chunk of the (points x obstacles) broadcast: ~128 x 200 float64 temporaries stay in L2.
 _CHUNK = 128
+# bound once: the per-point paths call them for every point and candidate
+_floor = math.floor
+_sqrt = math.sqrt
 
 
 @dataclass(frozen=True)
@@ -244,7 +247,7 @@ def box_signed_distance_one(x: float, y: float, z: float, box: tuple[float, ...]
         qx = qx if qx > 0.0 else 0.0
         qy = qy if qy > 0.0 else 0.0
         qz = qz if qz > 0.0 else 0.0
-        return math.sqrt(qx * qx + qy * qy + qz * qz)
+        return _sqrt(qx * qx + qy * qy + qz * qz)
     return max(qx, qy, qz)
 
 
@@ -544,9 +547,9 @@ class CellIndex:
             The distance [m] (negative inside a part or below ground), or None when the point is
             outside the grid or above its top (the caller then asks FCL).
         """
-        ix = math.floor((x - self._x0) * self._inv)
-        iy = math.floor((y - self._y0) * self._inv)
-        iz = math.floor(z * self._inv_dz)
+        ix = _floor((x - self._x0) * self._inv)
+        iy = _floor((y - self._y0) * self._inv)
+        iz = _floor(z * self._inv_dz)
         if iz < 0:
             iz = 0  # below ground: the ground wins anyway and slab 0's lower bounds still hold
         if not (0 <= ix < self._nx and 0 <= iy < self._ny and iz < self._nz):
@@ -556,7 +559,7 @@ class CellIndex:
             column = self._columns[iy * self._nx + ix] = self._build_column(ix, iy)
         best = z
         for lb, (distance_fn, shape) in zip(*column[iz]):
-            if lb > 0.0 and lb >= best:
+            if lb >= best and lb > 0.0:  # (lb < best, the common case, is one comparison)
                 break
             d = distance_fn(x, y, z, shape)
             if d < best:
