@@ -28,8 +28,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+
+_Real = np.ndarray | float  # an array, or one value on the plain-Python paths
 
 # Points per chunk of the (points x obstacles) broadcast: ~128 x 200 float64 temporaries stay in L2.
 _CHUNK = 128
@@ -117,8 +120,7 @@ def pack(
 # ----------------------------------------------------------------- the formula (one place)
 
 
-def box_frame_xy(x: np.ndarray, y: np.ndarray, cx: np.ndarray, cy: np.ndarray, cos: np.ndarray,
-                 sin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def box_frame_xy(x: _Real, y: _Real, cx: _Real, cy: _Real, cos: _Real, sin: _Real) -> tuple[Any, Any]:
     """Horizontal positions in boxes' own frames (x along the box's x axis), broadcast.
 
     Args:
@@ -127,7 +129,7 @@ def box_frame_xy(x: np.ndarray, y: np.ndarray, cx: np.ndarray, cy: np.ndarray, c
         cos, sin: cos and sin of the boxes' yaw (counter-clockwise about +z).
 
     Returns:
-        (lx, ly) [m], new arrays of the broadcast shape (floats for floats).
+        (lx, ly) [m], new arrays of the broadcast shape (floats for floats: the per-point paths).
     """
     dx = x - cx
     dy = y - cy
