@@ -43,6 +43,7 @@ import numpy as np
 
 from compare.viz.report import read_reward_curve
 from rl.agent import load_policy
+from rl.policy_folder import PolicyFolder
 from rl.evaluation import evaluate
 from rl.train import Curriculum, TrainConfig, train
 
@@ -85,14 +86,14 @@ def run_variant(name: str, out: Path, timesteps: int, episodes: int, seed: int) 
     policy = load_policy(folder)
     res = evaluate(lambda obs, _b: policy.act_batch(obs), policy.nav, episodes, seed=FINAL_EVAL_SEED,
                    pool="validation")
-    curve = read_reward_curve(folder / "reward_curve.csv")
+    curve = read_reward_curve(PolicyFolder(folder).reward_curve)
     hit = np.flatnonzero(curve.success_rate >= 0.90)
-    prov = json.loads((folder / "provenance.json").read_text())
+    prov = PolicyFolder(folder).provenance()
     fig = {"timesteps": timesteps, "seed": seed, "episodes": res.episodes,
            "success_rate": res.success_rate, "success_ci95": list(res.success_ci95), "collision_rate": res.collision_rate,
            "collision_ci95": list(res.collision_ci95), "outcomes": res.outcomes,
            "timesteps_to_90pct": int(curve.timesteps[hit[0]]) if len(hit) else None,
-           "kept_timesteps": prov["kept_timesteps"], "wall_s": prov["wall_time_s"]}
+           "kept_timesteps": prov.kept_timesteps, "wall_s": prov.wall_time_s}
     done.write_text(json.dumps(fig, indent=2) + "\n")
     return fig
 

@@ -37,7 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from compare.viz.report import read_reward_curve
-from rl.agent import DEFAULT_POLICY_DIR
+from rl.policy_folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
 from rl.env import UAMNavEnv
 from rl.nav import NavConfig, NavWorld
 from rl.vec_env import UAMNavVecEnv
@@ -100,15 +100,20 @@ def shipped_training() -> dict:
     """
     out: dict = {"train_minutes_to_90pct": None, "training_to_kept_model_s": None,
                  "shipped_training_wall_s": None, "shipped_training_timesteps": None}
-    prov: dict = {}
+    folder = PolicyFolder(DEFAULT_POLICY_DIR)
     try:
-        prov = json.loads((DEFAULT_POLICY_DIR / "provenance.json").read_text())
-    except (OSError, ValueError) as exc:
+        read = folder.provenance()
+    except ValueError as exc:
+        read = None
         print(f"shipped policy: no readable provenance.json ({exc})")
-    out["shipped_training_wall_s"] = prov.get("wall_time_s")
-    out["shipped_training_timesteps"] = prov.get("timesteps")
+    else:
+        if read is None:
+            print(f"shipped policy: no provenance.json in {folder.path}")
+    prov = read or Provenance()
+    out["shipped_training_wall_s"] = prov.wall_time_s
+    out["shipped_training_timesteps"] = prov.timesteps
     try:
-        curve = read_reward_curve(DEFAULT_POLICY_DIR / "reward_curve.csv")
+        curve = read_reward_curve(folder.reward_curve)
     except (OSError, ValueError) as exc:
         print(f"shipped policy: reward curve unreadable ({exc})")
         curve = None
@@ -117,7 +122,8 @@ def shipped_training() -> dict:
     hit = np.flatnonzero(curve.success_rate >= 0.90)  # NaN (no evaluation on the row) compares False
     if len(hit) and math.isfinite(curve.wall_s[hit[0]]):
         out["train_minutes_to_90pct"] = float(curve.wall_s[hit[0]]) / 60.0
-    kept = np.flatnonzero(curve.timesteps == prov.get("kept_timesteps", math.nan))
+    kept_at = prov.kept_timesteps if prov.kept_timesteps is not None else math.nan
+    kept = np.flatnonzero(curve.timesteps == kept_at)
     if len(kept) and math.isfinite(curve.wall_s[kept[0]]):
         out["training_to_kept_model_s"] = float(curve.wall_s[kept[0]])
     return out

@@ -461,11 +461,12 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
 def policy_facts(policy: Path | None) -> PolicyFacts:
     """Load the whole policy folder (network, statistics, config) as plain data and return what a run
     needs of it: a broken or foreign policy is an error before the run folder exists."""
-    from rl.agent import DEFAULT_POLICY_DIR, load_policy
+    from rl.agent import load_policy
     from uam_fdm.vehicle.params import load_vehicle
 
-    nav = load_policy(policy).nav
-    return PolicyFacts(Path(policy if policy is not None else DEFAULT_POLICY_DIR).resolve(), nav.vehicle,
+    loaded = load_policy(policy)  # None: the shipped default
+    nav = loaded.nav
+    return PolicyFacts(loaded.folder.resolve(), nav.vehicle,
                        load_vehicle(nav.vehicle).fingerprint(), float(nav.control_hz), float(nav.decision_hz))
 
 
@@ -477,7 +478,7 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
     Raises:
         ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
     """
-    from rl.agent import shipped_policy_dir
+    from rl.policy_folder import shipped_policy_dir
 
     def flies_policy(methods: Sequence[str]) -> bool:
         return any(pilots.pilot(m).needs_policy for m in methods)

@@ -21,9 +21,9 @@ import numpy as np
 
 from compare.results.run_info import RUN_INFO_NAME, read_run_info
 from compare.scenario import Scenario
+from rl.policy_folder import FLYING_FILES
 from uam_fdm.files.version import code_version
 
-POLICY_FILES = ("model.zip", "obs_norm.npz", "config.json")  # what the learned pilot flies with
 # Words for the parts of a scenario's fingerprint, in the error that lists differences.
 SCENARIO_PARTS = {"map": "map (buildings, bounds, no-fly zones)", "vehicle": "vehicle parameters",
                   "conditions": "atmosphere, wind or rates", "episodes": "episodes (start, goal, radius, timeout)"}
@@ -70,9 +70,10 @@ def scenario_fingerprint(sc: Scenario) -> dict[str, str]:
 
 
 def policy_fingerprint(folder: Path) -> dict[str, str]:
-    """SHA-256 of each of a policy folder's POLICY_FILES ("missing" for an absent one)."""
+    """SHA-256 of each of the files a policy folder's pilot flies with (`rl.policy_folder.FLYING_FILES`;
+    "missing" for an absent one)."""
     out = {}
-    for name in POLICY_FILES:
+    for name in FLYING_FILES:
         path = Path(folder) / name
         out[name] = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else "missing"
     return out

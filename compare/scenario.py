@@ -82,7 +82,6 @@ from uam_fdm.air.atmosphere import (
     ISA_OFFSET_RANGE_K,
     Atmosphere,
     AtmosphereConditions,
-    checked_number,
 )
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
@@ -91,6 +90,15 @@ from uam_fdm.city.mapfile import map_from_config
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 from uam_fdm.air.shear import EXPONENT_RANGE, REFERENCE_HEIGHT_RANGE_M, ROUGHNESS_RANGE_M, ShearLaw, WindShear
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions
+from uam_fdm.files.strict import (
+    mapping,
+    number_in_range,
+    numbers,
+    reject_unknown,
+    require_keys,
+    root_mapping,
+    string,
+)
 from uam_fdm.files.yamlfile import load_yaml_file
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
@@ -197,15 +205,11 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     Raises:
         ConfigError: naming the file, the key and the reason.
     """
-    if not isinstance(data, Mapping):
-        raise ConfigError(source, "<root>", f"must be a mapping of scenario keys "
-                                            f"({', '.join(_TOP_KEYS)}), got {type(data).__name__}")
-    _reject_unknown(data, _TOP_KEYS, source, "")
-    for key in _REQUIRED_KEYS:
-        if key not in data:
-            raise ConfigError(source, key, "missing (required)")
+    root_mapping(data, source, f"scenario keys ({', '.join(_TOP_KEYS)})")
+    reject_unknown(data, _TOP_KEYS, source)
+    require_keys(data, _REQUIRED_KEYS, source, reason="missing (required)")
     name = _name(data["name"], source)
-    description = _optional(data, "description", "", source, _string)
+    description = _optional(data, "description", "", source, string)
     vehicle, vehicle_name = _vehicle(data["vehicle"], source, Path(base_dir))
     if "bounds" in data and data["bounds"] is None:
         raise ConfigError(source, "bounds", "must be a mapping {min: [x, y, z], max: [x, y, z]}, got None")
@@ -281,7 +285,7 @@ def resolve_scenarios(spec: str | Path) -> list[Scenario]:
 
 # ---- sections ----------------------------------------------------------------------------------------
 def _name(value: Any, source: str) -> str:
-    name = _string(value, source, "name")
+    name = string(value, source, "name")
     if not _NAME_RE.fullmatch(name) or name in (".", "..") or "__" in name:
         raise ConfigError(source, "name", f"must match [A-Za-z0-9_.-]+, not be '.' or '..' and not contain "
                                           f"'__' (it is used in file names), got {value!r}")
@@ -322,10 +326,10 @@ def _vehicle(value: Any, source: str, base_dir: Path) -> tuple[VehicleParams, st
 
 def _atmosphere(value: Any, source: str) -> tuple[AtmosphereConditions, WindConditions]:
     cfg = _mapping(value, _ATMOSPHERE_KEYS, source, "atmosphere")
-    elevation = _in_range(cfg.get("elevation_m", 0.0), ELEVATION_RANGE_M, "m above mean sea level", source,
-                          "atmosphere.elevation_m")
-    offset = _in_range(cfg.get("isa_offset_k", 0.0), ISA_OFFSET_RANGE_K, "K from the ISA day", source,
-                       "atmosphere.isa_offset_k")
+    elevation = number_in_range(cfg.get("elevation_m", 0.0), ELEVATION_RANGE_M, "m above mean sea level",
+                                source, "atmosphere.elevation_m")
+    offset = number_in_range(cfg.get("isa_offset_k", 0.0), ISA_OFFSET_RANGE_K, "K from the ISA day", source,
+                             "atmosphere.isa_offset_k")
     wind = _vector3(cfg.get("wind_mps", [0.0, 0.0, 0.0]), source, "atmosphere.wind_mps", "m/s, ENU")
     level = cfg.get("turbulence", "none")
     if not isinstance(level, str):
@@ -335,8 +339,8 @@ def _atmosphere(value: Any, source: str) -> tuple[AtmosphereConditions, WindCond
         turbulence = TurbulenceLevel.parse(level)
     except ValueError as exc:
         raise ConfigError(source, "atmosphere.turbulence", str(exc)) from None
-    reference = _in_range(cfg.get("wind_reference_height_m", 10.0), REFERENCE_HEIGHT_RANGE_M, "m above the field",
-                          source, "atmosphere.wind_reference_height_m")
+    reference = number_in_range(cfg.get("wind_reference_height_m", 10.0), REFERENCE_HEIGHT_RANGE_M,
+                                "m above the field", source, "atmosphere.wind_reference_height_m")
     shear = _wind_shear(cfg.get("wind_shear", {"law": "uniform"}), reference, source)
     try:
         steady = WindConditions(wind, turbulence, shear)
@@ -361,9 +365,9 @@ def _wind_shear(value: Any, reference_m: float, source: str) -> WindShear:
             raise ConfigError(source, f"{key}.{name}", f"does not apply to the {law} law, got {cfg[name]!r}")
     if needs is not None and needs not in cfg:
         raise ConfigError(source, f"{key}.{needs}", f"missing (required by the {law} law)")
-    exponent = (_in_range(cfg["exponent"], EXPONENT_RANGE, "dimensionless", source, f"{key}.exponent")
+    exponent = (number_in_range(cfg["exponent"], EXPONENT_RANGE, "dimensionless", source, f"{key}.exponent")
                 if needs == "exponent" else None)
-    roughness = (_in_range(cfg["roughness_m"], ROUGHNESS_RANGE_M, "m", source, f"{key}.roughness_m")
+    roughness = (number_in_range(cfg["roughness_m"], ROUGHNESS_RANGE_M, "m", source, f"{key}.roughness_m")
                  if needs == "roughness_m" else None)
     try:
         return WindShear(ShearLaw(law), reference_m, exponent, roughness)
@@ -409,10 +413,10 @@ def _methods(value: Any, source: str, key: str) -> tuple[str, ...]:
 
 def _rates(data: Mapping, source: str, vehicle: VehicleParams) -> tuple[float, float]:
     physics = _optional(data, "physics_hz", DEFAULT_PHYSICS_HZ, source,
-                        lambda v, s, k: _in_range(v, (0.0, MAX_PHYSICS_HZ), "Hz", s, k, open_low=True))
+                        lambda v, s, k: number_in_range(v, (0.0, MAX_PHYSICS_HZ), "Hz", s, k, open_low=True))
     control = _optional(data, "control_hz", DEFAULT_CONTROL_HZ, source,
-                        lambda v, s, k: _in_range(v, (0.0, physics), "Hz (at most physics_hz)", s, k,
-                                                  open_low=True))
+                        lambda v, s, k: number_in_range(v, (0.0, physics), "Hz (at most physics_hz)", s, k,
+                                                        open_low=True))
     ratio = physics / control
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise ConfigError(source, "physics_hz", f"must be an integer multiple of control_hz {control:g} Hz, "
@@ -502,19 +506,9 @@ def _check_hover(episodes: tuple[EpisodeSpec, ...], vehicle: VehicleParams, air:
                                                 f"{vehicle.weight_N:.1f} N")
 
 
-# ---- value helpers -----------------------------------------------------------------------------------
-def _reject_unknown(cfg: Mapping, known: tuple[str, ...], source: str, prefix: str) -> None:
-    for k in cfg:
-        if k not in known:
-            key = f"{prefix}.{k}" if prefix else str(k)
-            raise ConfigError(source, key, f"unknown key (allowed: {', '.join(known)})")
-
-
+# ---- value helpers (the checks themselves: uam_fdm.files.strict) -------------------------------------
 def _mapping(value: Any, known: tuple[str, ...], source: str, key: str) -> Mapping:
-    if not isinstance(value, Mapping):
-        raise ConfigError(source, key, f"must be a mapping with keys from {', '.join(known)}, got {value!r}")
-    _reject_unknown(value, known, source, key)
-    return value
+    return mapping(value, source, key, known, expected=f"a mapping with keys from {', '.join(known)}")
 
 
 def _optional(data: Mapping, key: str, default: Any, source: str, parse: Any) -> Any:
@@ -522,33 +516,17 @@ def _optional(data: Mapping, key: str, default: Any, source: str, parse: Any) ->
     return parse(data[key], source, key) if key in data else default
 
 
-def _string(value: Any, source: str, key: str) -> str:
-    if not isinstance(value, str):
-        raise ConfigError(source, key, f"must be a string, got {value!r}")
-    return value
-
-
-def _in_range(value: Any, bounds: tuple[float, float], unit: str, source: str, key: str,
-              open_low: bool = False) -> float:
-    try:
-        return checked_number(key.rsplit(".", 1)[-1], value, bounds, unit, open_low=open_low)
-    except ValueError as exc:
-        raise ConfigError(source, key, str(exc)) from None
-
-
 def _goal_radius(value: Any, source: str, key: str) -> float:
-    return _in_range(value, (0.0, math.inf), "m", source, key, open_low=True)
+    return number_in_range(value, (0.0, math.inf), "m", source, key, open_low=True)
 
 
 def _timeout(value: Any, source: str, key: str) -> float:
-    return _in_range(value, (0.0, MAX_TIMEOUT_S), "s", source, key, open_low=True)
+    return number_in_range(value, (0.0, MAX_TIMEOUT_S), "s", source, key, open_low=True)
 
 
 def _vector3(value: Any, source: str, key: str, unit: str) -> tuple[float, float, float]:
-    if not isinstance(value, list) or len(value) != 3 or not all(
-            not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in value):
-        raise ConfigError(source, key, f"must be 3 finite numbers [x, y, z] ({unit}), got {value!r}")
-    return (float(value[0]), float(value[1]), float(value[2]))
+    x, y, z = numbers(value, 3, source, key, what=f"3 finite numbers [x, y, z] ({unit})")
+    return (x, y, z)
 
 
 def _yaml_files(folder: Path) -> list[Path]:

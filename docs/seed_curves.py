@@ -11,13 +11,13 @@ min–max band on a common timestep grid. Seeds are labelled from each folder's 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from compare.viz.figures import seed_curves_figure
 from compare.viz.report import read_reward_curve
+from rl.policy_folder import PolicyFolder
 from uam_fdm.city.plot import save_figure
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "learned_pilot_seeds.png"
@@ -26,9 +26,10 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "learned_pilot_seeds.png"
 def seed_label(folder: Path) -> str:
     """"seed N" from the folder's provenance.json, else the folder's name."""
     try:
-        seed = json.loads((folder / "provenance.json").read_text(encoding="utf-8")).get("seed")
-    except (OSError, ValueError, AttributeError):
-        seed = None
+        prov = PolicyFolder(folder).provenance()
+    except ValueError:
+        prov = None
+    seed = prov.seed if prov is not None else None
     return f"seed {seed}" if seed is not None else folder.name
 
 
@@ -43,12 +44,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     curves, labels = [], []
     for folder in args.policy_dirs:
         try:
-            curve = read_reward_curve(folder / "reward_curve.csv")
+            curve = read_reward_curve(PolicyFolder(folder).reward_curve)
         except (OSError, ValueError) as exc:
             print(f"seed_curves: error: {exc}", file=sys.stderr)
             return 2
         if curve is None:
-            print(f"seed_curves: error: {folder / 'reward_curve.csv'} does not exist", file=sys.stderr)
+            print(f"seed_curves: error: {PolicyFolder(folder).reward_curve} does not exist", file=sys.stderr)
             return 2
         label = seed_label(folder)
         if label in labels:  # two folders of the same seed: tell them apart

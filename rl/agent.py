@@ -11,7 +11,6 @@ environment's (tests/rl/test_rl_agent.py).
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,23 +22,14 @@ from rl.nav import NavConfig, clearance_sensor, nearest_surface, observe_slots, 
 from rl.observation import PilotMemory, goal_heading, obs_size, velocity_command
 from rl.perception import Perception
 from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
+from rl.policy_folder import PolicyFolder
+# re-exported: the shipped folders are defined with the folder format, and the pilot's users find them here
+from rl.policy_folder import DEFAULT_POLICY_DIR, SHIPPED_POLICIES, shipped_policy_dir  # noqa: F401
 from rl.route import RouteBank, grid_shape
 from rl.train import normalize_obs
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
-
-DEFAULT_POLICY_DIR = Path(__file__).parent / "policies" / "default"
-# The shipped policies, by the vehicle preset each was trained for (its config.json says so too).
-SHIPPED_POLICIES: dict[str, Path] = {"small_quad": DEFAULT_POLICY_DIR,
-                                     "uam_multicopter": Path(__file__).parent / "policies" / "uam"}
-
-
-def shipped_policy_dir(vehicle: str) -> Path | None:
-    """The shipped policy folder for vehicle preset `vehicle`, or None when none is shipped."""
-    folder = SHIPPED_POLICIES.get(vehicle)
-    return folder if folder is not None and (folder / "config.json").is_file() else None
-
 
 @dataclass
 class Policy:
@@ -72,24 +62,17 @@ def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None 
             fit the task in its config.json, naming the file; or it was trained for another
             vehicle than `vehicle` (naming the file, both vehicles).
     """
-    folder = Path(folder) if folder is not None else DEFAULT_POLICY_DIR
-    for name in ("model.zip", "obs_norm.npz", "config.json"):
-        if not (folder / name).is_file():
-            raise ValueError(f"{folder}: not a policy folder ({name} is missing)")
-    try:
-        cfg = json.loads((folder / "config.json").read_text())
-        nav = NavConfig.from_dict(cfg["nav"])
-        ppo = cfg["ppo"]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{folder / 'config.json'}: not a policy configuration ({exc})") from None
+    pf = PolicyFolder.open(folder)
+    cfg = pf.config()
+    nav = cfg.nav
     if vehicle is not None:
-        check_vehicle(folder, nav, vehicle)
+        check_vehicle(pf.path, nav, vehicle)
     n_obs = obs_size(nav.perception)
-    stats = load_arrays(folder / "obs_norm.npz", OBS_NORM_KEYS)
+    stats = load_arrays(pf.obs_norm, OBS_NORM_KEYS)
     if stats["mean"].shape != (n_obs,) or stats["var"].shape != (n_obs,):
-        raise ValueError(f"{folder / 'obs_norm.npz'}: statistics for {stats['mean'].size} observations; "
+        raise ValueError(f"{pf.obs_norm}: statistics for {stats['mean'].size} observations; "
                          f"config.json's task gives {n_obs}")
-    return Policy(folder, load_network(folder / "model.zip", n_obs, ppo), stats, nav)
+    return Policy(pf.path, load_network(pf.model, n_obs, dict(cfg.ppo)), stats, nav)
 
 
 def check_vehicle(folder: Path, nav: NavConfig, vehicle: VehicleParams) -> None:
@@ -97,9 +80,9 @@ def check_vehicle(folder: Path, nav: NavConfig, vehicle: VehicleParams) -> None:
     trained = load_vehicle(nav.vehicle)
     if trained.fingerprint() != vehicle.fingerprint():
         same = " (the same name with other parameters)" if trained.name == vehicle.name else ""
-        raise ValueError(f"{Path(folder) / 'config.json'}: the policy was trained for vehicle {nav.vehicle!r} "
-                         f"(nav.vehicle); it cannot fly vehicle {vehicle.name!r}{same}: use a policy trained "
-                         f"for {vehicle.name!r} (uam-compare train --vehicle)")
+        raise ValueError(f"{PolicyFolder(folder).config_file}: the policy was trained for vehicle "
+                         f"{nav.vehicle!r} (nav.vehicle); it cannot fly vehicle {vehicle.name!r}{same}: use "
+                         f"a policy trained for {vehicle.name!r} (uam-compare train --vehicle)")
 
 
 class _CitySenses:

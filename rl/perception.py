@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.city.distance import box_frame_xy
 
 _EPS_M = 1e-6  # widening of build-time overlap and distance tests [m] (keeps them conservative)
 _TOL_M = 1e-7  # shrinking of the height map's query boxes [m] (well within _EPS_M)
@@ -215,10 +216,10 @@ class Perception:
                 continue
             # Raster-cell centres relative to the box centre, projected on the box axes (SAT: the
             # world axes already overlap by construction of the index range).
-            dx = (lo[0] + rho * (np.arange(i0, i1 + 1) + 0.5) - cx)[None, :]
-            dy = (lo[1] + rho * (np.arange(j0, j1 + 1) + 0.5) - cy)[:, None]
+            lx, ly = box_frame_xy((lo[0] + rho * (np.arange(i0, i1 + 1) + 0.5))[None, :],
+                                  (lo[1] + rho * (np.arange(j0, j1 + 1) + 0.5))[:, None], cx, cy, co, si)
             half = 0.5 * rho * (abs(co) + abs(si)) + _EPS_M
-            touch = (np.abs(dx * co + dy * si) <= hx + half) & (np.abs(dy * co - dx * si) <= hy + half)
+            touch = (np.abs(lx) <= hx + half) & (np.abs(ly) <= hy + half)
             block = out[j0:j1 + 1, i0:i1 + 1]
             np.maximum(block, np.where(touch, math.ceil(b.height_m), 0).astype(dtype), out=block)
         return out
@@ -299,10 +300,9 @@ class Perception:
         cand = self._cand[np.arange(m) + np.repeat(start - seg, lens)]
         b = self._tab[cand]  # (M, 7)
         co, si = b[:, 2], b[:, 3]
-        dx, dy = p[pt, 0] - b[:, 0], p[pt, 1] - b[:, 1]
+        lx, ly = box_frame_xy(p[pt, 0], p[pt, 1], b[:, 0], b[:, 1], co, si)
         hc, hs = ch[pt], sh[pt]
-        near = self._entries(b, dx * co + dy * si, dy * co - dx * si, hc * co + hs * si, hs * co - hc * si,
-                             p[pt, 2] >= b[:, 6], fan)
+        near = self._entries(b, lx, ly, hc * co + hs * si, hs * co - hc * si, p[pt, 2] >= b[:, 6], fan)
         has = lens > 0
         out[has] = np.minimum(np.minimum.reduceat(near, seg[has], axis=0), rng_m)
         return out
@@ -326,10 +326,9 @@ class Perception:
             return out
         b = self._tab[self._cand[start:stop]]  # (M, 7)
         co, si = b[:, 2], b[:, 3]
-        dx, dy = x - b[:, 0], y - b[:, 1]
+        lx, ly = box_frame_xy(x, y, b[:, 0], b[:, 1], co, si)
         hc, hs = float(ch[0]), float(sh[0])
-        near = self._entries(b, dx * co + dy * si, dy * co - dx * si, hc * co + hs * si, hs * co - hc * si,
-                             z >= b[:, 6], fan)
+        near = self._entries(b, lx, ly, hc * co + hs * si, hs * co - hc * si, z >= b[:, 6], fan)
         np.minimum(out, near.min(axis=0, keepdims=True), out=out)
         return out
 
@@ -477,8 +476,8 @@ def _square_rect_distance(x0, y0, g: float, cx, cy, co, si, hx, hy) -> np.ndarra
         qy = np.maximum(np.abs(py - sy) - half, 0.0)
         np.minimum(best, np.hypot(qx, qy), out=best)
         # square corner to the rectangle (in the rectangle's frame)
-        vx, vy = sx + ex * half - cx, sy + ey * half - cy
-        qx = np.maximum(np.abs(vx * co + vy * si) - hx, 0.0)
-        qy = np.maximum(np.abs(vy * co - vx * si) - hy, 0.0)
+        lx, ly = box_frame_xy(sx + ex * half, sy + ey * half, cx, cy, co, si)
+        qx = np.maximum(np.abs(lx) - hx, 0.0)
+        qy = np.maximum(np.abs(ly) - hy, 0.0)
         np.minimum(best, np.hypot(qx, qy), out=best)
     return np.where(overlap, 0.0, best)

@@ -47,6 +47,7 @@ import numpy as np
 import skfmm
 
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.city.distance import box_frame_xy
 
 _SEED_CELLS = 1.5    # radius of the goal circle (the march's zero level set) [cells]
 _SEGMENT_SAMPLES = 8  # samples on each goal-to-cell segment when testing line of sight near the goal
@@ -142,9 +143,9 @@ def _box_sq_distance(boxes: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndar
     """
     sh = (-1,) + (1,) * (np.ndim(x) - 1)
     cx, cy, co, si, hx, hy = (boxes[:, k].reshape(sh) for k in range(6))
-    dx, dy = x - cx, y - cy
-    qx = np.maximum(np.abs(dx * co + dy * si) - hx, 0.0)
-    qy = np.maximum(np.abs(dy * co - dx * si) - hy, 0.0)
+    lx, ly = box_frame_xy(x, y, cx, cy, co, si)
+    qx = np.maximum(np.abs(lx) - hx, 0.0)
+    qy = np.maximum(np.abs(ly) - hy, 0.0)
     return qx * qx + qy * qy
 
 

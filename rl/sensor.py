@@ -3,8 +3,9 @@
 For each query point (world ENU, metres) in its own city, `BoxSensor.query` returns the K nearest
 distinct buildings within the sensing range (nearest point on each building's surface and the
 signed distance to it) and the clearance to buildings and the ground. Distances are the exact
-point-to-box formula used by `uam_fdm.city.buildings.BuildingMap.clearance` (which agrees with FCL to
-~1e-12 m; tests/test_rl_sensor.py checks this sensor against FCL directly).
+point-to-box kernel of `uam_fdm.city.distance` (`box_signed_sq_distance`, `box_signed_distance_one`), the
+one `uam_fdm.city.buildings.BuildingMap.clearance` uses (which agrees with FCL to ~1e-12 m;
+tests/rl/test_rl_env.py::test_sensor_matches_fcl checks this sensor against FCL directly).
 
 Speed comes from a per-city grid: each cell of `cell_m` lists every building whose footprint
 could lie within `range_m` of a point in the cell (a conservative circumscribed-circle test), so a
@@ -21,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.city.distance import box_frame_xy, box_signed_distance_one, box_signed_sq_distance, signed_sqrt
 
 
 @dataclass(frozen=True)
@@ -88,8 +90,10 @@ class BoxSensor:
         self._tab = np.stack([a.ravel() for a in (self._cx, self._cy, self._cos, self._sin, self._hx, self._hy,
                                                   0.5 * self._h)], axis=-1)
         self._ids_flat = self._id.ravel()
-        # For single queries (one vehicle): plain-Python rows and per-cell lists without padding.
-        self._tab_rows = [tuple(r) for r in self._tab.tolist()]
+        # For single queries (one vehicle): plain-Python rows (cx, cy, cos, sin, hx, hy, zc, hz, as
+        # `box_signed_distance_one` takes them: the height range's centre and half are both h / 2)
+        # and per-cell lists without padding.
+        self._tab_rows = [(*r, r[6]) for r in self._tab.tolist()]
         self._cells_py = [[[int(j) for j in row if j != nb] for row in c] for c in cand_lists]
 
     def _candidates(self, blds: Sequence[Building], lo: np.ndarray, dims: np.ndarray, pad: int) -> np.ndarray:
@@ -133,21 +137,15 @@ class BoxSensor:
     def _box_frame(self, points: np.ndarray, flat: np.ndarray):
         """Points in the frames of boxes `flat` (N, C): local x, y, z (z from mid-height) and the box rows."""
         b = self._tab[flat]  # (N, C, 7)
-        cx, cy, co, si = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-        dx, dy = points[:, 0:1] - cx, points[:, 1:2] - cy
-        return dx * co + dy * si, dy * co - dx * si, points[:, 2:3] - b[..., 6], b
+        lx, ly = box_frame_xy(points[:, 0:1], points[:, 1:2], b[..., 0], b[..., 1], b[..., 2], b[..., 3])
+        return lx, ly, points[:, 2:3] - b[..., 6], b
 
-    def _distances(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
-        """Signed point distances (N, C) to the boxes `flat` (exact; negative inside)."""
-        lx, ly, lz, b = self._box_frame(points, flat)
-        qx = np.abs(lx) - b[..., 4]
-        qy = np.abs(ly) - b[..., 5]
-        qz = np.abs(lz) - b[..., 6]
-        inside = np.minimum(np.maximum(np.maximum(qx, qy), qz), 0.0)
-        np.maximum(qx, 0.0, out=qx)
-        np.maximum(qy, 0.0, out=qy)
-        np.maximum(qz, 0.0, out=qz)
-        return np.sqrt(qx * qx + qy * qy + qz * qz) + inside
+    def _keys(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """Signed squared point distances (N, C) to the boxes `flat` (`box_signed_sq_distance`)."""
+        b = self._tab[flat]  # (N, C, 7)
+        half_h = b[..., 6]
+        return box_signed_sq_distance(points[:, 0:1], points[:, 1:2], points[:, 2:3], b[..., 0], b[..., 1],
+                                      b[..., 2], b[..., 3], b[..., 4], b[..., 5], half_h, half_h)
 
     def _nearest_points(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
         """Nearest points (N, C, 3) on the boxes `flat`: the clamp (inside a box: the point itself)."""
@@ -165,7 +163,7 @@ class BoxSensor:
         if len(p) == 1:
             return self._query_one(p, int(city[0]))
         flat = self._box_rows(p, city)
-        dist = self._distances(p, flat) - self.radius_m
+        dist = signed_sqrt(self._keys(p, flat)) - self.radius_m
         k = self.k
         rows = np.arange(len(p))[:, None]
         part = np.argpartition(dist, k - 1, axis=1)[:, :k] if dist.shape[1] > k else \
@@ -192,25 +190,20 @@ class BoxSensor:
         iy = min(max(int((y - oy) / self.cell_m), 0), gy - 1)
         base = ci * self._nb1
         rows, r = self._tab_rows, self.radius_m
-        found = []
-        for j in self._cells_py[ci][iy * gx + ix]:
-            cx, cy, co, si, hx, hy, hz = rows[base + j]
-            dx, dy = x - cx, y - cy
-            lx, ly, lz = dx * co + dy * si, dy * co - dx * si, z - hz
-            qx, qy, qz = abs(lx) - hx, abs(ly) - hy, abs(lz) - hz
-            inside = min(max(qx, qy, qz), 0.0)
-            ax, ay, az = max(qx, 0.0), max(qy, 0.0), max(qz, 0.0)
-            found.append((math.sqrt(ax * ax + ay * ay + az * az) + inside - r, j, lx, ly, lz))
+        found = [(box_signed_distance_one(x, y, z, rows[base + j]) - r, j)
+                 for j in self._cells_py[ci][iy * gx + ix]]
         found.sort(key=lambda f: f[0])
         k, rng_m = self.k, self.range_m
         near = np.empty((1, k, 3))
         dist = np.full((1, k), rng_m)
         ids = np.full((1, k), -1, dtype=np.int64)
         near[0, :] = (x, y, z)
-        for m, (d, j, lx, ly, lz) in enumerate(found[:k]):
+        for m, (d, j) in enumerate(found[:k]):
             if d > rng_m:
                 break
-            cx, cy, co, si, hx, hy, hz = rows[base + j]
+            cx, cy, co, si, hx, hy, _, hz = rows[base + j]
+            lx, ly = box_frame_xy(x, y, cx, cy, co, si)
+            lz = z - hz
             nx, ny = min(max(lx, -hx), hx), min(max(ly, -hy), hy)
             near[0, m] = (cx + nx * co - ny * si, cy + nx * si + ny * co, min(max(lz, -hz), hz) + hz)
             dist[0, m] = d
@@ -223,6 +216,6 @@ class BoxSensor:
         p = np.asarray(points_m, dtype=float).reshape(-1, 3)
         city = np.asarray(city, dtype=np.int64).reshape(-1)
         flat = self._box_rows(p, city)
-        dist = self._distances(p, flat)
-        d = np.minimum(dist.min(axis=1) - self.radius_m, self.range_m)
+        # the nearest box's distance: the square root of the least key (exact: sqrt is monotone)
+        d = np.minimum(signed_sqrt(self._keys(p, flat).min(axis=1)) - self.radius_m, self.range_m)
         return np.minimum(d, p[:, 2] - self.radius_m)

@@ -2,23 +2,9 @@
 
 `train(TrainConfig(...), out_dir)` trains across the training city pool with a success-gated
 curriculum on the task distance, evaluates periodically on validation cities (never the test
-cities), keeps the best checkpoint on validation, and writes a policy folder:
-
-```
-out_dir/model.zip          SB3 PPO model (policy and value networks; read back without unpickling, `rl.policy_file`)
-out_dir/obs_norm.npz       observation-normalisation statistics (mean, var, count, epsilon, clip)
-out_dir/vecnormalize.npz   all of VecNormalize's statistics, as plain arrays (for resuming)
-out_dir/config.json        the TrainConfig (preset, PPO settings, NavConfig)
-out_dir/reward_curve.csv   one row per PPO update (training episodes) + validation columns
-out_dir/provenance.json    command, seed, wall time, machine, library versions, pools, validation
-out_dir/checkpoints/       periodic checkpoints (model + normalisation), for --resume
-out_dir/tb/                TensorBoard logs
-```
-
-reward_curve.csv columns: timesteps, mean_episode_reward (training episodes that ended in this
-update, raw return), train_success_rate, train_collision_rate, train_timeout_rate, train_episodes,
-difficulty (curriculum), success_rate, collision_rate, eval_episodes (validation pool; empty on
-rows without an evaluation), wall_s.
+cities), keeps the best checkpoint on validation, and writes a policy folder (its files and the
+reward curve's columns: `rl.policy_folder`): the kept model, its normalisation statistics and
+config, the reward curve, the provenance, periodic checkpoints for --resume and TensorBoard logs.
 """
 from __future__ import annotations
 
@@ -39,14 +25,11 @@ from rl.evaluation import EvalResult, eval_config, evaluate
 from rl.nav import NavConfig, NavWorld
 from rl.policy import TanhMeanPolicy
 from rl.policy_file import load_model_for_resume, restore_vec_normalize, save_obs_norm, save_vec_normalize
+from rl.policy_folder import CHECKPOINT_FILES, CURVE_COLUMNS, PolicyFolder
 from rl.vec_env import UAMNavVecEnv
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path, write_text_atomic
 from uam_fdm.files.version import code_version
-
-CURVE_COLUMNS = ("timesteps", "mean_episode_reward", "train_success_rate", "train_collision_rate",
-                 "train_timeout_rate", "train_episodes", "difficulty", "success_rate", "collision_rate",
-                 "eval_episodes", "wall_s")
 
 
 @dataclass(frozen=True)
@@ -215,25 +198,27 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
 
     torch.set_num_threads(cfg.torch_threads)
     out_dir = Path(out_dir)
+    out = PolicyFolder(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "checkpoints").mkdir(exist_ok=True)
+    out.checkpoints.mkdir(exist_ok=True)
     preset = PRESETS[cfg.preset]
     t_start = time.perf_counter()
     log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
     base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
     eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"), dynamics=base.world.dynamics,
                           atmosphere=base.world.atmosphere, wind_from=base.world)
-    curve_path = out_dir / "reward_curve.csv"
+    curve_path = out.reward_curve
     if resume is not None:
         resume = Path(resume)
-        venv = restore_vec_normalize(resume / "vecnormalize.npz", base)
-        model = load_model_for_resume(resume / "model.zip", venv, preset, cfg.nav.decision_hz, out_dir / "tb")
-        state_file = resume / "curriculum.json"
+        src = PolicyFolder(resume)
+        venv = restore_vec_normalize(src.vec_normalize, base)
+        model = load_model_for_resume(src.model, venv, preset, cfg.nav.decision_hz, out.tensorboard)
+        state_file = src.curriculum
         difficulty = json.loads(state_file.read_text())["difficulty"] if state_file.is_file() else 1.0
         log(f"resumed from {resume} at {model.num_timesteps} timesteps (difficulty {difficulty:g})")
     else:
         venv = normalized_env(base, preset, cfg.nav.decision_hz)
-        model = make_model(preset, venv, cfg.seed, cfg.nav.decision_hz, out_dir / "tb")
+        model = make_model(preset, venv, cfg.seed, cfg.nav.decision_hz, out.tensorboard)
         difficulty = cfg.curriculum.start
     base.batch.difficulty = difficulty
     if resume is None or not curve_path.exists():
@@ -247,12 +232,13 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
 
     def save_to(folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)
-        _write_json(folder / "config.json", cfg.to_dict())
-        _write_json(folder / "curriculum.json", {"difficulty": base.batch.difficulty})
-        with atomic_path(folder / "model.zip", suffix=".zip") as tmp:
+        pf = PolicyFolder(folder)
+        _write_json(pf.config_file, cfg.to_dict())
+        _write_json(pf.curriculum, {"difficulty": base.batch.difficulty})
+        with atomic_path(pf.model, suffix=".zip") as tmp:
             model.save(str(tmp))
-        save_vec_normalize(folder / "vecnormalize.npz", venv)
-        save_obs_norm(folder / "obs_norm.npz", venv)
+        save_vec_normalize(pf.vec_normalize, venv)
+        save_obs_norm(pf.obs_norm, venv)
 
     state = {"next_eval": (model.num_timesteps // cfg.eval_every + 1) * cfg.eval_every,
              "next_ckpt": (model.num_timesteps // max(cfg.checkpoint_every, 1) + 1) * max(cfg.checkpoint_every, 1),
@@ -311,7 +297,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
             write_row(res)
             if cfg.checkpoint_every and self.num_timesteps >= state["next_ckpt"]:
                 state["next_ckpt"] += cfg.checkpoint_every
-                save_to(out_dir / "checkpoints" / f"step_{self.num_timesteps:011d}")
+                save_to(out.checkpoint(self.num_timesteps).path)
 
     remaining = cfg.total_timesteps - model.num_timesteps
     if remaining > 0:
@@ -323,7 +309,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         save_to(out_dir / "best")
         log("the curriculum never reached full difficulty; keeping the last model")
     best_steps, kept = state["best"]
-    for name in ("model.zip", "vecnormalize.npz", "obs_norm.npz", "config.json", "curriculum.json"):
+    for name in CHECKPOINT_FILES:
         os.replace(out_dir / "best" / name, out_dir / name)
     shutil.rmtree(out_dir / "best", ignore_errors=True)
     log(f"kept the checkpoint at {best_steps:,d} timesteps: validation success {kept.success_rate:.1%}, "
@@ -343,5 +329,5 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         "versions": _versions(), "validation_of_kept_model": kept.as_dict(),
         "code": code_version(),  # which physics the policy learned on (the flight model changes with the code)
     }
-    _write_json(out_dir / "provenance.json", prov)
+    _write_json(out.provenance_file, prov)
     return kept

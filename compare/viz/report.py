@@ -17,7 +17,6 @@ every page is also saved as a PNG under `RUN_DIR/figures/`.
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import math
 import re
@@ -36,6 +35,7 @@ from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_r
 from compare.results.summary import BootstrapSettings, MethodSummary, PairedSummary, Stat, Summary, read_summary_json
 from compare.results.trajectory import EpisodeKey, episode_files, load_episode
 from uam_fdm.air.shear import ShearLaw, WindShear
+from rl.policy_folder import PolicyFolder, Provenance
 from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import save_figure
@@ -521,45 +521,44 @@ def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:
     if not policy_dir:
         return F.reward_curve_figure(title, None,
                                      "No PPO policy folder is recorded in run.json: no reward curve.")
-    path = Path(policy_dir) / "reward_curve.csv"
+    folder = PolicyFolder(Path(policy_dir))
+    path = folder.reward_curve
     try:
         curve = read_reward_curve(path)
     except (OSError, ValueError) as exc:
         return F.reward_curve_figure(title, None, f"The reward curve could not be read: {exc}")
     if curve is None:
         return F.reward_curve_figure(title, None, f"No reward curve: {path} does not exist.")
-    prov: dict = {}
     try:
-        loaded = json.loads((Path(policy_dir) / "provenance.json").read_text(encoding="utf-8"))
-        prov = loaded if isinstance(loaded, dict) else {}
-    except (OSError, ValueError):
-        pass  # an older policy folder without provenance: no marker
-    kept = _float(prov.get("kept_timesteps"))
+        prov = folder.provenance()  # None: an older policy folder without provenance, no marker
+    except ValueError:
+        prov = None  # unreadable: drawn as without
+    kept = prov.kept_timesteps if prov is not None else None
     return F.reward_curve_figure(title, curve, _training_note(path, curve, prov),
-                                 kept_timesteps=kept if math.isfinite(kept) else None,
+                                 kept_timesteps=float(kept) if kept is not None else None,
                                  subtitle=_training_subtitle(prov, curve))
 
 
-def _training_subtitle(prov: Mapping, curve: F.RewardCurve) -> str:
-    method = str(prov.get("method") or "")
+def _training_subtitle(prov: Provenance | None, curve: F.RewardCurve) -> str:
+    method = (prov.method if prov is not None else None) or ""
     # a run still training has no provenance yet; its per-update columns say rl.train wrote it (plain PPO)
-    per_update = not prov and bool(np.any(np.isfinite(curve.difficulty)))
+    per_update = prov is None and bool(np.any(np.isfinite(curve.difficulty)))
     if method.lower() == "ppo from scratch" or per_update:
         what = "Plain PPO from scratch (no demonstrations, no pre-trained weights)"
     elif method:
         what = f"Training method: {method}"
-    elif prov.get("preset"):
-        what = f"Training preset {prov['preset']!r} (an older policy folder: method not recorded)"
+    elif prov is not None and prov.preset:
+        what = f"Training preset {prov.preset!r} (an older policy folder: method not recorded)"
     else:
         what = "Training method not recorded (an older policy folder)"
     return (f"{what}.\nTraining episodes (training cities, at the curriculum's difficulty) vs. "
             "validation (held-out cities, full difficulty).")
 
 
-def _training_note(path: Path, curve: F.RewardCurve, prov: Mapping) -> str:
+def _training_note(path: Path, curve: F.RewardCurve, prov: Provenance | None) -> str:
     parts = [f"from {path}"]
-    steps = _float(prov.get("timesteps"))
-    wall = _float(prov.get("wall_time_s"))
+    steps = _float(prov.timesteps if prov is not None else None)
+    wall = _float(prov.wall_time_s if prov is not None else None)
     if not math.isfinite(steps):  # no provenance (a run still in progress): its last row
         steps = float(curve.timesteps[-1])
         wall = float(curve.wall_s[-1])
@@ -567,7 +566,7 @@ def _training_note(path: Path, curve: F.RewardCurve, prov: Mapping) -> str:
     if math.isfinite(steps):
         parts.append(f"{steps / 1e6:.1f} M timesteps"
                      + (f" in {wall / 60:.0f} min" if math.isfinite(wall) else ""))
-    seed = prov.get("seed")
+    seed = prov.seed if prov is not None else None
     if seed is not None:
         parts.append(f"seed {seed}")
     return " · ".join(parts)

@@ -49,6 +49,8 @@ from typing import Any, overload
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from uam_fdm.files.strict import checked_number
+
 __all__ = [
     "SEA_LEVEL_DENSITY_KG_M3",
     "AtmosphereConditions",
@@ -497,20 +499,3 @@ def load_probe_model(fdm: Any) -> None:
             "(see the uam_fdm.jsbsim log for JSBSim's reason)"
         )
 
-
-def checked_number(name: str, value: Any, bounds: tuple[float, float], unit: str, open_low: bool = False) -> float:
-    """``value`` as a float, or a ValueError naming ``name`` unless it is a finite number in ``bounds``
-    (``open_low``: the lower bound itself is excluded)."""
-    # Strings and booleans convert to float silently; in a scenario they are mistakes.
-    if isinstance(value, (str, bytes, bool)):
-        raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number ({unit}), got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite ({unit}), got {value!r}")
-    lo, hi = bounds
-    if not ((lo < v if open_low else lo <= v) and v <= hi):
-        raise ValueError(f"{name}={v} is outside the accepted range {'(' if open_low else '['}{lo}, {hi}] {unit}")
-    return v

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uam_fdm.air.atmosphere import checked_number
+from uam_fdm.files.strict import checked_number
 
 __all__ = ["ShearLaw", "WindShear", "EXPONENT_RANGE", "ROUGHNESS_RANGE_M", "REFERENCE_HEIGHT_RANGE_M",
            "MIN_HEIGHT_M"]

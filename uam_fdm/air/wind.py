@@ -101,8 +101,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uam_fdm.air.atmosphere import FT_TO_M, checked_number, jsbsim_exec, load_probe_model
+from uam_fdm.air.atmosphere import FT_TO_M, jsbsim_exec, load_probe_model
 from uam_fdm.air.shear import ShearLaw, WindShear
+from uam_fdm.files.strict import checked_number
 
 __all__ = [
     "PROBE_HEIGHTS_M",

@@ -5,7 +5,16 @@ extruded over a height range [z_c - h_z, z_c + h_z].  For such a product set the
 exact and closed-form: with d2 the signed 2D distance to the footprint and dz the signed 1D distance
 to the height range, the distance is hypot(max(d2, 0), max(dz, 0)) outside and max(d2, dz) inside.
 
-Two consumers, both exact (the analytic formula, not an approximation):
+The formula is written here once, for every consumer in the project:
+  * `vertical_prism_key`: the product-set combination above (signed squared distance), fed by a box
+    (`box_signed_sq_distance`, the kernel every box distance calls: BuildingMap.clearance and
+    `rl.sensor.BoxSensor`) or by a convex footprint; `signed_sqrt` turns keys into distances.
+  * `box_frame_xy`: a point in a box's own horizontal frame (the rotation the formula starts with;
+    also used for footprint distances, nearest points and inside tests here and in `rl`).
+  * `box_signed_distance_one` / `_prism_distance_py`: the same arithmetic for one point in plain
+    Python, where NumPy's per-call overhead would cost more than the formula (CellIndex, the
+    sensor's single-vehicle path); they return the same doubles as the NumPy kernel (tested).
+Consumers in this module, all exact (the analytic formula, not an approximation):
   * `nearest_parts` / `part_distances`: a batch of points against all obstacles, vectorised over
     (points x obstacles) and chunked so the temporaries stay in cache (BuildingMap.clearance).
   * `CellIndex`: one point at a time in plain Python (BuildingMap.clearance_one, called from OMPL
@@ -17,12 +26,19 @@ Frames: world ENU, metres.  Distances here are point distances (no radius).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+_Real = np.ndarray | float  # an array, or one value on the plain-Python paths
+
 # Points per chunk of the (points x obstacles) broadcast: ~128 x 200 float64 temporaries stay in L2.
 _CHUNK = 128
+# bound once: the per-point paths call them for every point and candidate
+_floor = math.floor
+_sqrt = math.sqrt
 
 
 @dataclass(frozen=True)
@@ -101,39 +117,146 @@ def pack(
     )
 
 
-def _box_keys(p: np.ndarray, a: PackedPrisms) -> np.ndarray:
-    """Signed squared distances sign(d)*d^2 from points (n, 3) to every box: (n, B).
+# ----------------------------------------------------------------- the formula (one place)
 
-    The key is monotone in the signed distance, so the argmin needs no square root; in-place
-    operations keep the temporaries to two (n, B) arrays plus one.
+
+def box_frame_xy(x: _Real, y: _Real, cx: _Real, cy: _Real, cos: _Real, sin: _Real) -> tuple[Any, Any]:
+    """Horizontal positions in boxes' own frames (x along the box's x axis), broadcast.
+
+    Args:
+        x, y: point coordinates, ENU metres.
+        cx, cy: footprint centres, ENU metres.
+        cos, sin: cos and sin of the boxes' yaw (counter-clockwise about +z).
+
+    Returns:
+        (lx, ly) [m], new arrays of the broadcast shape (floats for floats: the per-point paths).
     """
-    dx = p[:, 0:1] - a.box_cx
-    dy = p[:, 1:2] - a.box_cy
-    qx = dx * a.box_cos
-    qx += dy * a.box_sin
-    qy = dy * a.box_cos
-    qy -= dx * a.box_sin
-    np.abs(qx, out=qx)
-    qx -= a.box_hx
-    np.abs(qy, out=qy)
-    qy -= a.box_hy
-    qz = p[:, 2:3] - a.box_zc
-    np.abs(qz, out=qz)
-    qz -= a.box_hz
-    inside = np.maximum(qx, qy, out=dx)
-    np.maximum(inside, qz, out=inside)
+    dx = x - cx
+    dy = y - cy
+    # In place where the shapes allow (the batched paths: one temporary at a time, so a chunk's arrays
+    # stay in cache), else new arrays; the same doubles either way.
+    lx = dx * cos
+    t = dy * sin
+    if isinstance(lx, np.ndarray) and isinstance(t, np.ndarray) and lx.shape == t.shape:
+        lx += t
+    else:
+        lx = lx + t
+    ly = dy * cos
+    t = dx * sin
+    if isinstance(ly, np.ndarray) and isinstance(t, np.ndarray) and ly.shape == t.shape:
+        ly -= t
+    else:
+        ly = ly - t
+    return lx, ly
+
+
+def vertical_prism_key(out2_xy: np.ndarray, d_xy: np.ndarray, qz: np.ndarray) -> np.ndarray:
+    """Signed squared distance sign(d)*d^2 to vertical prisms, from the footprint and height parts.
+
+    The exact product-set formula: d = hypot(max(d_xy, 0), max(qz, 0)) outside, max(d_xy, qz) inside,
+    as out2_xy + max(qz, 0)^2 - min(max(d_xy, qz), 0)^2.  The arguments are overwritten (no copies).
+
+    Args:
+        out2_xy: squared 2D distance to the footprint where the point is outside it (0 inside) [m^2].
+        d_xy: signed 2D footprint distance where inside (<= 0), any positive value outside [m].
+        qz: signed distance to the height range, |z - zc| - hz [m].
+
+    Returns:
+        The keys [m^2] (the array `out2_xy`), monotone in the signed distance.
+    """
+    inside = np.maximum(d_xy, qz, out=d_xy)
     np.minimum(inside, 0.0, out=inside)
+    np.maximum(qz, 0.0, out=qz)
+    qz *= qz
+    out2_xy += qz
+    inside *= inside
+    out2_xy -= inside
+    return out2_xy
+
+
+def box_signed_sq_distance(x: np.ndarray, y: np.ndarray, z: np.ndarray, cx: np.ndarray, cy: np.ndarray,
+                           cos: np.ndarray, sin: np.ndarray, hx: np.ndarray, hy: np.ndarray, zc: np.ndarray,
+                           hz: np.ndarray) -> np.ndarray:
+    """Signed squared point distances sign(d)*d^2 to (yawed) boxes, broadcast: THE box kernel.
+
+    The key is monotone in the signed distance, so an argmin needs no square root (`signed_sqrt`
+    gives the distance).  In-place operations keep the temporaries to a few arrays of the result's
+    shape; x - cx and z - zc must already have that shape (true when the box arrays have it).
+
+    Args:
+        x, y, z: point coordinates, ENU metres (e.g. (N, 1) against boxes (B,) or (N, C)).
+        cx, cy: footprint centres [m]; cos, sin: of the yaw (counter-clockwise about +z).
+        hx, hy: half sizes along the box's own x and y axes [m].
+        zc, hz: centre and half of the height range [m].
+
+    Returns:
+        keys [m^2], negative inside.
+    """
+    qx, qy = box_frame_xy(x, y, cx, cy, cos, sin)
+    np.abs(qx, out=qx)
+    qx -= hx
+    np.abs(qy, out=qy)
+    qy -= hy
+    qz = z - zc
+    np.abs(qz, out=qz)
+    qz -= hz
+    d_xy = np.maximum(qx, qy)
     np.maximum(qx, 0.0, out=qx)
     np.maximum(qy, 0.0, out=qy)
-    np.maximum(qz, 0.0, out=qz)
     qx *= qx
     qy *= qy
-    qz *= qz
     qx += qy
-    qx += qz
-    inside *= inside
-    qx -= inside
-    return qx
+    return vertical_prism_key(qx, d_xy, qz)
+
+
+def signed_sqrt(key: np.ndarray) -> np.ndarray:
+    """Signed distances [m] from an array (at least 1-D) of signed squared distances sign(d)*d^2 [m^2].
+
+    Exact for the keys above: outside it is the square root of the sum of squares; inside,
+    sqrt(d*d) == |d| in binary floating point, so the result is max(d_xy, qz) itself.
+    """
+    d = np.abs(key)
+    np.sqrt(d, out=d)
+    return np.copysign(d, key, out=d)
+
+
+def box_signed_distance(x: np.ndarray, y: np.ndarray, z: np.ndarray, cx: np.ndarray, cy: np.ndarray,
+                        cos: np.ndarray, sin: np.ndarray, hx: np.ndarray, hy: np.ndarray, zc: np.ndarray,
+                        hz: np.ndarray) -> np.ndarray:
+    """Signed point distances [m] to boxes (negative inside): `box_signed_sq_distance` (same arguments)
+    through `signed_sqrt`."""
+    return signed_sqrt(box_signed_sq_distance(x, y, z, cx, cy, cos, sin, hx, hy, zc, hz))
+
+
+def box_signed_distance_one(x: float, y: float, z: float, box: tuple[float, ...]) -> float:
+    """`box_signed_distance` for one point and one box in plain Python (same doubles).
+
+    Args:
+        x, y, z: the point, ENU metres.
+        box: (cx, cy, cos, sin, hx, hy, zc, hz) as in `box_signed_sq_distance`.
+
+    Returns:
+        The signed distance [m], negative inside.
+    """
+    cx, cy, co, si, hx, hy, zc, hz = box
+    dx = x - cx
+    dy = y - cy
+    # The same products and sums as box_frame_xy; if-expressions: a builtin call here costs more.
+    qx = abs(dx * co + dy * si) - hx
+    qy = abs(dy * co - dx * si) - hy
+    qz = abs(z - zc) - hz
+    if qx > 0.0 or qy > 0.0 or qz > 0.0:
+        qx = qx if qx > 0.0 else 0.0
+        qy = qy if qy > 0.0 else 0.0
+        qz = qz if qz > 0.0 else 0.0
+        return _sqrt(qx * qx + qy * qy + qz * qz)
+    return max(qx, qy, qz)
+
+
+def _box_keys(p: np.ndarray, a: PackedPrisms) -> np.ndarray:
+    """Signed squared distances sign(d)*d^2 from points (n, 3) to every box: (n, B)."""
+    return box_signed_sq_distance(p[:, 0:1], p[:, 1:2], p[:, 2:3], a.box_cx, a.box_cy, a.box_cos, a.box_sin,
+                                  a.box_hx, a.box_hy, a.box_zc, a.box_hz)
 
 
 def _prism_parts(p: np.ndarray, a: PackedPrisms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,9 +281,7 @@ def _prism_keys(p: np.ndarray, a: PackedPrisms) -> np.ndarray:
     """Signed squared distances from points (n, 3) to every convex prism: (n, P)."""
     side, seg2, qz = _prism_parts(p, a)
     d2 = side.max(axis=2)  # <= 0 inside the footprint: minus the distance to the nearest edge line
-    out2 = np.where(d2 > 0.0, seg2, 0.0) + np.maximum(qz, 0.0) ** 2
-    inside = np.minimum(np.maximum(d2, qz), 0.0)
-    return out2 - inside * inside
+    return vertical_prism_key(np.where(d2 > 0.0, seg2, 0.0), d2, qz)
 
 
 def _keys(p: np.ndarray, a: PackedPrisms) -> np.ndarray:
@@ -189,9 +310,8 @@ def surface_below(points: np.ndarray, a: PackedPrisms) -> np.ndarray:
     for s in range(0, len(p), _CHUNK):
         q = p[s:s + _CHUNK]
         if len(a.box_part):
-            dx, dy = q[:, 0:1] - a.box_cx, q[:, 1:2] - a.box_cy
-            inside = ((np.abs(dx * a.box_cos + dy * a.box_sin) <= a.box_hx)
-                      & (np.abs(dy * a.box_cos - dx * a.box_sin) <= a.box_hy))
+            lx, ly = box_frame_xy(q[:, 0:1], q[:, 1:2], a.box_cx, a.box_cy, a.box_cos, a.box_sin)
+            inside = (np.abs(lx) <= a.box_hx) & (np.abs(ly) <= a.box_hy)
             top = a.box_zc + a.box_hz
             under = inside & (top <= q[:, 2:3])
             out[s:s + len(q)] = np.max(np.where(under, top, 0.0), axis=1, initial=0.0)
@@ -204,10 +324,6 @@ def surface_below(points: np.ndarray, a: PackedPrisms) -> np.ndarray:
     return out
 
 
-def _key_to_distance(key: np.ndarray) -> np.ndarray:
-    return np.copysign(np.sqrt(np.abs(key)), key)
-
-
 def part_distances(points: np.ndarray, a: PackedPrisms) -> np.ndarray:
     """Signed point distances from every point to every part.
 
@@ -218,7 +334,7 @@ def part_distances(points: np.ndarray, a: PackedPrisms) -> np.ndarray:
     Returns:
         (N, n_parts) signed distances [m], negative inside.
     """
-    return _key_to_distance(_keys(np.asarray(points, dtype=float), a))
+    return signed_sqrt(_keys(np.asarray(points, dtype=float), a))
 
 
 def nearest_parts(points: np.ndarray, a: PackedPrisms) -> tuple[np.ndarray, np.ndarray]:
@@ -250,7 +366,7 @@ def nearest_parts(points: np.ndarray, a: PackedPrisms) -> tuple[np.ndarray, np.n
             j = np.argmin(keys, axis=1)
             part[i:i + _CHUNK] = j
         dist[i:i + _CHUNK] = keys[rows, j]
-    return _key_to_distance(dist), part
+    return signed_sqrt(dist), part
 
 
 def nearest_points_on_parts(points: np.ndarray, parts: np.ndarray, a: PackedPrisms) -> np.ndarray:
@@ -285,8 +401,8 @@ def nearest_points_on_parts(points: np.ndarray, parts: np.ndarray, a: PackedPris
 
 def _nearest_on_boxes(p: np.ndarray, r: np.ndarray, a: PackedPrisms) -> np.ndarray:
     c, s = a.box_cos[r], a.box_sin[r]
-    dx, dy = p[:, 0] - a.box_cx[r], p[:, 1] - a.box_cy[r]
-    local = np.stack([c * dx + s * dy, c * dy - s * dx, p[:, 2] - a.box_zc[r]], axis=1)
+    lx, ly = box_frame_xy(p[:, 0], p[:, 1], a.box_cx[r], a.box_cy[r], c, s)
+    local = np.stack([lx, ly, p[:, 2] - a.box_zc[r]], axis=1)
     half = np.stack([a.box_hx[r], a.box_hy[r], a.box_hz[r]], axis=1)
     q = np.abs(local) - half
     inside = np.all(q <= 0.0, axis=1)
@@ -357,15 +473,19 @@ def footprint_distance_2d(xy: np.ndarray, a: PackedPrisms) -> np.ndarray:
     p = np.column_stack([xy, np.zeros(len(xy))])
     out = np.empty((len(xy), a.n_parts))
     if len(a.box_part):
-        dx = p[:, 0:1] - a.box_cx
-        dy = p[:, 1:2] - a.box_cy
-        qx = np.maximum(np.abs(dx * a.box_cos + dy * a.box_sin) - a.box_hx, 0.0)
-        qy = np.maximum(np.abs(dy * a.box_cos - dx * a.box_sin) - a.box_hy, 0.0)
-        out[:, a.box_part] = np.hypot(qx, qy)
+        lx, ly = box_frame_xy(p[:, 0:1], p[:, 1:2], a.box_cx, a.box_cy, a.box_cos, a.box_sin)
+        out[:, a.box_part] = np.hypot(np.maximum(np.abs(lx) - a.box_hx, 0.0),
+                                      np.maximum(np.abs(ly) - a.box_hy, 0.0))
     if len(a.prism_part):
         side, seg2, _ = _prism_parts(p, a)
         out[:, a.prism_part] = np.where(side.max(axis=2) > 0.0, np.sqrt(seg2), 0.0)
     return out
+
+
+# A part for the per-point loop: its plain-Python distance function and the shape tuple it takes.
+_Part = tuple[Callable[[float, float, float, tuple], float], tuple]
+# One slab of a CellIndex column: its candidates' lower bounds [m] (ascending) and parts.
+_Slab = tuple[list[float], list[_Part]]
 
 
 class CellIndex:
@@ -407,7 +527,7 @@ class CellIndex:
         self._inv_dz = 1.0 / self._dz
         self._z_top = z_top
         # Per column (ix, iy): the candidate lists of all its slabs, built together on first use.
-        self._columns: list[list[tuple[list[float], list[tuple]]] | None] = [None] * (self._nx * self._ny)
+        self._columns: list[list[_Slab] | None] = [None] * (self._nx * self._ny)
         self._z_bounds_sq: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         fp_lo = np.array([f.min(axis=0) for f in footprints]).reshape(-1, 2)
         fp_hi = np.array([f.max(axis=0) for f in footprints]).reshape(-1, 2)
@@ -417,7 +537,7 @@ class CellIndex:
         z_lo[a.box_part], z_hi[a.box_part] = a.box_zc - a.box_hz, a.box_zc + a.box_hz
         z_lo[a.prism_part], z_hi[a.prism_part] = a.prism_zc - a.prism_hz, a.prism_zc + a.prism_hz
         self._part_z_lo, self._part_z_hi = z_lo, z_hi
-        self._shapes = _python_shapes(a)
+        self._parts = _python_parts(a)
 
     def query(self, x: float, y: float, z: float) -> float | None:
         """Signed point distance to the nearest part or the ground (z = 0), or None if not indexed.
@@ -429,9 +549,9 @@ class CellIndex:
             The distance [m] (negative inside a part or below ground), or None when the point is
             outside the grid or above its top (the caller then asks FCL).
         """
-        ix = math.floor((x - self._x0) * self._inv)
-        iy = math.floor((y - self._y0) * self._inv)
-        iz = math.floor(z * self._inv_dz)
+        ix = _floor((x - self._x0) * self._inv)
+        iy = _floor((y - self._y0) * self._inv)
+        iz = _floor(z * self._inv_dz)
         if iz < 0:
             iz = 0  # below ground: the ground wins anyway and slab 0's lower bounds still hold
         if not (0 <= ix < self._nx and 0 <= iy < self._ny and iz < self._nz):
@@ -440,27 +560,10 @@ class CellIndex:
         if column is None:
             column = self._columns[iy * self._nx + ix] = self._build_column(ix, iy)
         best = z
-        sqrt = math.sqrt
-        # Plain if-expressions rather than min()/max() below: a builtin call per candidate costs more.
-        for lb, shape in zip(*column[iz]):
-            if lb > 0.0 and lb >= best:
+        for lb, (distance_fn, shape) in zip(*column[iz]):
+            if lb >= best and lb > 0.0:  # (lb < best, the common case, is one comparison)
                 break
-            if shape[0] == 0:
-                _, cx, cy, co, si, hx, hy, zc, hz = shape
-                dx = x - cx
-                dy = y - cy
-                qx = abs(co * dx + si * dy) - hx
-                qy = abs(co * dy - si * dx) - hy
-                qz = abs(z - zc) - hz
-                if qx > 0.0 or qy > 0.0 or qz > 0.0:
-                    qx = qx if qx > 0.0 else 0.0
-                    qy = qy if qy > 0.0 else 0.0
-                    qz = qz if qz > 0.0 else 0.0
-                    d = sqrt(qx * qx + qy * qy + qz * qz)
-                else:
-                    d = max(qx, qy, qz)
-            else:
-                d = _prism_distance_py(x, y, z, shape)
+            d = distance_fn(x, y, z, shape)
             if d < best:
                 best = d
         return best
@@ -473,8 +576,8 @@ class CellIndex:
         ub_z = np.maximum(np.maximum(z_hi - self._part_z_hi, self._part_z_lo - z_lo), 0.0)
         return lb_z * lb_z, ub_z * ub_z, z_hi[:, 0] * z_hi[:, 0]
 
-    def _build_column(self, ix: int, iy: int) -> list[tuple[list[float], list[tuple]]]:
-        """Candidate lists (lower bounds ascending, shapes) for every slab of one column."""
+    def _build_column(self, ix: int, iy: int) -> list[_Slab]:
+        """Candidate lists (lower bounds ascending, parts) for every slab of a column."""
         x0, y0 = self._x0 + ix * self._cell, self._y0 + iy * self._cell
         x1, y1 = x0 + self._cell, y0 + self._cell
         corners = footprint_distance_2d(np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]), self._a)
@@ -494,33 +597,35 @@ class CellIndex:
         order = np.lexsort((part, lb_kept, slab))  # by slab, then lower bound, then part index
         ends = np.searchsorted(slab[order], np.arange(1, self._nz + 1), side="left").tolist()
         lbs = lb_kept[order].tolist()
-        shapes = [self._shapes[j] for j in part[order].tolist()]
+        parts = [self._parts[j] for j in part[order].tolist()]
         column = []
         start = 0
         for end in ends:
-            column.append((lbs[start:end], shapes[start:end]))
+            column.append((lbs[start:end], parts[start:end]))
             start = end
         return column
 
 
-def _python_shapes(a: PackedPrisms) -> list[tuple]:
-    """Per part, a plain tuple the per-point Python loop can unpack quickly."""
-    shapes: list[tuple] = [()] * a.n_parts
+def _python_parts(a: PackedPrisms) -> list[_Part]:
+    """Per part, its plain-Python distance function and the plain tuple that function takes."""
+    parts: list[_Part] = [(_prism_distance_py, ())] * a.n_parts
     for r, j in enumerate(a.box_part.tolist()):
-        shapes[j] = (0, float(a.box_cx[r]), float(a.box_cy[r]), float(a.box_cos[r]), float(a.box_sin[r]),
-                     float(a.box_hx[r]), float(a.box_hy[r]), float(a.box_zc[r]), float(a.box_hz[r]))
+        parts[j] = (box_signed_distance_one, (
+            float(a.box_cx[r]), float(a.box_cy[r]), float(a.box_cos[r]), float(a.box_sin[r]),
+            float(a.box_hx[r]), float(a.box_hy[r]), float(a.box_zc[r]), float(a.box_hz[r])))
     for r, j in enumerate(a.prism_part.tolist()):
         edges = tuple(
             (float(v[0]), float(v[1]), float(e[0]), float(e[1]), float(n[0]), float(n[1]), float(il))
             for v, e, n, il in zip(a.prism_v0[r], a.prism_e[r], a.prism_n[r], a.prism_inv_len2[r])
         )
-        shapes[j] = (1, edges, float(a.prism_zc[r]), float(a.prism_hz[r]))
-    return shapes
+        parts[j] = (_prism_distance_py, (edges, float(a.prism_zc[r]), float(a.prism_hz[r])))
+    return parts
 
 
 def _prism_distance_py(x: float, y: float, z: float, shape: tuple) -> float:
-    """Signed distance from a point to one convex prism, plain Python (same formula as NumPy)."""
-    _, edges, zc, hz = shape
+    """Signed distance from a point to one convex prism, plain Python (the arithmetic of
+    `_prism_keys` and `vertical_prism_key`, same doubles); shape = (edges, zc, hz)."""
+    edges, zc, hz = shape
     side = -math.inf
     seg2 = math.inf
     for vx, vy, ex, ey, nx, ny, inv in edges:

@@ -28,6 +28,7 @@ import numpy as np
 from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.errors import ConfigError
+from uam_fdm.files.strict import is_finite_number, mapping, number_list
 
 MAPS_DIR = Path(__file__).parent / "maps"
 REGENERATE_COMMAND = "python -m uam_fdm.city.generator --write-shipped"
@@ -237,13 +238,8 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, 
     Raises:
         ConfigError: on unknown keys, wrong types or impossible values.
     """
-    if not isinstance(cfg, Mapping):
-        raise ConfigError(source, key, f"must be a mapping, got {cfg!r}")
     fields = {f.name: f for f in dataclasses.fields(CityGenParams)}
-    allowed = set(fields) | {"seed", "preset"}
-    for k in cfg:
-        if k not in allowed:
-            raise ConfigError(source, f"{key}.{k}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    mapping(cfg, source, key, set(fields) | {"seed", "preset"})
     if "seed" not in cfg:
         raise ConfigError(source, f"{key}.seed", "missing: a generated city needs an explicit seed")
     seed = cfg["seed"]
@@ -262,9 +258,8 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, 
         default = getattr(base, name)
         k = f"{key}.{name}"
         if isinstance(default, tuple):
-            if not isinstance(value, (list, tuple)) or len(value) != len(default):
-                raise ConfigError(source, k, f"must be a list of {len(default)} numbers, got {value!r}")
-            values[name] = tuple(_scalar(v, type(d), source, k, value) for v, d in zip(value, default))
+            items = number_list(value, len(default), source, k)
+            values[name] = tuple(_scalar(v, type(d), source, k, value) for v, d in zip(items, default))
         else:
             values[name] = _scalar(value, type(default), source, k, value)
     merged = {f: getattr(base, f) for f in fields}
@@ -274,11 +269,12 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, 
 
 
 def _scalar(v: Any, kind: type, source: str, key: str, shown: Any) -> Any:
+    """v as `kind` (a field's type: int or float); the error shows `shown`, the whole value of the key."""
     if kind is int:
         if isinstance(v, bool) or not isinstance(v, int):
             raise ConfigError(source, key, f"must be integers, got {shown!r}")
         return v
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if not is_finite_number(v):
         raise ConfigError(source, key, f"must be finite numbers, got {shown!r}")
     return float(v)
 

@@ -23,6 +23,14 @@ from uam_fdm.city import generator as citygen
 from uam_fdm.city import geojson
 from uam_fdm.city.buildings import Building, BuildingMap, NoFlyZone
 from uam_fdm.errors import ConfigError
+from uam_fdm.files.strict import (
+    is_finite_number,
+    mapping,
+    numbers,
+    reject_unknown,
+    require_keys,
+    root_mapping,
+)
 from uam_fdm.files.yamlfile import load_yaml_file
 
 MAPS_DIR = citygen.MAPS_DIR  # one folder of shipped maps: the generator writes it
@@ -52,9 +60,7 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
     Raises:
         ConfigError: naming the file, the key and the reason.
     """
-    if not isinstance(map_cfg, Mapping):
-        raise ConfigError(source, "map", f"must be a mapping, got {map_cfg!r}")
-    _reject_unknown(map_cfg, _MAP_KEYS, source, "map")
+    mapping(map_cfg, source, "map", _MAP_KEYS)
     kinds = [k for k in _SOURCES if k in map_cfg]
     if len(kinds) != 1:
         raise ConfigError(source, "map", f"needs exactly one of {', '.join(_SOURCES)}; got {kinds or 'none'}")
@@ -91,7 +97,7 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
             raise ConfigError(source, "map.height_key", f"must be a property name, got {height_key!r}")
         origin = None
         if "origin_lonlat" in map_cfg:
-            origin = _numbers(map_cfg["origin_lonlat"], 2, source, "map.origin_lonlat")
+            origin = numbers(map_cfg["origin_lonlat"], 2, source, "map.origin_lonlat")
             if not (-180.0 <= origin[0] <= 180.0 and -85.0 <= origin[1] <= 85.0):
                 raise ConfigError(source, "map.origin_lonlat", f"must be [lon, lat] in degrees, got {origin}")
         parts = geojson.load_footprints(path, height_key, origin, bounds[0][:2], bounds[1][:2])
@@ -102,14 +108,10 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
 
 def parse_bounds(cfg: Any, source: str) -> tuple[list[float], list[float]]:
     """Parse `bounds: {min: [x, y, z], max: [x, y, z]}` (ENU metres): returns (min, max)."""
-    if not isinstance(cfg, Mapping):
-        raise ConfigError(source, "bounds", f"must be a mapping {{min: [x, y, z], max: [x, y, z]}}, got {cfg!r}")
-    _reject_unknown(cfg, {"min", "max"}, source, "bounds")
-    for k in ("min", "max"):
-        if k not in cfg:
-            raise ConfigError(source, f"bounds.{k}", "missing")
-    lo = _numbers(cfg["min"], 3, source, "bounds.min")
-    hi = _numbers(cfg["max"], 3, source, "bounds.max")
+    mapping(cfg, source, "bounds", {"min", "max"}, ("min", "max"),
+            expected="a mapping {min: [x, y, z], max: [x, y, z]}")
+    lo = numbers(cfg["min"], 3, source, "bounds.min")
+    hi = numbers(cfg["max"], 3, source, "bounds.max")
     if lo[2] < 0.0:
         raise ConfigError(source, "bounds.min", f"z must be >= 0 (the ground is z = 0), got {cfg['min']!r}")
     if not all(h > lo_ for lo_, h in zip(lo, hi)):
@@ -127,12 +129,9 @@ def load_map_file(path: Path, source: str | None = None) -> BuildingMap:
     """
     src = source or str(path)
     doc = load_yaml_file(path, src)
-    if not isinstance(doc, Mapping):
-        raise ConfigError(src, "<root>", "must be a mapping with name, bounds and map")
-    _reject_unknown(doc, {"name", "bounds", "map"}, src, "")
-    for k in ("name", "bounds", "map"):
-        if k not in doc:
-            raise ConfigError(src, k, "missing")
+    root_mapping(doc, src, "map-file keys (name, bounds, map)")
+    reject_unknown(doc, {"name", "bounds", "map"}, src)
+    require_keys(doc, ("name", "bounds", "map"), src)
     bmap = map_from_config(doc["map"], doc["bounds"], src, Path(path).parent)
     return BuildingMap(bmap.buildings, bmap.bounds_min_m, bmap.bounds_max_m, bmap.no_fly, name=str(doc["name"]))
 
@@ -167,53 +166,24 @@ def _rebound(bmap: BuildingMap, bounds: tuple[list[float], list[float]] | None, 
     return BuildingMap(bmap.buildings, lo, hi, tuple(bmap.no_fly) + tuple(no_fly), name=bmap.name)
 
 
-def _reject_unknown(cfg: Mapping, known: set[str], source: str, prefix: str) -> None:
-    for k in cfg:
-        if k not in known:
-            key = f"{prefix}.{k}" if prefix else str(k)
-            raise ConfigError(source, key, f"unknown key (allowed: {', '.join(sorted(known))})")
-
-
-def _is_number(v: Any) -> bool:
-    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-
-
-def _numbers(v: Any, n: int, source: str, key: str) -> list[float]:
-    if not isinstance(v, (list, tuple)) or len(v) != n or not all(_is_number(x) for x in v):
-        raise ConfigError(source, key, f"must be {n} finite numbers, got {v!r}")
-    return [float(x) for x in v]
-
-
-def _mapping(item: Any, known: set[str], required: tuple[str, ...], source: str, key: str) -> Mapping:
-    if not isinstance(item, Mapping):
-        raise ConfigError(source, key, f"must be a mapping, got {item!r}")
-    _reject_unknown(item, known, source, key)
-    for k in required:
-        if k not in item:
-            raise ConfigError(source, f"{key}.{k}", "missing")
-    return item
-
-
 def _size(v: Any, source: str, key: str) -> list[float]:
-    if not isinstance(v, (list, tuple)) or len(v) != 2 or not all(_is_number(x) and x > 0 for x in v):
-        raise ConfigError(source, key, f"must be two positive numbers, got {v!r}")
-    return [float(x) for x in v]
+    return numbers(v, 2, source, key, what="two positive numbers", all_positive=True)
 
 
 def _yaw_deg(item: Mapping, source: str, key: str) -> float:
     yaw = item.get("yaw_deg", 0.0)
-    if not _is_number(yaw):
+    if not is_finite_number(yaw):
         raise ConfigError(source, f"{key}.yaw_deg", f"must be a finite number of degrees, got {yaw!r}")
     return float(yaw)
 
 
 def _building(item: Any, i: int, source: str, bounds: tuple[list[float], list[float]]) -> Building:
     key = f"map.buildings[{i}]"
-    item = _mapping(item, _BUILDING_KEYS, ("center", "size", "height"), source, key)
-    center = _numbers(item["center"], 2, source, f"{key}.center")
+    item = mapping(item, source, key, _BUILDING_KEYS, ("center", "size", "height"))
+    center = numbers(item["center"], 2, source, f"{key}.center")
     size = _size(item["size"], source, f"{key}.size")
     height = item["height"]
-    if not (_is_number(height) and height > 0):
+    if not (is_finite_number(height) and height > 0):
         raise ConfigError(source, f"{key}.height", f"must be a positive number of metres, got {height!r}")
     b = Building(i, (center[0], center[1]), (size[0], size[1]), float(height),
                  math.radians(_yaw_deg(item, source, key)))
@@ -232,10 +202,10 @@ def _no_fly(items: Any, source: str) -> list[NoFlyZone]:
     zones = []
     for i, item in enumerate(items):
         key = f"map.no_fly[{i}]"
-        item = _mapping(item, _NO_FLY_KEYS, ("center", "size", "z_range"), source, key)
-        center = _numbers(item["center"], 2, source, f"{key}.center")
+        item = mapping(item, source, key, _NO_FLY_KEYS, ("center", "size", "z_range"))
+        center = numbers(item["center"], 2, source, f"{key}.center")
         size = _size(item["size"], source, f"{key}.size")
-        z = _numbers(item["z_range"], 2, source, f"{key}.z_range")
+        z = numbers(item["z_range"], 2, source, f"{key}.z_range")
         if not z[1] > z[0]:
             raise ConfigError(source, f"{key}.z_range",
                               f"must be [bottom, top] with top > bottom, got {item['z_range']!r}")

@@ -9,7 +9,8 @@ One loader for every such file, so each gets the same checks before any value is
   `MAX_YAML_DEPTH` deep;
 - the file may be at most `MAX_YAML_BYTES` long and must be UTF-8 text.
 
-Every problem raises `ConfigError(file, key, reason)` with key ``<file>`` or ``<yaml>``.
+Every problem raises `ConfigError(file, key, reason)` with key ``<file>`` or ``<yaml>``.  What the
+document holds is checked with the helpers of `uam_fdm.files.strict`.
 """
 from __future__ import annotations
 

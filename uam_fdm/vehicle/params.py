@@ -12,11 +12,23 @@ import hashlib
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from uam_fdm.errors import ConfigError
+from uam_fdm.files.strict import (
+    boolean,
+    mapping,
+    non_negative,
+    number,
+    number_list,
+    positive,
+    reject_unknown,
+    require_keys,
+    root_mapping,
+    string,
+)
 from uam_fdm.files.yamlfile import load_yaml_file
 
 GRAVITY_M_S2 = 9.80665
@@ -161,11 +173,9 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
 
 def vehicle_from_dict(data: Any, source: str = "<inline>") -> VehicleParams:
     """Build and validate `VehicleParams` from a parsed mapping (e.g. a scenario's `vehicle` block)."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(source, "<root>", f"must be a mapping of vehicle parameters, got {type(data).__name__}")
-    _reject_unknown(data, _TOP_KEYS, source, "")
-    for key in sorted(_TOP_KEYS - _OPTIONAL_TOP_KEYS - set(data)):
-        raise ConfigError(source, key, "missing")
+    root_mapping(data, source, "vehicle parameters")
+    reject_unknown(data, _TOP_KEYS, source)
+    require_keys(data, sorted(_TOP_KEYS - _OPTIONAL_TOP_KEYS), source)
 
     rotors = data["rotors"]
     if not isinstance(rotors, list) or len(rotors) < 4:
@@ -173,9 +183,7 @@ def vehicle_from_dict(data: Any, source: str = "<inline>") -> VehicleParams:
     positions, spins = [], []
     for i, rotor in enumerate(rotors):
         key = f"rotors[{i}]"
-        if not isinstance(rotor, Mapping):
-            raise ConfigError(source, key, "must be a mapping with position_m and spin")
-        _reject_unknown(rotor, _ROTOR_KEYS, source, key + ".")
+        mapping(rotor, source, key, _ROTOR_KEYS, expected="a mapping with position_m and spin")
         positions.append(_vector(rotor.get("position_m"), 3, source, key + ".position_m"))
         spin = rotor.get("spin")
         if spin not in _SPINS:
@@ -183,24 +191,24 @@ def vehicle_from_dict(data: Any, source: str = "<inline>") -> VehicleParams:
         spins.append(_SPINS[spin])
 
     params = VehicleParams(
-        name=_string(data["name"], source, "name"),
-        description=_string(data.get("description", ""), source, "description"),
-        mass_kg=_positive(data["mass_kg"], source, "mass_kg"),
+        name=string(data["name"], source, "name"),
+        description=string(data.get("description", ""), source, "description"),
+        mass_kg=positive(data["mass_kg"], source, "mass_kg"),
         inertia_kg_m2=_matrix3(data["inertia_kg_m2"], source, "inertia_kg_m2"),
         rotor_positions_m=tuple(positions),
         rotor_spins=tuple(spins),
-        rotor_diameter_m=_positive(data["rotor_diameter_m"], source, "rotor_diameter_m"),
-        thrust_coeff_N_s2=_positive(data["thrust_coeff_N_s2"], source, "thrust_coeff_N_s2"),
-        torque_coeff_Nm_s2=_positive(data["torque_coeff_Nm_s2"], source, "torque_coeff_Nm_s2"),
-        motor_time_constant_s=_positive(data["motor_time_constant_s"], source, "motor_time_constant_s"),
-        rotor_speed_min_rad_s=_non_negative(data["rotor_speed_min_rad_s"], source, "rotor_speed_min_rad_s"),
-        rotor_speed_max_rad_s=_positive(data["rotor_speed_max_rad_s"], source, "rotor_speed_max_rad_s"),
+        rotor_diameter_m=positive(data["rotor_diameter_m"], source, "rotor_diameter_m"),
+        thrust_coeff_N_s2=positive(data["thrust_coeff_N_s2"], source, "thrust_coeff_N_s2"),
+        torque_coeff_Nm_s2=positive(data["torque_coeff_Nm_s2"], source, "torque_coeff_Nm_s2"),
+        motor_time_constant_s=positive(data["motor_time_constant_s"], source, "motor_time_constant_s"),
+        rotor_speed_min_rad_s=non_negative(data["rotor_speed_min_rad_s"], source, "rotor_speed_min_rad_s"),
+        rotor_speed_max_rad_s=positive(data["rotor_speed_max_rad_s"], source, "rotor_speed_max_rad_s"),
         drag_linear_N_s_m=_vector(data["drag_linear_N_s_m"], 3, source, "drag_linear_N_s_m", min_value=0.0),
         drag_quadratic_N_s2_m2=_vector(data["drag_quadratic_N_s2_m2"], 3, source, "drag_quadratic_N_s2_m2",
                                        min_value=0.0),
-        collision_radius_m=_positive(data["collision_radius_m"], source, "collision_radius_m"),
+        collision_radius_m=positive(data["collision_radius_m"], source, "collision_radius_m"),
         controller=_controller(data["controller"], source),
-        ground_effect=_boolean(data.get("ground_effect", True), source, "ground_effect"),
+        ground_effect=boolean(data.get("ground_effect", True), source, "ground_effect"),
         source=source,
     )
     check_physics(params, source)
@@ -235,11 +243,8 @@ def check_physics(p: VehicleParams, source: str = "<inline>") -> None:
 
 
 def _controller(data: Any, source: str) -> ControllerParams:
-    if not isinstance(data, Mapping):
-        raise ConfigError(source, "controller", "must be a mapping")
-    known = {f.name for f in dataclasses.fields(ControllerParams)}
-    _reject_unknown(data, known, source, "controller.")
-    values = {k: _positive(v, source, f"controller.{k}") for k, v in data.items()}
+    mapping(data, source, "controller", {f.name for f in dataclasses.fields(ControllerParams)})
+    values = {k: positive(v, source, f"controller.{k}") for k, v in data.items()}
     try:
         ctrl = ControllerParams(**values)
     except TypeError:
@@ -254,50 +259,9 @@ def _controller(data: Any, source: str) -> ControllerParams:
     return ctrl
 
 
-def _reject_unknown(data: Mapping, known: set[str], source: str, prefix: str) -> None:
-    for key in data:
-        if key not in known:
-            raise ConfigError(source, f"{prefix}{key}", f"unknown key (allowed: {', '.join(sorted(known))})")
-
-
-def _boolean(value: Any, source: str, key: str) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(source, key, f"must be true or false, got {value!r}")
-    return value
-
-
-def _number(value: Any, source: str, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(source, key, f"must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ConfigError(source, key, f"must be finite, got {value!r}")
-    return float(value)
-
-
-def _positive(value: Any, source: str, key: str) -> float:
-    x = _number(value, source, key)
-    if x <= 0.0:
-        raise ConfigError(source, key, f"must be positive, got {value!r}")
-    return x
-
-
-def _non_negative(value: Any, source: str, key: str) -> float:
-    x = _number(value, source, key)
-    if x < 0.0:
-        raise ConfigError(source, key, f"must be non-negative, got {value!r}")
-    return x
-
-
-def _string(value: Any, source: str, key: str) -> str:
-    if not isinstance(value, str):
-        raise ConfigError(source, key, f"must be a string, got {value!r}")
-    return value
-
-
 def _vector(value: Any, n: int, source: str, key: str, min_value: float | None = None) -> tuple:
-    if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise ConfigError(source, key, f"must be a list of {n} numbers, got {value!r}")
-    out = tuple(_number(v, source, f"{key}[{i}]") for i, v in enumerate(value))
+    """n finite numbers, each named by its index when bad (`drag_linear_N_s_m[1]`)."""
+    out = tuple(number(v, source, f"{key}[{i}]") for i, v in enumerate(number_list(value, n, source, key)))
     if min_value is not None and min(out) < min_value:
         raise ConfigError(source, key, f"entries must be >= {min_value}, got {list(out)}")
     return out

@@ -7,6 +7,7 @@ import pickle
 import numpy as np
 import pytest
 
+from uam_fdm.city import distance
 from uam_fdm.city.buildings import Building, BuildingMap, NoFlyZone, Prism
 from uam_fdm.city.generator import CityGenParams, generate_city
 
@@ -103,6 +104,67 @@ def test_ground_is_the_plane_z0() -> None:
     # Next to the building but low: the ground is nearer than the wall.
     assert bmap.clearance(np.array([[65.0, 40.0, 2.0]])).building_id[0] == -1
     assert bmap.clearance(np.array([[62.0, 40.0, 5.0]])).building_id[0] == 7
+
+
+def test_box_kernel_against_brute_force_and_its_scalar_twin() -> None:
+    """The one box kernel (NumPy) at random points around random yawed boxes, a third of them inside:
+    equal to the brute-force reference to rounding, and the plain-Python twin and the key form give
+    the very same doubles."""
+    rng = np.random.default_rng(7)
+    n_box, n_pt = 40, 400
+    boxes = [Building(j, tuple(rng.uniform(-50.0, 50.0, 2)), tuple(rng.uniform(0.5, 30.0, 2)),
+                      float(rng.uniform(1.0, 80.0)), float(rng.uniform(-2.0 * math.pi, 2.0 * math.pi)))
+             for j in range(n_box)]
+    col = {k: np.array([v[k] for v in (_kernel_box(b) for b in boxes)]) for k in range(8)}
+    pts = rng.uniform([-90.0, -90.0, -5.0], [90.0, 90.0, 100.0], size=(n_pt, 3))
+    for i in range(n_pt // 3):  # inside points: a random box's own frame, scaled into it
+        b = boxes[i % n_box]
+        c, s = math.cos(b.yaw_rad), math.sin(b.yaw_rad)
+        lx, ly = rng.uniform(-0.999, 0.999, 2) * 0.5 * np.array(b.size_xy_m)
+        pts[i] = [b.center_xy_m[0] + c * lx - s * ly, b.center_xy_m[1] + s * lx + c * ly,
+                  rng.uniform(0.001, 0.999) * b.height_m]
+    args = (pts[:, 0:1], pts[:, 1:2], pts[:, 2:3], *(col[k] for k in range(8)))
+    got = distance.box_signed_distance(*args)
+    ref = np.column_stack([_box_distances(b, pts) for b in boxes])
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11)
+    assert (got < 0).sum() >= n_pt // 3  # the inside points are inside
+    np.testing.assert_array_equal(distance.signed_sqrt(distance.box_signed_sq_distance(*args)), got)
+    one = np.array([[distance.box_signed_distance_one(*p, _kernel_box(b)) for b in boxes]
+                    for p in pts.tolist()])
+    np.testing.assert_array_equal(one, got)
+    # Points on faces, edges and corners: distance 0 on every path.
+    b = boxes[0]
+    c, s = math.cos(b.yaw_rad), math.sin(b.yaw_rad)
+    hx, hy = 0.5 * b.size_xy_m[0], 0.5 * b.size_xy_m[1]
+    on_surface = ((hx, 0.0, 1.0), (hx, hy, 0.5 * b.height_m), (-hx, -hy, b.height_m), (0.0, 0.0, b.height_m))
+    for lx, ly, z in on_surface:
+        p = (b.center_xy_m[0] + c * lx - s * ly, b.center_xy_m[1] + s * lx + c * ly, z)
+        assert abs(distance.box_signed_distance_one(*p, _kernel_box(b))) < 1e-12
+
+
+def test_numpy_and_plain_python_paths_give_the_same_doubles(city: BuildingMap) -> None:
+    """Per part (boxes and convex prisms), the plain-Python distance CellIndex uses equals the NumPy
+    kernel's exactly, so `clearance_one` and `clearance` agree to the last bit within the indexed
+    volume (outside it, `clearance_one` asks FCL)."""
+    rng = np.random.default_rng(4)
+    pts = rng.uniform([-20.0, -20.0, -1.0], [1020.0, 1020.0, 330.0], size=(300, 3))
+    pts[:100] = rng.uniform([0.0, 0.0, 0.0], [40.0, 40.0, 50.0], size=(100, 3))  # around the first prism
+    a = city._packed
+    d_np = distance.part_distances(pts, a)
+    parts = distance._python_parts(a)
+    d_py = np.array([[fn(*p, shape) for fn, shape in parts] for p in pts.tolist()])
+    np.testing.assert_array_equal(d_py, d_np)
+    assert (d_np < 0).any()
+    indexed = city.in_bounds(pts) & (pts[:, 2] < 300.0)
+    np.testing.assert_array_equal(np.array([city.clearance_one(*p, 0.5) for p in pts[indexed]]),
+                                  city.clearance(pts[indexed], 0.5).distance_m)
+    assert indexed.sum() > 150
+
+
+def _kernel_box(b: Building) -> tuple[float, ...]:
+    """A box building as the kernel takes it: (cx, cy, cos, sin, hx, hy, zc, hz)."""
+    return (*b.center_xy_m, math.cos(b.yaw_rad), math.sin(b.yaw_rad), 0.5 * b.size_xy_m[0],
+            0.5 * b.size_xy_m[1], 0.5 * b.height_m, 0.5 * b.height_m)
 
 
 def test_brute_force_reference_10k_points(city: BuildingMap) -> None:

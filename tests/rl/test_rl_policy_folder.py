@@ -1,0 +1,93 @@
+"""The policy folder's one reader: a shipped policy read through it, and clear errors naming the file."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from compare.fingerprint import policy_fingerprint
+from rl import train
+from rl.agent import load_policy
+from rl.policy_folder import (
+    CHECKPOINT_FILES,
+    CURVE_COLUMNS,
+    DEFAULT_POLICY_DIR,
+    FLYING_FILES,
+    SHIPPED_POLICIES,
+    PolicyFolder,
+    Provenance,
+    shipped_policy_dir,
+)
+
+
+@pytest.mark.parametrize("vehicle", sorted(SHIPPED_POLICIES))
+def test_a_shipped_policy_reads_through_the_folder(vehicle: str) -> None:
+    pf = PolicyFolder.open(shipped_policy_dir(vehicle))
+    assert pf.path == SHIPPED_POLICIES[vehicle]
+    for path in (pf.model, pf.obs_norm, pf.config_file, pf.vec_normalize, pf.curriculum, pf.reward_curve,
+                 pf.provenance_file):
+        assert path.is_file(), path
+    cfg = pf.config()
+    assert cfg.nav.vehicle == vehicle and cfg.preset == "paper" and list(cfg.ppo["net_arch"]) == [128, 128]
+    prov = pf.provenance()
+    assert isinstance(prov, Provenance) and prov.method == "PPO from scratch"
+    assert all(isinstance(v, int) for v in (prov.seed, prov.timesteps, prov.kept_timesteps))
+    assert 0 < prov.kept_timesteps <= prov.timesteps and prov.wall_time_s > 0
+    assert prov.command.startswith("uam-compare train") and prov.raw["machine"]["cpus"] >= 1
+    header = pf.reward_curve.read_text().splitlines()[0]
+    assert tuple(header.split(",")) == CURVE_COLUMNS
+    # the pilot's loader and the run's fingerprint read the same folder through the same names
+    assert load_policy(pf.path).nav == cfg.nav
+    assert tuple(policy_fingerprint(pf.path)) == FLYING_FILES
+
+
+def test_names_are_defined_once() -> None:
+    assert PolicyFolder.open().path == DEFAULT_POLICY_DIR == SHIPPED_POLICIES["small_quad"]
+    assert train.CURVE_COLUMNS is CURVE_COLUMNS
+    assert set(FLYING_FILES) <= set(CHECKPOINT_FILES)
+    assert PolicyFolder("x").checkpoint(2_000_128).path == Path("x/checkpoints/step_00002000128")
+
+
+@pytest.mark.parametrize("missing", FLYING_FILES)
+def test_a_folder_missing_a_file_names_it(tmp_path: Path, missing: str) -> None:
+    for name in FLYING_FILES:
+        if name != missing:
+            shutil.copy(DEFAULT_POLICY_DIR / name, tmp_path / name)
+    with pytest.raises(ValueError, match=rf"^{tmp_path}: not a policy folder \({missing} is missing\)$"):
+        PolicyFolder.open(tmp_path)
+    with pytest.raises(ValueError, match=rf"\({missing} is missing\)"):
+        load_policy(tmp_path)
+
+
+@pytest.mark.parametrize("text, why", [
+    ("[1, 2]", "list indices"),
+    ("{not json", "Expecting property name"),
+    ('{"ppo": {}}', "'nav'"),
+    ('{"nav": {}, "ppo": [128]}', "'ppo' must be an object, got list"),
+])
+def test_a_bad_config_names_the_file(tmp_path: Path, text: str, why: str) -> None:
+    (tmp_path / "config.json").write_text(text)
+    with pytest.raises(ValueError) as exc:
+        PolicyFolder(tmp_path).config()
+    assert str(exc.value).startswith(f"{tmp_path / 'config.json'}: not a policy configuration (")
+    assert why in str(exc.value)
+
+
+def test_provenance_absent_unreadable_and_loosely_typed(tmp_path: Path) -> None:
+    pf = PolicyFolder(tmp_path)
+    assert pf.provenance() is None  # an older folder, or a run still training
+    pf.provenance_file.write_text("{}")
+    assert pf.provenance() is None  # nothing recorded
+    pf.provenance_file.write_text("[1]")
+    with pytest.raises(ValueError, match=r"provenance\.json: not a JSON object"):
+        pf.provenance()
+    pf.provenance_file.write_text("{oops")
+    with pytest.raises(ValueError, match=r"provenance\.json: unreadable"):
+        pf.provenance()
+    pf.provenance_file.write_text(json.dumps({"seed": True, "timesteps": 2.0e6, "kept_timesteps": 1.5,
+                                              "wall_time_s": 12, "method": 3, "preset": "paper", "x": 1}))
+    prov = pf.provenance()
+    assert (prov.seed, prov.timesteps, prov.kept_timesteps, prov.wall_time_s) == (None, 2_000_000, None, 12.0)
+    assert (prov.method, prov.preset, prov.raw["x"]) == (None, "paper", 1)

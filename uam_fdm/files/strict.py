@@ -1,0 +1,186 @@
+"""Checks for values read from the files users give us (vehicles, maps, generators, scenarios).
+
+`uam_fdm.files.yamlfile` reads such a file strictly; the helpers here check what it holds, so
+every loader rejects the same things with the same words.  Each raises
+`ConfigError(file, key, reason)` ("file: key: reason"), the key a dotted path into the document
+(`map.buildings[3].size`; `key_path` builds it), the reason quoting the bad value.  The one
+exception is `checked_number`, the range check of frozen dataclasses built from Python as well
+as from files: it raises a plain ValueError naming the field (`number_in_range` turns it into a
+ConfigError for a file).
+
+What counts as a number: an int or a float (YAML's two), never a boolean or a string, and, where
+finite is asked for, not NaN or infinite.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Iterable, Mapping
+from typing import Any
+
+from uam_fdm.errors import ConfigError
+
+
+def key_path(parent: str, key: object) -> str:
+    """The dotted key of `key` inside `parent` ("" for the document's top level)."""
+    return f"{parent}.{key}" if parent else str(key)
+
+
+# ---- mappings ------------------------------------------------------------------------------------
+def reject_unknown(cfg: Mapping, known: Collection[str], source: str, parent: str = "") -> None:
+    """Raise for the first key of `cfg` not in `known`, listing the allowed keys: in the order given
+    (a tuple or list, e.g. a file format's documented order), or sorted (a set)."""
+    for k in cfg:
+        if k not in known:
+            allowed = sorted(known) if isinstance(known, (set, frozenset)) else known
+            raise ConfigError(source, key_path(parent, k), f"unknown key (allowed: {', '.join(allowed)})")
+
+
+def require_keys(cfg: Mapping, required: Iterable[str], source: str, parent: str = "",
+                 reason: str = "missing") -> None:
+    """Raise `reason` for the first of `required` (in the order given) that `cfg` lacks."""
+    for k in required:
+        if k not in cfg:
+            raise ConfigError(source, key_path(parent, k), reason)
+
+
+def mapping(value: Any, source: str, key: str, known: Collection[str] | None = None,
+            required: Iterable[str] = (), *, expected: str = "a mapping") -> Mapping:
+    """`value` checked to be a mapping (else "must be <expected>, got <value>") with only `known`
+    keys (None: any) and every `required` key; returned as is."""
+    if not isinstance(value, Mapping):
+        raise ConfigError(source, key, f"must be {expected}, got {value!r}")
+    if known is not None:
+        reject_unknown(value, known, source, key)
+    require_keys(value, required, source, key)
+    return value
+
+
+def root_mapping(doc: Any, source: str, what: str) -> Mapping:
+    """A whole document checked to be a mapping (key ``<root>``); the error names the type found,
+    not the value (a wrong document can be long).
+
+    Args:
+        doc: the parsed document.
+        source: the file, for the error message.
+        what: what the mapping should hold, e.g. "vehicle parameters".
+    """
+    if not isinstance(doc, Mapping):
+        raise ConfigError(source, "<root>", f"must be a mapping of {what}, got {type(doc).__name__}")
+    return doc
+
+
+# ---- numbers -------------------------------------------------------------------------------------
+def is_number(value: Any) -> bool:
+    """An int or a float, not a boolean (YAML's true is an int to Python)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float))
+
+
+def is_finite_number(value: Any) -> bool:
+    """`is_number` and neither NaN nor infinite."""
+    return is_number(value) and math.isfinite(value)
+
+
+def number(value: Any, source: str, key: str) -> float:
+    """A finite number as a float ("must be a number" / "must be finite" otherwise)."""
+    if not is_number(value):
+        raise ConfigError(source, key, f"must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(source, key, f"must be finite, got {value!r}")
+    return float(value)
+
+
+def positive(value: Any, source: str, key: str) -> float:
+    """A finite number > 0, as a float."""
+    x = number(value, source, key)
+    if x <= 0.0:
+        raise ConfigError(source, key, f"must be positive, got {value!r}")
+    return x
+
+
+def non_negative(value: Any, source: str, key: str) -> float:
+    """A finite number >= 0, as a float."""
+    x = number(value, source, key)
+    if x < 0.0:
+        raise ConfigError(source, key, f"must be non-negative, got {value!r}")
+    return x
+
+
+def checked_number(name: str, value: Any, bounds: tuple[float, float], unit: str,
+                   open_low: bool = False) -> float:
+    """``value`` as a float, or a ValueError naming ``name`` unless it is a finite number in ``bounds``
+    (``open_low``: the lower bound itself is excluded)."""
+    # Strings and booleans convert to float silently; in a scenario they are mistakes.
+    if isinstance(value, (str, bytes, bool)):
+        raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number ({unit}), got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite ({unit}), got {value!r}")
+    lo, hi = bounds
+    if not ((lo < v if open_low else lo <= v) and v <= hi):
+        low = "(" if open_low else "["
+        raise ValueError(f"{name}={v} is outside the accepted range {low}{lo}, {hi}] {unit}")
+    return v
+
+
+def number_in_range(value: Any, bounds: tuple[float, float], unit: str, source: str, key: str,
+                    open_low: bool = False) -> float:
+    """`checked_number` for a value read from a file: the same reason, as a ConfigError at `key`.
+
+    Args:
+        value: the value read.
+        bounds: (low, high), both included unless `open_low` excludes low.
+        unit: the unit, shown in the reason (e.g. "m above the field").
+        source: the file.
+        key: the dotted key; its last part names the value in the reason.
+    """
+    try:
+        return checked_number(key.rsplit(".", 1)[-1], value, bounds, unit, open_low=open_low)
+    except ValueError as exc:
+        raise ConfigError(source, key, str(exc)) from None
+
+
+def numbers(value: Any, n: int, source: str, key: str, *, what: str | None = None,
+            all_positive: bool = False) -> list[float]:
+    """A list of exactly n finite numbers (a pair, a triple), as floats; checked as a whole.
+
+    Args:
+        value: the value read.
+        n: how many numbers.
+        source: the file.
+        key: the dotted key.
+        what: what the reason says it must be (default "<n> finite numbers").
+        all_positive: every number must also be > 0.
+
+    Raises:
+        ConfigError: "must be <what>, got <value>".
+    """
+    if (not isinstance(value, (list, tuple)) or len(value) != n
+            or not all(is_finite_number(v) and (not all_positive or v > 0) for v in value)):
+        raise ConfigError(source, key, f"must be {what or f'{n} finite numbers'}, got {value!r}")
+    return [float(v) for v in value]
+
+
+def number_list(value: Any, n: int, source: str, key: str) -> list:
+    """A list of n items, not yet checked item by item ("must be a list of <n> numbers" otherwise):
+    for loaders that name the bad item itself."""
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise ConfigError(source, key, f"must be a list of {n} numbers, got {value!r}")
+    return list(value)
+
+
+# ---- other scalars -------------------------------------------------------------------------------
+def string(value: Any, source: str, key: str) -> str:
+    """A string."""
+    if not isinstance(value, str):
+        raise ConfigError(source, key, f"must be a string, got {value!r}")
+    return value
+
+
+def boolean(value: Any, source: str, key: str) -> bool:
+    """true or false."""
+    if not isinstance(value, bool):
+        raise ConfigError(source, key, f"must be true or false, got {value!r}")
+    return value
