@@ -18,10 +18,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from uam_fdm.vehicle import ground_effect as ge  # noqa: E402
-from uam_fdm.vehicle.dynamics import VehicleDynamics  # noqa: E402
-from uam_fdm.vehicle.model import AIRSPEED_SMOOTHING_M_S, hover_state, make_env  # noqa: E402
-from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle  # noqa: E402
 from uam_fdm.air.wind import (  # noqa: E402
     PROBE_HEIGHTS_M,
     GustStack,
@@ -32,6 +28,10 @@ from uam_fdm.air.wind import (  # noqa: E402
     WindShear,
     gust_stack,
 )
+from uam_fdm.vehicle import ground_effect as ge  # noqa: E402
+from uam_fdm.vehicle.dynamics import VehicleDynamics  # noqa: E402
+from uam_fdm.vehicle.model import AIRSPEED_SMOOTHING_M_S, hover_state, make_env  # noqa: E402
+from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle  # noqa: E402
 
 
 class NumpyTwin:

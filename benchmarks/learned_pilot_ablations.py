@@ -43,8 +43,8 @@ import numpy as np
 
 from compare.viz.report import read_reward_curve
 from rl.agent import load_policy
-from rl.policy_folder import PolicyFolder
 from rl.evaluation import evaluate
+from rl.policy_folder import PolicyFolder
 from rl.train import Curriculum, TrainConfig, train
 
 FINAL_EVAL_SEED = 20_000  # the final validation flight's slot seeds (training-time selection uses seed + 10,000)

@@ -37,9 +37,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from compare.viz.report import read_reward_curve
-from rl.policy_folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
 from rl.env import UAMNavEnv
 from rl.nav import NavConfig, NavWorld
+from rl.policy_folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
 from rl.vec_env import UAMNavVecEnv
 
 BENCH_CITY_POOL = 128  # training cities of the benchmark world (NavConfig trains on 1024): short start-up

@@ -92,10 +92,10 @@ def fly(job: Job) -> dict:
     """Fly one episode; its deviations from the reference and its outcome."""
     from compare.episode_loop import run_episode
     from planners.agent import ClassicalAgent, ClassicalConfig
-    from uam_fdm.pilot import World
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
-    from uam_fdm.vehicle.dynamics import VehicleDynamics
     from uam_fdm.air.wind import WindConditions, WindField, probe_heights_up_to
+    from uam_fdm.pilot import World
+    from uam_fdm.vehicle.dynamics import VehicleDynamics
 
     p, city, city_seed, task, steady = _validation_task(job.vehicle, job.index, job.seed)
     key = (job.vehicle, job.adaptive)

@@ -20,10 +20,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from compare.viz.animate import AnimationOptions, _Scene, ffmpeg_available, frame_times, render_animation
-from compare.viz.flights import flight_groups
 from compare.campaign import RunOptions, run_comparison
 from compare.scenario import resolve_scenarios
+from compare.viz.animate import AnimationOptions, _Scene, ffmpeg_available, frame_times, render_animation
+from compare.viz.flights import flight_groups
 from compare.viz.viewer import build_viewer
 
 SCENARIO = Path(__file__).resolve().parents[1] / "compare" / "scenarios" / "default" / "downtown-quad.yaml"

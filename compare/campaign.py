@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from compare import pilots
+from compare.episode_loop import run_episode
 from compare.fingerprint import check_resume, run_fingerprints
 from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
-from compare.episode_loop import run_episode
 from compare.results.run_info import (
     RUN_INFO_NAME,
     AtmosphereInfo,
@@ -47,9 +47,9 @@ from compare.results.run_info import (
     write_run_info,
 )
 from compare.results.summary import summarize_run, write_summary_json
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
 from compare.scenario import Scenario
 from compare.seeding import cell_seed
-from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
 from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.pilot import Agent
 

@@ -79,8 +79,8 @@ def _one_torch_thread() -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     import os
 
-    from compare.results.outputs import check_output_dir
     from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
+    from compare.results.outputs import check_output_dir
     from compare.scenario import resolve_scenarios, seeds_problem
 
     if args.methods is not None:
@@ -162,10 +162,10 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
+    from compare.campaign import VIDEOS_DIR
+    from compare.results.outputs import check_output_dir, check_output_file
     from compare.viz.animate import AnimationOptions, render_animation, render_videos
     from compare.viz.flights import flight_groups, select_group
-    from compare.results.outputs import check_output_dir, check_output_file
-    from compare.campaign import VIDEOS_DIR
 
     w, h = args.size
     opts = AnimationOptions(fps=args.fps, duration_s=args.duration, width_px=w, height_px=h, orbit_deg=args.orbit)

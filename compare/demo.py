@@ -11,11 +11,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField, probe_heights_up_to
+from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.model import hover_state
 from uam_fdm.vehicle.params import load_vehicle
-from uam_fdm.sim import Simulator
-from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField, probe_heights_up_to
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm import episode
+from uam_fdm.air.wind import WindField
 from uam_fdm.episode import Outcome
 from uam_fdm.pilot import Agent, Observation, RotorCommand, Task, VelocityCommand, World
+from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.model import hover_state
-from uam_fdm.sim import Simulator
-from uam_fdm.air.wind import WindField
 
 
 @dataclass(frozen=True)

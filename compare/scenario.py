@@ -76,20 +76,17 @@ from typing import Any
 import numpy as np
 
 from compare.pilots import DEFAULT_METHODS, METHODS
-from uam_fdm.pilot import Task
 from uam_fdm.air.atmosphere import (
     ELEVATION_RANGE_M,
     ISA_OFFSET_RANGE_K,
     Atmosphere,
     AtmosphereConditions,
 )
-from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
-from uam_fdm.errors import ConfigError
-from uam_fdm.city.mapfile import map_from_config
-from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 from uam_fdm.air.shear import EXPONENT_RANGE, REFERENCE_HEIGHT_RANGE_M, ROUGHNESS_RANGE_M, ShearLaw, WindShear
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.city.mapfile import map_from_config
+from uam_fdm.errors import ConfigError
 from uam_fdm.files.strict import (
     mapping,
     number_in_range,
@@ -100,6 +97,9 @@ from uam_fdm.files.strict import (
     string,
 )
 from uam_fdm.files.yamlfile import load_yaml_file
+from uam_fdm.pilot import Task
+from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
+from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 

@@ -16,8 +16,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from uam_fdm.vehicle import ground_effect as ge  # noqa: E402
-from uam_fdm.city.plot import save_figure  # noqa: E402
 from uam_fdm.air.wind import (  # noqa: E402
     PROBE_HEIGHTS_M,
     ShearLaw,
@@ -27,6 +25,8 @@ from uam_fdm.air.wind import (  # noqa: E402
     gust_stack,
     milspec_low_altitude,
 )
+from uam_fdm.city.plot import save_figure  # noqa: E402
+from uam_fdm.vehicle import ground_effect as ge  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "ground_effect.png"
 DEFAULT_WIND_OUT = Path(__file__).resolve().parent / "wind_profile.png"

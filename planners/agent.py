@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from planners.margins import (
-    Margins,
     MarginRule,
+    Margins,
     TrackingErrorTable,
     forecast_gust_m_s,
     load_tracking_table,

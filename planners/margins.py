@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from uam_fdm.vehicle.params import VehicleParams
 from uam_fdm.air.wind import TurbulenceLevel, milspec_low_altitude
+from uam_fdm.vehicle.params import VehicleParams
 
 log = logging.getLogger(__name__)
 

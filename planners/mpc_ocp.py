@@ -32,7 +32,6 @@ import numpy as np
 from uam_fdm.vehicle.model import N_ENV, dynamics_expr, rk4_expr
 from uam_fdm.vehicle.params import VehicleParams
 
-
 # The tilt limit as a polygon in (q_x, q_y): the tilt θ satisfies cos θ = 1 − 2(q_x² + q_y²), a disc of
 # radius sin(θ_max/2) whatever the heading. As linear rows (eight two-sided pairs: a 16-gon) its
 # linearisation is exact; the disc's own constraint has a zero gradient at level attitude, so a

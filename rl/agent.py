@@ -22,14 +22,15 @@ from rl.nav import NavConfig, clearance_sensor, nearest_surface, observe_slots, 
 from rl.observation import PilotMemory, goal_heading, obs_size, velocity_command
 from rl.perception import Perception
 from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
-from rl.policy_folder import PolicyFolder
+
 # re-exported: the shipped folders are defined with the folder format, and the pilot's users find them here
-from rl.policy_folder import DEFAULT_POLICY_DIR, SHIPPED_POLICIES, shipped_policy_dir  # noqa: F401
+from rl.policy_folder import DEFAULT_POLICY_DIR, SHIPPED_POLICIES, PolicyFolder, shipped_policy_dir  # noqa: F401
 from rl.route import RouteBank, grid_shape
 from rl.train import normalize_obs
-from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
+
 
 @dataclass
 class Policy:

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.pilot import Task
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.city.generator import CityGenParams, generate_city
+from uam_fdm.pilot import Task
 
 TRAIN_SEEDS = range(100_000)
 EVAL_SEEDS = range(1_000_000, 1_100_000)

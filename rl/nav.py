@@ -32,15 +32,24 @@ from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
 from rl.route import RouteBank, RouteConfig, grid_shape, route_field
 from rl.sensor import BoxSensor
 from uam_fdm import episode
-from uam_fdm.pilot import Task
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.air.wind import (
+    GustStack,
+    TurbulenceLevel,
+    WindBank,
+    WindConditions,
+    WindField,
+    gust_stack,
+    probe_heights_up_to,
+)
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.pilot import Task
+from uam_fdm.sim import BatchSimulator
 from uam_fdm.vehicle.dynamics import VehicleDynamics
+from uam_fdm.vehicle.ground_effect import height_above_surface
+from uam_fdm.vehicle.ground_effect import range_m as ground_effect_range_m
 from uam_fdm.vehicle.model import hover_state
 from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle
-from uam_fdm.vehicle.ground_effect import height_above_surface, range_m as ground_effect_range_m
-from uam_fdm.sim import BatchSimulator
-from uam_fdm.air.wind import GustStack, TurbulenceLevel, WindBank, WindConditions, WindField, gust_stack, probe_heights_up_to
 
 OUTCOMES = episode.OUTCOMES
 

@@ -30,11 +30,11 @@ from typing import TYPE_CHECKING, Any, Protocol, Union, runtime_checkable
 
 import numpy as np
 
-from uam_fdm.episode import Outcome
 from uam_fdm.air.atmosphere import Atmosphere
+from uam_fdm.air.wind import TurbulenceLevel
+from uam_fdm.episode import Outcome
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.params import VehicleParams
-from uam_fdm.air.wind import TurbulenceLevel
 
 if TYPE_CHECKING:  # the city module is imported lazily by its users; only its type is named here
     from uam_fdm.city.buildings import BuildingMap
@@ -60,7 +60,7 @@ class World:
 
     vehicle: VehicleParams
     dynamics: VehicleDynamics
-    city: "BuildingMap"
+    city: BuildingMap
     atmosphere: Atmosphere
     turbulence: TurbulenceLevel = TurbulenceLevel.NONE
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm.air.atmosphere import Atmosphere
+from uam_fdm.air.wind import WindBank, WindField
 from uam_fdm.vehicle.control import N_CTRL_STATE
 from uam_fdm.vehicle.dynamics import PeriodResult, VehicleDynamics
-from uam_fdm.air.wind import WindBank, WindField
 
 
 def period_env(atmosphere: Atmosphere, wind_enu_m_s: np.ndarray, z_m: np.ndarray | float,

@@ -35,13 +35,13 @@ from mpl_toolkits.mplot3d.art3d import Line3D
 from PIL import GifImagePlugin, Image
 from tqdm import tqdm
 
+from compare.results.run_info import WindInfo
 from compare.viz.figures import GOAL_STYLE, START_STYLE, trace_from_episode
 from compare.viz.flights import FlightGroup, Pilot, sample_flight
-from compare.results.run_info import WindInfo
-from uam_fdm.files.atomic import atomic_path
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
 from uam_fdm.episode import Outcome
+from uam_fdm.files.atomic import atomic_path
 
 _log = logging.getLogger(__name__)
 

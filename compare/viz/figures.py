@@ -30,7 +30,6 @@ from uam_fdm.city.buildings import BuildingMap, Prism
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
 from uam_fdm.episode import Outcome
 
-
 METHOD_COLORS: dict[str, str] = {name: spec.color for name, spec in PILOTS.items()}
 FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",
                                     "tab:olive", "tab:cyan", "tab:gray")

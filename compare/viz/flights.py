@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.viz.figures import crop_map, flight_region, method_colors, trace_from_episode
 from compare.results.run_info import WindInfo, read_run_info
 from compare.results.trajectory import SavedEpisode, episode_files, load_episode
+from compare.viz.figures import crop_map, flight_region, method_colors, trace_from_episode
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
 from uam_fdm.episode import Outcome

@@ -29,18 +29,18 @@ from matplotlib import rc_context
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
-from compare.viz import figures as F
 from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
 from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
 from compare.results.summary import BootstrapSettings, MethodSummary, PairedSummary, Stat, Summary, read_summary_json
 from compare.results.trajectory import EpisodeKey, episode_files, load_episode
-from uam_fdm.air.shear import ShearLaw, WindShear
+from compare.viz import figures as F
 from rl.policy_folder import PolicyFolder, Provenance
-from uam_fdm.files.atomic import atomic_path
+from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.city.plot import save_figure
 from uam_fdm.city.mapfile import load_map_file
+from uam_fdm.city.plot import save_figure
 from uam_fdm.episode import Outcome
+from uam_fdm.files.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 

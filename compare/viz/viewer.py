@@ -26,10 +26,10 @@ import plotly.io as pio
 from matplotlib import colormaps
 from matplotlib.colors import to_hex
 
-from compare.viz.flights import FlightGroup, flight_groups, sample_flight
 from compare.results.run_info import WindInfo, read_run_info
-from uam_fdm.files.atomic import write_text_atomic
+from compare.viz.flights import FlightGroup, flight_groups, sample_flight
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.files.atomic import write_text_atomic
 
 VIEWER_NAME = "viewer.html"
 START_COLOR, GOAL_COLOR = "#2ca02c", "#ffd700"

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_rgb
 from PIL import Image
-from synthetic_run import write_run
 
 from compare.viz import animate
 from compare.viz.animate import AnimationOptions, ffmpeg_available, frame_times, render_animation
 from compare.viz.flights import FlightGroup, flight_groups, select_group
+from synthetic_run import write_run
 
 SMALL = {"width_px": 320, "height_px": 240, "fps": 10.0, "duration_s": 0.8}  # 8 frames
 PIXELS = {"width_px": 640, "height_px": 360, "fps": 10.0, "duration_s": 1.2}  # 12 frames, large enough for colour

@@ -23,19 +23,19 @@ import numpy as np
 import pytest
 import yaml
 from pypdf import PdfReader
-from synthetic_run import trajectory, write_run
-from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
 
-import compare.fingerprint
 import compare.campaign
+import compare.fingerprint
 from compare.cli import main
-from compare.scenario import MAX_NAME_CHARS, MAX_SEED
 from compare.results.trajectory import EpisodeMeta, load_episode, save_episode
-from uam_fdm.files import atomic
-from uam_fdm.errors import MAX_REASON_CHARS, ConfigError
+from compare.scenario import MAX_NAME_CHARS, MAX_SEED
+from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
+from synthetic_run import trajectory, write_run
 from uam_fdm.city.geojson import MAX_FOOTPRINT_VERTICES, footprint_parts
-from uam_fdm.vehicle.params import PRESET_DIR, load_vehicle
+from uam_fdm.errors import MAX_REASON_CHARS, ConfigError
+from uam_fdm.files import atomic
 from uam_fdm.files.yamlfile import MAX_YAML_VALUES
+from uam_fdm.vehicle.params import PRESET_DIR, load_vehicle
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml"
 QUAD_YAML = (PRESET_DIR / "small_quad.yaml").read_text()

@@ -10,6 +10,7 @@ from dataclasses import astuple
 import numpy as np
 import pytest
 
+from compare.episode_loop import Trajectory
 from compare.results import metrics as M
 from compare.results import summary as S
 from compare.results.metrics import (
@@ -31,9 +32,8 @@ from compare.results.summary import (
     summary_to_json,
     write_summary_json,
 )
-from compare.episode_loop import Trajectory
-from planners.report import ClassicalReport
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
+from planners.report import ClassicalReport
 from uam_fdm.files import atomic
 
 N_ROTORS = 4

@@ -10,21 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pypdf import PdfReader
-from synthetic_run import (
-    CURVE_COLUMNS,
-    GOAL,
-    LABELS,
-    METRIC_COLUMNS,
-    SCENARIO,
-    START,
-    UPDATE_STEPS,
-    synthetic_power_W,
-    toy_map,
-    trajectory,
-    write_reward_curve,
-    write_run,
-)
 
+from compare.episode_loop import Trajectory
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
 from compare.viz.figures import (
     CURVE_FIELDS,
     MAX_PLOT_POINTS,
@@ -44,8 +32,20 @@ from compare.viz.figures import (
     trace_from_episode,
 )
 from compare.viz.report import build_report, read_reward_curve
-from compare.episode_loop import Trajectory
-from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
+from synthetic_run import (
+    CURVE_COLUMNS,
+    GOAL,
+    LABELS,
+    METRIC_COLUMNS,
+    SCENARIO,
+    START,
+    UPDATE_STEPS,
+    synthetic_power_W,
+    toy_map,
+    trajectory,
+    write_reward_curve,
+    write_run,
+)
 
 # 1 title + 3 metrics (per method, paired, per episode) + 2 episodes x 3 + 1 training
 # + 2 failures (table, paths)

@@ -5,7 +5,6 @@ import json
 from pathlib import Path
 
 import pytest
-from synthetic_run import write_run
 
 from compare.results.run_info import (
     AtmosphereInfo,
@@ -18,6 +17,7 @@ from compare.results.run_info import (
     run_info_to_json,
     write_run_info,
 )
+from synthetic_run import write_run
 from uam_fdm.air.shear import WindShear
 
 

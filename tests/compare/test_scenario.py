@@ -11,7 +11,6 @@ from typing import Any
 import pytest
 import yaml
 
-from scenario_box import BASE
 from compare.scenario import (
     DEFAULT_METHODS,
     SCENARIO_DIR,
@@ -21,9 +20,10 @@ from compare.scenario import (
     resolve_scenarios,
     scenario_from_dict,
 )
+from scenario_box import BASE
+from uam_fdm.air.wind import ShearLaw, TurbulenceLevel, WindShear
 from uam_fdm.errors import ConfigError
 from uam_fdm.vehicle.params import PRESET_DIR, load_vehicle
-from uam_fdm.air.wind import ShearLaw, TurbulenceLevel, WindShear
 
 SHIPPED = sorted(SCENARIO_DIR.glob("*/*.yaml"))
 

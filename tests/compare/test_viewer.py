@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from synthetic_run import LABELS, SCENARIO, toy_map, write_run
 
 from compare.cli import main
 from compare.viz.flights import flight_groups
 from compare.viz.viewer import VIEWER_NAME, ViewerOptions, build_viewer, building_mesh, group_payload
+from synthetic_run import LABELS, SCENARIO, toy_map, write_run
 
 ORANGE, BLUE = (255, 127, 14), (31, 119, 180)  # tab:orange (PPO), tab:blue (RRT* + MPC)
 # Flags for a root user on a machine with a closed network and no GPU: WebGL through SwiftShader.

@@ -7,11 +7,11 @@ import pytest
 from compare.episode_loop import run_episode
 from planners.agent import ClassicalAgent, ClassicalConfig
 from planners.mpc import MPCSolution
-from uam_fdm.pilot import Agent, Observation, Task, World
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
-from uam_fdm.city.buildings import Building, BuildingMap
-from uam_fdm.vehicle.model import hover_state
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField
+from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.pilot import Agent, Observation, Task, World
+from uam_fdm.vehicle.model import hover_state
 
 
 def _three_buildings(scale: float) -> BuildingMap:

@@ -16,8 +16,8 @@ from planners.margins import (
     margins_for,
     write_tracking_table,
 )
-from uam_fdm.vehicle.params import load_vehicle
 from uam_fdm.air.wind import TurbulenceLevel as T
+from uam_fdm.vehicle.params import load_vehicle
 
 QUAD = load_vehicle("small_quad")
 UAM = load_vehicle("uam_multicopter")

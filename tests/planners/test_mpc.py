@@ -8,9 +8,9 @@ import pytest
 
 from planners.mpc import MPCConfig, MPCTracker
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
-from uam_fdm.vehicle.model import hover_state
-from uam_fdm.sim import Simulator
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField
+from uam_fdm.sim import Simulator
+from uam_fdm.vehicle.model import hover_state
 
 
 @pytest.fixture(scope="module")

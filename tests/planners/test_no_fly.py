@@ -12,10 +12,10 @@ from compare.episode_loop import run_episode
 from planners.agent import ClassicalAgent
 from planners.rrt_star import PlannerConfig, densify, plan_path
 from planners.timing import TimingLimits, time_parameterize
-from uam_fdm.pilot import Task, World
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
-from uam_fdm.city.buildings import Building, BuildingMap, NoFlyZone
 from uam_fdm.air.wind import WindField
+from uam_fdm.city.buildings import Building, BuildingMap, NoFlyZone
+from uam_fdm.pilot import Task, World
 
 # A wall of airspace across the direct line (ground to above the volume's top), open at both ends;
 # no building at all, so only the no-fly volume can make the path bend.

@@ -15,7 +15,6 @@ from rl.nav import NavWorld
 from uam_fdm.pilot import ResetInfo, World
 from uam_fdm.vehicle.params import load_vehicle
 
-
 VEHICLES = ("small_quad", "uam_multicopter")
 # (training budget [min], held-out test cities, minimum success, most collisions) per vehicle. The UAM
 # issue asks for no collision in 30 cities; the shipped UAM policy collides on 2.8 % [1.7, 4.6] of 500
@@ -83,9 +82,9 @@ def test_agent_flies_exactly_like_the_environment(policy, seed):
 
 
 def test_agent_refuses_other_vehicles(compiled_dynamics):
-    from uam_fdm.pilot import Task
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.city.mapfile import load_named_map
+    from uam_fdm.pilot import Task
 
     p = load_vehicle("uam_multicopter")
     world = World(p, compiled_dynamics["uam_multicopter"], load_named_map("suburb"),

@@ -15,8 +15,8 @@ from rl.observation import obs_size
 from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
 from rl.sensor import BoxSensor
 from rl.vec_env import UAMNavVecEnv
-from uam_fdm.pilot import Task
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.pilot import Task
 
 SMALL = NavConfig(city_pool_size=4, wind_pool_size=2, wind_series_s=150.0)
 

@@ -20,11 +20,11 @@ from rl.perception import Perception, PerceptionConfig, PerceptionReading
 from rl.route import RouteBank, grid_shape, route_field
 from uam_fdm import episode
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.air.wind import GustStack, TurbulenceLevel, WindBank, WindShear
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.sim import BatchSimulator
 from uam_fdm.vehicle.model import hover_state, make_env
 from uam_fdm.vehicle.params import load_vehicle
-from uam_fdm.sim import BatchSimulator
-from uam_fdm.air.wind import GustStack, TurbulenceLevel, WindBank, WindShear
 
 R = 0.42  # collision radius [m]
 

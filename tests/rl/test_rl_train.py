@@ -15,8 +15,8 @@ from rl.expert import PotentialFieldPilot
 from rl.nav import FixedEpisodes, NavConfig, NavWorld
 from rl.observation import obs_size
 from rl.train import CURVE_COLUMNS, PRESETS, Curriculum, TrainConfig, train
-from uam_fdm.pilot import Task
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.pilot import Task
 
 TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
-from uam_fdm.vehicle.model import hover_state
-from uam_fdm.sim import BatchSimulator, Simulator
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField, WindShear
+from uam_fdm.sim import BatchSimulator, Simulator
+from uam_fdm.vehicle.model import hover_state
 
 
 @pytest.fixture(scope="module")

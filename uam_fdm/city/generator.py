@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.errors import ConfigError
+from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.files.strict import is_finite_number, mapping, number_list
 
 MAPS_DIR = Path(__file__).parent / "maps"

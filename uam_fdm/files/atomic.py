@@ -15,7 +15,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-
 TEMP_MARK = ".partial-"  # in every temporary name (".<final name>.partial-<random><suffix>"), and only there
 
 

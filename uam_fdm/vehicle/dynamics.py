@@ -14,10 +14,10 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from uam_fdm.vehicle.codegen import compile_functions
-from uam_fdm.vehicle.fastcall import BatchCaller
-from uam_fdm.vehicle.control import N_CMD, N_CTRL_STATE, build_controller_function
 from uam_fdm.errors import ConfigError
+from uam_fdm.vehicle.codegen import compile_functions
+from uam_fdm.vehicle.control import N_CMD, N_CTRL_STATE, build_controller_function
+from uam_fdm.vehicle.fastcall import BatchCaller
 from uam_fdm.vehicle.model import N_ENV, StateLayout, build_model_functions
 from uam_fdm.vehicle.params import VehicleParams
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from scenario_box import BASE
 
 from compare.fingerprint import scenario_fingerprint
 from compare.scenario import scenario_from_dict
+from scenario_box import BASE
 from uam_fdm.air.wind import (
     PROBE_HEIGHTS_M,
     GustStack,

@@ -9,10 +9,8 @@ import pytest
 import yaml
 
 from uam_fdm.city.buildings import Building
-
-from uam_fdm.city.mapfile import load_named_map, map_from_config
+from uam_fdm.city.mapfile import load_map_file, load_named_map, map_from_config
 from uam_fdm.errors import ConfigError
-from uam_fdm.city.mapfile import load_map_file
 
 BOUNDS = {"min": [0, 0, 0], "max": [200, 200, 120]}
 GOOD = {"center": [50, 60], "size": [20, 10], "height": 30, "yaw_deg": 90}

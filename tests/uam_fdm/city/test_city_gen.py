@@ -7,8 +7,6 @@ import numpy as np
 import pytest
 
 from uam_fdm.city.buildings import Building, BuildingMap
-
-from uam_fdm.city.mapfile import load_named_map, named_maps
 from uam_fdm.city.generator import (
     MAPS_DIR,
     SHIPPED_MAPS,
@@ -17,6 +15,7 @@ from uam_fdm.city.generator import (
     params_from_config,
     shipped_map_text,
 )
+from uam_fdm.city.mapfile import load_named_map, named_maps
 from uam_fdm.errors import ConfigError
 
 

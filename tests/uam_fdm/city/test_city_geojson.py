@@ -10,9 +10,9 @@ import pytest
 
 from uam_fdm.city import distance as clearance_np
 from uam_fdm.city.buildings import Building, BuildingMap, Prism
+from uam_fdm.city.geojson import clean_ring, convex_decomposition, footprint_parts, lonlat_to_enu
 from uam_fdm.city.mapfile import map_from_config
 from uam_fdm.errors import ConfigError
-from uam_fdm.city.geojson import clean_ring, convex_decomposition, footprint_parts, lonlat_to_enu
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 BOUNDS = {"min": [0, 0, 0], "max": [300, 300, 150]}

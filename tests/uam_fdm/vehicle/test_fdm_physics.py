@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.model import StateLayout, hover_state, make_env
 from uam_fdm.vehicle.params import GRAVITY_M_S2
-from uam_fdm.sim import Simulator
 
 PRESETS = ("small_quad", "uam_multicopter")
 

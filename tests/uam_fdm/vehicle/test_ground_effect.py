@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from uam_fdm.vehicle import ground_effect as ge
 from uam_fdm.city.buildings import Building, BuildingMap, Prism
-from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.errors import ConfigError
+from uam_fdm.vehicle import ground_effect as ge
+from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.model import hover_state, make_env
 from uam_fdm.vehicle.params import GRAVITY_M_S2, PRESET_DIR, load_vehicle
 
