@@ -187,7 +187,8 @@ def measure_timing(queries: Sequence[Query], vehicle: str = "small_quad", config
         "vehicle": vehicle, "limits": dataclasses.asdict(limits), "rows": rows,
         "ok_rate": len(good) / len(rows),
         "timing_time_s_median": float(np.median([r["time_s"] for r in good])) if good else math.nan,
-        "mean_speed_m_s_median": float(np.median([r["length_m"] / r["duration_s"] for r in good])) if good else math.nan,
+        "mean_speed_m_s_median": (float(np.median([r["length_m"] / r["duration_s"] for r in good])) if good
+                                  else math.nan),
         "refinements_max": max((r["refinements"] for r in good), default=0),
         "stops_total": sum(r["stops"] for r in good),
         "min_clearance_m": min((r["min_clearance_m"] for r in good), default=math.nan),

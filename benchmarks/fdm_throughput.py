@@ -83,7 +83,8 @@ class NumpyTwin:
         thrust = gain * p.thrust_coeff_N_s2 * sigma * om2
         qdrag = p.torque_coeff_Nm_s2 * sigma * om2
         va = np.einsum("nji,nj->ni", rot, v - env[:, :3])
-        fb = -self.dl * va - sigma * self.dq * np.sqrt((va * va).sum(1, keepdims=True) + AIRSPEED_SMOOTHING_M_S ** 2) * va
+        fb = (-self.dl * va
+              - sigma * self.dq * np.sqrt((va * va).sum(1, keepdims=True) + AIRSPEED_SMOOTHING_M_S ** 2) * va)
         fb[:, 2] += thrust.sum(1)
         acc = np.einsum("nij,nj->ni", rot, fb) / p.mass_kg
         acc[:, 2] -= GRAVITY_M_S2
@@ -269,7 +270,8 @@ def main() -> None:
     for what, path, value, note in rows:
         print(f"{what:46s} {path:18s} {value:14,.{3 if value < 100 else 0}f}  {note}")
     targets = [("ctrl_steps_per_s >= 10,000", fig["ctrl_steps_per_s"] >= 1e4),
-               ("batched_phys_vehicle_steps_per_s (N=1024) >= 1,000,000", fig["batched_phys_vehicle_steps_per_s"] >= 1e6),
+               ("batched_phys_vehicle_steps_per_s (N=1024) >= 1,000,000",
+                fig["batched_phys_vehicle_steps_per_s"] >= 1e6),
                ("ground effect costs <= 15 % (ctrl_steps_per_s and batched N=1024, against the same model "
                 "without it)", fig["ctrl_ground_effect_ratio"] >= 0.85 and fig["batched_ground_effect_ratio"] >= 0.85)]
     for text, ok in targets:

@@ -63,7 +63,8 @@ def variant_config(name: str, base: TrainConfig) -> TrainConfig:
         "euclidean-progress": replace(base, nav=replace(nav, route=replace(nav.route, blocked_speed=1.0))),
         "no-height-map": replace(base, nav=replace(nav, perception=replace(nav.perception, grid_cells=1))),
         "no-curriculum": replace(base, curriculum=Curriculum(start=1.0)),
-        "no-speed-proximity": replace(base, nav=replace(nav, reward=replace(nav.reward, proximity_speed_m_s=1e6))),  # factor 1 + 1e-10
+        # factor 1 + 1e-10
+        "no-speed-proximity": replace(base, nav=replace(nav, reward=replace(nav.reward, proximity_speed_m_s=1e6))),
     }
     if name not in changes:
         raise ValueError(f"unknown variant {name!r}; choose from {', '.join(changes)}")
@@ -90,7 +91,8 @@ def run_variant(name: str, out: Path, timesteps: int, episodes: int, seed: int) 
     hit = np.flatnonzero(curve.success_rate >= 0.90)
     prov = PolicyFolder(folder).provenance()
     fig = {"timesteps": timesteps, "seed": seed, "episodes": res.episodes,
-           "success_rate": res.success_rate, "success_ci95": list(res.success_ci95), "collision_rate": res.collision_rate,
+           "success_rate": res.success_rate, "success_ci95": list(res.success_ci95),
+           "collision_rate": res.collision_rate,
            "collision_ci95": list(res.collision_ci95), "outcomes": res.outcomes,
            "timesteps_to_90pct": int(curve.timesteps[hit[0]]) if len(hit) else None,
            "kept_timesteps": prov.kept_timesteps, "wall_s": prov.wall_time_s}
@@ -101,7 +103,8 @@ def run_variant(name: str, out: Path, timesteps: int, episodes: int, seed: int) 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="folder for the variants' policies and results")
-    ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated (default all: {','.join(VARIANTS)})")
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help=f"comma-separated (default all: {','.join(VARIANTS)})")
     ap.add_argument("--timesteps", type=int, default=3_000_000, help="decisions per variant (default 3M)")
     ap.add_argument("--episodes", type=int, default=1000, help="validation episodes of the final flight (default 1000)")
     ap.add_argument("--seed", type=int, default=0, help="the one seed (default 0)")

@@ -184,12 +184,14 @@ def main() -> None:
         ratio = min(r["min_clearance_m"] / r["planner_margin_m"] for r in mine)
         key = f"{vehicle}/{turbulence}/{air}"
         figures["conditions"][key] = {
-            "episodes": len(mine), "successes": ok, "p50_m": q[0], "p95_m": q[1], "p99_m": q[2], "max_m": float(dev.max()),
+            "episodes": len(mine), "successes": ok, "p50_m": q[0], "p95_m": q[1], "p99_m": q[2],
+            "max_m": float(dev.max()),
             "planner_margin_m": mine[0]["planner_margin_m"], "min_clearance_m": min(r["min_clearance_m"] for r in mine),
             "min_clearance_over_margin": ratio, "replans": sum(r["replans"] for r in mine),
             "mpc_failures": sum(r["mpc_failures"] for r in mine), "outcomes": sorted({r["outcome"] for r in mine})}
         print(f"{vehicle:16s} {turbulence:8s} {air:9s} {len(mine):4d} {ok:3d} {q[0]:7.3f} {q[1]:7.3f} {q[2]:7.3f} "
-              f"{dev.max():7.3f} {mine[0]['planner_margin_m']:8.2f} {figures['conditions'][key]['min_clearance_m']:9.3f} "
+              f"{dev.max():7.3f} {mine[0]['planner_margin_m']:8.2f} "
+              f"{figures['conditions'][key]['min_clearance_m']:9.3f} "
               f"{figures['conditions'][key]['replans']:7d} {sum(r['wall_s'] for r in mine):7.0f}", flush=True)
     if not args.check:
         provenance = {

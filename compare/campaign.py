@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,11 +48,14 @@ from compare.results.run_info import (
     write_run_info,
 )
 from compare.results.summary import summarize_run, write_summary_json
-from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode, xyz
 from compare.scenario import Scenario
 from compare.seeding import cell_seed
 from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.pilot import Agent
+
+if TYPE_CHECKING:  # the flight model is built (and casadi imported) only when a cell is flown
+    from uam_fdm.vehicle.dynamics import VehicleDynamics
 
 log = logging.getLogger(__name__)
 
@@ -214,7 +218,7 @@ class CellRunner:
         """`policies`: the policy folder of the pilots that need one, by vehicle fingerprint."""
         self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
         self._worlds: dict[int, object] = {}
-        self._dynamics: dict[tuple, object] = {}
+        self._dynamics: dict[tuple, VehicleDynamics] = {}
         self._agents: dict[tuple[str, str], Agent] = {}
 
     def world(self, si: int):
@@ -248,7 +252,8 @@ class CellRunner:
         wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
         agent_seed = cell_seed(sc.name, c.episode, c.seed, "agent")
         # one reference probe airspeed per episode; turbulence rungs up to the flight volume's ceiling
-        airspeed = float(np.clip(max(p.controller.max_speed_m_s, np.linalg.norm(sc.wind.steady_enu_m_s)), 1.0, 100.0))
+        wind_speed = float(np.linalg.norm(sc.wind.steady_enu_m_s))
+        airspeed = float(np.clip(max(p.controller.max_speed_m_s, wind_speed), 1.0, 100.0))
         heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
         agent = self.agent(c.method, sc)
@@ -256,7 +261,7 @@ class CellRunner:
         report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
         key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
-                           start_m=tuple(task.start_m), goal_m=tuple(task.goal_m), goal_radius_m=task.goal_radius_m,
+                           start_m=xyz(task.start_m), goal_m=xyz(task.goal_m), goal_radius_m=task.goal_radius_m,
                            timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
                            energy_J=float(traj.energy_J), outcome=traj.outcome,
                            # planning at reset plus every replan, when the pilot reports it
@@ -395,7 +400,7 @@ def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
         vehicle=sc.vehicle_name,
         vehicle_summary=f"{p.mass_kg:g} kg, {p.n_rotors} rotors, collision radius {p.collision_radius_m:g} m",
         atmosphere=AtmosphereInfo(sc.atmosphere.elevation_m, sc.atmosphere.isa_offset_k, round(float(rho), 4)),
-        wind=WindInfo(tuple(sc.wind.steady_enu_m_s), sc.wind.turbulence.value, sc.wind.shear),
+        wind=WindInfo(sc.wind.steady_enu_m_s, sc.wind.turbulence.value, sc.wind.shear),
         episodes=len(sc.episodes), seeds=tuple(sorted({c.seed for c in cells})),
         methods=tuple(pilots.ordered(c.method for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
 

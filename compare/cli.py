@@ -297,7 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="cells to animate into RUN_DIR/videos/: the first of each scenario (default), all, none")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
-    rep = sub.add_parser("report", help="rescore a run folder's saved episodes, rebuild its report and viewer (no simulation)")
+    rep = sub.add_parser("report",
+                         help="rescore a run folder's saved episodes, rebuild its report and viewer (no simulation)")
     rep.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     rep.set_defaults(func=_cmd_report)
     anim = sub.add_parser("animate", help="render both pilots flying one cell of a run to MP4 (GIF without ffmpeg)")

@@ -77,7 +77,7 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
     sim.reset(x0)
     info = agent.reset(world, task, seed)
     hover = x0[dyn.layout.rotor]
-    times, states, cmds, winds, clear = [[0.0]], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
+    times, states, cmds, winds, clear = [np.zeros(1)], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
     clear.append(np.array([_clearance(city, x0[None, 0:3], radius)[0]]))
     power = [np.array([dyn.shaft_power_W(x0, sim.env(x0, 0.0))])]  # P(Ω, σ): needs no height above ground
     decision_t, compute = [], []
@@ -120,8 +120,9 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         clear.append(c)
         code = int(episode.period_outcome(r.states[None], episode.collided(c[None]), lo, hi, goal,
                                           task.goal_radius_m)[0])
-        if code != episode.RUNNING:
-            outcome = episode.OUTCOME_OF_CODE[code]
+        ended = episode.OUTCOME_OF_CODE[code]  # None while running
+        if ended is not None:
+            outcome = ended
             detail = _detail(code, r.states, c, t_sub, s.t_s, sim.state.t_s, task, city)
             break
     return Trajectory(

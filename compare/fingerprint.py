@@ -158,6 +158,7 @@ def check_resume(out: Path, now: dict) -> dict:
     if diffs:
         raise ValueError(f"{out}: cannot resume: the inputs differ from the saved run's: {'; '.join(diffs)}; "
                          f"nothing was written (fly into a new folder)")
-    saved_p = fps.get("policies") if isinstance(fps.get("policies"), dict) else {}
+    saved_policies = fps.get("policies")
+    saved_p = saved_policies if isinstance(saved_policies, dict) else {}
     merged = {**saved_p, **(now.get("policies") or {})}
     return {**now, "policies": merged} if merged else now

@@ -152,7 +152,8 @@ class ClassicalAgent:
 
     def _plan(self, start: np.ndarray, t_start: float, velocity_m_s: np.ndarray | None = None
               ) -> tuple[bool, str, str]:
-        world, task, cfg = self._world, self._task, self.config
+        world, margins = self._flying()
+        task, cfg = self._task, self.config
         radius = world.vehicle.collision_radius_m
         plan = plan_path(world.city, start, task.goal_m, radius, self._planner_cfg,
                          seed=self._seed + sum(self.stats.replans_by_cause.values()))
@@ -175,7 +176,7 @@ class ClassicalAgent:
         # near a start or goal closer than the margin the requirement is relaxed (as in the planner)
         self._relaxed_ends = []
         for end in (np.asarray(plan.path_m[0], float), np.asarray(plan.path_m[-1], float)):
-            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, self.margins.mpc_m)
+            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, margins.mpc_m)
             if zone > 0.0:
                 self._relaxed_ends.append((end, zone))
         return True, "ok", ""
@@ -207,8 +208,8 @@ class ClassicalAgent:
         sigma = float(world.atmosphere.density_ratio_clamped(float(obs.x[2])))
         if self.reference is None:
             return RotorCommand(world.vehicle.hover_rotor_speeds_rad_s(sigma))
-        self._maybe_replan(obs)
-        n_stages, h = mpc.config.horizon_steps, mpc.config.step_s
+        self._maybe_replan(obs, self.reference)
+        n_stages, h = mpc.horizon_steps, mpc.step_s
         ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
         normals, offsets = self._halfspaces(obs, ref_pos)
         elapsed = 0.0 if self._last_t is None else obs.t_s - self._last_t
@@ -220,9 +221,10 @@ class ClassicalAgent:
         self._record(sol)
         return RotorCommand(sol.rotor_speeds_rad_s)
 
-    def _maybe_replan(self, obs: Observation) -> None:
-        self.stats.deviations_m.append(self.reference.deviation_m(obs.x[0:3], obs.t_s - self._t_ref0))
-        cause = self._replan_cause(obs)
+    def _maybe_replan(self, obs: Observation, reference: Reference) -> None:
+        """Replan if `_replan_cause` says so; `reference` is the one flown now (`self.reference`)."""
+        self.stats.deviations_m.append(reference.deviation_m(obs.x[0:3], obs.t_s - self._t_ref0))
+        cause = self._replan_cause(obs, reference)
         if cause is None:
             return
         self.stats.replans_by_cause[cause] += 1
@@ -238,12 +240,12 @@ class ClassicalAgent:
             self._last_t = None
             self.last_solution = None   # its prediction belonged to the old reference
 
-    def _replan_cause(self, obs: Observation) -> str | None:
+    def _replan_cause(self, obs: Observation, reference: Reference) -> str | None:
         """"tracking", "clearance" or None (no replan now)."""
         cfg, s = self.config, self.stats
         t_ref = obs.t_s - self._t_ref0
         if cfg.replan_error_m is not None and s.replans_by_cause["tracking"] < cfg.max_replans:
-            ref_now, _, _ = self.reference.sample(t_ref)
+            ref_now, _, _ = reference.sample(t_ref)
             error = float(np.linalg.norm(obs.x[0:3] - ref_now))
             if error > cfg.replan_error_m:
                 log.info("tracking error %.1f m above %.1f m at t = %.2f s: replanning", error,
@@ -253,9 +255,10 @@ class ClassicalAgent:
                 and s.replans_by_cause["clearance"] < cfg.max_clearance_replans
                 and obs.t_s - self._last_replan_t >= cfg.replan_cooldown_s):
             clearance = self.predicted_clearance_m(self.last_solution.predicted_states[1:, 0:3])
-            if clearance < self.margins.mpc_m:
+            _, margins = self._flying()
+            if clearance < margins.mpc_m:
                 log.info("predicted clearance %.2f m below the MPC margin %.2f m at t = %.2f s: replanning",
-                         clearance, self.margins.mpc_m, obs.t_s)
+                         clearance, margins.mpc_m, obs.t_s)
                 return "clearance"
         return None
 
@@ -268,8 +271,9 @@ class ClassicalAgent:
             keep &= np.linalg.norm(points_m - end, axis=1) > zone
         if not np.any(keep):
             return math.inf
-        obstacles = self._world.city.planning_map()
-        d = obstacles.clearance(points_m[keep], self._world.vehicle.collision_radius_m).distance_m
+        world, _ = self._flying()
+        obstacles = world.city.planning_map()
+        d = obstacles.clearance(points_m[keep], world.vehicle.collision_radius_m).distance_m
         return float(np.min(d))
 
     def _halfspaces(self, obs: Observation, ref_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -278,13 +282,13 @@ class ClassicalAgent:
         Rows: the K−1 nearest buildings or no-fly volumes, facing the vehicle through their nearest
         points, and the ground; each offset by the collision radius plus the MPC's clearance margin.
         """
-        world, mpc = self._world, self._tracker
+        (world, margins), mpc = self._flying(), self._tracker
         obstacles = world.city.planning_map()  # the no-fly volumes are kept at the same margin
-        n_stages, k = mpc.config.horizon_steps, mpc.config.n_halfspaces
+        n_stages, k = mpc.horizon_steps, mpc.config.n_halfspaces
         if k == 0:
             return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
         pred = self.last_solution.predicted_states[1:, 0:3] if self.last_solution is not None else ref_pos[1:]
-        required = world.vehicle.collision_radius_m + self.margins.mpc_m
+        required = world.vehicle.collision_radius_m + margins.mpc_m
         normals = np.zeros((n_stages, k, 3))
         offsets = np.full((n_stages, k), -1.0)
         normals[:, k - 1] = (0.0, 0.0, 1.0)
@@ -303,6 +307,12 @@ class ClassicalAgent:
                     normals[stage, j] = normal
                     offsets[stage, j] = normal @ pts[stage, j] + required
         return normals, offsets
+
+    def _flying(self) -> tuple[World, Margins]:
+        """The episode's world and margins (both set by `reset`)."""
+        if self._world is None or self.margins is None:
+            raise RuntimeError("the classical pilot flies only after reset()")
+        return self._world, self.margins
 
     def _record(self, sol: MPCSolution) -> None:
         self.last_solution = sol

@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,13 +32,16 @@ from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
+if TYPE_CHECKING:  # rl.policy pulls in torch and stable-baselines3, loaded only with a network
+    from rl.policy import TanhMeanPolicy
+
 
 @dataclass
 class Policy:
     """A trained policy: its network, its observation statistics and the task it was trained on."""
 
     folder: Path
-    network: object
+    network: TanhMeanPolicy
     obs_stats: dict
     nav: NavConfig
 
@@ -130,7 +134,8 @@ class PolicyAgent:
                              f"this world runs {world.dynamics.control_hz:g} Hz")
         if not boxes_only(world.city):
             return ResetInfo(False, "unsupported_map", 0.0,
-                             f"map {world.city.name!r} has non-box obstacles; the learned pilot's perception needs boxes")
+                             f"map {world.city.name!r} has non-box obstacles; "
+                             "the learned pilot's perception needs boxes")
         t0 = time.perf_counter()
         radius = p.collision_radius_m
         if self._senses is None or self._senses.city is not world.city:
@@ -152,23 +157,31 @@ class PolicyAgent:
         Advances the memory first when a previous decision exists (as the environment does after a step).
         """
         nav, m = self.policy.nav, self._memory
+        senses, world = self._flying()
         xs = np.asarray(x, dtype=float)[None]
         pos = xs[:, 0:3]
         route = self._routes.potential(pos, self._SLOT)
         if self._last_action is not None:
             m.record(self._SLOT, self._last_action, route)
             m.heading_rad[:] = goal_heading(pos, self._goal, m.heading_rad)
-        clear, nearest = nearest_surface(self._senses.clearance, pos, self._CITY)
+        clear, nearest = nearest_surface(senses.clearance, pos, self._CITY)
         t_frac = np.array([t_s / self._task.timeout_s])
-        return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY, self._senses.perception,
-                             self._routes, m, nav, self._world.vehicle)
+        return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY,
+                             senses.perception, self._routes, m, nav, world.vehicle)
 
     def act(self, obs: Observation) -> VelocityCommand:
         nav = self.policy.nav
         action = self.policy.act_batch(self.observe(obs.t_s, obs.x))
         self._last_action = np.clip(action, -1.0, 1.0)
-        return velocity_command(action, self._memory.heading_rad, self._world.vehicle, self._task.start_yaw_rad,
+        _, world = self._flying()
+        return velocity_command(action, self._memory.heading_rad, world.vehicle, self._task.start_yaw_rad,
                                 nav.action_repeat)
+
+    def _flying(self) -> tuple[_CitySenses, World]:
+        """The city's sensors and the episode's world (both set by `reset`)."""
+        if self._senses is None or self._world is None:
+            raise RuntimeError("the learned pilot flies only after reset()")
+        return self._senses, self._world
 
     def episode_report(self) -> None:
         """Nothing beyond the trajectory (its route field's time is the reset's planning time)."""

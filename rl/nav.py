@@ -115,7 +115,8 @@ class NavConfig:
         rng = TRAIN_SEEDS if self.city_split == "train" else EVAL_SEEDS
         seeds = list(rng[self.city_pool_offset: self.city_pool_offset + self.city_pool_size])
         if len(seeds) < self.city_pool_size:
-            raise ValueError(f"city pool {self.city_pool_offset}+{self.city_pool_size} exceeds the {self.city_split} range")
+            raise ValueError(f"city pool {self.city_pool_offset}+{self.city_pool_size} exceeds the "
+                             f"{self.city_split} range")
         return seeds
 
     def to_dict(self) -> dict:
@@ -191,7 +192,8 @@ class NavWorld:
             airspeed = self.vehicle.controller.max_speed_m_s
             seeds = [7919 * (j + 1) for j in range(config.wind_pool_size)]
             donor = wind_from.gust_stacks[:len(seeds)] if wind_from is not None else []
-            if (len(donor) == len(seeds) and wind_from.config.wind_series_s == config.wind_series_s
+            if (wind_from is not None and len(donor) == len(seeds)
+                    and wind_from.config.wind_series_s == config.wind_series_s
                     and all(g.turbulence is level and g.heights_m == heights and g.airspeed_m_s == airspeed
                             and g.seed == seed for g, seed in zip(donor, seeds))):
                 self.gust_stacks = list(donor)
@@ -247,7 +249,7 @@ class NavBatch:
         self.rngs = [np.random.Generator(np.random.PCG64(int(s))) for s in seeds]
         self.episode_count[:] = 0
 
-    def reset_slots(self, idx: Sequence[int]) -> None:
+    def reset_slots(self, idx: Sequence[int] | np.ndarray) -> None:
         """Start a new episode in each slot of `idx` (drawn from the slot's own generator)."""
         w, cfg = self.world, self.world.config
         p = w.vehicle
@@ -269,7 +271,8 @@ class NavBatch:
             if w.turbulent:
                 span = self.winds.samples - 2 - int(np.ceil((task.timeout_s + 1.0) / self.winds.dt_s))
                 if span < 1:
-                    raise ValueError(f"wind_series_s {cfg.wind_series_s} s is too short for a {task.timeout_s} s episode")
+                    raise ValueError(f"wind_series_s {cfg.wind_series_s} s is too short for a "
+                                     f"{task.timeout_s} s episode")
                 start = int(rng.integers(span))
             self.winds.assign(i, (speed * np.cos(heading), speed * np.sin(heading), 0.0), series, start)
             self.city[i] = ci
@@ -310,8 +313,8 @@ class NavBatch:
         """Recompute the observations of slots idx from their current state and memory."""
         w = self.world
         self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
-                                       self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception, self.routes,
-                                       self.memory, w.config, w.vehicle)
+                                       self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception,
+                                       self.routes, self.memory, w.config, w.vehicle)
 
     def _collided(self, idx: np.ndarray, sel, states: np.ndarray, finite: np.ndarray,
                   clear_lb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -452,15 +455,16 @@ def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -
     within the sensor's range, or the ground; zero when neither is within range)."""
     r = sensor.query(points_m, city)
     vec = r.nearest_m[:, 0, :] - points_m  # zero for an empty row (the nearest point is the query point)
-    ground = (points_m[:, 2] - sensor.radius_m < r.distance_m[:, 0]) & (points_m[:, 2] - sensor.radius_m < sensor.range_m)
+    ground = ((points_m[:, 2] - sensor.radius_m < r.distance_m[:, 0])
+              & (points_m[:, 2] - sensor.radius_m < sensor.range_m))
     vec[ground] = 0.0
     vec[ground, 2] = -points_m[ground, 2]
     return r.clearance_m, vec
 
 
 def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
-                  nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception, routes: RouteBank,
-                  memory: PilotMemory, config: NavConfig, vehicle: VehicleParams) -> np.ndarray:
+                  nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception,
+                  routes: RouteBank, memory: PilotMemory, config: NavConfig, vehicle: VehicleParams) -> np.ndarray:
     """Observations (M, obs) of slots idx (the env's batch, or the policy agent's single slot).
 
     Args:

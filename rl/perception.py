@@ -114,13 +114,10 @@ class Perception:
         self.radius_m, self.config, self.ray_cell_m = float(radius_m), config, float(ray_cell_m)
         cfg, r = config, self.radius_m
         n_city = len(self.cities)
-        for city in self.cities:
-            if not all(isinstance(b, Building) for b in city.buildings):
-                raise ValueError(f"city {city.name!r}: perception needs box buildings only")
 
         # Box table, cities stacked: cx, cy, cos, sin, hx + r, hy + r, height + r.
         rows = [(*b.center_xy_m, math.cos(b.yaw_rad), math.sin(b.yaw_rad), 0.5 * b.size_xy_m[0] + r,
-                 0.5 * b.size_xy_m[1] + r, b.height_m + r) for c in self.cities for b in c.buildings]
+                 0.5 * b.size_xy_m[1] + r, b.height_m + r) for c in self.cities for b in _boxes(c)]
         self._tab = np.array(rows, dtype=float).reshape(-1, 7)
         self._row0 = np.zeros(n_city + 1, dtype=np.int64)
         np.cumsum([len(c.buildings) for c in self.cities], out=self._row0[1:])
@@ -203,7 +200,7 @@ class Perception:
         rho = self.config.raster_m
         w, h = int(dims[0]), int(dims[1])
         out = np.zeros((h, w), dtype=dtype)
-        for b in city.buildings:
+        for b in _boxes(city):
             cx, cy = b.center_xy_m
             co, si = math.cos(b.yaw_rad), math.sin(b.yaw_rad)
             hx, hy = 0.5 * b.size_xy_m[0], 0.5 * b.size_xy_m[1]
@@ -439,6 +436,14 @@ class Perception:
         np.minimum(np.maximum(pos, -k), lim, out=pos)
         pos += k
         return pos
+
+
+def _boxes(city: BuildingMap) -> list[Building]:
+    """The city's obstacles, every one a box (`Building`); ValueError otherwise."""
+    boxes = [b for b in city.buildings if isinstance(b, Building)]
+    if len(boxes) != len(city.buildings):
+        raise ValueError(f"city {city.name!r}: perception needs box buildings only")
+    return boxes
 
 
 def _sliding_max(a: np.ndarray, k: int, axis: int) -> np.ndarray:

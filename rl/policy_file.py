@@ -79,6 +79,7 @@ def restore_vec_normalize(path: Path, base_venv):
     Raises:
         ValueError: unreadable file, or statistics of another observation size (both sizes named).
     """
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
     from stable_baselines3.common.vec_env import VecNormalize
 
     s = load_arrays(path, VEC_NORM_KEYS)
@@ -87,7 +88,10 @@ def restore_vec_normalize(path: Path, base_venv):
         raise ValueError(f"{path}: statistics for {s['mean'].size} observations; the environment has {n_obs}")
     venv = VecNormalize(base_venv, norm_obs=True, norm_reward=True, clip_obs=float(s["clip_obs"]),
                         clip_reward=float(s["clip_reward"]), gamma=float(s["gamma"]), epsilon=float(s["epsilon"]))
-    venv.obs_rms.mean, venv.obs_rms.var, venv.obs_rms.count = s["mean"], s["var"], float(s["count"])
+    obs_rms = venv.obs_rms
+    if not isinstance(obs_rms, RunningMeanStd):  # one Box observation: one set of statistics, not one per key
+        raise ValueError(f"{path}: statistics for one observation vector; the environment's observations are a dict")
+    obs_rms.mean, obs_rms.var, obs_rms.count = s["mean"], s["var"], float(s["count"])
     venv.ret_rms.mean, venv.ret_rms.var, venv.ret_rms.count = s["ret_mean"], s["ret_var"], float(s["ret_count"])
     return venv
 
@@ -122,14 +126,17 @@ def load_network(path: Path, n_obs: int, ppo: dict):
     try:
         state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises UnpicklingError, RuntimeError, ... for a bad file
-        raise ValueError(f"{path}: policy.pth holds something other than tensors; refused ({type(exc).__name__})") from None
+        raise ValueError(f"{path}: policy.pth holds something other than tensors; "
+                         f"refused ({type(exc).__name__})") from None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ValueError(f"{path}: policy.pth is not a table of tensors")
     first = state.get("mlp_extractor.policy_net.0.weight")
     if first is not None and first.shape[1] != n_obs:
-        raise ValueError(f"{path}: the network takes {first.shape[1]} observations; the task (config.json) gives {n_obs}")
+        raise ValueError(f"{path}: the network takes {first.shape[1]} observations; "
+                         f"the task (config.json) gives {n_obs}")
     arch = [int(u) for u in ppo["net_arch"]]
-    net = TanhMeanPolicy(gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32), gym.spaces.Box(-1.0, 1.0, (3,), np.float32),
+    net = TanhMeanPolicy(gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32),
+                         gym.spaces.Box(-1.0, 1.0, (3,), np.float32),
                          lambda _: 0.0, net_arch={"pi": arch, "vf": arch}, log_std_init=float(ppo["log_std_init"]))
     try:
         net.load_state_dict(state, strict=True)

@@ -108,7 +108,9 @@ class Provenance:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Provenance:
         """From the parsed file; a value of the wrong type counts as not recorded."""
-        text = (lambda k: d[k] if isinstance(d.get(k), str) else None)
+        def text(k: str) -> str | None:
+            return d[k] if isinstance(d.get(k), str) else None
+
         return cls(method=text("method"), preset=text("preset"), seed=_integer(d.get("seed")),
                    timesteps=_integer(d.get("timesteps")), wall_time_s=_real(d.get("wall_time_s")),
                    kept_timesteps=_integer(d.get("kept_timesteps")), command=text("command"), raw=dict(d))

@@ -60,7 +60,8 @@ class RewardConfig:
         for k, v in self.__dict__.items():
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"reward.{k} must be a finite number >= 0, got {v!r}")
-        if self.ttc_horizon_s <= 0 or self.proximity_m <= 0 or self.proximity_speed_m_s <= 0 or self.braking_margin <= 0:
+        if (self.ttc_horizon_s <= 0 or self.proximity_m <= 0 or self.proximity_speed_m_s <= 0
+                or self.braking_margin <= 0):
             raise ValueError("reward.ttc_horizon_s, reward.proximity_m, reward.proximity_speed_m_s and "
                              "reward.braking_margin must be > 0")
 

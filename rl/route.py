@@ -112,7 +112,7 @@ class RouteField:
     @property
     def shape(self) -> tuple[int, int]:
         """Grid shape (ny, nx)."""
-        return self.distance_m.shape  # type: ignore[return-value]
+        return self.distance_m.shape
 
 
 def grid_shape(city: BuildingMap, cell_m: float = RouteConfig.cell_m) -> tuple[int, int]:

@@ -68,8 +68,8 @@ class BoxSensor:
         self._dims = np.zeros((n_city, 2), dtype=np.int64)
         cand_lists = []
         for ci, city in enumerate(self.cities):
-            blds = city.buildings
-            if not all(isinstance(b, Building) for b in blds):
+            blds = [b for b in city.buildings if isinstance(b, Building)]
+            if len(blds) != len(city.buildings):
                 raise ValueError(f"city {city.name!r}: the sensor needs box buildings only")
             for j, b in enumerate(blds):
                 self._cx[ci, j], self._cy[ci, j] = b.center_xy_m
@@ -106,8 +106,8 @@ class BoxSensor:
             c = np.asarray(b.center_xy_m)
             i0 = np.clip(np.floor((c - r - lo) / self.cell_m).astype(int), 0, dims - 1)
             i1 = np.clip(np.floor((c + r - lo) / self.cell_m).astype(int), 0, dims - 1)
-            ix, iy = np.meshgrid(np.arange(i0[0], i1[0] + 1), np.arange(i0[1], i1[1] + 1))
-            ix, iy = ix.ravel(), iy.ravel()
+            grid_x, grid_y = np.meshgrid(np.arange(i0[0], i1[0] + 1), np.arange(i0[1], i1[1] + 1))
+            ix, iy = grid_x.ravel(), grid_y.ravel()
             # the cell's point nearest the centre, as in a per-cell loop (same operations, same doubles)
             cell_x, cell_y = lo[0] + self.cell_m * ix, lo[1] + self.cell_m * iy
             nx = np.minimum(np.maximum(c[0], cell_x), cell_x + self.cell_m) - c[0]

@@ -267,7 +267,9 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
             f"{base.batch.difficulty:4.2f}  validation success {res.success_rate:6.1%}  collisions "
             f"{res.collision_rate:6.1%}  ({res.outcomes})")
         best = state["best"]
-        score = (lambda r: r.success_rate - cfg.collision_weight * r.collision_rate)
+        def score(r: EvalResult) -> float:
+            return r.success_rate - cfg.collision_weight * r.collision_rate
+
         # only full-difficulty checkpoints compete; ties go to the later (more trained) one
         if base.batch.difficulty >= 1.0 and (best is None or score(res) >= score(best[1])):
             state["best"] = (model.num_timesteps, res)
@@ -320,10 +322,12 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         "timesteps": int(model.num_timesteps), "wall_time_s": round(wall, 1), "kept_timesteps": int(best_steps),
         "timesteps_per_s": round(model.num_timesteps / wall, 1) if resume is None else None,
         "resumed_from": str(resume) if resume else None,
-        "pools": {"training": f"train seeds {cfg.nav.city_pool_offset}..{cfg.nav.city_pool_offset + cfg.nav.city_pool_size - 1}",
+        "pools": {"training": f"train seeds {cfg.nav.city_pool_offset}.."
+                              f"{cfg.nav.city_pool_offset + cfg.nav.city_pool_size - 1}",
                   "selection": f"validation pool, {cfg.eval_episodes} cities (eval seeds 1,050,000 on), "
                                f"max success - {cfg.collision_weight:g} x collisions",
-                  "test": "test pool (eval seeds 1,000,000 on): never used here; `uam-compare evaluate-policy` reports it"},
+                  "test": "test pool (eval seeds 1,000,000 on): never used here; "
+                          "`uam-compare evaluate-policy` reports it"},
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                     "cpus": os.cpu_count(), "torch_threads": cfg.torch_threads},
         "versions": _versions(), "validation_of_kept_model": kept.as_dict(),

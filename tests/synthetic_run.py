@@ -114,8 +114,8 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
     run = {"format_version": 1, "created_utc": "2026-11-21T08:00:00Z", "command": "uam-compare run toy",
            "scenarios": [scenario],
            "methods": {"ppo": {"label": LABELS["ppo"], "description": "Learned pilot.",
-                               "policies": [{"vehicle": "small_quad", "policy_dir": str(policy_dir), "decision_hz": 10.0}]
-                               if policy_dir else []},
+                               "policies": [{"vehicle": "small_quad", "policy_dir": str(policy_dir),
+                                             "decision_hz": 10.0}] if policy_dir else []},
                        "rrt_mpc": {"label": LABELS["rrt_mpc"], "description": "Classical pilot."}},
            "versions": {"uam-compare": "0.1.0", "python": "3.11.7", "numpy": np.__version__},
            "fairness": "Both pilots know the map, the start and the goal. Neither knows the wind. " * 4}

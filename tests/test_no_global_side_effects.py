@@ -34,7 +34,8 @@ def _offences(path: Path) -> list[str]:
                 continue  # a script's entry point
             if isinstance(child, ast.Call) and (rel, "*") not in ALLOWED and (rel, func) not in ALLOWED:
                 f = child.func
-                if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and (f.value.id, f.attr) in GLOBAL_CALLS:
+                if (isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name)
+                        and (f.value.id, f.attr) in GLOBAL_CALLS):
                     found.append(f"{rel}:{child.lineno} {f.value.id}.{f.attr} in {func or 'module level'}")
                 if isinstance(f, ast.Name) and f.id == "print" and func not in ("main", "_main"):
                     found.append(f"{rel}:{child.lineno} print in {func or 'module level'}")

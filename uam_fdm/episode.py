@@ -86,7 +86,7 @@ def collided(clearance_m: np.ndarray) -> np.ndarray:
 
 
 def period_outcome(states: np.ndarray, hit: np.ndarray, lo_m: np.ndarray, hi_m: np.ndarray,
-                   goal_m: np.ndarray, goal_radius_m: np.ndarray) -> np.ndarray:
+                   goal_m: np.ndarray, goal_radius_m: np.ndarray | float) -> np.ndarray:
     """The outcome code (N,) of one control period for N vehicles (see the module table).
 
     Args:
@@ -103,8 +103,7 @@ def period_outcome(states: np.ndarray, hit: np.ndarray, lo_m: np.ndarray, hi_m: 
     states = np.asarray(states)
     n = states.shape[0]
     if n == 1:
-        code = _period_outcome_one(states[0], hit, lo_m, hi_m, goal_m, goal_radius_m)
-        return np.array([code], dtype=np.int64)
+        return np.array([_period_outcome_one(states[0], hit, lo_m, hi_m, goal_m, goal_radius_m)], dtype=np.int64)
     finite = np.isfinite(states).all(axis=(1, 2))
     pos = states[:, :, 0:3]
     lo = np.asarray(lo_m, dtype=float).reshape(-1, 1, 3)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol, Union, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -101,7 +101,7 @@ class VelocityCommand:
         return np.append(np.asarray(self.velocity_enu_m_s, float), self.yaw_rad)
 
 
-Actuation = Union[RotorCommand, VelocityCommand]
+Actuation = RotorCommand | VelocityCommand
 
 
 @dataclass(frozen=True)

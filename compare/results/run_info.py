@@ -226,7 +226,7 @@ def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:
                       r.text(wind, "turbulence", f"{key}.wind.turbulence") or None,
                       r.shear(wind.get("shear"), f"{key}.wind.shear")),
         episodes=r.integer(s, "episodes", f"{key}.episodes"),
-        seeds=tuple(r.integer({"seed": v}, "seed", f"{key}.seeds[{i}]")
+        seeds=tuple(r.entry_integer(v, f"{key}.seeds[{i}]")
                     for i, v in enumerate(r.sequence(s, "seeds", f"{key}.seeds"))),
         methods=tuple(str(m) for m in r.sequence(s, "methods", f"{key}.methods")),
         physics_hz=r.number(s, "physics_hz", f"{key}.physics_hz"),
@@ -302,6 +302,13 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.fail(key, value, "an integer")
         return value
+
+    def entry_integer(self, value: Any, key: str) -> int:
+        """An integer entry of a list (null is not one: a list has no absent entries)."""
+        number = self.integer({"entry": value}, "entry", key)
+        if number is None:
+            raise self.fail(key, value, "an integer")
+        return number
 
     def vector3(self, d: Mapping[str, Any], name: str, key: str) -> tuple[float, float, float] | None:
         values = self.sequence(d, name, key)

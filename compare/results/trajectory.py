@@ -16,7 +16,7 @@ import json
 import re
 import zipfile
 import zlib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -117,6 +117,12 @@ class EpisodeMeta:
             object.__setattr__(self, "failure_reason", Outcome.parse(self.failure_reason, where))
 
 
+def xyz(values: Iterable[float]) -> tuple[float, float, float]:
+    """Three numbers as a tuple of floats (a point such as `EpisodeMeta.start_m`); ValueError unless three."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
 @dataclass(frozen=True)
 class SavedEpisode:
     """A loaded episode: its metadata and its trajectory."""
@@ -134,7 +140,8 @@ def save_episode(path: Path, meta: EpisodeMeta, traj: Trajectory) -> Path:
                    if getattr(traj, name) is not None})
     header = {"format_version": FORMAT_VERSION, "meta": _meta_to_json(meta)}
     with atomic_open(path, "wb") as f:
-        np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)
+        # numpy's stub lets ** fill its allow_pickle: bool; the keys here are the array names only
+        np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)  # type: ignore[arg-type]
     return path
 
 
@@ -150,7 +157,7 @@ def load_episode(path: Path) -> SavedEpisode:
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["meta_json"]))
             arrays = {name: np.array(z[name]) for name in _ARRAYS}
-            arrays.update({name: np.array(z[name]) if name in z.files else None for name in _OPTIONAL_ARRAYS})
+            optional = {name: np.array(z[name]) if name in z.files else None for name in _OPTIONAL_ARRAYS}
     # a truncated or damaged file fails inside zipfile/zlib (BadZipFile, EOFError, zlib.error on a bad CRC)
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise ValueError(f"{path}: not a saved episode, or truncated or corrupt ({exc})") from exc
@@ -164,11 +171,11 @@ def load_episode(path: Path) -> SavedEpisode:
     n = len(arrays["t_s"])
     if arrays["states"].ndim != 2 or len(arrays["states"]) != n or len(arrays["clearance_m"]) != n:
         raise ValueError(f"{path}: not a saved episode (time, state and clearance rows disagree)")
-    power = arrays["shaft_power_W"]
+    power = optional["shaft_power_W"]
     if power is not None and power.shape != (n,):
         raise ValueError(f"{path}: shaft_power_W has shape {power.shape}, expected ({n},) like t_s")
-    traj = Trajectory(**arrays, energy_J=meta.energy_J, outcome=meta.outcome, plan_time_s=meta.plan_time_s,
-                      detail=meta.detail)
+    traj = Trajectory(**arrays, shaft_power_W=power, energy_J=meta.energy_J, outcome=meta.outcome,
+                      plan_time_s=meta.plan_time_s, detail=meta.detail)
     return SavedEpisode(meta, traj)
 
 
@@ -209,8 +216,8 @@ def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
         report = report_type.from_json(saved if isinstance(saved, Mapping) else extra)  # else: an older file's counters
     context = {name: extra.get(name) for name in _CONTEXT}
     return EpisodeMeta(
-        key=key, map_name=m["map_name"], vehicle=m["vehicle"], start_m=tuple(float(v) for v in m["start_m"]),
-        goal_m=tuple(float(v) for v in m["goal_m"]), goal_radius_m=m["goal_radius_m"], timeout_s=m["timeout_s"],
+        key=key, map_name=m["map_name"], vehicle=m["vehicle"], start_m=xyz(m["start_m"]),
+        goal_m=xyz(m["goal_m"]), goal_radius_m=m["goal_radius_m"], timeout_s=m["timeout_s"],
         collision_radius_m=m["collision_radius_m"], n_rotors=m["n_rotors"], energy_J=m["energy_J"],
         outcome=m["outcome"], plan_time_s=m["plan_time_s"], detail=m.get("detail", ""), **context,
         failure_reason=extra.get("failure_reason") or None, report=report)

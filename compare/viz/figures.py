@@ -571,9 +571,11 @@ def _draw_success_rates(ax2: Axes, curve: RewardCurve, x: np.ndarray, window: in
     handles: list = []
     ax2.set_ylim(-2.0, 102.0)
     ax2.set_ylabel("success rate [%]", color=SUCCESS_COLOR)
-    train_ok = np.isfinite(curve.train_success_rate)
+    train_rate = curve.train_success_rate
+    assert train_rate is not None  # RewardCurve.__post_init__ fills an absent column with NaN
+    train_ok = np.isfinite(train_rate)
     if np.any(train_ok):
-        ts = moving_average(_pct(curve.train_success_rate), window)
+        ts = moving_average(_pct(train_rate), window)
         ok = np.isfinite(ts)
         handles += ax2.plot(x[ok], ts[ok], color=SUCCESS_COLOR, lw=1.0, alpha=0.6,
                             label="training success rate, moving average (at the curriculum's difficulty)")

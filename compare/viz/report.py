@@ -542,6 +542,7 @@ def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:
 def _training_subtitle(prov: Provenance | None, curve: F.RewardCurve) -> str:
     method = (prov.method if prov is not None else None) or ""
     # a run still training has no provenance yet; its per-update columns say rl.train wrote it (plain PPO)
+    assert curve.difficulty is not None  # RewardCurve.__post_init__ fills an absent column with NaN
     per_update = prov is None and bool(np.any(np.isfinite(curve.difficulty)))
     if method.lower() == "ppo from scratch" or per_update:
         what = "Plain PPO from scratch (no demonstrations, no pre-trained weights)"
@@ -561,6 +562,7 @@ def _training_note(path: Path, curve: F.RewardCurve, prov: Provenance | None) ->
     wall = _float(prov.wall_time_s if prov is not None else None)
     if not math.isfinite(steps):  # no provenance (a run still in progress): its last row
         steps = float(curve.timesteps[-1])
+        assert curve.wall_s is not None  # RewardCurve.__post_init__ fills an absent column with NaN
         wall = float(curve.wall_s[-1])
         parts.append("no provenance.json (run in progress?)")
     if math.isfinite(steps):

@@ -198,7 +198,8 @@ def test_geojson_vertex_limit_is_stated(tmp_path: Path, capsys: pytest.CaptureFi
     path = _geojson_scenario(tmp_path, ring)
     t0 = time.perf_counter()
     _fails(["validate", str(path)], capsys, tmp_path, str(tmp_path / "fp.geojson"),
-           "features[0].geometry.coordinates[0]", f"{n + 1:,} positions", f"at most {MAX_FOOTPRINT_VERTICES:,} vertices")
+           "features[0].geometry.coordinates[0]", f"{n + 1:,} positions",
+           f"at most {MAX_FOOTPRINT_VERTICES:,} vertices")
     assert time.perf_counter() - t0 < 1.0
 
 

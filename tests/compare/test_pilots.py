@@ -131,5 +131,6 @@ def test_classical_report_failure_reason_and_json_round_trip():
     saved = json.loads(json.dumps(report.to_json()))
     assert saved["tracking_rms_m"] is None and saved["replans"] == 1
     back = ClassicalReport.from_json(saved)
-    assert math.isnan(back.tracking_rms_m) and back == ClassicalReport(**{**vars(report), "tracking_rms_m": back.tracking_rms_m})
+    assert math.isnan(back.tracking_rms_m)
+    assert back == ClassicalReport(**{**vars(report), "tracking_rms_m": back.tracking_rms_m})
     assert ClassicalReport.from_json({"wind_seed": 3}) is None  # nothing of the report

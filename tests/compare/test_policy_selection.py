@@ -34,7 +34,8 @@ def test_a_given_policy_replaces_the_shipped_one_for_its_vehicle_only(tmp_path: 
     scenarios = resolve_scenarios("default")
     policies = select_policies(scenarios, RunOptions(out_dir=tmp_path, policies=(mine,)))
     by_vehicle = {p.vehicle: p.folder for p in policies.values()}
-    assert by_vehicle == {"small_quad": mine.resolve(), "uam_multicopter": SHIPPED_POLICIES["uam_multicopter"].resolve()}
+    assert by_vehicle == {"small_quad": mine.resolve(),
+                          "uam_multicopter": SHIPPED_POLICIES["uam_multicopter"].resolve()}
 
 
 def test_two_policies_for_one_vehicle_are_refused(tmp_path: Path) -> None:
@@ -53,5 +54,6 @@ def test_a_vehicle_without_a_policy_flies_only_the_classical_pilot(tmp_path: Pat
     scenarios = resolve_scenarios("default")
     opts = RunOptions(out_dir=tmp_path)
     cells, notes = plan_cells(scenarios, opts, select_policies(scenarios, opts))
-    assert {(scenarios[c.scenario].vehicle.name, c.method) for c in cells if c.method == "ppo"} == {("small_quad", "ppo")}
+    flown = {(scenarios[c.scenario].vehicle.name, c.method) for c in cells if c.method == "ppo"}
+    assert flown == {("small_quad", "ppo")}
     assert len(notes) == 1 and "no learned policy for vehicle 'uam_multicopter'" in notes[0]

@@ -100,7 +100,8 @@ def test_full_set_contents() -> None:
             assert s.city.name == city and s.wind.turbulence is TurbulenceLevel.parse(level)
             assert len(s.episodes) == 4 and s.seeds == (0, 1, 2) and s.methods == ("ppo", "rrt_mpc", "apf")
         uam = full[f"{city}-uam"]
-        assert uam.methods == ("ppo", "rrt_mpc", "apf") and len(uam.episodes) == 2 and uam.episodes[0].task.goal_radius_m == 10.0
+        assert uam.methods == ("ppo", "rrt_mpc", "apf") and len(uam.episodes) == 2
+        assert uam.episodes[0].task.goal_radius_m == 10.0
     for name, level in (("hot-high-quad", "light"), ("hot-high-quad-moderate", "moderate")):
         hot = full[name]
         assert (hot.atmosphere.elevation_m, hot.atmosphere.isa_offset_k) == (2500.0, 25.0)

@@ -46,7 +46,8 @@ def test_plan_and_track_reaches_goal_without_collision(name, scale, vehicles, co
 def test_unreachable_goal_is_a_planner_failure_not_an_exception(vehicles, compiled_dynamics):
     p = vehicles["small_quad"]
     city = BuildingMap([Building(0, (50.0, 0.0), (20.0, 20.0), 40.0)], (0, -30, 0), (100, 30, 60))
-    world = World(p, compiled_dynamics["small_quad"], city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
+    world = World(p, compiled_dynamics["small_quad"], city,
+                  Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
     task = Task(start_m=(5.0, 0.0, 10.0), goal_m=(50.0, 0.0, 20.0), timeout_s=10.0)   # goal inside the building
     traj = run_episode(world, ClassicalAgent(), task, WindField.calm(), seed=1)
     assert traj.outcome == "planner_failure" and "invalid_goal" in traj.detail

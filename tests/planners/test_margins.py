@@ -106,7 +106,8 @@ def test_the_shipped_table_covers_both_presets_and_says_where_it_came_from():
 
 
 def test_forecast_gust_allowance():
-    """2 sigma_u of MIL-F-8785C's low-altitude model: sigma_w = 0.1 W20, sigma_u / sigma_w = 1 / (0.177 + 0.000823 h)^0.4."""
+    """2 sigma_u of MIL-F-8785C's low-altitude model: sigma_w = 0.1 W20,
+    sigma_u / sigma_w = 1 / (0.177 + 0.000823 h)^0.4."""
     from planners.margins import forecast_gust_m_s
 
     assert forecast_gust_m_s("none", 15.0) == 0.0

@@ -65,7 +65,8 @@ def test_the_path_goes_around_a_no_fly_volume_that_blocks_the_direct_line() -> N
 def test_the_classical_pilot_flies_around_it(vehicles, compiled_dynamics) -> None:
     p = vehicles["small_quad"]
     city = _open_field()
-    world = World(p, compiled_dynamics["small_quad"], city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
+    world = World(p, compiled_dynamics["small_quad"], city,
+                  Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
     task = Task(start_m=START, goal_m=GOAL, goal_radius_m=2.5, timeout_s=60.0)
     traj = run_episode(world, ClassicalAgent(), task, WindField.calm(), seed=4)
     assert traj.outcome == "success", traj.detail

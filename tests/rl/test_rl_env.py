@@ -100,7 +100,8 @@ def test_proximity_cost_per_metre_grows_with_speed():
     # passing the same wall 1 m off: per metre, fast costs more than slow (per second alone it would cost less)
     per_m = t["proximity"][1:] / speed[1:]
     assert per_m[1] < per_m[0] < 0
-    far = reward_terms(cfg, one, one, one, one + cfg.proximity_m, speed, 0.1 * one, np.zeros(3, bool), np.zeros(3, bool))
+    far = reward_terms(cfg, one, one, one, one + cfg.proximity_m, speed, 0.1 * one, np.zeros(3, bool),
+                       np.zeros(3, bool))
     assert (far["proximity"] == 0).all()
 
 
@@ -131,7 +132,7 @@ def test_outcomes_collision_arrival_truncation_bounds():
     assert info["outcome"] == "collision" and env.state[2] < 1.0
     # hovering: truncated at the 4 s limit, 40 decisions at 10 Hz
     env.reset(seed=0)
-    for k in range(1000):
+    for k in range(1000):  # noqa: B007 - k counts the decisions (checked after the loop)
         _, _, term, trunc, info = env.step(np.zeros(3, dtype=np.float32))
         if term or trunc:
             break

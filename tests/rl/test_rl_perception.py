@@ -317,7 +317,7 @@ def test_tall_box_ahead_and_inside_cells():
 def test_height_map_sees_slivers():
     """A box poking 1 mm - 5 cm into a cell (corner or edge first, any heading) raises that cell."""
     rng = np.random.default_rng(5)
-    g, c, half = CFG.grid_cells, CFG.grid_cells // 2, 0.5 * CFG.cell_m
+    g, half = CFG.grid_cells, 0.5 * CFG.cell_m
     cities, pts, hd, target, height = [], [], [], [], []
     for k in range(60):
         # every 4th: axis-aligned heading from a whole-metre point (cell edges on raster lines)

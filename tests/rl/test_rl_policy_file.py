@@ -131,7 +131,8 @@ def test_statistics_of_another_observation_size_are_named(folder):
     stats["mean"], stats["var"] = stats["mean"][:-3], stats["var"][:-3]
     np.savez(folder / "obs_norm.npz", **stats)
     n = obs_size(TINY_NAV.perception)
-    with pytest.raises(ValueError, match=rf"obs_norm\.npz: statistics for {n - 3} observations; config.json's task gives {n}"):
+    with pytest.raises(ValueError,
+                       match=rf"obs_norm\.npz: statistics for {n - 3} observations; config.json's task gives {n}"):
         load_policy(folder)
 
 

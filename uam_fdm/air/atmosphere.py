@@ -276,7 +276,7 @@ class Atmosphere:
     @property
     def heights_m(self) -> NDArray[np.float64]:
         """(N,) tabulated heights, metres above the field."""
-        return self._z_min + self._dz * np.arange(self._n)
+        return self._z_min + self._dz * np.arange(self._n, dtype=np.float64)
 
     @property
     def table(self) -> NDArray[np.float64]:
@@ -419,7 +419,7 @@ class _JSBSimToLogging:
             }
             target = logging.getLogger("uam_fdm.jsbsim")
 
-            class Bridge(jsbsim.FGLogger):  # type: ignore[misc]
+            class Bridge(jsbsim.FGLogger):
                 def __init__(self) -> None:
                     super().__init__()
                     self._parts: list[str] = []

@@ -71,19 +71,22 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
                 raise ConfigError(source, f"map.{opt}", "only applies to map.geojson")
     bounds = parse_bounds(bounds_cfg, source) if bounds_cfg is not None else None
     no_fly = _no_fly(map_cfg.get("no_fly", []), source)
-    if kind in ("buildings", "geojson") and bounds is None:
-        raise ConfigError(source, "bounds", f"missing: required with map.{kind} ({{min: [x, y, z], max: [x, y, z]}})")
 
+    if kind == "generator":
+        params, seed = citygen.params_from_config(map_cfg["generator"], source, "map.generator")
+        generated = citygen.generate_city(params, seed, name=str(map_cfg["generator"].get("preset", "generated")))
+        return _rebound(generated, bounds, no_fly, source)
+    if kind == "named":
+        return _rebound(load_named_map(map_cfg["named"], source=source), bounds, no_fly, source)
+    # map.buildings and map.geojson: footprints in a volume the bounds give
+    if bounds is None:
+        raise ConfigError(source, "bounds", f"missing: required with map.{kind} ({{min: [x, y, z], max: [x, y, z]}})")
     if kind == "buildings":
         items = map_cfg["buildings"]
         if not isinstance(items, list):
             raise ConfigError(source, "map.buildings", f"must be a list of buildings, got {items!r}")
         parts = [_building(item, i, source, bounds) for i, item in enumerate(items)]
         return BuildingMap(parts, bounds[0], bounds[1], no_fly)
-    if kind == "generator":
-        params, seed = citygen.params_from_config(map_cfg["generator"], source, "map.generator")
-        generated = citygen.generate_city(params, seed, name=str(map_cfg["generator"].get("preset", "generated")))
-        return _rebound(generated, bounds, no_fly, source)
     if kind == "geojson":
         path_value = map_cfg["geojson"]
         if not isinstance(path_value, str) or not path_value:
@@ -100,10 +103,9 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
             origin = numbers(map_cfg["origin_lonlat"], 2, source, "map.origin_lonlat")
             if not (-180.0 <= origin[0] <= 180.0 and -85.0 <= origin[1] <= 85.0):
                 raise ConfigError(source, "map.origin_lonlat", f"must be [lon, lat] in degrees, got {origin}")
-        parts = geojson.load_footprints(path, height_key, origin, bounds[0][:2], bounds[1][:2])
-        return BuildingMap(parts, bounds[0], bounds[1], no_fly, name=path.stem)
-    name = map_cfg["named"]
-    return _rebound(load_named_map(name, source=source), bounds, no_fly, source)
+        footprints = geojson.load_footprints(path, height_key, origin, bounds[0][:2], bounds[1][:2])
+        return BuildingMap(footprints, bounds[0], bounds[1], no_fly, name=path.stem)
+    raise AssertionError(f"unhandled map kind {kind!r}")  # _SOURCES lists the kinds handled above
 
 
 def parse_bounds(cfg: Any, source: str) -> tuple[list[float], list[float]]:

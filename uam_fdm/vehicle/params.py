@@ -139,7 +139,8 @@ class VehicleParams:
 # ---------------------------------------------------------------------------------------------
 
 _TOP_KEYS = {
-    "name", "description", "mass_kg", "inertia_kg_m2", "rotors", "rotor_diameter_m", "thrust_coeff_N_s2", "torque_coeff_Nm_s2",
+    "name", "description", "mass_kg", "inertia_kg_m2", "rotors", "rotor_diameter_m", "thrust_coeff_N_s2",
+    "torque_coeff_Nm_s2",
     "motor_time_constant_s", "rotor_speed_min_rad_s", "rotor_speed_max_rad_s", "drag_linear_N_s_m",
     "drag_quadratic_N_s2_m2", "collision_radius_m", "controller", "ground_effect",
 }

@@ -82,7 +82,8 @@ def test_named_maps_are_shipped_and_regenerate_exactly() -> None:
     assert named_maps() == ["canyon", "downtown", "suburb"]
     for name in named_maps():
         text = (MAPS_DIR / f"{name}.yaml").read_text(encoding="utf-8")
-        assert text == shipped_map_text(name), f"{name}.yaml is stale: run python -m uam_fdm.city.generator --write-shipped"
+        assert text == shipped_map_text(name), \
+            f"{name}.yaml is stale: run python -m uam_fdm.city.generator --write-shipped"
         params, seed = SHIPPED_MAPS[name]
         loaded, generated = load_named_map(name), generate_city(params, seed, name=name)
         assert loaded.buildings == generated.buildings  # exact, float for float
