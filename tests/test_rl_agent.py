@@ -2,6 +2,8 @@
 success, env = runner bit for bit, a policy refused for another vehicle."""
 from __future__ import annotations
 
+import dataclasses
+
 import json
 
 import numpy as np
@@ -12,6 +14,7 @@ from rl.agent import SHIPPED_POLICIES, PolicyAgent, load_policy, shipped_policy_
 from rl.env import UAMNavEnv
 from rl.evaluation import eval_config, evaluate
 from rl.nav import NavWorld
+from rl.route import flight_levels
 from uam_fdm.agent import ResetInfo, World
 from uam_fdm.params import load_vehicle
 
@@ -60,10 +63,25 @@ def test_shipped_policy_succeeds_on_held_out_test_cities(policy):
 def test_agent_flies_exactly_like_the_environment(policy, seed):
     """One held-out episode (light turbulence) through the env and through the runner + PolicyAgent:
     the same states at every decision, the same outcome at the same substep."""
+    _assert_env_equals_runner(policy, seed)
+
+
+def test_agent_flies_exactly_like_the_environment_with_route_levels():
+    """The same with the route at flight levels (`RouteConfig.level_step_m`, as the UAM task's): a leg
+    whose start and goal differ in altitude, so the potential interpolates between several fields."""
+    policy = load_policy(SHIPPED_POLICIES["uam_multicopter"])
+    policy = dataclasses.replace(policy, nav=dataclasses.replace(
+        policy.nav, route=dataclasses.replace(policy.nav.route, level_step_m=5.0)))
+    _assert_env_equals_runner(policy, 7, levels=True)
+
+
+def _assert_env_equals_runner(policy, seed: int, levels: bool = False) -> None:
     base = NavWorld(eval_config(policy.nav, 3))
     env = UAMNavEnv(world=base)
     obs, _ = env.reset(seed=seed)
     task, wind, city = env.batch.task(0), env.batch.wind_field(0), base.cities[int(env.batch.city[0])]
+    if levels:
+        assert len(flight_levels(task.start_m[2], task.goal_m[2], policy.nav.route.level_step_m)) > 2, task
     env_states, outcome = [], None
     for _ in range(100_000):
         obs, _, term, trunc, info = env.step(policy.act_batch(obs[None])[0])
