@@ -143,8 +143,9 @@ class PolicyAgent:
         self._world = world
         self._task = task
         self._goal = np.asarray(task.goal_m, dtype=float)[None]
-        self._routes = RouteBank(1, self._senses.route_cells, nav.route.climb_weight)
-        self._routes.set(0, route_for(world.city, task, radius, nav.route))
+        route = route_for(world.city, task, radius, nav.route)
+        self._routes = RouteBank(1, self._senses.route_cells, nav.route.climb_weight, len(route.fields))
+        self._routes.set(0, route)
         self._memory = PilotMemory.empty(1, nav.decision_hz)
         start = np.asarray(task.start_m, dtype=float)[None]
         self._memory.start(self._SLOT, start, self._goal, self._routes.potential(start, self._SLOT))

@@ -29,7 +29,7 @@ from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistributio
 from rl.observation import ObservationScales, PilotMemory, action_to_command, build_observations, goal_heading, obs_size
 from rl.perception import Perception, PerceptionConfig
 from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
-from rl.route import RouteBank, RouteConfig, grid_shape, route_field
+from rl.route import LeveledRoute, RouteBank, RouteConfig, flight_levels, grid_shape, leveled_route, max_levels
 from rl.sensor import BoxSensor
 from uam_fdm import episode
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
@@ -183,6 +183,7 @@ class NavWorld:
         self.hi = np.array([c.bounds_max_m for c in self.cities])
         shapes = np.array([grid_shape(c, config.route.cell_m) for c in self.cities])
         self.route_cells = (int(shapes[:, 0].max()), int(shapes[:, 1].max()))  # the largest city's route grid
+        self.route_levels = route_levels(config, fixed)
         level = TurbulenceLevel.parse(config.turbulence)
         self.turbulent = level is not TurbulenceLevel.NONE
         self.gust_stacks: list[GustStack] = []
@@ -232,7 +233,7 @@ class NavBatch:
         self.rngs: list[np.random.Generator] = [np.random.Generator(np.random.PCG64(i)) for i in range(n)]
         self.winds = WindBank(world.gust_stacks, n)
         self.sim = BatchSimulator(world.dynamics, world.atmosphere, self.winds)
-        self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight)
+        self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight, world.route_levels)
         self.memory = PilotMemory.empty(n, cfg.decision_hz)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
         self._radius = world.vehicle.collision_radius_m
@@ -444,10 +445,19 @@ def clearance_sensor(cities: Sequence[BuildingMap], config: NavConfig, radius_m:
     return BoxSensor(cities, 1, rng, radius_m, cell_m=max(10.0, rng / 3.0))
 
 
-def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig):
-    """The geodesic route field of a task: around buildings taller than the higher of start and goal."""
-    ref_alt = max(task.start_m[2], task.goal_m[2])
-    return route_field(city, task.goal_m, ref_alt, radius_m, config)
+def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig) -> LeveledRoute:
+    """The geodesic route fields of a task at its flight levels (`rl.route.flight_levels`: the
+    higher of start and goal alone, or levels from the lower to the higher)."""
+    levels = flight_levels(task.start_m[2], task.goal_m[2], config.level_step_m)
+    return leveled_route(city, task.goal_m, levels, radius_m, config)
+
+
+def route_levels(config: NavConfig, fixed: FixedEpisodes | None) -> int:
+    """The most flight levels a task of this configuration (or of these fixed episodes) needs."""
+    step = config.route.level_step_m
+    if fixed is not None:
+        return max([len(flight_levels(t.start_m[2], t.goal_m[2], step)) for _, t in fixed.tasks] + [1])
+    return max_levels(config.tasks.altitude_m, step)
 
 
 def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

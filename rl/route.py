@@ -67,12 +67,19 @@ class RouteConfig:
         climb_weight: k in the 3-D potential sqrt(G² + (k Δz)²): a metre of height difference
             counts as k metres of route (1 for the small quad; more for a vehicle whose climb is
             much slower than its cruise, so that closing the height gap earns a fair progress rate).
+        level_step_m: None: one field at the higher of start and goal (buildings below it are flown
+            over: right when the climb between them is short). A number: fields at flight levels
+            from the lower to the higher of start and goal, at most this far apart (`flight_levels`);
+            G at a point interpolates linearly in altitude between the two levels around it
+            (clamped at the ends), so a building taller than the lower end blocks the route at the
+            altitudes it stands in instead of being flown through.
     """
 
     cell_m: float = 4.0
     margin_m: float = 3.0
     blocked_speed: float = 0.1
     climb_weight: float = 1.0
+    level_step_m: float | None = None
 
     def __post_init__(self) -> None:
         if not (self.cell_m > 0 and math.isfinite(self.cell_m)):
@@ -83,6 +90,24 @@ class RouteConfig:
             raise ValueError(f"blocked_speed must be in (0, 1], got {self.blocked_speed}")
         if not (self.climb_weight > 0 and math.isfinite(self.climb_weight)):
             raise ValueError(f"climb_weight must be positive and finite, got {self.climb_weight}")
+        if self.level_step_m is not None and not (self.level_step_m > 0 and math.isfinite(self.level_step_m)):
+            raise ValueError(f"level_step_m must be None or positive and finite, got {self.level_step_m}")
+
+
+def flight_levels(z_a_m: float, z_b_m: float, step_m: float | None) -> tuple[float, ...]:
+    """The route fields' flight levels [m] for a leg between altitudes z_a and z_b: the higher alone
+    (step None, or the two within 1 mm), else evenly spaced from the lower to the higher, at most
+    `step_m` apart."""
+    lo, hi = min(z_a_m, z_b_m), max(z_a_m, z_b_m)
+    if step_m is None or hi - lo < 1e-3:
+        return (float(hi),)
+    n = int(math.ceil((hi - lo) / step_m - 1e-9)) + 1
+    return tuple(float(z) for z in np.linspace(lo, hi, n))
+
+
+def max_levels(altitude_range_m: tuple[float, float], step_m: float | None) -> int:
+    """The most flight levels a leg between altitudes in `altitude_range_m` [m] can need (sizes a `RouteBank`)."""
+    return len(flight_levels(altitude_range_m[0], altitude_range_m[1], step_m))
 
 
 @dataclass(frozen=True)
@@ -113,6 +138,35 @@ class RouteField:
     def shape(self) -> tuple[int, int]:
         """Grid shape (ny, nx)."""
         return self.distance_m.shape
+
+
+@dataclass(frozen=True)
+class LeveledRoute:
+    """Route fields of one goal over one city's grid at increasing, evenly spaced flight levels.
+
+    Attributes:
+        levels_m: the flight levels [m] (one or more, increasing, evenly spaced).
+        fields: the field at each level (same grid and goal).
+    """
+
+    levels_m: tuple[float, ...]
+    fields: tuple[RouteField, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.levels_m) != len(self.fields) or not self.fields:
+            raise ValueError(f"need one field per level, got {len(self.fields)} fields for {len(self.levels_m)} levels")
+        gaps = np.diff(self.levels_m)
+        if len(gaps) and (np.any(gaps <= 0) or np.ptp(gaps) > 1e-6 * max(1.0, float(gaps[0]))):
+            raise ValueError(f"flight levels must increase evenly, got {self.levels_m}")
+        if len({(f.shape, f.origin_m, f.cell_m, f.goal_m) for f in self.fields}) != 1:
+            raise ValueError("the fields of a leveled route must share their grid and goal")
+
+
+def leveled_route(city: BuildingMap, goal_m: Sequence[float], levels_m: Sequence[float], radius_m: float,
+                  config: RouteConfig = RouteConfig()) -> LeveledRoute:
+    """`route_field` at each flight level of `levels_m` [m] (increasing, evenly spaced)."""
+    levels = tuple(float(z) for z in levels_m)
+    return LeveledRoute(levels, tuple(route_field(city, goal_m, z, radius_m, config) for z in levels))
 
 
 def grid_shape(city: BuildingMap, cell_m: float = RouteConfig.cell_m) -> tuple[int, int]:
@@ -295,53 +349,72 @@ def _gradient_along_rows(g: np.ndarray, free: np.ndarray, cell_m: float) -> np.n
 class RouteBank:
     """Route fields for N slots (one per vehicle), stored padded in one array, queried in one call.
 
-    Each slot holds one `RouteField` (its own city grid, origin, cell size and goal) in a
-    (N, ny_max, nx_max) block of G and its central-difference gradient. Queries take one point per
-    slot (or points for chosen slots), clamp it to the slot's grid (outside the grid the value at the
-    nearest edge point: continuous, finite) and interpolate bilinearly. A slot never set, or a point
-    with a NaN coordinate, answers NaN.
+    Each slot holds one `RouteField` (its own city grid, origin, cell size and goal), or a
+    `LeveledRoute` of up to `levels` of them, in (levels, ny_max, nx_max) blocks of G and its
+    central-difference gradient. Queries take one point per slot (or points for chosen slots), clamp
+    it to the slot's grid (outside the grid the value at the nearest edge point: continuous, finite)
+    and interpolate bilinearly, and between the two flight levels around the point's altitude
+    linearly (clamped to the lowest and highest). A slot never set, or a point with a NaN
+    coordinate, answers NaN.
 
     Args:
         n: number of slots.
         max_cells: (ny_max, nx_max), the largest grid shape a slot will hold (see `grid_shape`).
         climb_weight: k of the potential (`RouteConfig.climb_weight`).
+        levels: the most flight levels a slot will hold (see `max_levels`).
     """
 
-    def __init__(self, n: int, max_cells: tuple[int, int], climb_weight: float = 1.0) -> None:
+    def __init__(self, n: int, max_cells: tuple[int, int], climb_weight: float = 1.0, levels: int = 1) -> None:
         ny, nx = (int(v) for v in max_cells)
-        if n < 1 or ny < 2 or nx < 2:
-            raise ValueError(f"need n >= 1 and max_cells >= (2, 2), got {n}, {max_cells}")
-        self.n, self.max_cells = int(n), (ny, nx)
+        if n < 1 or ny < 2 or nx < 2 or int(levels) != levels or levels < 1:
+            raise ValueError(f"need n >= 1, max_cells >= (2, 2) and levels >= 1, got {n}, {max_cells}, {levels}")
+        self.n, self.max_cells, self.levels = int(n), (ny, nx), int(levels)
         self.climb_weight = float(climb_weight)
         self._stride = nx
         self._block = ny * nx
-        # Per cell: G, dG/dx, dG/dy (float32), slots stacked, cells row-major.
-        self._data = np.full((self.n * self._block, 3), np.nan, dtype=np.float32)
+        # Per cell: G, dG/dx, dG/dy (float32); block (slot, level) at slot * levels + level, cells row-major.
+        self._data = np.full((self.n * self.levels * self._block, 3), np.nan, dtype=np.float32)
         self._origin = np.zeros((self.n, 2))
         self._inv_cell = np.ones(self.n)
         self._last = np.ones((self.n, 2))  # (nx - 1, ny - 1): the clamp limits in cell units
         self._goal = np.zeros((self.n, 3))
         self._clear = np.zeros(self.n)
+        self._z0 = np.zeros(self.n)  # lowest flight level [m]
+        self._inv_dz = np.zeros(self.n)  # 1 / level spacing [1/m] (0 with one level)
+        self._top = np.zeros(self.n)  # index of the highest level
 
-    def set(self, i: int, field: RouteField) -> None:
-        """Store `field` in slot i (the field's grid must fit in `max_cells`)."""
+    def set(self, i: int, route: RouteField | LeveledRoute) -> None:
+        """Store `route` in slot i (its grid must fit in `max_cells`, its levels in `levels`)."""
         if not 0 <= i < self.n:
             raise IndexError(f"slot {i} out of range 0..{self.n - 1}")
-        ny, nx = field.distance_m.shape
+        if isinstance(route, RouteField):
+            route = LeveledRoute((0.0,), (route,))
+        if len(route.fields) > self.levels:
+            raise ValueError(f"{len(route.fields)} flight levels do not fit the bank's {self.levels}")
+        first = route.fields[0]
+        ny, nx = first.distance_m.shape
         if ny > self.max_cells[0] or nx > self.max_cells[1] or ny < 2 or nx < 2:
             raise ValueError(f"field grid {(ny, nx)} does not fit the bank's max_cells {self.max_cells}")
-        g = field.distance_m.astype(np.float64)
-        gx, gy = _gradient(g, ~field.blocked, field.cell_m)
-        block = self._data[i * self._block:(i + 1) * self._block].reshape(self.max_cells + (3,))
-        block[:] = np.nan
-        block[:ny, :nx, 0] = g
-        block[:ny, :nx, 1] = gx
-        block[:ny, :nx, 2] = gy
-        self._origin[i] = field.origin_m
-        self._inv_cell[i] = 1.0 / field.cell_m
+        for lvl, field in enumerate(route.fields):
+            g = field.distance_m.astype(np.float64)
+            gx, gy = _gradient(g, ~field.blocked, field.cell_m)
+            k = i * self.levels + lvl
+            block = self._data[k * self._block:(k + 1) * self._block].reshape(self.max_cells + (3,))
+            block[:] = np.nan
+            block[:ny, :nx, 0] = g
+            block[:ny, :nx, 1] = gx
+            block[:ny, :nx, 2] = gy
+        levels = route.levels_m
+        self._origin[i] = first.origin_m
+        self._inv_cell[i] = 1.0 / first.cell_m
         self._last[i] = (nx - 1, ny - 1)
-        self._goal[i] = field.goal_m
-        self._clear[i] = field.clear_radius_m
+        self._goal[i] = first.goal_m
+        # the straight-line blend near the goal uses the obstacle-free disk at the goal's own level
+        at_goal = int(np.argmin(np.abs(np.asarray(levels) - first.goal_m[2]))) if len(levels) > 1 else 0
+        self._clear[i] = route.fields[at_goal].clear_radius_m
+        self._z0[i] = levels[0]
+        self._inv_dz[i] = 1.0 / (levels[1] - levels[0]) if len(levels) > 1 else 0.0
+        self._top[i] = len(levels) - 1
 
     def _slots(self, points_m: np.ndarray, slots: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         p = np.asarray(points_m, dtype=float).reshape(-1, 3)
@@ -357,7 +430,26 @@ class RouteBank:
         return p, s
 
     def _sample(self, p: np.ndarray, s: np.ndarray, grad: bool) -> np.ndarray:
-        """Bilinear G (M,) or (G, dG/dx, dG/dy) (M, 3) at points p (M, 3) of slots s (M,)."""
+        """G (M,) or (G, dG/dx, dG/dy) (M, 3) at points p (M, 3) of slots s (M,): bilinear on each
+        level's grid, linear between the two levels around the altitude."""
+        if self.levels == 1:
+            return self._sample_level(p, s, s, grad)
+        lvl, t = self._level(p[:, 2], s)
+        k = s * self.levels + lvl
+        below = self._sample_level(p, s, k, grad)
+        above = self._sample_level(p, s, k + (lvl < self._top[s]), grad)
+        t = t[:, None] if grad else t
+        return (1.0 - t) * below + t * above
+
+    def _level(self, z: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Index (M,) of the level at or below altitudes z (M,) [m] of slots s (clamped) and the
+        interpolation weight (M,) of the one above it."""
+        f = np.clip(np.nan_to_num((z - self._z0[s]) * self._inv_dz[s]), 0.0, self._top[s])
+        lvl = np.minimum(f.astype(np.int64), np.maximum(self._top[s].astype(np.int64) - 1, 0))
+        return lvl, f - lvl
+
+    def _sample_level(self, p: np.ndarray, s: np.ndarray, k: np.ndarray, grad: bool) -> np.ndarray:
+        """Bilinear G (M,) or (G, dG/dx, dG/dy) (M, 3) at points p (M, 3) of slots s (M,) on blocks k (M,)."""
         f = (p[:, :2] - self._origin[s]) * self._inv_cell[s, None]
         nan = np.isnan(f).any(axis=1)  # a non-finite state (a crashed vehicle): NaN out, not an index error
         if nan.any():
@@ -365,7 +457,7 @@ class RouteBank:
         np.clip(f, 0.0, self._last[s], out=f)
         i0 = np.minimum(f.astype(np.int64), self._last[s].astype(np.int64) - 1)
         t = f - i0
-        base = s * self._block + i0[:, 1] * self._stride + i0[:, 0]
+        base = k * self._block + i0[:, 1] * self._stride + i0[:, 0]
         idx = base[:, None] + np.array([0, 1, self._stride, self._stride + 1])
         tx, ty = t[:, 0:1], t[:, 1:2]
         w = np.concatenate([(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty], axis=1)  # (M, 4)
@@ -377,10 +469,23 @@ class RouteBank:
             out[nan] = np.nan
         return out
 
-    def _sample_one(self, x: float, y: float, s: int, grad: bool) -> np.ndarray | None:
-        """`_sample` of one point, (1,) or (1, 3), or None for a NaN coordinate: the cell lookup and the
+    def _sample_one(self, x: float, y: float, z: float, s: int, grad: bool) -> np.ndarray | None:
+        """`_sample` of one point (see `_sample_one_level`)."""
+        if self.levels == 1:
+            return self._sample_one_level(x, y, s, s, grad)
+        lvl, t = self._level(np.array([z]), np.array([s]))
+        k = s * self.levels + int(lvl[0])
+        below = self._sample_one_level(x, y, s, k, grad)
+        if below is None:
+            return None
+        above = self._sample_one_level(x, y, s, k + int(lvl[0] < self._top[s]), grad)
+        t = t[:, None] if grad else t
+        return (1.0 - t) * below + t * above
+
+    def _sample_one_level(self, x: float, y: float, s: int, k: int, grad: bool) -> np.ndarray | None:
+        """`_sample_level` of one point, (1,) or (1, 3), or None for a NaN coordinate: the cell lookup and the
         weights in plain Python (NumPy's per-call overhead on one row dominated a single vehicle's
-        step), the same operations on the same doubles; the weighted sum is `_sample`'s own einsum on
+        step), the same operations on the same doubles; the weighted sum is `_sample_level`'s own einsum on
         operands of the same shapes and types, so the summation order is the same too."""
         ox, oy = self._origin[s].tolist()
         inv = float(self._inv_cell[s])
@@ -393,7 +498,7 @@ class RouteBank:
         fy = ly if fy >= ly else (fy if fy > 0.0 else 0.0)
         ix, iy = min(int(fx), int(lx) - 1), min(int(fy), int(ly) - 1)
         tx, ty = fx - ix, fy - iy
-        base = s * self._block + iy * self._stride + ix
+        base = k * self._block + iy * self._stride + ix
         idx = np.array([[base, base + 1, base + self._stride, base + self._stride + 1]])
         w = np.array([[(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty]])
         if grad:
@@ -413,7 +518,7 @@ class RouteBank:
     def _potential_one(self, p: np.ndarray, s: int) -> np.ndarray:
         """`potential` (1,) of one point (see `_sample_one`)."""
         x, y, z = p.tolist()
-        sample = self._sample_one(x, y, s, grad=False)
+        sample = self._sample_one(x, y, z, s, grad=False)
         if sample is None:
             return np.array([math.nan])
         _, _, dn, w = self._near_goal_one(x, y, s)
@@ -423,8 +528,8 @@ class RouteBank:
 
     def _direction_one(self, p: np.ndarray, s: int) -> np.ndarray:
         """`direction` (1, 2) of one point (see `_sample_one`)."""
-        x, y, _ = p.tolist()
-        sample = self._sample_one(x, y, s, grad=True)
+        x, y, z = p.tolist()
+        sample = self._sample_one(x, y, z, s, grad=True)
         if sample is None:
             return np.full((1, 2), math.nan)
         gx, gy = (-sample[0, 1:3]).tolist()

@@ -56,7 +56,7 @@ UAM_TASK = NavConfig(
     vehicle="uam_multicopter",
     decision_hz=5.0,
     perception=PerceptionConfig(n_rays=16, ray_range_m=200.0, grid_cells=9, cell_m=30.0, raster_m=5.0),
-    route=RouteConfig(cell_m=10.0, margin_m=8.0, climb_weight=3.0),
+    route=RouteConfig(cell_m=10.0, margin_m=8.0, climb_weight=3.0, level_step_m=60.0),
     scales=ObservationScales(goal_m=1000.0, height_m=50.0, altitude_m=100.0, clearance_m=120.0),
     city_pool_size=256,
     cities=CityDistribution(

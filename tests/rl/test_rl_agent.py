@@ -2,6 +2,8 @@
 success, env = runner bit for bit, a policy refused for another vehicle."""
 from __future__ import annotations
 
+import dataclasses
+
 import json
 
 import numpy as np
@@ -12,6 +14,7 @@ from rl.agent import SHIPPED_POLICIES, PolicyAgent, load_policy, shipped_policy_
 from rl.env import UAMNavEnv
 from rl.evaluation import eval_config, evaluate
 from rl.nav import NavWorld
+from rl.route import flight_levels
 from uam_fdm.pilot import ResetInfo, World
 from uam_fdm.vehicle.params import load_vehicle
 
@@ -19,7 +22,7 @@ VEHICLES = ("small_quad", "uam_multicopter")
 # (training budget [min], held-out test cities, minimum success, most collisions) per vehicle. The UAM
 # issue asks for no collision in 30 cities; the shipped UAM policy collides on 2.8 % [1.7, 4.6] of 500
 # test legs, ~0.8 expected in 30, and has 2 here: the bar it meets is pinned, the issue stays open.
-BARS = {"small_quad": (45, 50, 0.9, 0), "uam_multicopter": (60, 30, 0.85, 2)}
+BARS = {"small_quad": (45, 50, 0.9, 0), "uam_multicopter": (60, 30, 0.85, 0)}
 
 
 @pytest.fixture(scope="module", params=VEHICLES)
@@ -48,8 +51,7 @@ def test_shipped_policy_is_plain_ppo_with_provenance(vehicle):
 
 def test_shipped_policy_succeeds_on_held_out_test_cities(policy):
     """Test-pool cities (never used for training or selection) of the policy's own task, light
-    turbulence and steady wind: 50 for the small quad (>= 90 %, no collision), 30 for the UAM (>= 85 %,
-    at most two collisions)."""
+    turbulence and steady wind: 50 for the small quad (>= 90 %), 30 for the UAM (>= 85 %); no collision."""
     _, episodes, bar, collisions = BARS[policy.nav.vehicle]
     res = evaluate(lambda obs, _b: policy.act_batch(obs), policy.nav, episodes, seed=0)
     assert res.success_rate >= bar, res.outcomes
@@ -60,10 +62,25 @@ def test_shipped_policy_succeeds_on_held_out_test_cities(policy):
 def test_agent_flies_exactly_like_the_environment(policy, seed):
     """One held-out episode (light turbulence) through the env and through the runner + PolicyAgent:
     the same states at every decision, the same outcome at the same substep."""
+    _assert_env_equals_runner(policy, seed)
+
+
+def test_agent_flies_exactly_like_the_environment_with_route_levels():
+    """The same with the route at flight levels (`RouteConfig.level_step_m`, as the UAM task's): a leg
+    whose start and goal differ in altitude, so the potential interpolates between several fields."""
+    policy = load_policy(SHIPPED_POLICIES["uam_multicopter"])
+    policy = dataclasses.replace(policy, nav=dataclasses.replace(
+        policy.nav, route=dataclasses.replace(policy.nav.route, level_step_m=5.0)))
+    _assert_env_equals_runner(policy, 7, levels=True)
+
+
+def _assert_env_equals_runner(policy, seed: int, levels: bool = False) -> None:
     base = NavWorld(eval_config(policy.nav, 3))
     env = UAMNavEnv(world=base)
     obs, _ = env.reset(seed=seed)
     task, wind, city = env.batch.task(0), env.batch.wind_field(0), base.cities[int(env.batch.city[0])]
+    if levels:
+        assert len(flight_levels(task.start_m[2], task.goal_m[2], policy.nav.route.level_step_m)) > 2, task
     env_states, outcome = [], None
     for _ in range(100_000):
         obs, _, term, trunc, info = env.step(policy.act_batch(obs[None])[0])

@@ -7,7 +7,17 @@ import numpy as np
 import pytest
 
 from rl.cities import CityDistribution
-from rl.route import RouteBank, RouteConfig, RouteField, grid_shape, route_field
+from rl.route import (
+    LeveledRoute,
+    RouteBank,
+    RouteConfig,
+    RouteField,
+    flight_levels,
+    grid_shape,
+    leveled_route,
+    max_levels,
+    route_field,
+)
 from uam_fdm.city.buildings import Building, BuildingMap, Prism
 
 RADIUS = 0.5
@@ -353,3 +363,47 @@ def test_climb_weight_scales_the_height_term_in_both_paths():
         assert heavy.potential(pts[i:i + 1], slots=[i])[0] == heavy.potential(pts)[i]  # one-point path, same doubles
     with pytest.raises(ValueError, match="climb_weight"):
         RouteConfig(climb_weight=0.0)
+
+
+def test_flight_levels():
+    assert flight_levels(30.0, 90.0, None) == (90.0,)
+    assert flight_levels(90.0, 30.0, 60.0) == (30.0, 90.0)
+    assert flight_levels(30.0, 90.0, 25.0) == pytest.approx((30.0, 50.0, 70.0, 90.0))
+    assert flight_levels(40.0, 40.0, 10.0) == (40.0,)
+    assert max_levels((30.0, 90.0), 60.0) == 2 and max_levels((30.0, 90.0), None) == 1
+    with pytest.raises(ValueError, match="level_step_m"):
+        RouteConfig(level_step_m=0.0)
+
+
+def test_leveled_route_blocks_a_wall_only_at_the_altitudes_it_stands_in():
+    """A 60 m wall across the way from a start at 20 m to a goal at 100 m: below its top the route goes
+    round it, at the goal's level straight over; between the levels G is linear in altitude (clamped
+    beyond them), in the batched and the one-point path alike, with one level the old single field."""
+    city = _wall_city(height_m=60.0)
+    goal = (140.0, 200.0, 100.0)
+    route = leveled_route(city, goal, flight_levels(20.0, goal[2], 80.0), RADIUS)
+    assert route.levels_m == (20.0, 100.0) and route.fields[0].blocked.any() and not route.fields[1].blocked.any()
+    bank = RouteBank(2, route.fields[0].shape, levels=2)
+    bank.set(0, route)
+    bank.set(1, route.fields[1])  # a single field in a leveled bank: the same at every altitude
+    xy = (140.0, 100.0)
+    low, high = (_bank_of(f).distance(np.array([[*xy, 0.0]]))[0] for f in route.fields)
+    assert low > 1.5 * high and high == pytest.approx(100.0, abs=2 * CFG.cell_m)
+    z = np.array([0.0, 20.0, 40.0, 60.0, 100.0, 150.0])
+    pts = np.column_stack([np.full(6, xy[0]), np.full(6, xy[1]), z])
+    g = np.array([bank.distance(p[None], slots=[0])[0] for p in pts])
+    expect = low + (high - low) * np.clip((z - 20.0) / 80.0, 0.0, 1.0)
+    np.testing.assert_allclose(g, expect, rtol=1e-6)
+    for p in pts:  # one-point path = batched path, the same doubles
+        both = np.vstack([p, p])
+        assert bank.potential(p[None], slots=[0])[0] == bank.potential(both, slots=[0, 0])[0]
+        np.testing.assert_array_equal(bank.direction(p[None], slots=[0]), bank.direction(both, slots=[0, 0])[:1])
+    # below the wall's top the way leads round it (sideways), at the goal's level straight on
+    assert abs(bank.direction(pts[1:2], slots=[0])[0, 0]) > 0.5
+    np.testing.assert_allclose(bank.direction(pts[4:5], slots=[0])[0], (0.0, 1.0), atol=0.05)
+    np.testing.assert_array_equal(bank.distance(pts, slots=np.ones(6, dtype=int)),
+                                  np.full(6, _bank_of(route.fields[1]).distance(pts[:1])[0]))
+    with pytest.raises(ValueError, match="flight levels"):
+        RouteBank(1, route.fields[0].shape).set(0, route)
+    with pytest.raises(ValueError, match="evenly"):
+        LeveledRoute((20.0, 30.0, 60.0), route.fields + route.fields[:1])
