@@ -3,7 +3,6 @@ success, env = runner bit for bit, a policy refused for another vehicle."""
 from __future__ import annotations
 
 import dataclasses
-
 import json
 
 import numpy as np
