@@ -126,3 +126,23 @@ def test_wilson_interval_matches_the_formula():
     lo, hi = wilson_interval(95, 100)
     assert lo == pytest.approx(0.8882, abs=1e-4) and hi == pytest.approx(0.9785, abs=1e-4)
     assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(50, 50)[1] == 1.0
+
+
+def test_training_is_deterministic_from_its_seed(tmp_path):
+    """The same configuration and seed twice: the same weights, normalisation statistics, reward curve
+    (all but the wall-clock column) and kept model's validation (one thread, as `uam-compare train`)."""
+    cfg = TrainConfig(total_timesteps=2 * 8 * 64, n_envs=8, nav=TINY_NAV, eval_every=8 * 64, eval_episodes=3,
+                      checkpoint_every=0, seed=5)
+    runs = [tmp_path / "a", tmp_path / "b"]
+    for out in runs:
+        train(cfg, out, progress=False, command="test", log=lambda *_: None)
+    a, b = (load_policy(out) for out in runs)
+    for (name, wa), (_, wb) in zip(a.network.state_dict().items(), b.network.state_dict().items()):
+        assert np.array_equal(wa.numpy(), wb.numpy()), name
+    for key in a.obs_stats:
+        assert np.array_equal(a.obs_stats[key], b.obs_stats[key]), key
+    rows_a, rows_b = (_rows(out / "reward_curve.csv") for out in runs)
+    assert [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_a] == \
+           [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_b]
+    prov_a, prov_b = (json.loads((out / "provenance.json").read_text()) for out in runs)
+    assert prov_a["validation_of_kept_model"] == prov_b["validation_of_kept_model"]
