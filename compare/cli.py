@@ -272,14 +272,33 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uam-compare", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_demo_command(sub)
+    _add_maps_command(sub)
+    _add_run_command(sub)
+    _add_report_command(sub)
+    _add_animate_command(sub)
+    _add_view_command(sub)
+    _add_validate_command(sub)
+    _add_train_command(sub)
+    _add_evaluate_command(sub)
+    return parser
+
+
+def _add_demo_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     demo = sub.add_parser("demo", help="fly the vehicle presets through a demo pattern and report what happened")
     demo.add_argument("vehicles", nargs="*", default=preset_names(),
                       help=f"preset names or vehicle YAML paths (default: {' '.join(preset_names())})")
     demo.add_argument("--seed", type=int, default=0, help="turbulence seed")
     demo.set_defaults(func=_cmd_demo)
+
+
+def _add_maps_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     maps = sub.add_parser("maps", help="render the shipped maps (top-down and 3D) to PNG")
     maps.add_argument("out_dir", nargs="?", default="maps_png", help="output folder (default: maps_png)")
     maps.set_defaults(func=_cmd_maps)
+
+
+def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
     run.add_argument("scenario", nargs="?", default="default",
                      help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
@@ -297,10 +316,16 @@ def build_parser() -> argparse.ArgumentParser:
                      help="cells to animate into RUN_DIR/videos/: the first of each scenario (default), all, none")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
+
+
+def _add_report_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rep = sub.add_parser("report",
                          help="rescore a run folder's saved episodes, rebuild its report and viewer (no simulation)")
     rep.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     rep.set_defaults(func=_cmd_report)
+
+
+def _add_animate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     anim = sub.add_parser("animate", help="render both pilots flying one cell of a run to MP4 (GIF without ffmpeg)")
     anim.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     anim.add_argument("--episode", default=None, metavar="SCENARIO:EPISODE[:SEED]",
@@ -316,13 +341,22 @@ def build_parser() -> argparse.ArgumentParser:
     anim.add_argument("--orbit", type=float, default=0.0, help="camera turn over the clip [deg] (default 0)")
     anim.add_argument("--no-progress", action="store_true", help="no progress bar")
     anim.set_defaults(func=_cmd_animate)
+
+
+def _add_view_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     view = sub.add_parser("view", help="write a run folder's interactive 3D viewer (one self-contained HTML file)")
     view.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     view.add_argument("--out", type=Path, default=None, help="HTML file to write (default: RUN_DIR/viewer.html)")
     view.set_defaults(func=_cmd_view)
+
+
+def _add_validate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     val = sub.add_parser("validate", help="check scenario files strictly without flying anything")
     val.add_argument("scenario", help="a built-in set, a scenario YAML or a folder of them")
     val.set_defaults(func=_cmd_validate)
+
+
+def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     tr = sub.add_parser("train", help="train the learned pilot with PPO from scratch on the batched environment")
     tr.add_argument("--preset", default="paper", help="PPO preset (paper: 2 x 128 units, clip 0.2)")
     tr.add_argument("--timesteps", type=int, default=10_000_000, help="decisions, all vehicles (default 10M)")
@@ -342,6 +376,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", type=Path, default=Path("runs/policy"), help="policy folder to write")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_cmd_train)
+
+
+def _add_evaluate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ev = sub.add_parser("evaluate-policy", help="fly a policy (and the potential-field baseline) on held-out cities; "
                         "last line is JSON")
     ev.add_argument("policy", nargs="?", type=Path, default=None, help="policy folder (default: the shipped policy)")
@@ -352,7 +389,6 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
     ev.add_argument("--no-baseline", action="store_true", help="skip the potential-field pilot on the same tasks")
     ev.set_defaults(func=_cmd_evaluate)
-    return parser
 
 
 class _CliFormatter(logging.Formatter):
