@@ -267,8 +267,6 @@ class CellRunner:
                            # planning at reset plus every replan, when the pilot reports it
                            plan_time_s=float(traj.plan_time_s if report is None else report.plan_time_s),
                            detail=traj.detail, wind_seed=wind_seed, agent_seed=agent_seed,
-                           torque_coeff_Nm_s2=p.torque_coeff_Nm_s2,
-                           density_ratio=float(world.atmosphere.density_ratio(task.start_m[2])),
                            mean_decision_ms=float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None,
                            failure_reason=None if report is None else report.failure_reason(traj.outcome),
                            report=report)

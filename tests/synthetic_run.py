@@ -79,9 +79,8 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
     rows = []
     for (ep, method), (n, dur, bend, stop, outcome) in cells.items():
         key = EpisodeKey(SCENARIO, ep, method, 0)
-        power = {"torque_coeff_Nm_s2": 1.2e-7, "density_ratio": 0.95} if ep == 0 else {}
         meta = EpisodeMeta(key, "toy", "small_quad", START, GOAL, 3.0, 60.0, 0.42, 4, 1000.0 * dur, outcome,
-                           0.3 if method == "rrt_mpc" else 0.0, f"synthetic {outcome}", **power)
+                           0.3 if method == "rrt_mpc" else 0.0, f"synthetic {outcome}")
         traj = trajectory(n, dur, bend, stop, outcome, ep, shaft_power=ep == 0)
         save_episode(run_dir / "episodes" / f"{key.stem}.npz", meta, traj)
         ok = outcome == "success"

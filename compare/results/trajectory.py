@@ -79,9 +79,6 @@ class EpisodeMeta:
             and every replan), else the runner's measure around reset.
         detail: why the episode ended.
         wind_seed, agent_seed: the seeds of the episode's wind and of its pilot (None: not recorded).
-        torque_coeff_Nm_s2: the vehicle's rotor drag-torque coefficient at sea level [N m s²] and
-        density_ratio: the air density at the start over sea level's [-], for the rotor power
-            (None: not recorded).
         mean_decision_ms: the mean wall time per decision [ms] (None: no decision).
         failure_reason: a more specific reason for a failure than the outcome, from the pilot's report
             (e.g. `Outcome.SOLVER_FAILURE`), else None.
@@ -104,8 +101,6 @@ class EpisodeMeta:
     detail: str = ""
     wind_seed: int | None = None
     agent_seed: int | None = None
-    torque_coeff_Nm_s2: float | None = None
-    density_ratio: float | None = None
     mean_decision_ms: float | None = None
     failure_reason: Outcome | None = None
     report: PilotReport | None = None
@@ -179,7 +174,7 @@ def load_episode(path: Path) -> SavedEpisode:
     return SavedEpisode(meta, traj)
 
 
-_CONTEXT = ("wind_seed", "agent_seed", "torque_coeff_Nm_s2", "density_ratio", "mean_decision_ms")
+_CONTEXT = ("wind_seed", "agent_seed", "mean_decision_ms")
 """The run's context of an episode, saved under "extra"."""
 _REPORT_KEY = "tracker"
 

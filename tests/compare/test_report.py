@@ -86,7 +86,7 @@ def test_full_report_pages_text_and_pngs(full_run: tuple[Path, Path, float]) -> 
     episode_pages = texts[4:10]
     assert all(f"Episode {SCENARIO} #" in t for t in episode_pages)
     assert "#0 seed 0" in episode_pages[0] and "#1 seed 0" in episode_pages[3]
-    assert "rotor power [kW]" in episode_pages[1]          # episode 0 saved km and σ
+    assert "rotor power [kW]" in episode_pages[1]          # episode 0 saved its shaft power per step
     assert "mean rotor speed [rad/s]" in episode_pages[4]  # episode 1 did not
     assert all("x east [m]" in texts[i] for i in (4, 6, 7, 9))
     assert "clearance [m]" in episode_pages[1] and "time [s]" in episode_pages[1]
