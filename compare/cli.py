@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from compare.pilots import METHODS
+from compare.pilots import METHODS, pilot
 from uam_fdm.vehicle.params import preset_names
 
 INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
@@ -81,12 +81,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
     from compare.results.outputs import check_output_dir
-    from compare.scenario import resolve_scenarios, seeds_problem
+    from compare.scenario import resolve_scenarios, seeds_problem, with_methods
 
-    if args.methods is not None:
-        unknown = [m for m in args.methods if m not in METHODS]
-        if unknown:
-            raise ValueError(f"--methods: unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}")
+    for flag, names in (("--method", args.method), ("--methods", args.methods or ())):
+        for m in names:  # registered, or a plug-in (imported here, before anything flies)
+            try:
+                pilot(m)
+            except ValueError as exc:
+                raise ValueError(f"{flag}: {exc}") from None
     if args.seeds is not None and (problem := seeds_problem(list(args.seeds))) is not None:
         index, reason = problem  # the same limits as a scenario's `seeds`
         where = "" if index is None else f" (index {index})"
@@ -101,6 +103,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
     scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
+    scenarios = [with_methods(sc, tuple(args.method)) for sc in scenarios]
     _one_torch_thread()
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
                       resume=args.resume, progress=not args.no_progress, videos=args.videos,
@@ -302,8 +305,12 @@ def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
     run.add_argument("scenario", nargs="?", default="default",
                      help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
+    run.add_argument("--method", action="append", default=[], metavar="METHOD",
+                     help="fly this pilot too, in every scenario: a registered method, a plug-in as module:Class "
+                          "or an installed plug-in's entry-point name; repeat for more")
     run.add_argument("--methods", type=_csv_list, default=None,
-                     help=f"comma-separated methods to fly, of each scenario's own ({','.join(METHODS)})")
+                     help=f"comma-separated methods to fly, of each scenario's own and --method's "
+                          f"({','.join(METHODS)}, plug-ins)")
     run.add_argument("--policy", type=Path, action="append", default=[],
                      help="policy folder for ppo, for the vehicle it was trained for; repeat for other vehicles "
                           "(default: the shipped policy of each vehicle)")

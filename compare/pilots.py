@@ -7,11 +7,26 @@ the pilot itself (an `uam_fdm.pilot.Agent`).
 
 The builders import their pilot's package only when called: reading a run folder, or checking a
 scenario, needs neither PyTorch nor CasADi.
+
+A pilot that is not ours flies as a plug-in, named wherever a method is (scenario files, --methods,
+--method) in one of two ways, resolved the same in every process (no registration step):
+
+* `module:Class`, e.g. `mypkg.pilots:MyPilot`: imported from an installed package or PYTHONPATH;
+* the name of an entry point in the `uam_compare.pilots` group of an installed distribution.
+
+The object named is either an `Agent` class (made with no arguments, one per process and vehicle;
+the run shows its `label` class attribute, else its class name, and the first paragraph of its
+docstring) or a ready `PilotSpec` (full control of label, colour, rates and report type).
 """
 from __future__ import annotations
 
+import functools
+import importlib
+import inspect
+import re
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -131,18 +146,122 @@ METHODS: tuple[str, ...] = tuple(PILOTS)
 """Every registered method, in table order."""
 DEFAULT_METHODS: tuple[str, ...] = tuple(name for name, spec in PILOTS.items() if spec.default)
 """The methods a scenario flies when its file does not list them."""
+PLUGIN_GROUP = "uam_compare.pilots"
+"""The entry-point group of plug-in pilots (`[project.entry-points."uam_compare.pilots"]`)."""
+PLUGIN_WALL_S_PER_FLIGHT_S = 1.0  # run estimates for a plug-in that does not state its own
+_REFERENCE = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
+_ENTRY_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")  # it names output files: the scenario-name rule
+
+
+def is_reference(name: str) -> bool:
+    """`name` has the form `module:Class` (a plug-in named by its import path)."""
+    return bool(_REFERENCE.match(name))
 
 
 def pilot(name: str) -> PilotSpec:
-    """The registered pilot `name`.
+    """The pilot `name`: a registered method, a plug-in `module:Class` or a plug-in entry point's name.
 
     Raises:
-        ValueError: an unknown name, listing the registered ones.
+        ValueError: an unknown name (listing the registered ones and the plug-in forms), or a plug-in
+            that cannot be imported or is not a pilot (saying why).
     """
     spec = PILOTS.get(name)
-    if spec is None:
-        raise ValueError(f"unknown method {name!r} (registered: {', '.join(METHODS)})")
-    return spec
+    if spec is not None:
+        return spec
+    if is_reference(name):
+        return _plugin(name)
+    entry = _entry_point(name)
+    if entry is not None:
+        return _plugin_from_entry_point(entry.name, entry.value)
+    plugins = sorted(e.name for e in metadata.entry_points(group=PLUGIN_GROUP))
+    listed = f"; installed plug-ins: {', '.join(plugins)}" if plugins else ""
+    raise ValueError(f"unknown method {name!r} (registered: {', '.join(METHODS)}){listed}; a plug-in pilot is "
+                     f"named as module:Class")
+
+
+def find(name: str) -> PilotSpec | None:
+    """The pilot `name` when it resolves here, else None (readers of a run folder made elsewhere, where a
+    plug-in may not be installed: its episodes still read, without its report type)."""
+    try:
+        return pilot(name)
+    except ValueError:
+        return None
+
+
+def _entry_point(name: str) -> metadata.EntryPoint | None:
+    found = [e for e in metadata.entry_points(group=PLUGIN_GROUP) if e.name == name]
+    return found[0] if found else None
+
+
+@functools.cache  # one import and one spec per name and process (the module is cached by Python anyway)
+def _plugin(reference: str) -> PilotSpec:
+    module_name, _, attr = reference.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ValueError(f"method {reference!r}: cannot import module {module_name!r} ({exc}); install its "
+                         f"package or put its folder on PYTHONPATH") from exc
+    obj: object = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ValueError(f"method {reference!r}: module {module_name!r} has no {attr!r}")
+        obj = getattr(obj, part)
+    return _spec_of(reference, reference, obj)
+
+
+@functools.cache
+def _plugin_from_entry_point(name: str, value: str) -> PilotSpec:
+    if not _ENTRY_NAME.match(name) or "__" in name:
+        raise ValueError(f"plug-in entry point {name!r} ({PLUGIN_GROUP}): a method name may only hold letters, "
+                         f"digits, '_', '.' and '-', without '__' (it names output files)")
+    entry = _entry_point(name)
+    assert entry is not None
+    try:
+        obj = entry.load()
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"method {name!r}: cannot load entry point {value!r} of {PLUGIN_GROUP} ({exc})") from exc
+    return _spec_of(name, value, obj)
+
+
+class _PluginBuilder:
+    """Builds a plug-in `Agent` class with no arguments and checks that it is one."""
+
+    def __init__(self, name: str, cls: type) -> None:
+        self.name, self.cls = name, cls
+
+    def __call__(self, scenario: Scenario, policy: Path | None) -> Agent:
+        agent = self.cls()
+        if not isinstance(agent, Agent):
+            raise ValueError(f"method {self.name!r}: {self.cls.__qualname__} is not a pilot: an Agent has a name "
+                             f"and the methods reset, act and episode_report (uam_fdm.pilot.Agent)")
+        return agent
+
+
+def _spec_of(name: str, source: str, obj: object) -> PilotSpec:
+    """The `PilotSpec` of a plug-in object (a `PilotSpec`, or an `Agent` class) named `name`."""
+    if isinstance(obj, PilotSpec):
+        return replace(obj, name=name, default=False)
+    if not inspect.isclass(obj):
+        raise ValueError(f"method {name!r}: {source} is a {type(obj).__name__}, not an Agent class or a PilotSpec")
+    missing = [m for m in ("reset", "act", "episode_report") if not callable(getattr(obj, m, None))]
+    if missing:
+        raise ValueError(f"method {name!r}: {obj.__qualname__} is not a pilot: it lacks {', '.join(missing)} "
+                         f"(uam_fdm.pilot.Agent)")
+    label = str(getattr(obj, "label", obj.__name__))
+    doc = inspect.getdoc(obj) or ""
+    description = str(getattr(obj, "description", "")) or doc.split("\n\n")[0].replace("\n", " ") or label
+    own = str(getattr(obj, "given", ""))
+    given = (f"The plug-in pilot {label} ({source}) decides at the scenario's control rate and is given what the "
+             f"pilot interface carries: at take-off the vehicle's parameters and flight model, the building map, "
+             f"the atmosphere and the forecast turbulence level, then the full vehicle state at each decision."
+             + (f" {label}: {own}" if own else ""))
+    report_type = getattr(obj, "report_type", None)
+    return PilotSpec(
+        name=name, label=label, color=str(getattr(obj, "color", "")), description=f"{description} (plug-in {source})",
+        given=given, build=_PluginBuilder(name, obj), plans=bool(getattr(obj, "plans", False)),
+        uses_torch=bool(getattr(obj, "uses_torch", False)),
+        report_type=report_type if isinstance(report_type, type) else None,
+        wall_s_per_flight_s=float(getattr(obj, "wall_s_per_flight_s", PLUGIN_WALL_S_PER_FLIGHT_S)))
 
 
 def ordered(methods: Iterable[str]) -> list[str]:
@@ -159,6 +278,6 @@ def build(name: str, scenario: Scenario, policy: Path | None) -> Agent:
         ValueError: an unknown method, or a pilot that needs a policy and has none (naming the file).
     """
     agent = pilot(name).build(scenario, policy)
-    if agent.name != name:  # the agent's own name labels its errors in the runner
+    if name in PILOTS and agent.name != name:  # the agent's own name labels its errors in the runner
         raise ValueError(f"the builder of method {name!r} made an agent named {agent.name!r}")
     return agent

@@ -66,6 +66,7 @@ Built-in scenario sets live in ``compare/scenarios/<set>/*.yaml`` (`builtin_sets
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import re
 from collections.abc import Mapping
@@ -75,6 +76,7 @@ from typing import Any
 
 import numpy as np
 
+from compare import pilots
 from compare.pilots import DEFAULT_METHODS, METHODS
 from uam_fdm.air.atmosphere import (
     ELEVATION_RANGE_M,
@@ -180,6 +182,13 @@ class Scenario:
 
 
 # ---- public entry points -----------------------------------------------------------------------------
+def with_methods(scenario: Scenario, added: tuple[str, ...]) -> Scenario:
+    """`scenario` flying `added` pilots (registered or plug-ins, already checked) beside its own."""
+    if not added:
+        return scenario
+    return dataclasses.replace(scenario, methods=tuple(pilots.ordered((*scenario.methods, *added))))
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Load and check one scenario YAML file.
 
@@ -402,13 +411,18 @@ def _seeds(value: Any, source: str, key: str) -> tuple[int, ...]:
 
 def _methods(value: Any, source: str, key: str) -> tuple[str, ...]:
     if not isinstance(value, list) or not value:
-        raise ConfigError(source, key, f"must be a non-empty list drawn from {', '.join(METHODS)}, got {value!r}")
+        raise ConfigError(source, key, f"must be a non-empty list drawn from {', '.join(METHODS)} or plug-in "
+                                       f"pilots (module:Class), got {value!r}")
     for i, m in enumerate(value):
-        if not isinstance(m, str) or m not in METHODS:
-            raise ConfigError(source, f"{key}[{i}]", f"unknown method {m!r} (registered: {', '.join(METHODS)})")
+        if not isinstance(m, str):
+            raise ConfigError(source, f"{key}[{i}]", f"a method is a name, got {m!r}")
+        try:
+            pilots.pilot(m)  # a plug-in is imported here: a broken one is an error before anything flies
+        except ValueError as exc:
+            raise ConfigError(source, f"{key}[{i}]", str(exc)) from None
         if m in value[:i]:
             raise ConfigError(source, f"{key}[{i}]", f"duplicate method {m!r}")
-    return tuple(m for m in METHODS if m in value)
+    return tuple(pilots.ordered(value))
 
 
 def _rates(data: Mapping, source: str, vehicle: VehicleParams) -> tuple[float, float]:

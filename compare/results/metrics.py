@@ -150,7 +150,7 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
     straight_m = float(np.linalg.norm(np.subtract(meta.goal_m, meta.start_m, dtype=float)))
     below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
     finite_clearance = clearance[~np.isnan(clearance)]
-    spec = pilots.PILOTS.get(key.method)
+    spec = pilots.find(key.method)
     does_not_plan = spec is not None and not spec.plans and meta.plan_time_s == 0
     return EpisodeMetrics(
         scenario=key.scenario, episode=int(key.episode), method=key.method, seed=int(key.seed),

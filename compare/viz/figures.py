@@ -24,6 +24,7 @@ from matplotlib.patches import Circle, Rectangle
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D
 
+from compare import pilots
 from compare.pilots import PILOTS
 from compare.results.trajectory import EpisodeMeta, SavedEpisode
 from uam_fdm.city.buildings import BuildingMap, Prism
@@ -49,7 +50,8 @@ def method_colors(methods: Iterable[str]) -> dict[str, str]:
     for m in methods:
         if m in out:
             continue
-        out[m] = METHOD_COLORS.get(m) or next(spare, "0.3")
+        spec = METHOD_COLORS.get(m) or (plugin.color if (plugin := pilots.find(m)) is not None else "")
+        out[m] = spec or next(spare, "0.3")
     return out
 
 
