@@ -44,6 +44,7 @@ from compare.results.run_info import (
     PolicyRecord,
     RunInfo,
     ScenarioInfo,
+    SuiteInfo,
     WindInfo,
     write_run_info,
 )
@@ -385,8 +386,14 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
         notes=tuple(notes),
         methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else ()) for s in specs},
-        versions=versions(), fairness=fairness(methods), fingerprints=fingerprints)
+        versions=versions(), fairness=fairness(methods), fingerprints=fingerprints, suite=run_suite(scenarios))
     write_run_info(info, out)
+
+
+def run_suite(scenarios: Sequence[Scenario]) -> SuiteInfo | None:
+    """The published task set (benchmark) the run's scenarios all come from, else None."""
+    suites = {sc.suite for sc in scenarios}
+    return suites.pop() if len(suites) == 1 else None
 
 
 def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:

@@ -122,7 +122,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
               f"to fly the rest: {shlex.join(again)}", file=sys.stderr)
         return INTERRUPTED_EXIT
     _print_summary(run_dir)
+    _print_suite(run_dir)
     return 0
+
+
+def _print_suite(run_dir: Path) -> None:
+    """The benchmark set a run flew, with its version (nothing for scenario files)."""
+    from compare.results.run_info import read_run_info
+
+    suite = read_run_info(run_dir).suite
+    if suite is not None:
+        print(f"task set {suite.name}, version {suite.version}: {suite.description}")
 
 
 def _print_summary(run_dir: Path) -> None:
@@ -153,6 +163,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     run_dir = finalize(args.run_dir)
     _print_summary(run_dir)
+    _print_suite(run_dir)
     return 0
 
 
@@ -304,7 +315,8 @@ def _add_maps_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
 def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
     run.add_argument("scenario", nargs="?", default="default",
-                     help="a built-in set (default, full), a scenario YAML or a folder of them (default: default)")
+                     help="a built-in set (default, full, benchmark, benchmark-quick), a scenario YAML or a folder "
+                          "of them (default: default)")
     run.add_argument("--method", action="append", default=[], metavar="METHOD",
                      help="fly this pilot too, in every scenario: a registered method, a plug-in as module:Class "
                           "or an installed plug-in's entry-point name; repeat for more")

@@ -130,14 +130,25 @@ class TaskDistribution:
                     or city.clearance_one(goal[0], goal[1], goal[2], radius_m) < need):
                 continue
             d = float(np.linalg.norm(goal - start))
-            timeout = self.timeout_base_s + self.timeout_per_speed * d / max_speed_m_s
-            if self.timeout_per_climb:
-                if max_vertical_speed_m_s is None:
-                    raise ValueError("timeout_per_climb needs the vehicle's max_vertical_speed_m_s")
-                timeout += self.timeout_per_climb * abs(dz) / max_vertical_speed_m_s
+            timeout = self.timeout_s(d, dz, max_speed_m_s, max_vertical_speed_m_s)
             return Task((float(start[0]), float(start[1]), float(start[2])),
                         (float(goal[0]), float(goal[1]), float(goal[2])), self.goal_radius_m, round(timeout, 2))
         raise RuntimeError(f"no free start/goal pair in {city.name!r} after {attempts} draws")
+
+    def timeout_s(self, distance_m: float, climb_m: float, max_speed_m_s: float,
+                  max_vertical_speed_m_s: float | None = None) -> float:
+        """The time limit of a leg [s]: base + per_speed x distance / max speed + per_climb x |climb| / max
+        vertical speed (distance: straight start-goal [m]; climb: goal height minus start height [m]).
+
+        Raises:
+            ValueError: timeout_per_climb is set and max_vertical_speed_m_s is not given.
+        """
+        timeout = self.timeout_base_s + self.timeout_per_speed * distance_m / max_speed_m_s
+        if self.timeout_per_climb:
+            if max_vertical_speed_m_s is None:
+                raise ValueError("timeout_per_climb needs the vehicle's max_vertical_speed_m_s")
+            timeout += self.timeout_per_climb * abs(climb_m) / max_vertical_speed_m_s
+        return timeout
 
 
 def boxes_only(city: BuildingMap) -> bool:

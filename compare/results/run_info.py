@@ -4,6 +4,8 @@
 (version 1) is unchanged since the first runs; folders written by older versions read too: a key they
 lack reads as empty (None, "", no entries), and a run that recorded the learned pilot's one policy as
 `methods.ppo.policy_dir` (before policies per vehicle) reads as one `PolicyRecord` without a vehicle.
+Optional keys (`fingerprints`, `suite`) are written only when set, so rewriting an older file gives it back
+byte for byte.
 """
 from __future__ import annotations
 
@@ -87,6 +89,22 @@ class MethodInfo:
 
 
 @dataclass(frozen=True)
+class SuiteInfo:
+    """The published task set a run's scenarios come from (`compare.benchmark`).
+
+    Attributes:
+        name: the set's name (e.g. "benchmark-quick").
+        version: the generator's version and a short hash of the generated tasks (cities, legs, air): any
+            change to what the generator makes changes it.
+        description: one line on the task distribution.
+    """
+
+    name: str
+    version: str
+    description: str = ""
+
+
+@dataclass(frozen=True)
 class RunInfo:
     """The contents of `run.json`.
 
@@ -100,6 +118,8 @@ class RunInfo:
         fairness: the fairness statement.
         fingerprints: hashes of the inputs (`compare.fingerprint.run_fingerprints`; None in runs saved before
             they were recorded).
+        suite: the published task set the scenarios come from (None: scenario files, or a run saved before
+            suites existed).
         format_version: the file format.
     """
 
@@ -111,6 +131,7 @@ class RunInfo:
     versions: Mapping[str, str] = field(default_factory=dict)
     fairness: str = ""
     fingerprints: Mapping[str, Any] | None = None
+    suite: SuiteInfo | None = None
     format_version: int = FORMAT_VERSION
 
     def label(self, method: str) -> str:
@@ -144,6 +165,9 @@ def run_info_to_json(info: RunInfo) -> dict[str, Any]:
     }
     if info.fingerprints is not None:
         out["fingerprints"] = info.fingerprints
+    if info.suite is not None:
+        out["suite"] = {"name": info.suite.name, "version": info.suite.version,
+                        "description": info.suite.description}
     return out
 
 
@@ -206,7 +230,16 @@ def run_info_from_json(data: Any, where: str) -> RunInfo:
         versions={str(k): str(v) for k, v in r.mapping(top.get("versions"), "versions").items()},
         fairness=r.text(top, "fairness", "fairness"),
         fingerprints=None if fingerprints is None else r.mapping(fingerprints, "fingerprints"),
+        suite=_suite_info(r, top.get("suite"), "suite"),
     )
+
+
+def _suite_info(r: _Reader, value: Any, key: str) -> SuiteInfo | None:
+    if value is None:
+        return None
+    s = r.mapping(value, key)
+    return SuiteInfo(r.text(s, "name", f"{key}.name"), r.text(s, "version", f"{key}.version"),
+                     r.text(s, "description", f"{key}.description"))
 
 
 def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:

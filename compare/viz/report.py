@@ -3,7 +3,8 @@
 A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, `episodes/*.npz`,
 `metrics.csv` and `summary.json`.  `build_report` writes, in order:
 
-1. title page(s) "uam-compare report": scenarios, methods, software versions, command, date, fairness;
+1. title page(s) "uam-compare report": task set and version (a benchmark run), scenarios, methods, software
+   versions, command, date, fairness;
 2. "Metrics": per-method mean [95 % CI] table, paired differences, per-episode table;
 3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
    3D snapshots over time;
@@ -284,6 +285,8 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
         coverage += " The run is incomplete (interrupted): the report covers the episodes saved so far."
     blocks = [("p", f"Created {info.created_utc or 'n/a'} by: {info.command or 'n/a'}"),
               ("p", f"Run folder: {run.run_dir}"), ("p", coverage), ("h", "Scenarios")]
+    if info.suite is not None:  # a benchmark set: its version names the exact tasks flown
+        blocks.insert(1, ("p", f"Task set {info.suite.name}, version {info.suite.version}: {info.suite.description}"))
     for s in info.scenarios:
         blocks += _scenario_blocks(run, s)
     blocks.append(("h", "Methods"))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,7 @@ from compare.results.run_info import (
     PolicyRecord,
     RunInfo,
     ScenarioInfo,
+    SuiteInfo,
     WindInfo,
     read_run_info,
     run_info_to_json,
@@ -48,6 +50,27 @@ def test_write_read_round_trip(tmp_path: Path) -> None:
     assert back.label("ppo") == "PPO policy" and back.label("a_star") == "a_star"
     assert back.policies() == (PolicyRecord("small_quad", "/p/quad", 10.0),) and back.policies("rrt_mpc") == ()
     assert back.scenario("hot-high") is back.scenarios[0] and back.scenario("nowhere") is None
+
+
+def test_the_suite_is_optional(tmp_path: Path) -> None:
+    """A benchmark run records its task set last; without one, no key: older files rewrite as they were."""
+    suite = SuiteInfo("benchmark-quick", "1+0123456789", "Held-out generated tasks per vehicle.")
+    info = replace(full_info(), suite=suite)
+    path = write_run_info(info, tmp_path)
+    data = json.loads(path.read_text())
+    assert list(data)[-1] == "suite" and data["suite"] == {"name": "benchmark-quick", "version": "1+0123456789",
+                                                           "description": "Held-out generated tasks per vehicle."}
+    assert read_run_info(tmp_path) == info
+    assert "suite" not in json.loads(write_run_info(full_info(), tmp_path / "plain").read_text())
+    write_run(tmp_path / "old", None)  # a run.json written before suites: reads without one, rewrites unchanged
+    old = read_run_info(tmp_path / "old")
+    assert old.suite is None
+    again = write_run_info(old, tmp_path / "rewritten").read_text()
+    assert again == write_run_info(read_run_info(tmp_path / "rewritten"), tmp_path / "twice").read_text()
+    data["suite"] = {"name": 5}
+    (tmp_path / "run.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="suite.name: expected a string"):
+        read_run_info(tmp_path)
 
 
 def test_the_file_keeps_its_format(tmp_path: Path) -> None:

@@ -223,9 +223,10 @@ def generate_city(params: CityGenParams, seed: int, name: str = "") -> BuildingM
 
 
 def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, int]:
-    """Strictly parse a `generator` mapping: `{seed: N, preset: name?, <CityGenParams fields>...}`.
+    """Strictly parse a `generator` mapping: `{seed: N, preset: name?, name: label?, <CityGenParams fields>...}`.
 
-    Fields not given come from the preset (a shipped map's parameters) or the defaults.
+    Fields not given come from the preset (a shipped map's parameters) or the defaults. `name` labels
+    the generated map (default: the preset's name, else "generated"); `generated_map_name` reads it.
 
     Args:
         cfg: the mapping from YAML.
@@ -239,7 +240,9 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, 
         ConfigError: on unknown keys, wrong types or impossible values.
     """
     fields = {f.name: f for f in dataclasses.fields(CityGenParams)}
-    mapping(cfg, source, key, set(fields) | {"seed", "preset"})
+    mapping(cfg, source, key, set(fields) | {"seed", "preset", "name"})
+    if "name" in cfg and (not isinstance(cfg["name"], str) or not cfg["name"]):
+        raise ConfigError(source, f"{key}.name", f"must be a non-empty string, got {cfg['name']!r}")
     if "seed" not in cfg:
         raise ConfigError(source, f"{key}.seed", "missing: a generated city needs an explicit seed")
     seed = cfg["seed"]
@@ -253,7 +256,7 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, 
         base = SHIPPED_MAPS[cfg["preset"]][0]
     values: dict[str, Any] = {}
     for name, value in cfg.items():
-        if name in ("seed", "preset"):
+        if name in ("seed", "preset", "name"):
             continue
         default = getattr(base, name)
         k = f"{key}.{name}"
@@ -266,6 +269,11 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenParams, 
     merged.update(values)
     _check_params(merged, source, f"{key}.")
     return CityGenParams(**merged), seed
+
+
+def generated_map_name(cfg: Mapping[str, Any]) -> str:
+    """The label of the map a checked `generator` mapping makes: its `name`, else its preset's, else "generated"."""
+    return str(cfg.get("name", cfg.get("preset", "generated")))
 
 
 def _scalar(v: Any, kind: type, source: str, key: str, shown: Any) -> Any:

@@ -4,7 +4,7 @@ Formats (lengths in metres, ENU; yaw in degrees, counter-clockwise about +z):
 
     bounds: {min: [x, y, z], max: [x, y, z]}      # the flight volume; min z >= 0 (ground at z = 0)
     map: {buildings: [{center: [x, y], size: [w, d], height: h, yaw_deg: a}, ...]}
-    map: {generator: {seed: N, preset: downtown, <CityGenParams fields>...}}   # bounds optional
+    map: {generator: {seed: N, preset: downtown, name: label, <CityGenParams fields>...}}   # bounds optional
     map: {geojson: footprints.geojson, height_key: height, origin_lonlat: [lon, lat]}
     map: {named: downtown}                                                    # bounds optional
     # any of them may add  no_fly: [{center: [x, y], size: [w, d], z_range: [z0, z1], yaw_deg: a}]
@@ -74,7 +74,7 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
 
     if kind == "generator":
         params, seed = citygen.params_from_config(map_cfg["generator"], source, "map.generator")
-        generated = citygen.generate_city(params, seed, name=str(map_cfg["generator"].get("preset", "generated")))
+        generated = citygen.generate_city(params, seed, name=citygen.generated_map_name(map_cfg["generator"]))
         return _rebound(generated, bounds, no_fly, source)
     if kind == "named":
         return _rebound(load_named_map(map_cfg["named"], source=source), bounds, no_fly, source)

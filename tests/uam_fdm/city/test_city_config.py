@@ -40,7 +40,11 @@ def test_generator_named_and_default_bounds() -> None:
     gen = map_from_config({"generator": {"preset": "canyon", "seed": 4}}, None, "s.yaml", Path("."))
     assert gen.bounds_max_m.tolist() == [700.0, 700.0, 300.0] and len(gen.buildings) > 50
     again = map_from_config({"generator": {"preset": "canyon", "seed": 4}}, None, "s.yaml", Path("."))
-    assert again.buildings == gen.buildings
+    assert again.buildings == gen.buildings and gen.name == "canyon"
+    labelled = map_from_config({"generator": {"preset": "canyon", "seed": 4, "name": "gen-4"}}, None, "s.yaml",
+                               Path("."))
+    assert labelled.name == "gen-4" and labelled.buildings == gen.buildings
+    assert map_from_config({"generator": {"seed": 4}}, None, "s.yaml", Path(".")).name == "generated"
     named = map_from_config({"named": "suburb"}, None, "s.yaml", Path("."))
     assert named.buildings == load_named_map("suburb").buildings and named.name == "suburb"
     wider = map_from_config({"named": "suburb"}, {"min": [0, 0, 0], "max": [800, 800, 400]}, "s.yaml", Path("."))
@@ -108,6 +112,7 @@ def test_nan_from_yaml_is_caught() -> None:
     ({"named": "atlantis"}, None, "map.named", "unknown map"),
     ({"generator": {"preset": "suburb"}}, None, "map.generator.seed", "missing"),
     ({"generator": {"seed": 1, "colour": 2}}, None, "map.generator.colour", "unknown key"),
+    ({"generator": {"seed": 1, "name": ""}}, None, "map.generator.name", "non-empty string"),
     ({"buildings": [GOOD]}, {"min": [0, 0, 0]}, "bounds.max", "missing"),
     ({"buildings": [GOOD]}, {"min": [0, 0, 0], "max": [200, 200]}, "bounds.max", "3 finite numbers"),
     ({"buildings": [GOOD]}, {"min": [0, 0, -5], "max": [200, 200, 100]}, "bounds.min", ">= 0"),
