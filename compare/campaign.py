@@ -7,7 +7,7 @@ RUN_DIR/run.json        provenance: scenarios, methods, software versions, fairn
 RUN_DIR/maps/*.yaml     the city of each scenario (reports never need the scenario files again)
 RUN_DIR/episodes/*.npz  one per cell (`compare.results.trajectory`), written atomically as each finishes
 RUN_DIR/metrics.csv     one row per cell (`compare.results.metrics`)
-RUN_DIR/summary.json    per-method means with 95 % bootstrap intervals, paired differences
+RUN_DIR/summary.json    per vehicle and scenario: means with 95 % intervals, paired differences, their MDDs
 RUN_DIR/report.pdf      the report (`compare.viz.report`); RUN_DIR/figures/*.png its pages
 ```
 

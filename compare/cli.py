@@ -8,9 +8,13 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from compare.pilots import METHODS, pilot
 from uam_fdm.vehicle.params import preset_names
+
+if TYPE_CHECKING:  # the summary is read only at the end of a run
+    from compare.results.summary import PairedSummary, PowerSettings
 
 INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 
@@ -135,27 +139,69 @@ def _print_suite(run_dir: Path) -> None:
         print(f"task set {suite.name}, version {suite.version}: {suite.description}")
 
 
+SCENARIOS_PRINTED = 4
+"""A vehicle's scenarios printed one by one at the end of a run when it has at most this many (else its table only)."""
+
+
 def _print_summary(run_dir: Path) -> None:
-    """Per scenario (vehicles differ between scenarios, so their energies do not average): one row per method."""
-    from compare.results.summary import methods_table, read_summary_json
+    """Per vehicle (never pooled: a quadrotor's and a multicopter's numbers do not average) one row per method,
+    then its scenarios when there are few, then its paired success differences with their MDD."""
+    from compare.results.summary import Summary, methods_table, read_summary_json
 
     summary = read_summary_json(run_dir / "summary.json")
     wanted = ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")
-    blocks = summary.by_scenario or {"all": summary}
-    lines = []
-    for name, part in blocks.items():
-        full = methods_table(part)
-        keep = [i for i, h in enumerate(full[0]) if h.split(" [")[0].split(" (")[0] in wanted]
-        lines.append([f"{name}"] + [""] * (len(keep) - 1))
-        lines += [[row[i] for i in keep] for row in full]
-    widths = [max(len(str(r[i])) for r in lines) for i in range(len(lines[0]))]
-    for row in lines:
-        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip())
+
+    def table(blocks: list[tuple[str, Summary]]) -> list[str]:
+        lines = []
+        for name, part in blocks:
+            full = methods_table(part)
+            keep = [i for i, h in enumerate(full[0]) if h.split(" [")[0].split(" (")[0] in wanted]
+            lines.append([name] + [""] * (len(keep) - 1))
+            lines += [[row[i] for i in keep] for row in full]
+        widths = [max(len(str(r[i])) for r in lines) for i in range(len(lines[0]))]
+        return ["  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip() for row in lines]
+
+    scenarios = summary.by_scenario or {}
+    per_vehicle = summary.per_vehicle()
+    if per_vehicle is None:  # a summary.json from before per-vehicle summaries: its scenarios, as then
+        for line in table(list((scenarios or {"all": summary}).items())):
+            print(line)
+    for vehicle, part in (per_vehicle or {}).items():
+        mine = [(name, s) for name, s in scenarios.items() if s.vehicle == vehicle]
+        few = 1 < len(mine) <= SCENARIOS_PRINTED
+        where = (f"scenario {mine[0][0]}" if len(mine) == 1 else
+                 f"{len(mine)} scenarios" + ("" if few else f" (more than {SCENARIOS_PRINTED}: see report.pdf)"))
+        for line in table([(f"{vehicle}: {where}", part)] + [(f"{vehicle} / {name}", s) for name, s in mine
+                                                            if few]):
+            print(line)
+        for pair in part.paired:
+            print("  " + _paired_success_line(pair, part.power))
     for name in ("report.pdf", "viewer.html", "metrics.csv", "summary.json"):
         if (run_dir / name).exists():
             print(run_dir / name)
     for video in sorted((run_dir / "videos").glob("[!.]*.*")):
         print(video)
+
+
+def _paired_success_line(pair: PairedSummary, power: PowerSettings) -> str:
+    """One pair's success difference with its 95 % interval, and the smallest difference this many pairs detect."""
+    st = pair.stats.get("success")
+    head = f"{pair.first} - {pair.second}: success difference"
+    if st is None or st.mean is None:
+        return f"{head} n/a (no paired episodes)"
+
+    def pct(v: float | None, sign: str = "+") -> str:
+        return "n/a" if v is None else f"{100.0 * v:{sign}.0f}%"
+
+    def detectable(v: float | None) -> str:  # no difference of rates exceeds 100 %
+        return "over 100%, too few pairs" if v is not None and v > 1.0 else pct(v, "")
+
+    both = 100.0 * (power.design_rate or 0.5)
+    design = "" if st.mdd_design is None else f"; before any run (both at {both:.0f} %): {detectable(st.mdd_design)}"
+    seen = "n/a from the spread, every pair agreed" if st.sd == 0.0 else detectable(st.mdd)
+    test = "" if power.alpha is None else f" (alpha {power.alpha:g}, power {power.power:g})"
+    return (f"{head} {pct(st.mean)} [{pct(st.ci_low)}, {pct(st.ci_high)}] over {st.n} paired episodes; "
+            f"smallest difference detectable{test}: {seen}{design}")
 
 
 def _cmd_report(args: argparse.Namespace) -> int:

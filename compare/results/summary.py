@@ -1,10 +1,19 @@
-"""The per-method summary of a run's metrics, `summary.json`, with bootstrap confidence intervals.
+"""The summary of a run's metrics, `summary.json`: per vehicle, per method and per pair of methods, with intervals.
 
-`summarize` aggregates `EpisodeMetrics` rows per method (mean and percentile-bootstrap CI) and pairs
-methods on the episodes both flew (mean difference and its CI); `summarize_run` adds the same per
-scenario. A `Summary` is written by `write_summary_json` and read by `read_summary_json`, nowhere else;
-the file's format is unchanged since the first runs (NaN and infinities as null, a paired difference
-under "mean_diff", pairs keyed "a - b"). `methods_table` formats a summary as text cells.
+A summary never pools vehicles (a small quadrotor's and a passenger multicopter's energies, times and
+even success rates are different quantities). `summarize` takes the rows of one vehicle: per method
+each metric's mean with a 95 % interval (Wilson for the rates `RATE_METRICS`, the percentile bootstrap
+for the rest), and per pair of methods the paired differences on the episodes both flew, with their
+interval (Newcombe's for rates, the bootstrap for the rest) and the minimum detectable difference (MDD)
+at that many pairs (`compare.results.stats`). `summarize_run` summarises each vehicle and each scenario
+alike; its run-wide block holds statistics only when the run flew one vehicle.
+
+A `Summary` is written by `write_summary_json` and read by `read_summary_json`, nowhere else. Files
+written before the per-vehicle summaries still read: their keys are unchanged (NaN and infinities as
+null, a paired difference under "mean_diff", pairs keyed "a - b"); what they lack reads as empty (no
+vehicles, no per-vehicle part, intervals and power not recorded). A nested summary (per vehicle, per
+scenario) leaves out the settings it shares with the summary it sits in. `methods_table` formats a
+summary as text cells.
 """
 from __future__ import annotations
 
@@ -25,6 +34,15 @@ from compare.results.metrics import (
     below_field,
     cell_order,
 )
+from compare.results.stats import (
+    DESIGN_RATE,
+    Bootstrap,
+    PairedCounts,
+    design_mdd_rate,
+    mdd,
+    newcombe_paired_interval,
+    wilson_interval,
+)
 from uam_fdm.files.atomic import write_text_atomic
 
 SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
@@ -35,6 +53,12 @@ SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s",
 SUCCESS_ONLY_METRICS = ("time_s", "path_length_m", "energy_kj")
 """Metrics averaged over successful episodes only (a crash after 3 s is not a fast flight)."""
 
+RATE_METRICS = ("success", "collision")
+"""The 0/1 metrics: their means are rates, with Wilson intervals (paired: Newcombe's)."""
+
+WILSON = "wilson"
+NEWCOMBE = "newcombe-hybrid-score"
+
 
 @dataclass(frozen=True)
 class Stat:
@@ -42,7 +66,7 @@ class Stat:
 
     Attributes:
         mean: the mean; in a paired summary, the mean of the per-episode differences (`mean_diff` in the file).
-        ci_low, ci_high: the bootstrap CI of the mean.
+        ci_low, ci_high: the CI of the mean (Wilson for a rate, else the bootstrap's; `Summary.intervals`).
         n: the values used (episodes, or pairs of episodes).
         over: "successes" (successful episodes only, `SUCCESS_ONLY_METRICS`) or "all" (None where not recorded).
     """
@@ -52,6 +76,29 @@ class Stat:
     ci_high: float | None
     n: int = 0
     over: str | None = None
+
+
+@dataclass(frozen=True)
+class PairedStat(Stat):
+    """A paired difference (first − second) with what it can detect.
+
+    Attributes:
+        sd: standard deviation of the n paired differences (ddof 1; None for n < 2).
+        mdd: the minimum detectable difference at n pairs from `sd` (`Summary.power`; None for n < 2), in
+            the metric's unit (a fraction for rates).
+        mdd_design: for a rate, the MDD at n pairs before any run (both at p = 0.5, independent); else None.
+    """
+
+    sd: float | None = None
+    mdd: float | None = None
+    mdd_design: float | None = None
+
+    @property
+    def excludes_zero(self) -> bool | None:
+        """The interval lies wholly above or below zero (None: no interval, or fewer than two pairs)."""
+        if self.n < 2 or self.ci_low is None or self.ci_high is None:
+            return None
+        return self.ci_low > 0.0 or self.ci_high < 0.0
 
 
 @dataclass(frozen=True)
@@ -70,7 +117,7 @@ class PairedSummary:
     first: str
     second: str
     episodes: int
-    stats: Mapping[str, Stat] = field(default_factory=dict)
+    stats: Mapping[str, PairedStat] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -89,16 +136,48 @@ class BootstrapSettings:
 
 
 @dataclass(frozen=True)
+class IntervalMethods:
+    """Which interval the rates carry (None: not recorded, an older file whose intervals are all the bootstrap's).
+
+    Attributes:
+        rates: a rate's interval ("wilson"); paired_rates: a paired difference of rates' ("newcombe-hybrid-score").
+        rate_metrics: the metrics that are rates.
+    """
+
+    rates: str | None = None
+    paired_rates: str | None = None
+    rate_metrics: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class PowerSettings:
+    """How the minimum detectable differences were computed (None: not recorded, an older file).
+
+    Attributes:
+        alpha: two-sided significance level. power: probability of detecting a true difference of the MDD.
+        design_rate: the rate both pilots are assumed to have in a rate's design value (0.5, the worst case).
+    """
+
+    alpha: float | None = None
+    power: float | None = None
+    design_rate: float | None = None
+
+
+@dataclass(frozen=True)
 class Summary:
-    """The contents of `summary.json`.
+    """The contents of `summary.json`, or one part of it (a vehicle's, a scenario's).
 
     Attributes:
         bootstrap: the bootstrap settings.
         metrics: the summarised metrics, in report order.
-        methods: per method, by name (sorted).
-        paired: per pair of methods (first < second by name).
-        by_scenario: the same per scenario (a run may mix vehicles, whose energies do not average), by
-            scenario name; None for a summary that is itself one scenario's, or one written without them.
+        methods: per method, by name (sorted); empty in a run-wide summary of several vehicles.
+        paired: per pair of methods (first < second by name); empty where `methods` is.
+        by_scenario: the same per scenario, by scenario name; None for a summary that is itself one
+            scenario's or one vehicle's, or one written without them.
+        vehicles: the vehicles whose rows were summarised, sorted (empty in files written before they were
+            recorded: such a run-wide block may pool vehicles).
+        by_vehicle: the same per vehicle, by vehicle name (None: not a run's summary, or an older file).
+        intervals: which interval the rates carry. power: how the MDDs were computed.
     """
 
     bootstrap: BootstrapSettings
@@ -106,88 +185,151 @@ class Summary:
     methods: Mapping[str, MethodSummary]
     paired: tuple[PairedSummary, ...] = ()
     by_scenario: Mapping[str, Summary] | None = None
+    vehicles: tuple[str, ...] = ()
+    by_vehicle: Mapping[str, Summary] | None = None
+    intervals: IntervalMethods = IntervalMethods()
+    power: PowerSettings = PowerSettings()
+
+    @property
+    def vehicle(self) -> str | None:
+        """The one vehicle summarised, or None (several, or not recorded)."""
+        return self.vehicles[0] if len(self.vehicles) == 1 else None
+
+    def per_vehicle(self) -> Mapping[str, Summary] | None:
+        """The summary of each vehicle: `by_vehicle`, or this summary itself when it is one vehicle's; None
+        when the file cannot say (an older file: recompute from metrics.csv with `summarize_run`)."""
+        if self.by_vehicle is not None:
+            return self.by_vehicle
+        return {self.vehicles[0]: self} if len(self.vehicles) == 1 else None
 
 
 # ---- aggregation ------------------------------------------------------------------------------------------
-def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
-              seed: int = 0) -> Summary:
-    """Aggregate episode rows per method and per pair of methods, with percentile-bootstrap CIs.
+@dataclass(frozen=True)
+class _Settings:
+    boot: Bootstrap
+    alpha: float
+    power: float
 
-    Per method and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and a
-    percentile bootstrap CI of the mean (episodes resampled with replacement); `n` is the count used;
-    with n == 0 every number is None, with n == 1 the CI is the mean. `time_s`, `path_length_m` and
-    `energy_kj` are over successful episodes only (`over` "successes"), the rest over all
-    episodes (`over` "all").
+    @property
+    def confidence(self) -> float:
+        return self.boot.confidence
 
-    Paired: for each pair of methods a < b (sorted names), the episodes both flew with the same
-    (scenario, episode, seed); per metric the mean of the differences a − b and a bootstrap CI of that
-    mean (pairs resampled). For the success-only metrics only pairs where both succeeded.
+    def stat(self, x: np.ndarray, metric: str) -> Stat:
+        """The `Stat` of the finite values of `x` for `metric` (Wilson for a rate)."""
+        x = x[~np.isnan(x)]
+        if metric in RATE_METRICS and x.size:
+            low, high = wilson_interval(int(np.sum(x)), int(x.size), self.confidence)
+            return Stat(float(np.mean(x)), low, high, int(x.size), _over(metric))
+        return Stat(*self.boot.mean_ci(x), n=int(x.size), over=_over(metric))
 
-    Each CI draws from a fresh `numpy.random.default_rng(seed)`, so a method's numbers depend only on
-    its own episodes, and the same rows (in any order) give the same summary.
+    def paired_stat(self, a: np.ndarray, b: np.ndarray, metric: str) -> PairedStat:
+        """The `PairedStat` of a − b over the pairs where both are finite."""
+        keep = ~(np.isnan(a) | np.isnan(b))
+        a, b = a[keep], b[keep]
+        d = a - b
+        n = int(d.size)
+        if metric in RATE_METRICS and n:
+            low, high = newcombe_paired_interval(PairedCounts.of(a, b), self.confidence)
+            mean: float | None = float(np.mean(d))
+            ci: tuple[float | None, float | None] = (low, high)
+        else:
+            mean, *bounds = self.boot.mean_ci(d)
+            ci = (bounds[0], bounds[1])
+        sd = float(np.std(d, ddof=1)) if n >= 2 else None
+        return PairedStat(mean, ci[0], ci[1], n, _over(metric), sd=sd,
+                          mdd=None if sd is None else mdd(sd, n, self.alpha, self.power),
+                          mdd_design=design_mdd_rate(n, self.alpha, self.power) if metric in RATE_METRICS and n
+                          else None)
 
-    Args:
-        rows: episode metrics, one per (scenario, episode, method, seed).
-        resamples: bootstrap resamples (≥ 1).
-        confidence: CI level in (0, 1).
-        seed: bootstrap seed.
+    def describe(self) -> tuple[BootstrapSettings, IntervalMethods, PowerSettings]:
+        b = self.boot
+        return (BootstrapSettings(b.resamples, b.confidence, b.seed, "percentile"),
+                IntervalMethods(WILSON, NEWCOMBE, RATE_METRICS), PowerSettings(self.alpha, self.power, DESIGN_RATE))
 
-    Returns:
-        The `Summary` (without `by_scenario`).
 
-    Raises:
-        ValueError: bad bootstrap settings or two rows for the same cell.
-    """
+def _settings(resamples: int, confidence: float, seed: int, alpha: float, power: float) -> _Settings:
     if int(resamples) != resamples or resamples < 1:
         raise ValueError(f"resamples must be a positive integer, got {resamples!r}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    boot = _Bootstrap(int(resamples), float(confidence), int(seed))
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
+    if not 0.0 < power < 1.0:
+        raise ValueError(f"power must be in (0, 1), got {power!r}")
+    return _Settings(Bootstrap(int(resamples), float(confidence), int(seed)), float(alpha), float(power))
+
+
+def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
+              seed: int = 0, alpha: float = 0.05, power: float = 0.8) -> Summary:
+    """Aggregate one vehicle's episode rows per method and per pair of methods, with intervals and MDDs.
+
+    Per method and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and its
+    CI: Wilson's for the rates (`RATE_METRICS`), else a percentile bootstrap (episodes resampled with
+    replacement; with n == 1 the CI is the mean); `n` is the count used, with n == 0 every number is None.
+    `time_s`, `path_length_m` and `energy_kj` are over successful episodes only (`over` "successes"), the
+    rest over all episodes (`over` "all").
+
+    Paired: for each pair of methods a < b (sorted names), the episodes both flew with the same
+    (scenario, episode, seed); per metric (not the tracker's) the mean of the differences a − b and its
+    CI (Newcombe's for rates, else the bootstrap's, pairs resampled), the standard deviation of the
+    differences, the MDD at that many pairs (two-sided `alpha`, `power`) and, for rates, the design MDD.
+    For the success-only metrics only pairs where both succeeded.
+
+    Each bootstrap draws from a fresh `numpy.random.default_rng(seed)`, so a method's numbers depend only
+    on its own episodes, and the same rows (in any order) give the same summary.
+
+    Args:
+        rows: episode metrics of one vehicle, one per (scenario, episode, method, seed).
+        resamples: bootstrap resamples (≥ 1).
+        confidence: CI level in (0, 1).
+        seed: bootstrap seed.
+        alpha, power: the MDD's two-sided significance level and power, in (0, 1).
+
+    Returns:
+        The `Summary` (without `by_scenario` and `by_vehicle`).
+
+    Raises:
+        ValueError: bad settings, rows of several vehicles (they never pool: `summarize_run` summarises each),
+            or two rows for the same cell.
+    """
+    settings = _settings(resamples, confidence, seed, alpha, power)
+    rows = list(rows)
+    vehicles = tuple(sorted({r.vehicle for r in rows}))
+    if len(vehicles) > 1:
+        raise ValueError(f"rows of {len(vehicles)} vehicles ({', '.join(vehicles)}): a summary never pools "
+                         f"vehicles; summarize each vehicle's rows (summarize_run does)")
     by_method = _group_by_method(rows)
     methods = sorted(by_method)
-    paired = tuple(_paired_summary(a, b, by_method[a], by_method[b], boot)
+    paired = tuple(_paired_summary(a, b, by_method[a], by_method[b], settings)
                    for i, a in enumerate(methods) for b in methods[i + 1:])
+    boot, intervals, pw = settings.describe()
     return Summary(
-        bootstrap=BootstrapSettings(boot.resamples, boot.confidence, boot.seed, "percentile"),
-        metrics=SUMMARY_METRICS,
-        methods={m: _method_summary(by_method[m], boot) for m in methods},
-        paired=paired,
+        bootstrap=boot, metrics=SUMMARY_METRICS,
+        methods={m: _method_summary(by_method[m], settings) for m in methods},
+        paired=paired, vehicles=vehicles, intervals=intervals, power=pw,
     )
 
 
-def summarize_run(rows: Sequence[EpisodeMetrics]) -> Summary:
-    """`summarize` over all rows, with `by_scenario` (each scenario's rows summarised alike), as a run saves it."""
-    by_scenario = {name: summarize([r for r in rows if r.scenario == name])
+def summarize_run(rows: Sequence[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
+                  seed: int = 0, alpha: float = 0.05, power: float = 0.8) -> Summary:
+    """A run's summary, as it is saved: `summarize` per vehicle (`by_vehicle`) and per scenario (`by_scenario`).
+
+    The run-wide `methods` and `paired` are the one vehicle's when the run flew one, else empty: nothing
+    is pooled across vehicles. Settings as for `summarize`.
+
+    Raises:
+        ValueError: as `summarize` (a scenario whose rows name several vehicles included).
+    """
+    kw: dict[str, Any] = {"resamples": resamples, "confidence": confidence, "seed": seed, "alpha": alpha,
+                          "power": power}
+    vehicles = tuple(sorted({r.vehicle for r in rows}))
+    by_vehicle = {v: summarize([r for r in rows if r.vehicle == v], **kw) for v in vehicles}
+    by_scenario = {name: summarize([r for r in rows if r.scenario == name], **kw)
                    for name in sorted({r.scenario for r in rows})}
-    whole = summarize(rows)
-    return Summary(whole.bootstrap, whole.metrics, whole.methods, whole.paired, by_scenario)
-
-
-@dataclass(frozen=True)
-class _Bootstrap:
-    resamples: int
-    confidence: float
-    seed: int
-
-    def mean_ci(self, x: np.ndarray) -> tuple[float | None, float | None, float | None]:
-        """Mean of `x` and its percentile bootstrap CI (None × 3 for an empty sample)."""
-        n = x.size
-        if n == 0:
-            return None, None, None
-        mean = float(np.mean(x))
-        if n == 1:
-            return mean, mean, mean
-        rng = np.random.default_rng(self.seed)
-        idx = rng.integers(0, n, size=(self.resamples, n))   # one row per resample
-        means = x[idx].mean(axis=1)
-        tail = (1.0 - self.confidence) / 2.0
-        lo, hi = np.quantile(means, [tail, 1.0 - tail])
-        return mean, float(lo), float(hi)
-
-    def stat(self, x: np.ndarray, metric: str) -> Stat:
-        """The `Stat` of the finite values of `x` for `metric`."""
-        x = x[~np.isnan(x)]
-        return Stat(*self.mean_ci(x), n=int(x.size), over=_over(metric))
+    boot, intervals, pw = _settings(resamples, confidence, seed, alpha, power).describe()
+    one = by_vehicle[vehicles[0]] if len(vehicles) == 1 else None
+    return Summary(boot, SUMMARY_METRICS, one.methods if one else {}, one.paired if one else (), by_scenario,
+                   vehicles=vehicles, by_vehicle=by_vehicle, intervals=intervals, power=pw)
 
 
 def _group_by_method(rows: Iterable[EpisodeMetrics]) -> dict[str, list[EpisodeMetrics]]:
@@ -212,17 +354,17 @@ def _values(rows: Sequence[EpisodeMetrics], metric: str) -> np.ndarray:
     return np.array([float(getattr(r, metric)) for r in rows], dtype=float)
 
 
-def _method_summary(rows: list[EpisodeMetrics], boot: _Bootstrap) -> MethodSummary:
+def _method_summary(rows: list[EpisodeMetrics], settings: _Settings) -> MethodSummary:
     reasons = Counter(r.failure_reason for r in rows if r.failure_reason)
     stats = {}
     for metric in SUMMARY_METRICS:
         used = [r for r in rows if r.success] if metric in SUCCESS_ONLY_METRICS else rows
-        stats[metric] = boot.stat(_values(used, metric), metric)
+        stats[metric] = settings.stat(_values(used, metric), metric)
     return MethodSummary(len(rows), dict(sorted(reasons.items())), stats)
 
 
 def _paired_summary(first: str, second: str, rows_a: list[EpisodeMetrics], rows_b: list[EpisodeMetrics],
-                    boot: _Bootstrap) -> PairedSummary:
+                    settings: _Settings) -> PairedSummary:
     a = {(r.scenario, r.episode, r.seed): r for r in rows_a}
     b = {(r.scenario, r.episode, r.seed): r for r in rows_b}
     common = sorted(a.keys() & b.keys())
@@ -232,8 +374,8 @@ def _paired_summary(first: str, second: str, rows_a: list[EpisodeMetrics], rows_
             continue
         cells = [c for c in common
                  if metric not in SUCCESS_ONLY_METRICS or (a[c].success and b[c].success)]
-        d = _values([a[c] for c in cells], metric) - _values([b[c] for c in cells], metric)
-        stats[metric] = boot.stat(d, metric)
+        stats[metric] = settings.paired_stat(_values([a[c] for c in cells], metric),
+                                             _values([b[c] for c in cells], metric), metric)
     return PairedSummary(first, second, len(common), stats)
 
 
@@ -248,26 +390,51 @@ def write_summary_json(summary: Summary, path: Path) -> Path:
     return write_text_atomic(Path(path), text)
 
 
-def summary_to_json(summary: Summary) -> dict[str, Any]:
-    """`summary` as the plain data of summary.json, keys in the file's order."""
-    b = summary.bootstrap
-    out: dict[str, Any] = {
-        "bootstrap": {"resamples": b.resamples, "confidence": b.confidence, "seed": b.seed, "method": b.method},
-        "metrics": list(summary.metrics),
-        "methods": {m: {"episodes": s.episodes, "failure_reasons": dict(s.failure_reasons),
-                        **{k: _stat_json(v, "mean") for k, v in s.stats.items()}}
-                    for m, s in summary.methods.items()},
-        "paired": {p.name: {"episodes": p.episodes, **{k: _stat_json(v, "mean_diff") for k, v in p.stats.items()}}
-                   for p in summary.paired},
-    }
-    if summary.by_scenario is not None:
-        out["by_scenario"] = {name: summary_to_json(s) for name, s in summary.by_scenario.items()}
+def summary_to_json(summary: Summary, within: Summary | None = None) -> dict[str, Any]:
+    """`summary` as the plain data of summary.json, keys in the file's order.
+
+    Args:
+        summary: the summary.
+        within: the summary this one is nested in (its settings are left out where they are the same).
+    """
+    s = summary
+    out: dict[str, Any] = {}
+    if within is None or s.bootstrap != within.bootstrap:
+        b = s.bootstrap
+        out["bootstrap"] = {"resamples": b.resamples, "confidence": b.confidence, "seed": b.seed, "method": b.method}
+    if within is None or s.intervals != within.intervals:
+        i = s.intervals
+        out["intervals"] = {"rates": i.rates, "paired_rates": i.paired_rates, "rate_metrics": list(i.rate_metrics)}
+    if within is None or s.power != within.power:
+        p = s.power
+        out["power"] = {"alpha": p.alpha, "power": p.power, "design_rate": p.design_rate}
+    if within is None or s.metrics != within.metrics:
+        out["metrics"] = list(s.metrics)
+    out["vehicles"] = list(s.vehicles)
+    if s.methods or s.paired or len(s.vehicles) <= 1:  # a run-wide block of several vehicles holds none
+        out["methods"] = {m: {"episodes": ms.episodes, "failure_reasons": dict(ms.failure_reasons),
+                              **{k: _stat_json(v) for k, v in ms.stats.items()}}
+                          for m, ms in s.methods.items()}
+        out["paired"] = {p.name: {"episodes": p.episodes, **{k: _paired_json(v) for k, v in p.stats.items()}}
+                         for p in s.paired}
+    if s.by_vehicle is not None:
+        out["by_vehicle"] = {name: summary_to_json(part, s) for name, part in s.by_vehicle.items()}
+    if s.by_scenario is not None:
+        out["by_scenario"] = {name: summary_to_json(part, s) for name, part in s.by_scenario.items()}
     return out
 
 
-def _stat_json(stat: Stat, mean_key: str) -> dict[str, Any]:
-    return {mean_key: _finite(stat.mean), "ci_low": _finite(stat.ci_low), "ci_high": _finite(stat.ci_high),
+def _stat_json(stat: Stat) -> dict[str, Any]:
+    return {"mean": _finite(stat.mean), "ci_low": _finite(stat.ci_low), "ci_high": _finite(stat.ci_high),
             "n": stat.n, "over": stat.over}
+
+
+def _paired_json(stat: PairedStat) -> dict[str, Any]:
+    out = {"mean_diff": _finite(stat.mean), "ci_low": _finite(stat.ci_low), "ci_high": _finite(stat.ci_high),
+           "n": stat.n, "over": stat.over, "sd": _finite(stat.sd), "mdd": _finite(stat.mdd)}
+    if stat.mdd_design is not None:
+        out["mdd_design"] = _finite(stat.mdd_design)
+    return out
 
 
 def _finite(v: float | None) -> float | None:
@@ -275,7 +442,7 @@ def _finite(v: float | None) -> float | None:
 
 
 def read_summary_json(path: Path) -> Summary:
-    """Read a `summary.json` written by `write_summary_json` (absent entries read as empty or None).
+    """Read a `summary.json` written by `write_summary_json`, or by an older version (see the module docstring).
 
     Raises:
         ValueError: the file cannot be read, is not JSON, or holds a value of the wrong kind, naming the
@@ -286,28 +453,54 @@ def read_summary_json(path: Path) -> Summary:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: not readable JSON ({exc})") from exc
-    return _summary_from_json(data, str(path), "")
+    return _summary_from_json(data, str(path), "", None)
 
 
-def _summary_from_json(data: Any, where: str, prefix: str) -> Summary:
+def _summary_from_json(data: Any, where: str, prefix: str, within: Summary | None) -> Summary:
+    """A summary from its plain data; `within`: the summary it is nested in (settings it leaves out are those)."""
     top = _mapping(data, where, prefix or "<root>")
-    boot = _mapping(top.get("bootstrap"), where, f"{prefix}bootstrap")
     methods = _mapping(top.get("methods"), where, f"{prefix}methods")
     paired = _mapping(top.get("paired"), where, f"{prefix}paired")
-    by_scenario = top.get("by_scenario")
-    return Summary(
-        bootstrap=BootstrapSettings(
-            _integer(boot.get("resamples"), where, f"{prefix}bootstrap.resamples"),
-            _number(boot.get("confidence"), where, f"{prefix}bootstrap.confidence"),
-            _integer(boot.get("seed"), where, f"{prefix}bootstrap.seed"),
-            None if boot.get("method") is None else str(boot["method"])),
-        metrics=tuple(str(m) for m in _list(top.get("metrics"), where, f"{prefix}metrics")),
+    own = Summary(
+        bootstrap=within.bootstrap if within is not None and "bootstrap" not in top else _bootstrap_from_json(
+            top.get("bootstrap"), where, f"{prefix}bootstrap"),
+        metrics=within.metrics if within is not None and "metrics" not in top else tuple(
+            str(m) for m in _list(top.get("metrics"), where, f"{prefix}metrics")),
         methods={str(m): _method_from_json(v, where, f"{prefix}methods.{m}") for m, v in methods.items()},
         paired=tuple(_paired_from_json(str(k), v, where, f"{prefix}paired.{k}") for k, v in paired.items()),
-        by_scenario=None if by_scenario is None else {
-            str(name): _summary_from_json(s, where, f"{prefix}by_scenario.{name}.")
-            for name, s in _mapping(by_scenario, where, f"{prefix}by_scenario").items()},
+        vehicles=tuple(str(v) for v in _list(top.get("vehicles"), where, f"{prefix}vehicles")),
+        intervals=within.intervals if within is not None and "intervals" not in top else _intervals_from_json(
+            top.get("intervals"), where, f"{prefix}intervals"),
+        power=within.power if within is not None and "power" not in top else _power_from_json(
+            top.get("power"), where, f"{prefix}power"),
     )
+    parts = {}
+    for key in ("by_vehicle", "by_scenario"):
+        value = top.get(key)
+        parts[key] = None if value is None else {
+            str(name): _summary_from_json(part, where, f"{prefix}{key}.{name}.", own)
+            for name, part in _mapping(value, where, f"{prefix}{key}").items()}
+    return Summary(own.bootstrap, own.metrics, own.methods, own.paired, parts["by_scenario"], own.vehicles,
+                   parts["by_vehicle"], own.intervals, own.power)
+
+
+def _bootstrap_from_json(data: Any, where: str, key: str) -> BootstrapSettings:
+    boot = _mapping(data, where, key)
+    return BootstrapSettings(_integer(boot.get("resamples"), where, f"{key}.resamples"),
+                             _number(boot.get("confidence"), where, f"{key}.confidence"),
+                             _integer(boot.get("seed"), where, f"{key}.seed"),
+                             None if boot.get("method") is None else str(boot["method"]))
+
+
+def _intervals_from_json(data: Any, where: str, key: str) -> IntervalMethods:
+    d = _mapping(data, where, key)
+    return IntervalMethods(_text(d.get("rates")), _text(d.get("paired_rates")),
+                           tuple(str(m) for m in _list(d.get("rate_metrics"), where, f"{key}.rate_metrics")))
+
+
+def _power_from_json(data: Any, where: str, key: str) -> PowerSettings:
+    d = _mapping(data, where, key)
+    return PowerSettings(*(_number(d.get(k), where, f"{key}.{k}") for k in ("alpha", "power", "design_rate")))
 
 
 def _method_from_json(data: Any, where: str, key: str) -> MethodSummary:
@@ -316,7 +509,7 @@ def _method_from_json(data: Any, where: str, key: str) -> MethodSummary:
     return MethodSummary(
         episodes=_integer(d.get("episodes"), where, f"{key}.episodes") or 0,
         failure_reasons={str(r): _integer(n, where, f"{key}.failure_reasons.{r}") or 0 for r, n in reasons.items()},
-        stats={str(k): _stat_from_json(v, "mean", where, f"{key}.{k}") for k, v in d.items()
+        stats={str(k): _stat_from_json(v, where, f"{key}.{k}") for k, v in d.items()
                if k not in ("episodes", "failure_reasons")})
 
 
@@ -326,15 +519,27 @@ def _paired_from_json(name: str, data: Any, where: str, key: str) -> PairedSumma
         raise ValueError(f"{where}: {key}: a pair's key must read \"first - second\"")
     d = _mapping(data, where, key)
     return PairedSummary(first, second, _integer(d.get("episodes"), where, f"{key}.episodes") or 0,
-                         {str(k): _stat_from_json(v, "mean_diff", where, f"{key}.{k}") for k, v in d.items()
+                         {str(k): _paired_stat_from_json(v, where, f"{key}.{k}") for k, v in d.items()
                           if k != "episodes"})
 
 
-def _stat_from_json(data: Any, mean_key: str, where: str, key: str) -> Stat:
+def _stat_from_json(data: Any, where: str, key: str) -> Stat:
     d = _mapping(data, where, key)
-    return Stat(_number(d.get(mean_key), where, f"{key}.{mean_key}"), _number(d.get("ci_low"), where, f"{key}.ci_low"),
+    return Stat(_number(d.get("mean"), where, f"{key}.mean"), _number(d.get("ci_low"), where, f"{key}.ci_low"),
                 _number(d.get("ci_high"), where, f"{key}.ci_high"), _integer(d.get("n"), where, f"{key}.n") or 0,
-                None if d.get("over") is None else str(d["over"]))
+                _text(d.get("over")))
+
+
+def _paired_stat_from_json(data: Any, where: str, key: str) -> PairedStat:
+    d = _mapping(data, where, key)
+    num = {k: _number(d.get(k), where, f"{key}.{k}") for k in ("mean_diff", "ci_low", "ci_high", "sd", "mdd",
+                                                                "mdd_design")}
+    return PairedStat(num["mean_diff"], num["ci_low"], num["ci_high"], _integer(d.get("n"), where, f"{key}.n") or 0,
+                      _text(d.get("over")), sd=num["sd"], mdd=num["mdd"], mdd_design=num["mdd_design"])
+
+
+def _text(value: Any) -> str | None:
+    return None if value is None else str(value)
 
 
 def _mapping(value: Any, where: str, key: str) -> Mapping[str, Any]:

@@ -5,15 +5,22 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, `episodes/*.
 
 1. title page(s) "uam-compare report": task set and version (a benchmark run), scenarios, methods, software
    versions, command, date, fairness;
-2. "Metrics": per-method mean [95 % CI] table, paired differences, per-episode table;
+2. per vehicle, never pooled across vehicles (`compare.viz.metrics_pages`): per-method mean [95 % CI]
+   table, summary forest plot, paired differences with their minimum detectable differences, success
+   along task difficulty, the scenarios' conditions, per-scenario and per-episode tables (bounded);
+   then the classical pilot's tracker per scenario;
 3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
-   3D snapshots over time;
+   3D snapshots over time, for the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios of each vehicle and
+   the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks of each (a benchmark run has hundreds: a page says which);
 4. "PPO training: reward convergence" from the policy folder's `reward_curve.csv`;
-5. "Failures": every unsuccessful episode, and top-down views of up to six of them.
+5. "Failures": the unsuccessful episodes (the first `MAX_FAILURE_ROWS`), top-down views of up to six.
 
-It works on an interrupted run (the episodes and metric rows present are used; a missing
-`metrics.csv` is noted instead of failing).  The PDF is written under a temporary name and renamed;
-every page is also saved as a PNG under `RUN_DIR/figures/`.
+The per-vehicle numbers are summary.json's; a summary.json written before per-vehicle summaries (whose
+run-wide numbers may pool vehicles), or none, is replaced by the same summary computed from metrics.csv,
+and the pages say so. A method shows with run.json's label (a plug-in that cannot be imported where the
+report is built too) and its own colour. It works on an interrupted run (the episodes and metric rows
+present are used; a missing `metrics.csv` is noted instead of failing). The PDF is written under a
+temporary name and renamed; every page is also saved as a PNG under `RUN_DIR/figures/`.
 """
 from __future__ import annotations
 
@@ -30,11 +37,14 @@ from matplotlib import rc_context
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
+from compare import pilots
+from compare.results.difficulty import scenario_conditions
 from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
 from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
-from compare.results.summary import BootstrapSettings, MethodSummary, PairedSummary, Stat, Summary, read_summary_json
+from compare.results.summary import Summary, read_summary_json, summarize_run
 from compare.results.trajectory import EpisodeKey, episode_files, load_episode
 from compare.viz import figures as F
+from compare.viz.metrics_pages import SUMMARY_ROWS, MethodStyle, episode_table_pages, format_ci, vehicle_pages
 from rl.policy_folder import PolicyFolder, Provenance
 from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.city.buildings import BuildingMap
@@ -45,31 +55,12 @@ from uam_fdm.files.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 
-# (summary key, row label with unit, scale, decimals)
-SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
-    ("success", "success [%]", 100.0, 0),
-    ("collision", "collision [%]", 100.0, 0),
-    ("min_clearance_m", "min clearance [m]", 1.0, 2),
-    ("time_below_2m_s", "time below 2 m clearance [s]", 1.0, 2),
-    ("time_below_5m_s", "time below 5 m clearance [s]", 1.0, 2),
-    ("time_s", "flight time [s]", 1.0, 1),
-    ("path_length_m", "path length [m]", 1.0, 1),
-    ("spl", "SPL (success weighted by path length) [-]", 1.0, 3),
-    ("energy_kj", "rotor energy [kJ]", 1.0, 2),
-    ("compute_ms_mean", "compute per decision, mean [ms]", 1.0, 2),
-    ("compute_ms_max", "compute per decision, max [ms]", 1.0, 2),
-    ("plan_time_s", "plan time [s]", 1.0, 3),
-    ("mpc_solve_ms_median", "MPC solve, median per episode [ms]", 1.0, 2),
-    ("mpc_solve_ms_p95", "MPC solve, p95 per episode [ms]", 1.0, 2),
-    ("mpc_failures", "MPC failed solves per episode", 1.0, 2),
-    ("replans_tracking", "replans per episode: tracking error", 1.0, 2),
-    ("replans_clearance", "replans per episode: predicted clearance", 1.0, 2),
-    ("tracking_rms_m", "tracking RMS (distance to the reference) [m]", 1.0, 3),
-    ("tracking_max_m", "tracking max (distance to the reference) [m]", 1.0, 3),
-    ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
-    ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
-)
 MAX_FAILURE_PLOTS = 6
+MAX_FAILURE_ROWS = 130
+"""Failures listed one by one (5 pages); every one is in metrics.csv."""
+DRAWN_SCENARIOS_PER_VEHICLE = 3
+DRAWN_FLIGHTS_PER_SCENARIO = 3
+"""Flight pages (three per task) are drawn for this many scenarios per vehicle and tasks per scenario."""
 PNG_DPI = 130
 
 
@@ -85,6 +76,7 @@ class _Run:
     scenarios: list[str]
     maps: dict[str, BuildingMap | None] = field(default_factory=dict)
     unreadable: list[str] = field(default_factory=list)  # episode files skipped, for the failures page
+    files: dict[tuple[str, int, str, int], Path] = field(default_factory=dict)  # episode file by cell (`cell_order`)
     skip_log_level: int = logging.WARNING  # INFO when the caller has already warned about them
 
     def skip(self, path: Path, exc: Exception) -> None:
@@ -95,6 +87,16 @@ class _Run:
 
     def label(self, method: str) -> str:
         return self.labels.get(method, method)
+
+    def add_method(self, method: str) -> None:
+        """A method run.json does not list (found in the episode files or metrics.csv): its label and own colour."""
+        self.methods.append(method)
+        self.labels.setdefault(method, _registry_label(method))
+        self.colors = F.method_colors(self.methods)
+
+    def style(self) -> MethodStyle:
+        """The methods' order, labels and colours, for the metrics pages."""
+        return MethodStyle(tuple(self.methods), dict(self.labels), dict(self.colors))
 
     def map_of(self, scenario: str) -> BuildingMap | None:
         if scenario not in self.maps:
@@ -169,12 +171,15 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
             rows, why = _read_metrics(run_dir / "metrics.csv")
             for name, figs in _metrics_pages(run, rows, why):
                 pages.add_all(figs, name)
-            failures = _episode_pages(run, groups, pages)
+            drawn, left_out = _drawn_groups(run, groups, rows)
+            if left_out:
+                pages.add_all(F.text_pages("Flights", left_out), "flights_drawn")
+            failures = _episode_pages(run, drawn, pages)
             policies = ppo_policies(run.info)
             for k, pol in enumerate(policies or [None]):  # one convergence page per policy flown
                 suffix = "" if k == 0 or pol is None else f"_{pol.vehicle or k}"
                 pages.add(_training_figure(pol, len(policies) > 1), f"training_reward_curve{suffix}")
-            _failure_pages(run, failures, rows, run.unreadable, pages)
+            _failure_pages(run, failures, rows, pages)
     logger.info("report %s: %d pages", out, pages.count)
     return out
 
@@ -201,8 +206,15 @@ def _make_run(run_dir: Path, info: RunInfo) -> _Run:
     methods = list(info.methods)
     for s in info.scenarios:
         methods += [m for m in s.methods if m not in methods]
-    labels = {m: c.label for m, c in info.methods.items()}
+    labels = {m: info.methods[m].label if m in info.methods else _registry_label(m) for m in methods}
     return _Run(run_dir, info, methods, labels, F.method_colors(methods), [s.name for s in info.scenarios])
+
+
+def _registry_label(method: str) -> str:
+    """The label of a method run.json does not describe: the registry's or its plug-in's, else its name (a plug-in
+    that cannot be imported where the report is built)."""
+    spec = pilots.find(method)
+    return spec.label if spec is not None else method
 
 
 def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[Path]]:
@@ -217,9 +229,9 @@ def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[Path]]:
                 run.skip(path, exc)
                 continue
         if k.method not in run.methods:  # a method run.json does not list still gets its own colour
-            run.methods.append(k.method)
+            run.add_method(k.method)
         groups.setdefault((k.scenario, k.episode, k.seed), []).append(path)
-    run.colors = F.method_colors(run.methods)
+        run.files[(k.scenario, k.episode, k.method, k.seed)] = path
     for s in sorted({k[0] for k in groups}):
         if s not in run.scenarios:
             run.scenarios.append(s)
@@ -244,17 +256,6 @@ def _float(v: object) -> float:
 def _fmt(v: object, digits: int, scale: float = 1.0) -> str:
     f = _float(v)
     return f"{f * scale:.{digits}f}" if math.isfinite(f) else "n/a"
-
-
-def format_ci(stat: Stat | None, scale: float = 1.0, digits: int = 2) -> str:
-    """"mean [low, high]" of a summary's `Stat` (a paired one: the mean difference), scaled; "n/a" if missing."""
-    if stat is None or stat.mean is None or not math.isfinite(stat.mean):
-        return "n/a"
-    text = f"{stat.mean * scale:.{digits}f}"
-    lo, hi = _float(stat.ci_low), _float(stat.ci_high)
-    if math.isfinite(lo) and math.isfinite(hi):
-        text += f" [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"
-    return text
 
 
 def _num(v: float | None) -> str:
@@ -344,19 +345,65 @@ def _read_summary(path: Path) -> Summary | None:
 
 
 def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> list[tuple[str, list[Figure]]]:
+    """Per vehicle its metrics pages (`compare.viz.metrics_pages`), then the tracker pages."""
     if rows is None:
         note = (f"{why}: the metrics tables are skipped. "
                 "The uam-compare CLI recomputes metrics from the saved episodes before building the report.")
         return [("metrics", F.text_pages("Metrics", [("p", note)]))]
-    summary = _read_summary(run.run_dir / "summary.json")
-    out = [("metrics_summary", _summary_pages(run, rows, summary))]
-    if summary is not None and summary.paired:
-        out.append(("metrics_paired", _paired_pages(run, summary.paired)))
+    for m in dict.fromkeys(r.method for r in rows):  # a method only metrics.csv names still gets a label and colour
+        if m not in run.methods:
+            run.add_method(m)
+    try:
+        parts, source = _vehicle_parts(run, rows)
+    except ValueError as exc:  # e.g. a hand-edited metrics.csv with a cell twice
+        logger.warning("metrics not summarised (%s)", exc)
+        return [("metrics", F.text_pages("Metrics", [("p", f"The metrics could not be summarised: {exc}")]))]
+    style = run.style()
+    conditions = {s.name: scenario_conditions(s, run.map_of(s.name)) for s in run.info.scenarios}
+    out: list[tuple[str, list[Figure]]] = []
+    for vehicle, part in parts.items():
+        out += vehicle_pages(vehicle, part.summary, part.scenarios, part.rows, conditions, style, source)
+        out.append((f"vehicle_{vehicle}_episodes", episode_table_pages(vehicle, part.rows, style, run.scenarios)))
     tracker = [fig for m in run.methods for fig in _tracker_pages(run, rows, m)]
     if tracker:
         out.append(("metrics_tracker", tracker))
-    out.append(("metrics_episodes", _episode_table_pages(run, rows)))
     return out
+
+
+@dataclass(frozen=True)
+class _VehiclePart:
+    """One vehicle's summary, its scenarios' summaries (run order) and its metrics rows."""
+
+    summary: Summary
+    scenarios: dict[str, Summary]
+    rows: list[EpisodeMetrics]
+
+
+def _vehicle_parts(run: _Run, rows: list[EpisodeMetrics]) -> tuple[dict[str, _VehiclePart], str]:
+    """Each vehicle's part, vehicles in run order, and where the numbers come from (a sentence).
+
+    From summary.json when it holds per-vehicle summaries; else (missing, or written before them, when its
+    run-wide numbers may pool vehicles) summarised here from metrics.csv the way a run saves them.
+
+    Raises:
+        ValueError: the rows cannot be summarised (two rows for one cell).
+    """
+    saved = _read_summary(run.run_dir / "summary.json")
+    per_vehicle = saved.per_vehicle() if saved is not None else None
+    if saved is not None and per_vehicle is not None:
+        by_scenario, source = saved.by_scenario or {}, "numbers from summary.json."
+    else:
+        fresh = summarize_run(rows)
+        per_vehicle, by_scenario = fresh.by_vehicle or {}, fresh.by_scenario or {}
+        source = ("summary.json is missing" if saved is None else "summary.json predates per-vehicle summaries")
+        source += ", so these numbers are computed here from metrics.csv."
+    vehicle_of = {r.scenario: r.vehicle for r in rows}
+    order = list(dict.fromkeys(vehicle_of[s] for s in run.scenarios if s in vehicle_of))
+    order += sorted(v for v in per_vehicle if v not in order)
+    return {v: _VehiclePart(per_vehicle[v],
+                            {s: by_scenario[s] for s in run.scenarios if vehicle_of.get(s) == v and s in by_scenario},
+                            [r for r in rows if r.vehicle == v])
+            for v in order if v in per_vehicle}, source
 
 
 def _column(rows: Sequence[EpisodeMetrics], name: str) -> np.ndarray:
@@ -406,93 +453,49 @@ def _tracker_row(scenario: str, rs: list[EpisodeMetrics]) -> list[str]:
             agg(np.sum, col["replans_tracking"], 0) + " / " + agg(np.sum, col["replans_clearance"], 0)]
 
 
-def _bootstrap_words(b: BootstrapSettings) -> str:
-    fields = (("resamples", b.resamples), ("confidence", b.confidence), ("seed", b.seed), ("method", b.method))
-    return ", ".join(f"{k}={v}" for k, v in fields if v is not None)
-
-
-def _summary_pages(run: _Run, rows: list[EpisodeMetrics], summary: Summary | None) -> list[Figure]:
-    notes = []
-    if summary is not None:
-        stats = dict(summary.methods)
-        boot = _bootstrap_words(summary.bootstrap)
-        notes.append("Cells: mean [95 % confidence interval] over episodes (from summary.json)."
-                     + (f" Bootstrap: {boot}." if boot else ""))
-    else:
-        stats = _means_from_rows(rows)
-        notes.append("summary.json missing: cells are plain means over the metrics.csv rows (no intervals).")
-    methods = [m for m in run.methods if m in stats] + [m for m in stats if m not in run.methods]
-    keys = [k for k, *_ in SUMMARY_ROWS]
-    extra = [k for k in (summary.metrics if summary else ()) if k not in keys]
-    spec = list(SUMMARY_ROWS) + [(k, k, 1.0, 3) for k in extra]
-    table = [["episodes"] + [str(stats[m].episodes) for m in methods]]
-    for key, label, scale, digits in spec:
-        table.append([label] + [format_ci(stats[m].stats.get(key), scale, digits) for m in methods])
-    reasons = [", ".join(f"{k}: {v}" for k, v in stats[m].failure_reasons.items()) or "none" for m in methods]
-    table.append(["failure reasons"] + reasons)
-    header = ["metric"] + [run.label(m) for m in methods]
-    return F.table_pages("Metrics: per method, mean [95 % CI]", header, table, rows_per_page=30, notes=notes,
-                         font_size=9)
-
-
-def _means_from_rows(rows: list[EpisodeMetrics]) -> dict[str, MethodSummary]:
-    """Per method, plain means of the finite values of every `SUMMARY_ROWS` metric (no intervals)."""
-    out: dict[str, MethodSummary] = {}
-    for method in dict.fromkeys(r.method for r in rows):
-        mine = [r for r in rows if r.method == method]
-        stats = {}
-        for key, *_ in SUMMARY_ROWS:
-            vals = _column(mine, key)
-            vals = vals[np.isfinite(vals)]
-            stats[key] = Stat(float(vals.mean()) if len(vals) else None, None, None, len(vals))
-        reasons: dict[str, int] = {}
-        for r in mine:
-            if not r.success:
-                reason = r.failure_reason or r.outcome or "unknown"
-                reasons[reason] = reasons.get(reason, 0) + 1
-        out[method] = MethodSummary(len(mine), reasons, stats)
-    return out
-
-
-def _paired_pages(run: _Run, pairs: Sequence[PairedSummary]) -> list[Figure]:
-    header = ["metric"] + [f"{run.label(p.first)} − {run.label(p.second)}" for p in pairs]
-    table = [["paired episodes"] + [str(p.episodes) for p in pairs]]
-    for key, label, scale, digits in SUMMARY_ROWS:
-        if any(key in p.stats for p in pairs):
-            table.append([label] + [format_ci(p.stats.get(key), scale, digits) for p in pairs])
-    note = ("Cells: mean of the per-episode difference (first method minus second, same scenario, episode "
-            "and seed) [95 % confidence interval].")
-    return F.table_pages("Metrics: paired differences", header, table, notes=[note], font_size=9)
-
-
-def _episode_table_pages(run: _Run, rows: list[EpisodeMetrics]) -> list[Figure]:
-    def order(r: EpisodeMetrics) -> tuple:
-        return (run.scenarios.index(r.scenario) if r.scenario in run.scenarios else len(run.scenarios), r.scenario,
-                r.episode, r.seed, _method_rank(run, r.method))
-
-    table = [[r.scenario, str(r.episode), str(r.seed), run.label(r.method), r.outcome, _fmt(r.min_clearance_m, 2),
-              _fmt(r.time_s, 1), _fmt(r.energy_kj, 2)] for r in sorted(rows, key=order)]
-    header = ["scenario", "episode", "seed", "method", "outcome", "min clearance [m]", "time [s]",
-              "energy [kJ]"]
-    return F.table_pages("Metrics: per episode", header, table, rows_per_page=26,
-                         notes=[f"{len(rows)} rows of metrics.csv."])
-
-
 # ---- 3. episodes ----------------------------------------------------------------------------------------
+def _drawn_groups(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]], rows: list[EpisodeMetrics] | None
+                  ) -> tuple[dict[tuple[str, int, int], list[Path]], list[tuple[str, str]]]:
+    """The tasks whose flights are drawn: of each vehicle the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios, of
+    each the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks (run order); and, when that leaves some out, the text of
+    a page saying so (else empty)."""
+    vehicle_of = {r.scenario: r.vehicle for r in rows or []}
+    vehicle_of.update({s.name: s.vehicle for s in run.info.scenarios if s.vehicle})
+    scenarios: dict[str, list[str]] = {}  # per vehicle, the scenarios drawn
+    count: dict[str, int] = {}
+    drawn = {}
+    for key, paths in groups.items():
+        scenario = key[0]
+        mine = scenarios.setdefault(vehicle_of.get(scenario, ""), [])
+        if scenario not in mine:
+            if len(mine) >= DRAWN_SCENARIOS_PER_VEHICLE:
+                continue
+            mine.append(scenario)
+        if count.get(scenario, 0) < DRAWN_FLIGHTS_PER_SCENARIO:
+            count[scenario] = count.get(scenario, 0) + 1
+            drawn[key] = paths
+    if len(drawn) == len(groups):
+        return drawn, []
+    blocks = [("p", f"This run flew {len(groups)} tasks (scenario, episode, seed). Their flights (paths, time "
+                    f"series, snapshots: three pages a task) are drawn for the first {DRAWN_SCENARIOS_PER_VEHICLE} "
+                    f"scenarios of each vehicle and the first {DRAWN_FLIGHTS_PER_SCENARIO} tasks of each: "
+                    f"{len(drawn)} tasks. Every flight plays in viewer.html; every number is in metrics.csv and "
+                    f"the tables above; the failures are listed after the flights."), ("h", "Drawn")]
+    for vehicle, names in scenarios.items():
+        blocks.append(("p", f"{vehicle or 'vehicle not recorded'}: "
+                            + ", ".join(f"{n} ({count[n]} of {sum(1 for k in groups if k[0] == n)})" for n in names)))
+    rest = [n for n in dict.fromkeys(k[0] for k in groups) if n not in count]
+    if rest:
+        blocks += [("h", "Not drawn"), ("p", ", ".join(rest))]
+    return drawn, blocks
+
+
 def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
                    pages: _PageWriter) -> list[F.FlightTrace]:
     """Three pages per (scenario, episode, seed); returns the failed flights' traces (unreadable files: `run.skip`)."""
     failures: list[F.FlightTrace] = []
     for (scenario, ep, seed), paths in groups.items():
-        traces = []
-        for path in paths:
-            try:
-                saved = load_episode(path)
-            except ValueError as exc:
-                run.skip(path, exc)
-                continue
-            m = saved.meta.key.method
-            traces.append(F.trace_from_episode(saved, run.label(m), run.colors.get(m, "0.3")))
+        traces = [t for path in paths if (t := _trace(run, path)) is not None]
         if not traces:
             continue
         traces.sort(key=lambda t: _method_rank(run, t.method))
@@ -579,33 +582,68 @@ def _training_note(path: Path, curve: F.RewardCurve, prov: Provenance | None) ->
 
 # ---- 5. failures ----------------------------------------------------------------------------------------
 def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeMetrics] | None,
-                   unreadable: list[str], pages: _PageWriter) -> None:
+                   pages: _PageWriter) -> None:
+    """The failures table (the first `MAX_FAILURE_ROWS`, run order) and top-down views of up to six; `failures`:
+    the failed flights drawn (their detail is known), the others come from metrics.csv."""
     by_key = {cell_order(r): r for r in rows or []}
-    table, seen = [], set()
+    entries: list[tuple[tuple, list[str]]] = []
+    traced: dict[tuple[str, int, str, int], F.FlightTrace] = {}
     for t in failures:
         k = t.episode.key
         key = (k.scenario, k.episode, k.method, k.seed)
-        seen.add(key)
+        traced[key] = t
         row = by_key.get(key)
         reason = (row.failure_reason if row is not None else "") or t.episode.outcome
-        table.append([k.scenario, str(k.episode), str(k.seed), t.label, reason, _short(t.episode.detail),
-                      f"{t.end_t_s:.1f}"])
-    for key, r in by_key.items():  # failed rows whose trajectory file is missing
-        if key not in seen and not r.success:
-            table.append([r.scenario, str(r.episode), str(r.seed), run.label(r.method), r.failure_reason or r.outcome,
-                          "(no trajectory file)", _fmt(r.time_s, 1)])
-    notes = [f"Unreadable episode files skipped: {', '.join(unreadable)}"] if unreadable else []
-    if not table:
+        entries.append((_cell_rank(run, key), [k.scenario, str(k.episode), str(k.seed), t.label, reason,
+                                               _short(t.episode.detail), f"{t.end_t_s:.1f}"]))
+    untraced = [key for key, r in by_key.items() if key not in traced and not r.success]
+    for key in untraced:
+        r = by_key[key]
+        detail = "(flight not drawn)" if key in run.files else "(no trajectory file)"
+        entries.append((_cell_rank(run, key), [r.scenario, str(r.episode), str(r.seed), run.label(r.method),
+                                               r.failure_reason or r.outcome, detail, _fmt(r.time_s, 1)]))
+    entries.sort(key=lambda e: e[0])
+    notes = [f"Unreadable episode files skipped: {', '.join(run.unreadable)}"] if run.unreadable else []
+    if not entries:
         pages.add_all(F.text_pages("Failures", [("p", "No failures: every episode in this report succeeded.")]
                                    + [("p", n) for n in notes]), "failures")
         return
+    if len(entries) > MAX_FAILURE_ROWS:
+        notes.insert(0, f"The first {MAX_FAILURE_ROWS} of {len(entries)} failures (run order); every one is in "
+                        f"metrics.csv.")
     header = ["scenario", "episode", "seed", "method", "failure reason", "detail", "time [s]"]
-    pages.add_all(F.table_pages("Failures", header, table, notes=notes), "failures_table")
-    items = [(t, run.map_of(t.episode.key.scenario)) for t in failures[:MAX_FAILURE_PLOTS]]
-    if items:
-        shown = f"{len(items)} of {len(failures)}" if len(failures) > len(items) else f"{len(items)}"
-        pages.add(F.failure_paths_figure(f"Failures: where the flights ended ({shown})", items),
-                  "failures_paths")
+    pages.add_all(F.table_pages("Failures", header, [e for _, e in entries[:MAX_FAILURE_ROWS]], notes=notes),
+                  "failures_table")
+    shown = list(failures[:MAX_FAILURE_PLOTS])
+    for key in sorted((k for k in untraced if k in run.files), key=lambda k: _cell_rank(run, k)):
+        if len(shown) >= MAX_FAILURE_PLOTS:
+            break
+        trace = _trace(run, run.files[key])  # a failure whose flight was not drawn: read for its view
+        if trace is not None:
+            shown.append(trace)
+    total = len(failures) + len(untraced)
+    if shown:
+        count = f"{len(shown)} of {total}" if total > len(shown) else f"{len(shown)}"
+        pages.add(F.failure_paths_figure(f"Failures: where the flights ended ({count})",
+                                         [(t, run.map_of(t.episode.key.scenario)) for t in shown]), "failures_paths")
+
+
+def _cell_rank(run: _Run, cell: tuple[str, int, str, int]) -> tuple:
+    """A cell's place in run order: scenario, episode, seed, method."""
+    scenario, episode, method, seed = cell
+    k = run.scenarios.index(scenario) if scenario in run.scenarios else len(run.scenarios)
+    return (k, scenario, episode, seed, _method_rank(run, method), method)
+
+
+def _trace(run: _Run, path: Path) -> F.FlightTrace | None:
+    """The flight of one episode file reduced for drawing (None: unreadable, `run.skip`)."""
+    try:
+        saved = load_episode(path)
+    except ValueError as exc:
+        run.skip(path, exc)
+        return None
+    m = saved.meta.key.method
+    return F.trace_from_episode(saved, run.label(m), run.colors.get(m, "0.3"))
 
 
 def _short(text: str, n: int = 70) -> str:

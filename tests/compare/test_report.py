@@ -47,9 +47,12 @@ from synthetic_run import (
     write_run,
 )
 
-# 1 title + 3 metrics (per method, paired, per episode) + 2 episodes x 3 + 1 training
-# + 2 failures (table, paths)
-FULL_PAGES = 13
+# 1 title + 8 metrics of the one vehicle (per method, forest, paired forest and table, difficulty, conditions,
+# per scenario, per episode) + 2 episodes x 3 + 1 training + 2 failures (table, paths)
+METRICS_PAGES = 8
+EPISODES = 1 + METRICS_PAGES  # the first episode page
+TRAINING = EPISODES + 6
+FULL_PAGES = TRAINING + 3
 
 
 def _texts(pdf: Path) -> list[str]:
@@ -80,22 +83,27 @@ def test_full_report_pages_text_and_pngs(full_run: tuple[Path, Path, float]) -> 
     for needle in ("toy-quad", "1500", "0.999", "turbulence light", "uam-compare run toy", "2026-11-21",
                    "Neither knows the wind", "numpy", "4 of 4 planned"):
         assert needle in texts[0], needle
-    assert all(t.startswith("Metrics") or "Metrics:" in t for t in texts[1:4])
-    assert "mean [95 % CI]" in texts[1] and "50 [0, 100]" in texts[1] and "21.0" in texts[1]
-    assert "paired differences" in texts[2] and "-4.0 [-8.0, 1.0]" in texts[2]
-    episode_pages = texts[4:10]
+    assert all("small_quad: " in t for t in texts[1:EPISODES])  # the run's one vehicle
+    # its summary.json predates per-vehicle summaries (it may pool vehicles): recomputed from metrics.csv
+    assert "per method, mean [95 % CI]" in texts[1] and "predates per-vehicle summaries" in texts[1]
+    assert "50 [9, 91]" in texts[1] and "30.0" in texts[1]  # PPO: 1 of 2 (Wilson), time of its one success
+    assert "paired differences" in texts[3] and "4.0 [4.0, 4.0]" in texts[4] and "MDD" in texts[4]
+    assert "where does each pilot break?" in texts[5] and "leg length [m]" in texts[5]
+    assert "scenarios and their conditions" in texts[6] and "per scenario" in texts[7] and "per episode" in texts[8]
+    episode_pages = texts[EPISODES:TRAINING]
     assert all(f"Episode {SCENARIO} #" in t for t in episode_pages)
     assert "#0 seed 0" in episode_pages[0] and "#1 seed 0" in episode_pages[3]
     assert "rotor power [kW]" in episode_pages[1]          # episode 0 saved its shaft power per step
     assert "mean rotor speed [rad/s]" in episode_pages[4]  # episode 1 did not
-    assert all("x east [m]" in texts[i] for i in (4, 6, 7, 9))
+    assert all("x east [m]" in texts[EPISODES + i] for i in (0, 2, 3, 5))
     assert "clearance [m]" in episode_pages[1] and "time [s]" in episode_pages[1]
-    assert "reward convergence" in texts[10] and "success rate [%]" in texts[10]
+    assert "reward convergence" in texts[TRAINING] and "success rate [%]" in texts[TRAINING]
     for needle in ("Plain PPO from scratch", "validation", "difficulty 0.25", "difficulty 1.00", "kept checkpoint",
                    "moving average"):
-        assert needle in texts[10], needle
-    assert "Failures" in texts[11] and "collision" in texts[11] and "synthetic collision" in texts[11]
-    assert "Failures" in texts[12]
+        assert needle in texts[TRAINING], needle
+    failures = texts[TRAINING + 1]
+    assert "Failures" in failures and "collision" in failures and "synthetic collision" in failures
+    assert "Failures" in texts[TRAINING + 2]
     whole = "\n".join(texts)
     for label in LABELS.values():
         assert label in whole
@@ -115,7 +123,7 @@ def test_rebuild_incomplete_run_without_reward_curve_or_metrics(tmp_path: Path) 
     out = build_report(run_dir, tmp_path / "out" / "r.pdf")
     assert out == tmp_path / "out" / "r.pdf"
     texts = _texts(out)
-    assert len(texts) == FULL_PAGES - 2  # one metrics note page instead of three
+    assert len(texts) == FULL_PAGES - METRICS_PAGES + 1  # one metrics note page instead
     assert "3 of 4 planned" in texts[0] and "interrupted" in texts[0]
     assert "Metrics" in texts[1] and "metrics.csv was not found" in texts[1]
     assert "reward convergence" in texts[8] and "No PPO policy folder" in texts[8]
@@ -138,12 +146,12 @@ def test_reward_curve_file_absent_and_no_failures(tmp_path: Path) -> None:
         w.writeheader()
         w.writerows(r for r in rows if r["episode"] == "0")
     texts = _texts(build_report(run_dir))
-    # title, metrics per method (plain means: no summary.json, so no paired page), per episode,
-    # 3 episode pages, training note, "No failures"
-    assert len(texts) == 8
-    assert "plain means" in texts[1]
-    assert "reward_curve.csv does not exist" in texts[6].replace("\n", "")
-    assert "No failures" in texts[7]
+    # title, the metrics pages (no summary.json: computed from metrics.csv), 3 episode pages, training note,
+    # "No failures"
+    assert len(texts) == 1 + METRICS_PAGES + 3 + 2
+    assert "summary.json is missing" in texts[1] and "100 [21, 100]" in texts[1]  # 1 of 1 (Wilson)
+    assert "reward_curve.csv does not exist" in texts[-2].replace("\n", "")
+    assert "No failures" in texts[-1]
 
 
 def test_report_reads_an_old_run_folder(tmp_path: Path) -> None:
@@ -164,10 +172,10 @@ def test_report_reads_an_old_run_folder(tmp_path: Path) -> None:
     assert len(texts) == FULL_PAGES
     assert f"policy {tmp_path / 'policy'}; decides at 10 Hz" in texts[0].replace("\n", " ")
     assert "the same at every height" in texts[0] and "4 of 4 planned" in texts[0]
-    assert "50 [0, 100]" in texts[1] and "-4.0 [-8.0, 1.0]" in texts[2]
-    for page in (texts[5], texts[8]):  # the time series: mean rotor speed, and why
+    assert "50 [9, 91]" in texts[1] and "4.0 [4.0, 4.0]" in texts[4]
+    for page in (texts[EPISODES + 1], texts[EPISODES + 4]):  # the time series: mean rotor speed, and why
         assert "mean rotor speed [rad/s]" in page and "shaft power not in this episode file" in page.replace("\n", " ")
-    assert "reward convergence" in texts[10] and "kept checkpoint" in texts[10]
+    assert "reward convergence" in texts[TRAINING] and "kept checkpoint" in texts[TRAINING]
 
 
 def test_power_is_the_saved_per_step_column(tmp_path: Path) -> None:

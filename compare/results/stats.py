@@ -1,0 +1,149 @@
+"""The interval and power arithmetic of the summary, as plain functions of counts and samples.
+
+Rates (success, collision) get the Wilson score interval, which stays inside [0, 1] and keeps its
+coverage for small counts and rates near 0 or 1, where the bootstrap of a 0/1 sample collapses to a
+point (10 successes in 10 episodes: bootstrap [1, 1], Wilson [0.72, 1]). A paired difference of two
+rates gets Newcombe's hybrid score interval (method 10 of Newcombe 1998, "Improved confidence
+intervals for the difference between binomial proportions based on paired data", Stat. Med. 17),
+built from the two Wilson intervals and the correlation of the pairs (as Fagerland, Lydersen and Laake,
+"Statistical Analysis of Contingency Tables", 2017, ch. 8, give it: "Newcombe square-and-add"). Other
+means get the percentile bootstrap (`Bootstrap`).
+
+The minimum detectable difference (MDD) of a paired comparison at n pairs is the true mean difference a
+two-sided test at level alpha detects with the given power: (z_{1-alpha/2} + z_{power}) * sd_d / sqrt(n),
+sd_d the standard deviation of the paired differences (normal approximation). Before any run, for a
+rate, `design_mdd_rate` takes the worst case p = 0.5 for both pilots with independent outcomes
+(sd_d = sqrt(2 p (1 - p))); pairing only narrows it when the two pilots' outcomes correlate.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from statistics import NormalDist
+
+import numpy as np
+
+DESIGN_RATE = 0.5
+"""The rate assumed for the design value of a rate's MDD: the largest variance, p (1 - p) = 1/4."""
+
+
+def z_quantile(probability: float) -> float:
+    """The standard normal quantile z_probability (e.g. 0.975 -> 1.95996)."""
+    if not 0.0 < probability < 1.0:
+        raise ValueError(f"a normal quantile needs a probability in (0, 1), got {probability!r}")
+    return NormalDist().inv_cdf(probability)
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The Wilson score interval of a rate: `successes` of `n` trials (n >= 1), two-sided at `confidence`.
+
+    Returns:
+        (low, high), inside [0, 1].
+    """
+    if n < 1 or not 0 <= successes <= n:
+        raise ValueError(f"a rate needs 0 <= successes <= n and n >= 1, got {successes} of {n}")
+    z = z_quantile(0.5 + confidence / 2.0)
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2.0 * n)) / denom
+    half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n)) / denom
+    # exact at the ends: 0 of n has its low end at 0, n of n its high end at 1 (rounding would leave 1e-17)
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == n else min(1.0, centre + half)
+    return low, high
+
+
+@dataclass(frozen=True)
+class PairedCounts:
+    """Paired 0/1 outcomes of two pilots on the same cells: both 1, first only, second only, neither."""
+
+    both: int
+    first_only: int
+    second_only: int
+    neither: int
+
+    @property
+    def n(self) -> int:
+        return self.both + self.first_only + self.second_only + self.neither
+
+    @classmethod
+    def of(cls, first: np.ndarray, second: np.ndarray) -> PairedCounts:
+        """Counts of two equally long 0/1 (or bool) arrays, pair by pair."""
+        a, b = np.asarray(first, bool), np.asarray(second, bool)
+        return cls(int(np.sum(a & b)), int(np.sum(a & ~b)), int(np.sum(~a & b)), int(np.sum(~a & ~b)))
+
+
+def newcombe_paired_interval(counts: PairedCounts, confidence: float = 0.95) -> tuple[float, float]:
+    """Newcombe's hybrid score interval (his method 10) of the difference of two paired rates, first - second.
+
+    Args:
+        counts: the paired outcomes (n >= 1).
+        confidence: two-sided level in (0, 1).
+
+    Returns:
+        (low, high) of the difference, inside [-1, 1].
+    """
+    a, b, c, d, n = counts.both, counts.first_only, counts.second_only, counts.neither, counts.n
+    if n < 1:
+        raise ValueError("a paired difference of rates needs at least one pair")
+    p1, p2 = (a + b) / n, (a + c) / n
+    l1, u1 = wilson_interval(a + b, n, confidence)
+    l2, u2 = wilson_interval(a + c, n, confidence)
+    margins = (a + b) * (c + d) * (a + c) * (b + d)
+    cross = a * d - b * c
+    # the correlation of the pairs, a positive one shrunk by n/2 (Newcombe's continuity correction)
+    if margins == 0 or 0 <= cross <= n / 2:
+        phi = 0.0
+    else:
+        phi = (cross - n / 2 if cross > 0 else cross) / math.sqrt(margins)
+    delta = math.sqrt(max(0.0, (p1 - l1) ** 2 - 2.0 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2))
+    epsilon = math.sqrt(max(0.0, (u1 - p1) ** 2 - 2.0 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2))
+    diff = p1 - p2
+    return max(-1.0, diff - delta), min(1.0, diff + epsilon)
+
+
+def mdd(sd: float, n: int, alpha: float = 0.05, power: float = 0.8) -> float:
+    """Minimum detectable difference of a paired mean: (z_{1-alpha/2} + z_power) * sd / sqrt(n).
+
+    Args:
+        sd: standard deviation of the paired differences (the metric's unit).
+        n: pairs (>= 1).
+        alpha: two-sided significance level. power: the probability of detecting a true difference of that size.
+    """
+    if n < 1:
+        raise ValueError(f"an MDD needs at least one pair, got {n}")
+    return (z_quantile(1.0 - alpha / 2.0) + z_quantile(power)) * sd / math.sqrt(n)
+
+
+def design_mdd_rate(n: int, alpha: float = 0.05, power: float = 0.8, rate: float = DESIGN_RATE) -> float:
+    """The MDD of a paired difference of rates before any run: both pilots at `rate`, outcomes independent
+    (sd_d = sqrt(2 rate (1 - rate)); at 0.5 the largest). A fraction, like the rates."""
+    return mdd(math.sqrt(2.0 * rate * (1.0 - rate)), n, alpha, power)
+
+
+@dataclass(frozen=True)
+class Bootstrap:
+    """The percentile bootstrap of a mean: `resamples` (>= 1), two-sided `confidence` in (0, 1), `seed`.
+
+    Every interval draws from a fresh `numpy.random.default_rng(seed)`, so a mean's interval depends only
+    on its own sample.
+    """
+
+    resamples: int
+    confidence: float
+    seed: int
+
+    def mean_ci(self, x: np.ndarray) -> tuple[float | None, float | None, float | None]:
+        """Mean of `x` and its percentile bootstrap CI (None x 3 for an empty sample; the mean x 3 for one value)."""
+        n = x.size
+        if n == 0:
+            return None, None, None
+        mean = float(np.mean(x))
+        if n == 1:
+            return mean, mean, mean
+        rng = np.random.default_rng(self.seed)
+        idx = rng.integers(0, n, size=(self.resamples, n))   # one row per resample
+        means = x[idx].mean(axis=1)
+        tail = (1.0 - self.confidence) / 2.0
+        lo, hi = np.quantile(means, [tail, 1.0 - tail])
+        return mean, float(lo), float(hi)
