@@ -12,7 +12,7 @@ benchmark` checks every one.
 The difficulty axes vary on purpose, so that success can be plotted against them:
 
 * building density: three levels of the generator's lot occupancy and footprint fill (the lowest, middle
-  and highest the learned pilot trained on); measured as the built cover (`plan_area_fraction`);
+  and highest the learned pilot trained on); measured as the built cover (`building_coverage`);
 * turbulence: none, light, moderate;
 * air: sea level on a standard day, warm and raised, hot and high (`AIR_LEVELS`; `density_altitude_m`);
 * leg length: three bins per vehicle (leg j of a scenario is in bin j mod 3).
@@ -43,11 +43,12 @@ from pathlib import Path
 import numpy as np
 
 from compare.fingerprint import scenario_fingerprint
+from compare.results.difficulty import building_coverage
 from compare.results.run_info import SuiteInfo
 from compare.scenario import BENCHMARK_SETS, Scenario, scenario_from_dict
 from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
 from rl.tasks import task_for
-from uam_fdm.air.atmosphere import SEA_LEVEL_DENSITY_KG_M3, Atmosphere, AtmosphereConditions
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.generator import CityGenParams, generate_city
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
@@ -63,8 +64,6 @@ _DRAW_BATCH = 32
 _STREAM_AIR, _STREAM_LEG = 0xA1B, 0x1E6  # PCG64 stream tags: a scenario's air and wind, its legs
 LEARNED_PILOT_POOLS: dict[str, range] = {"training": TRAIN_SEEDS, "test and validation": EVAL_SEEDS}
 """The learned pilot's city seed pools (`rl.cities`, `rl.evaluation`), which the benchmark's seeds avoid."""
-# ISA troposphere: density altitude h = T0 / L x (1 - sigma^(1 / (g M / (R L) - 1)))
-_ISA_T0_K, _ISA_LAPSE_K_M, _ISA_DENSITY_EXPONENT = 288.15, 0.0065, 1.0 / 4.255876
 
 
 @dataclass(frozen=True)
@@ -261,7 +260,7 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
     return {
         "name": name,
         "description": (f"{vb.vehicle} in held-out city {seed}: {DENSITY_LEVELS[lv.density]} buildings (built cover "
-                        f"{plan_area_fraction(city):.2f}), turbulence {turbulence}, {air.name} (field {elevation:g} m, "
+                        f"{building_coverage(city):.2f}), turbulence {turbulence}, {air.name} (field {elevation:g} m, "
                         f"ISA{offset:+g} K, density altitude {round(density_altitude):d} m), wind {speed:.1f} m/s"),
         "map": {"generator": {"seed": seed, "name": city.name, **fields}},
         "vehicle": vb.vehicle,
@@ -336,23 +335,6 @@ def _leg(city: BuildingMap, tasks: TaskDistribution, vb: VehicleBenchmark, radiu
 
 
 # ---- difficulty measures ------------------------------------------------------------------------------
-def plan_area_fraction(city: BuildingMap) -> float:
-    """Built cover: the buildings' footprint area over the city's ground area (its bounds in x and y) [-]."""
-    area = 0.0
-    for part in city.buildings:
-        fp = part.footprint_xy_m()
-        x, y = fp[:, 0], fp[:, 1]
-        area += 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-    w, d = (city.bounds_max_m - city.bounds_min_m)[:2]
-    return area / float(w * d)
-
-
-def density_altitude_m(density_kg_m3: float) -> float:
-    """The height in the ISA troposphere where the air has this density [m] (the air's thinness as one number)."""
-    sigma = density_kg_m3 / SEA_LEVEL_DENSITY_KG_M3
-    return _ISA_T0_K / _ISA_LAPSE_K_M * (1.0 - sigma ** _ISA_DENSITY_EXPONENT)
-
-
 def _field_density(elevation_m: float, isa_offset_k: float) -> float:
     """Air density at the field [kg/m³] in JSBSim's atmosphere (the one flown)."""
     air = Atmosphere.from_jsbsim(AtmosphereConditions(elevation_m, isa_offset_k), z_max_m=10.0, z_min_m=0.0)

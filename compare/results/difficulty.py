@@ -25,18 +25,12 @@ from shapely.geometry import Polygon, box
 from compare.results.metrics import EpisodeMetrics
 from compare.results.run_info import ScenarioInfo
 from compare.results.stats import wilson_interval
-from uam_fdm.air.atmosphere import SEA_LEVEL_DENSITY_KG_M3
+from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.air.wind import TurbulenceLevel
 from uam_fdm.city.buildings import BuildingMap
 
 MAX_BINS = 4
 """Bins per axis: an axis with at most this many distinct values gets one bin per value, else equal-count bins."""
-
-# ISA troposphere: sea-level temperature [K], lapse rate [K/m], and the exponent g / (R L) - 1 of rho(h)
-_ISA_T0_K = 288.15
-_ISA_LAPSE_K_M = 0.0065
-_ISA_DENSITY_EXPONENT = 9.80665 / (287.05287 * _ISA_LAPSE_K_M) - 1.0
-
 
 def building_coverage(bmap: BuildingMap) -> float:
     """Share of the map's ground area (its x-y bounds) under building footprints, overlaps counted once, in [0, 1]."""
@@ -47,12 +41,6 @@ def building_coverage(bmap: BuildingMap) -> float:
     footprints = [Polygon(b.footprint_xy_m()) for b in bmap.buildings]
     covered = shapely.union_all(footprints).intersection(ground) if footprints else None
     return 0.0 if covered is None else float(covered.area / ground.area)
-
-
-def density_altitude_m(density_kg_m3: float) -> float:
-    """The ISA (troposphere) altitude where the standard atmosphere has this density [m] (negative below sea level)."""
-    ratio = density_kg_m3 / SEA_LEVEL_DENSITY_KG_M3
-    return _ISA_T0_K / _ISA_LAPSE_K_M * (1.0 - ratio ** (1.0 / _ISA_DENSITY_EXPONENT))
 
 
 @dataclass(frozen=True)

@@ -24,19 +24,19 @@ from compare.benchmark import (
     TURBULENCE_LEVELS,
     Suite,
     build_suite,
-    density_altitude_m,
     levels,
-    plan_area_fraction,
     suite_version,
 )
 from compare.campaign import RunOptions, plan_cells, write_run_files
 from compare.cli import main
 from compare.fingerprint import scenario_fingerprint
+from compare.results.difficulty import building_coverage
 from compare.results.run_info import read_run_info
 from compare.scenario import builtin_sets, load_scenario, resolve_scenarios, scenario_from_dict
 from rl.cities import EVAL_SEEDS, TRAIN_SEEDS
 from rl.evaluation import VALIDATION_OFFSET
 from rl.tasks import task_for
+from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.city import generator as citygen
 
 VEHICLES = ("small_quad", "uam_multicopter")
@@ -235,7 +235,7 @@ def test_the_difficulty_axes_vary(full: Suite) -> None:
         for i, sc in enumerate(scenarios):
             lv = levels(i)
             assert sc.wind.turbulence.value == TURBULENCE_LEVELS[lv.turbulence]
-            cover.setdefault(lv.density, []).append(plan_area_fraction(sc.city))
+            cover.setdefault(lv.density, []).append(building_coverage(sc.city))
             altitude.setdefault(lv.air, []).append(density_altitude_m(sc.air.density_kg_m3(0.0)))
             assert DENSITY_LEVELS[lv.density] in sc.description and AIR_LEVELS[lv.air].name in sc.description
         means = [sum(cover[k]) / len(cover[k]) for k in range(3)]

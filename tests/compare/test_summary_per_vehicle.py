@@ -13,7 +13,6 @@ from compare.cli import _print_summary
 from compare.results.difficulty import (
     ScenarioConditions,
     building_coverage,
-    density_altitude_m,
     success_by_difficulty,
 )
 from compare.results.metrics import EpisodeMetrics
@@ -28,6 +27,7 @@ from compare.results.summary import (
     summary_to_json,
     write_summary_json,
 )
+from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.city.buildings import Building, BuildingMap
 
 Z_SUM = 1.959963984540054 + 0.8416212335729143  # z_0.975 + z_0.8

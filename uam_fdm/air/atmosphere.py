@@ -53,6 +53,7 @@ from uam_fdm.files.strict import checked_number
 
 __all__ = [
     "SEA_LEVEL_DENSITY_KG_M3",
+    "density_altitude_m",
     "AtmosphereConditions",
     "AtmosphereSample",
     "Atmosphere",
@@ -65,6 +66,10 @@ _log = logging.getLogger(__name__)
 
 #: ISA sea-level density rho_0 (kg/m^3); the flight model's thrust scales with rho / rho_0.
 SEA_LEVEL_DENSITY_KG_M3 = 1.225
+# ISA troposphere: sea-level temperature [K], lapse rate [K/m], and the exponent g M / (R L) - 1 of rho(h)
+_ISA_T0_K = 288.15
+_ISA_LAPSE_K_M = 0.0065
+_ISA_DENSITY_EXPONENT = 9.80665 / (287.05287 * _ISA_LAPSE_K_M) - 1.0
 
 # Unit conversions at the JSBSim boundary (exact definitions or NIST values).
 FT_TO_M = 0.3048
@@ -499,3 +504,10 @@ def load_probe_model(fdm: Any) -> None:
             "(see the uam_fdm.jsbsim log for JSBSim's reason)"
         )
 
+
+
+def density_altitude_m(density_kg_m3: float) -> float:
+    """The ISA (troposphere) altitude where the standard atmosphere has this density [m] (negative below sea
+    level): the air's thinness as one number, e.g. for hot-and-high fields."""
+    ratio = density_kg_m3 / SEA_LEVEL_DENSITY_KG_M3
+    return _ISA_T0_K / _ISA_LAPSE_K_M * (1.0 - ratio ** (1.0 / _ISA_DENSITY_EXPONENT))
