@@ -7,6 +7,7 @@ import shlex
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,6 +16,7 @@ from uam_fdm.vehicle.params import preset_names
 
 if TYPE_CHECKING:  # the summary is read only at the end of a run
     from compare.results.summary import PairedSummary, PowerSettings
+    from compare.scenario import Scenario
 
 INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 
@@ -110,7 +112,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     scenarios = [with_methods(sc, tuple(args.method)) for sc in scenarios]
     _one_torch_thread()
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
-                      resume=args.resume, progress=not args.no_progress, videos=args.videos,
+                      resume=args.resume, progress=not args.no_progress, videos=_videos(args.videos, scenarios),
                       command="uam-compare " + " ".join(args.argv))
     est = estimate_run(scenarios, opts)
     if est.large:
@@ -128,6 +130,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _print_summary(run_dir)
     _print_suite(run_dir)
     return 0
+
+
+def _videos(chosen: str | None, scenarios: Sequence[Scenario]) -> str:
+    """--videos, or its default: the first cell of each scenario, none for a benchmark set (dozens of scenarios)."""
+    if chosen is not None:
+        return chosen
+    return "none" if any(sc.suite is not None for sc in scenarios) else "scenario"
 
 
 def _print_suite(run_dir: Path) -> None:
@@ -377,8 +386,9 @@ def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     run.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
     run.add_argument("--out", type=Path, default=None, help="run folder (default: runs/<time>-<scenario>)")
     run.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
-    run.add_argument("--videos", choices=("scenario", "all", "none"), default="scenario",
-                     help="cells to animate into RUN_DIR/videos/: the first of each scenario (default), all, none")
+    run.add_argument("--videos", choices=("scenario", "all", "none"), default=None,
+                     help="cells to animate into RUN_DIR/videos/: the first of each scenario (the default, but none "
+                          "for a benchmark set: its product is numbers; `animate` draws any cell later), all, none")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
 

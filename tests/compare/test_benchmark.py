@@ -257,3 +257,12 @@ def test_the_levels_are_an_orthogonal_array() -> None:
     assert len({(x.turbulence, x.density, x.air) for x in map(levels, range(27))}) == 27
     assert density_altitude_m(1.225) == pytest.approx(0.0, abs=1e-9)
     assert density_altitude_m(0.9091) == pytest.approx(3000.0, abs=5.0)  # ISA density at 3 km
+
+
+def test_a_benchmark_run_animates_nothing_unless_asked(quick: Suite) -> None:
+    from compare.cli import _videos
+
+    tiny = load_scenario(Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml")
+    assert _videos(None, list(quick.scenarios)) == "none"
+    assert _videos(None, [tiny]) == "scenario"
+    assert _videos("all", list(quick.scenarios)) == "all"
