@@ -70,6 +70,8 @@ class RayBackend:
         self._remote = _fly_remote.options(runtime_env={"env_vars": {"PYTHONPATH": worker_pythonpath(setup)}})
 
     def _init(self, jobs: int, address: str | None) -> None:
+        if address is not None:
+            _check_reachable(address)  # Ray itself retries an unreachable head node for minutes
         in_main = threading.current_thread() is threading.main_thread()
         previous = signal.getsignal(signal.SIGTERM) if in_main else None
         try:
@@ -141,6 +143,21 @@ class RayBackend:
         if self._temp_dir is not None:
             shutil.rmtree(self._temp_dir, ignore_errors=True)
             self._temp_dir = None
+
+
+def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
+    """Raise ValueError unless a TCP connection to `address` ("host:port" or "ray://host:port") opens within
+    `timeout_s` [s]; other forms (e.g. "auto") are left to Ray."""
+    import socket
+
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"--address {address}: no Ray head node answers there ({exc.strerror or exc}); start one "
+                         f"with `ray start --head` on that machine, or check the address and port") from exc
 
 
 def worker_pythonpath(setup: WorkerSetup) -> str:

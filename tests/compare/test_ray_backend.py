@@ -79,3 +79,12 @@ def test_ray_is_imported_only_when_asked_for() -> None:
             "print('ray' in sys.modules)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "False"
+
+
+def test_an_unreachable_cluster_is_a_clear_error_before_anything_is_written(tmp_path: Path,
+                                                                            capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "never"
+    assert main(["run", str(TINY), "--backend", "ray", "--address", "127.0.0.1:1", "--out", str(out),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--address 127.0.0.1:1: no Ray head node answers there" in err and not out.exists()
