@@ -457,6 +457,7 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
         try:
             failed = _fly(backend, tasks, out, bar)
         except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
+            backend.close()  # first: a worker must not write another episode after they are counted
             raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
         finally:
             bar.close()

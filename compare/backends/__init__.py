@@ -90,7 +90,7 @@ class Backend(Protocol):
         ...
 
     def close(self) -> None:
-        """End the workers at once (a cell in flight is lost: its episode file is not written)."""
+        """End the workers at once (a cell in flight is lost: its episode file is not written); idempotent."""
         ...
 
 
