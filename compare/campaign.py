@@ -6,16 +6,20 @@
 RUN_DIR/run.json        provenance: scenarios, methods, software versions, fairness statement, command
 RUN_DIR/maps/*.yaml     the city of each scenario (reports never need the scenario files again)
 RUN_DIR/episodes/*.npz  one per cell (`compare.results.trajectory`), written atomically as each finishes
+RUN_DIR/failed/*.json   one per cell that produced no episode, and why (`compare.results.failures`)
 RUN_DIR/metrics.csv     one row per cell (`compare.results.metrics`)
 RUN_DIR/summary.json    per vehicle and scenario: means with 95 % intervals, paired differences, their MDDs
 RUN_DIR/report.pdf      the report (`compare.viz.report`); RUN_DIR/figures/*.png its pages
 ```
 
 Cells are independent and seeded from the cell alone (`compare.seeding`), so they run in any order
-in any number of processes (`jobs`) with the same results. An interrupted run keeps every episode
+in any number of processes (`jobs`) or on Ray (`compare.backends`) with the same results. One cell's
+failure (its pilot raised; its worker process died; it gave no result within its wall-time limit,
+`cell_limit_s`) is recorded as a failed cell and the run goes on. An interrupted run keeps every episode
 finished so far; `finalize(RUN_DIR)` (the `report` command) rescores and reports them (an unreadable
 episode file is skipped with a warning and listed in the report), and `resume=True` flies only the
-missing cells, after checking that the folder is a run saved from the same inputs (`compare.fingerprint`).
+cells without an episode (failed ones included), after checking that the folder is a run saved from the
+same inputs (`compare.fingerprint`).
 """
 from __future__ import annotations
 
@@ -34,8 +38,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from compare import pilots
-from compare.episode_loop import run_episode
+from compare.backends import Backend, CellFlown, CellTask, WorkerSetup, check_backend, open_backend
+from compare.episode_loop import Trajectory, run_episode
 from compare.fingerprint import check_resume, run_fingerprints
+from compare.results.failures import (
+    FAILED_DIR,
+    FailedCell,
+    describe_failures,
+    read_failures,
+    remove_failure,
+    write_failure,
+)
 from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
 from compare.results.run_info import (
     RUN_INFO_NAME,
@@ -71,6 +84,11 @@ FAIRNESS_CLEARANCE = ("Clearance is measured at every physics step from the vehi
 VIDEOS_DIR = "videos"  # the run's animations, one file per animated cell
 WARN_RUN_HOURS = 3.0  # the CLI warns above these estimates before flying
 WARN_RUN_GB = 3.0
+# A cell's default wall-time limit: CELL_LIMIT_BASE_S + CELL_LIMIT_FACTOR x its simulated time limit x its pilot's
+# wall_s_per_flight_s. Generous: a slow cell wrongly killed costs more than a hung one found late; the base
+# covers a worker's first cell (imports, building the flight model and the pilot) on a busy machine.
+CELL_LIMIT_BASE_S = 300.0
+CELL_LIMIT_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -93,14 +111,21 @@ class RunOptions:
         seeds: override every scenario's seeds (None: the scenarios' own).
         policies: the learned pilot's policy folders, at most one per vehicle (each records the
             vehicle it was trained for); a vehicle without one flies its shipped policy, if any.
-        jobs: parallel processes (1: in this process).
-        resume: skip cells whose episode file already exists; refuse a folder that is not a run of this
-            tool or was saved from other inputs (`compare.fingerprint.check_resume`).
+        jobs: parallel processes (1: in this process, unless `cell_timeout_s` is given); with the Ray backend
+            the CPUs of the local Ray instance it starts (with `address`: at most this many cells in flight
+            when > 1, else one per CPU of the cluster).
+        resume: skip cells whose episode file already exists (failed cells are flown again); refuse a folder
+            that is not a run of this tool or was saved from other inputs (`compare.fingerprint.check_resume`).
         progress: show a progress bar.
         command: the command line, for provenance.
         report: build the PDF report and the HTML viewer at the end.
         videos: which cells to animate into `videos/` at the end: "scenario" (the first cell of each
             scenario), "all" or "none" (see `compare.viz.animate.render_videos`).
+        backend: where cells fly: "local" (this process or worker processes) or "ray" (`compare.backends`).
+        address: the Ray cluster to run on (None: a local Ray instance of `jobs` CPUs); only with "ray".
+        cell_timeout_s: every cell's wall-time limit [s] (None: `cell_limit_s`'s default per cell). A cell over
+            it is a failed cell ("hang") and its worker is replaced; in this process (one job, no limit given)
+            cells have no limit.
     """
 
     out_dir: Path
@@ -113,6 +138,14 @@ class RunOptions:
     command: str = ""
     report: bool = True
     videos: str = "scenario"
+    backend: str = "local"
+    address: str | None = None
+    cell_timeout_s: float | None = None
+
+    @property
+    def in_process(self) -> bool:
+        """Cells fly in this process (no worker to survive a crash or enforce a time limit)."""
+        return self.backend == "local" and self.jobs <= 1 and self.cell_timeout_s is None
 
 
 @dataclass(frozen=True)
@@ -211,6 +244,18 @@ def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
     return EpisodeKey(scenarios[c.scenario].name, c.episode, c.method, c.seed)
 
 
+def cell_limit_s(scenarios: Sequence[Scenario], c: Cell, opts: RunOptions) -> float | None:
+    """The wall-time limit of cell `c` [s]: `opts.cell_timeout_s` when given, else CELL_LIMIT_BASE_S +
+    CELL_LIMIT_FACTOR x the episode's simulated time limit x its pilot's `wall_s_per_flight_s`; None in this
+    process (nothing could stop the cell)."""
+    if opts.in_process:
+        return None
+    if opts.cell_timeout_s is not None:
+        return float(opts.cell_timeout_s)
+    timeout_s = scenarios[c.scenario].episodes[c.episode].task.timeout_s
+    return CELL_LIMIT_BASE_S + CELL_LIMIT_FACTOR * timeout_s * pilots.pilot(c.method).wall_s_per_flight_s
+
+
 class CellRunner:
     """Flies cells; holds per-process caches (worlds per scenario, one agent per method, or per method and
     vehicle for a pilot that flies a policy)."""
@@ -243,6 +288,12 @@ class CellRunner:
         return self._agents[method, fp]
 
     def run(self, c: Cell) -> Path:
+        """Fly cell `c` and save its episode file in the run folder; returns the file."""
+        meta, traj = self.fly(c)
+        return save_episode(self.out_dir / "episodes" / f"{meta.key.stem}.npz", meta, traj)
+
+    def fly(self, c: Cell) -> tuple[EpisodeMeta, Trajectory]:
+        """Fly cell `c`: what its episode file holds (nothing is written)."""
         from uam_fdm.air.wind import WindField, probe_heights_up_to
 
         sc = self.scenarios[c.scenario]
@@ -271,7 +322,7 @@ class CellRunner:
                            mean_decision_ms=float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None,
                            failure_reason=None if report is None else report.failure_reason(traj.outcome),
                            report=report)
-        return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta, traj)
+        return meta, traj
 
 
 class RunInterrupted(Exception):
@@ -286,48 +337,6 @@ class RunInterrupted(Exception):
     def __init__(self, out_dir: Path, kept: int, cells: int) -> None:
         super().__init__(f"{out_dir}: interrupted with {kept} of {cells} episodes kept")
         self.out_dir, self.kept, self.cells = out_dir, kept, cells
-
-
-def _fly_in_processes(scenarios: Sequence[Scenario], out: Path, policies: Mapping[str, Path], jobs: int,
-                      todo: Sequence[Cell], bar) -> None:
-    """Fly `todo` in `jobs` worker processes. On any exception here (an interrupt included) the workers are
-    terminated at once: an episode in flight is not written (its temporary file, if any, goes next run)."""
-    import multiprocessing as mp
-
-    # spawn: a fresh interpreter per worker (no copied casadi/ompl/torch state from this process)
-    pool = mp.get_context("spawn").Pool(jobs, initializer=_init_worker, initargs=(list(scenarios), out, dict(policies)))
-    try:
-        for _ in pool.imap_unordered(_run_in_worker, todo):
-            bar.update(1)
-        pool.close()
-    except BaseException:
-        pool.terminate()
-        raise
-    finally:
-        pool.join()
-
-
-_WORKER: CellRunner | None = None
-
-
-def _init_worker(scenarios: list[Scenario], out_dir: Path, policies: dict[str, Path]) -> None:
-    import signal
-
-    global _WORKER
-    # Ctrl-C reaches the whole process group: the parent alone decides (it terminates the workers), so a
-    # worker neither prints its own traceback nor dies half-way through telling the parent.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    if any(pilots.pilot(m).uses_torch for sc in scenarios for m in sc.methods):  # one torch thread is fastest
-        import torch
-
-        torch.set_num_threads(1)
-    _WORKER = CellRunner(scenarios, out_dir, policies)
-
-
-def _run_in_worker(c: Cell) -> Path:
-    assert _WORKER is not None
-    return _WORKER.run(c)
 
 
 def _episode_kept(path: Path) -> bool:
@@ -425,6 +434,9 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
 
     if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
         raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
+    check_backend(opts.backend, opts.address)
+    if opts.cell_timeout_s is not None and not opts.cell_timeout_s > 0.0:
+        raise ValueError(f"--cell-timeout {opts.cell_timeout_s:g}: must be > 0 s")
     scenarios = list(scenarios)
     policies = select_policies(scenarios, opts)
     cells, notes = plan_cells(scenarios, opts, policies)
@@ -436,29 +448,27 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
         fingerprints = check_resume(out, fingerprints)
-    out.mkdir(parents=True, exist_ok=True)
-    _remove_stale_temporaries(out)
-    for n in notes:  # cells left out (also in run.json and the report)
-        log.warning("%s", n)
-    write_run_files(scenarios, opts, cells, notes, fingerprints, used)
-    folders = {f.vehicle_fingerprint: f.folder for f in used}
-    todo = [c for c in cells
-            if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]
+    setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used})
     t0 = time.perf_counter()
-    bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
-    try:
-        if opts.jobs <= 1:
-            runner = CellRunner(scenarios, out, folders)
-            for c in todo:
-                runner.run(c)
-                bar.update(1)
-        else:
-            _fly_in_processes(scenarios, out, folders, opts.jobs, todo, bar)
-    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
-        raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
-    finally:
-        bar.close()
-    log.info("flew %d episodes in %.1f s", len(todo), time.perf_counter() - t0)
+    # the backend starts before anything is written: a Ray cluster that cannot be reached leaves no folder
+    with open_backend(opts.backend, setup, opts.jobs, opts.address, isolate=not opts.in_process) as backend:
+        out.mkdir(parents=True, exist_ok=True)
+        _remove_stale_temporaries(out)
+        for n in notes:  # cells left out (also in run.json and the report)
+            log.warning("%s", n)
+        write_run_files(scenarios, opts, cells, notes, fingerprints, used)
+        todo = [c for c in cells
+                if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]
+        tasks = [CellTask(c, cell_key(scenarios, c), cell_limit_s(scenarios, c, opts)) for c in todo]
+        bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
+        try:
+            failed = _fly(backend, tasks, out, bar)
+        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
+            backend.close()  # first: a worker must not write another episode after they are counted
+            raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
+        finally:
+            bar.close()
+    log.info("flew %d cells (%d failed) in %.1f s", len(todo), len(failed), time.perf_counter() - t0)
     finalize(out, report=opts.report)
     if opts.videos != "none":
         from compare.viz.animate import render_videos
@@ -466,6 +476,23 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
         groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
         render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress)
     return out
+
+
+def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[FailedCell]:
+    """Fly `tasks` on `backend`, keeping the run folder's record of failed cells: a failure is written as it
+    happens, and a cell that flies removes the record of an earlier failure (a resumed run). Returns the
+    failures of this run."""
+    failed: list[FailedCell] = []
+    for outcome in backend.fly(tasks):
+        if isinstance(outcome, CellFlown):
+            remove_failure(out, outcome.key)
+        else:
+            write_failure(out, outcome)
+            failed.append(outcome)
+            log.warning("cell %s failed (%s): %s", outcome.key.stem, outcome.kind, outcome.reason)
+            bar.set_postfix(failed=len(failed))
+        bar.update(1)
+    return failed
 
 
 def policy_facts(policy: Path | None) -> PolicyFacts:
@@ -522,8 +549,12 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
         raise ValueError(f"{run_dir}: not a run folder ({RUN_INFO_NAME} is missing)")
     _remove_stale_temporaries(run_dir)
     files = episode_files(run_dir)
+    failed = read_failures(run_dir)  # cells without an episode: no metrics row, listed in failed/
+    listed = f"{describe_failures(failed)}, listed in {run_dir / FAILED_DIR}" if failed else ""
     if not files:
-        raise ValueError(f"{run_dir}: no saved episodes to report")
+        raise ValueError(f"{run_dir}: no saved episodes to report" + (f" ({listed})" if failed else ""))
+    if failed:
+        log.warning("%s; `run --resume` flies them again", listed)
     rows, unreadable = [], []
     for f in files:
         try:

@@ -85,6 +85,7 @@ def _one_torch_thread() -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     import os
 
+    from compare.backends import check_backend
     from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
     from compare.results.outputs import check_output_dir
     from compare.scenario import resolve_scenarios, seeds_problem, with_methods
@@ -101,6 +102,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds {','.join(map(str, args.seeds))}{where}: {reason}")
     if args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: must be >= 1")
+    if args.cell_timeout is not None and not args.cell_timeout > 0.0:
+        raise ValueError(f"--cell-timeout {args.cell_timeout:g}: must be > 0 s")
+    check_backend(args.backend, args.address)  # e.g. Ray missing: before anything is read or flown
     if args.jobs > (os.cpu_count() or 1):
         print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
               f"processes only compete for them", file=sys.stderr)
@@ -113,7 +117,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _one_torch_thread()
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
                       resume=args.resume, progress=not args.no_progress, videos=_videos(args.videos, scenarios),
-                      command="uam-compare " + " ".join(args.argv))
+                      command="uam-compare " + " ".join(args.argv), backend=args.backend, address=args.address,
+                      cell_timeout_s=args.cell_timeout)
     est = estimate_run(scenarios, opts)
     if est.large:
         print(f"uam-compare: warning: {est.cells} episodes may take up to {est.wall_h:.1f} h with --jobs {opts.jobs} "
@@ -155,6 +160,9 @@ SCENARIOS_PRINTED = 4
 def _print_summary(run_dir: Path) -> None:
     """Per vehicle (never pooled: a quadrotor's and a multicopter's numbers do not average) one row per method,
     then its scenarios when there are few, then its paired success differences with their MDD."""
+    import os
+
+    from compare.results.failures import FAILED_DIR, describe_failures, read_failures
     from compare.results.summary import Summary, methods_table, read_summary_json
 
     summary = read_summary_json(run_dir / "summary.json")
@@ -190,6 +198,10 @@ def _print_summary(run_dir: Path) -> None:
             print(run_dir / name)
     for video in sorted((run_dir / "videos").glob("[!.]*.*")):
         print(video)
+    failed = read_failures(run_dir)
+    if failed:
+        print(f"{run_dir / FAILED_DIR}{os.sep}  {describe_failures(failed)}: no episode, no metrics row; one record "
+              f"each, with the reason; `run --resume` flies them again")
 
 
 def _paired_success_line(pair: PairedSummary, power: PowerSettings) -> str:
@@ -383,9 +395,26 @@ def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
                           "(default: the shipped policy of each vehicle)")
     run.add_argument("--seeds", type=_seed_list, default=None,
                      help="comma-separated seeds overriding the scenarios' own (distinct, 0 to 2**32 - 1)")
-    run.add_argument("--jobs", type=int, default=1, help="parallel processes (default 1)")
+    run.add_argument("--jobs", type=int, default=1,
+                     help="parallel worker processes (default 1: in this process, where a pilot's exception is "
+                          "recorded as a failed cell but a crash or a hang stops the run; 2 or more, or "
+                          "--cell-timeout, fly in worker processes, replaced when one dies or hangs); with "
+                          "--backend ray the CPUs of the local Ray instance")
     run.add_argument("--out", type=Path, default=None, help="run folder (default: runs/<time>-<scenario>)")
-    run.add_argument("--resume", action="store_true", help="complete an interrupted run in --out")
+    run.add_argument("--resume", action="store_true",
+                     help="complete an interrupted run in --out: fly only the cells without an episode file "
+                          "(failed cells included); saved episodes are kept as they are")
+    run.add_argument("--cell-timeout", type=float, default=None, metavar="SECONDS",
+                     help="wall-time limit of every cell; a cell over it is recorded as failed (hang) and its "
+                          "worker replaced (default: 300 s + 10 x the episode's simulated time limit x the "
+                          "pilot's wall time per simulated second); with --jobs 1 giving it flies the cells in "
+                          "one worker process (in this process nothing could stop a cell)")
+    run.add_argument("--backend", choices=("local", "ray"), default="local",
+                     help="where cells fly: local processes (default) or Ray tasks (pip install -e \".[ray]\"; "
+                          "see docs/scale_out.md)")
+    run.add_argument("--address", default=None, metavar="ADDR",
+                     help="with --backend ray: the Ray cluster's head node, e.g. 10.0.0.5:6379 or ray://host:10001 "
+                          "(default: start a local Ray instance with --jobs CPUs)")
     run.add_argument("--videos", choices=("scenario", "all", "none"), default=None,
                      help="cells to animate into RUN_DIR/videos/: the first of each scenario (the default, but none "
                           "for a benchmark set: its product is numbers; `animate` draws any cell later), all, none")

@@ -12,6 +12,7 @@ report existed keeps the classical pilot's few counters at the top of "extra", r
 """
 from __future__ import annotations
 
+import io
 import json
 import re
 import zipfile
@@ -128,15 +129,26 @@ class SavedEpisode:
 
 def save_episode(path: Path, meta: EpisodeMeta, traj: Trajectory) -> Path:
     """Write one episode to `path` (.npz) atomically; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_episode_bytes(path, episode_bytes(meta, traj))
+
+
+def episode_bytes(meta: EpisodeMeta, traj: Trajectory) -> bytes:
+    """The content of one episode file (what `save_episode` writes), e.g. to send it to another machine."""
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
     arrays.update({name: np.asarray(getattr(traj, name)) for name in _OPTIONAL_ARRAYS
                    if getattr(traj, name) is not None})
     header = {"format_version": FORMAT_VERSION, "meta": _meta_to_json(meta)}
+    buffer = io.BytesIO()
+    # numpy's stub lets ** fill its allow_pickle: bool; the keys here are the array names only
+    np.savez_compressed(buffer, meta_json=np.array(json.dumps(header)), **arrays)  # type: ignore[arg-type]
+    return buffer.getvalue()
+
+
+def write_episode_bytes(path: Path, data: bytes) -> Path:
+    """Write an episode file's content (`episode_bytes`) to `path` atomically; returns the path."""
+    path = Path(path)
     with atomic_open(path, "wb") as f:
-        # numpy's stub lets ** fill its allow_pickle: bool; the keys here are the array names only
-        np.savez_compressed(f, meta_json=np.array(json.dumps(header)), **arrays)  # type: ignore[arg-type]
+        f.write(data)
     return path
 
 

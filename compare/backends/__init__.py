@@ -1,0 +1,147 @@
+"""Where a run's cells fly: one small interface, two backends.
+
+`open_backend(kind, setup, jobs, address, isolate)` gives a `Backend`; its `fly(tasks)` yields one
+`CellOutcome` per task as each ends (in the order they end): `CellFlown` once the cell's episode file is
+in the run folder, or a `compare.results.failures.FailedCell` saying why there is none. A backend never
+raises for one cell's failure; it raises only for an interrupt (KeyboardInterrupt) or when it cannot
+start at all.
+
+- "local" (`compare.backends.local`): in this process (one job, no isolation: a pilot's exception is a
+  failed cell, a crash or hang stops the run), or a pool of worker processes (pebble's ProcessPool: each
+  cell within its wall-time limit, a dead or killed worker replaced). Workers write the episode files.
+- "ray" (`compare.backends.ray`): Ray tasks on a local Ray instance of `jobs` CPUs, or on the cluster at
+  `address`. Workers send each episode file's content back and this process writes it, so the run folder
+  need only be on this machine's disk. Ray is imported only here, and only when asked for.
+
+Every backend flies a cell with the same `CellRunner` and seeds from the cell alone (`compare.seeding`),
+so the episodes do not depend on the backend.
+"""
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+from compare.results.failures import FailedCell
+from compare.results.trajectory import EpisodeKey
+
+if TYPE_CHECKING:  # the campaign imports this package
+    from compare.campaign import Cell
+    from compare.scenario import Scenario
+
+BACKENDS = ("local", "ray")
+RAY_FIX = 'pip install -e ".[ray]"'
+
+
+@dataclass(frozen=True)
+class WorkerSetup:
+    """What every worker needs to fly a run's cells.
+
+    Attributes:
+        scenarios: the run's scenarios (a `Cell` indexes them).
+        out_dir: the run folder (local workers write episode files into it).
+        policies: the policy folder of the pilots that need one, by vehicle fingerprint.
+    """
+
+    scenarios: tuple[Scenario, ...]
+    out_dir: Path
+    policies: Mapping[str, Path]
+
+
+@dataclass(frozen=True)
+class CellTask:
+    """One cell to fly: the cell, its episode key and its wall-time limit [s] (None: none)."""
+
+    cell: Cell
+    key: EpisodeKey
+    limit_s: float | None = None
+
+
+@dataclass(frozen=True)
+class CellFlown:
+    """A cell that produced its episode.
+
+    Attributes:
+        key: the cell.
+        elapsed_s: wall time of the cell in its worker [s].
+        worker: which process flew it ("in-process", "pid 1234", a Ray node and pid).
+        data: the episode file's content for the driver to write (Ray workers); None once it is written.
+    """
+
+    key: EpisodeKey
+    elapsed_s: float
+    worker: str
+    data: bytes | None = None
+
+
+CellOutcome = CellFlown | FailedCell
+
+
+class Backend(Protocol):
+    """Flies cells and says how each ended."""
+
+    name: str
+
+    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
+        """Fly `tasks`, yielding one outcome per task as each ends."""
+        ...
+
+    def close(self) -> None:
+        """End the workers at once (a cell in flight is lost: its episode file is not written); idempotent."""
+        ...
+
+
+def check_backend(kind: str, address: str | None) -> None:
+    """Raise ValueError, before anything flies, for an unknown backend, an address without Ray, or Ray missing."""
+    if kind not in BACKENDS:
+        raise ValueError(f"--backend {kind!r}: choose from {', '.join(BACKENDS)}")
+    if address is not None and kind != "ray":
+        raise ValueError(f"--address {address}: a Ray cluster's address, only with --backend ray")
+    if kind == "ray" and not ray_available():
+        raise ValueError(f"--backend ray: Ray is not installed in this Python; install it with {RAY_FIX}")
+
+
+def ray_available() -> bool:
+    """Ray can be imported here (without importing it)."""
+    import sys
+
+    if "ray" in sys.modules:  # imported already, or hidden (None)
+        return sys.modules["ray"] is not None
+    return importlib.util.find_spec("ray") is not None
+
+
+@contextmanager
+def open_backend(kind: str, setup: WorkerSetup, jobs: int, address: str | None = None,
+                 isolate: bool = False) -> Iterator[Backend]:
+    """The backend `kind` for a run, closed (its workers ended) when the block ends, normally or not.
+
+    Args:
+        kind: "local" or "ray".
+        setup: the run's scenarios, folder and policies.
+        jobs: worker processes (local), or the CPUs of the local Ray instance started when `address` is None
+            (with `address`: at most this many cells in flight when > 1, else the cluster's CPUs).
+        address: a running Ray cluster's address (None: start a local instance).
+        isolate: local with one job: fly in one worker process (for the cell time limit) rather than here.
+
+    Raises:
+        ValueError: the backend cannot be used (see `check_backend`), or the Ray cluster cannot be reached.
+    """
+    check_backend(kind, address)
+    backend: Backend
+    if kind == "ray":
+        try:
+            from compare.backends.ray import RayBackend
+        except ImportError as exc:  # installed but broken
+            raise ValueError(f"--backend ray: cannot import Ray ({exc}); reinstall it with {RAY_FIX}") from exc
+        backend = RayBackend(setup, jobs, address)
+    else:
+        from compare.backends.local import InProcessBackend, ProcessPoolBackend
+
+        backend = ProcessPoolBackend(setup, jobs) if jobs > 1 or isolate else InProcessBackend(setup)
+    try:
+        yield backend
+    finally:
+        backend.close()
