@@ -13,7 +13,8 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, `episodes/*.
    3D snapshots over time, for the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios of each vehicle and
    the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks of each (a benchmark run has hundreds: a page says which);
 4. "PPO training: reward convergence" from the policy folder's `reward_curve.csv`;
-5. "Failures": the unsuccessful episodes (the first `MAX_FAILURE_ROWS`), top-down views of up to six.
+5. "Failures": the cells that produced no episode (RUN_DIR/failed/: a pilot's exception, a crashed or hung
+   worker), the unsuccessful episodes (the first `MAX_FAILURE_ROWS`), top-down views of up to six.
 
 The per-vehicle numbers are summary.json's; a summary.json written before per-vehicle summaries (whose
 run-wide numbers may pool vehicles), or none, is replaced by the same summary computed from metrics.csv,
@@ -39,6 +40,7 @@ from matplotlib.figure import Figure
 
 from compare import pilots
 from compare.results.difficulty import scenario_conditions
+from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
 from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
 from compare.results.summary import Summary, read_summary_json, summarize_run
@@ -604,6 +606,7 @@ def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeM
                                                r.failure_reason or r.outcome, detail, _fmt(r.time_s, 1)]))
     entries.sort(key=lambda e: e[0])
     notes = [f"Unreadable episode files skipped: {', '.join(run.unreadable)}"] if run.unreadable else []
+    _failed_cell_pages(run, pages)
     if not entries:
         pages.add_all(F.text_pages("Failures", [("p", "No failures: every episode in this report succeeded.")]
                                    + [("p", n) for n in notes]), "failures")
@@ -626,6 +629,25 @@ def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeM
         count = f"{len(shown)} of {total}" if total > len(shown) else f"{len(shown)}"
         pages.add(F.failure_paths_figure(f"Failures: where the flights ended ({count})",
                                          [(t, run.map_of(t.episode.key.scenario)) for t in shown]), "failures_paths")
+
+
+def _failed_cell_pages(run: _Run, pages: _PageWriter) -> None:
+    """The cells that produced no episode (RUN_DIR/failed/: a pilot's exception, a crashed or hung worker): not
+    in any rate above, listed so that a reader sees them; `run --resume` flies them again."""
+    failed = read_failures(run.run_dir)
+    if not failed:
+        return
+    failed.sort(key=lambda f: _cell_rank(run, (f.key.scenario, f.key.episode, f.key.method, f.key.seed)))
+    table = [[f.key.scenario, str(f.key.episode), str(f.key.seed), run.label(f.key.method), f.kind.value,
+              _short(f.reason, 90), f"{f.elapsed_s:.1f}", f"{f.backend} {f.worker}".strip()]
+             for f in failed[:MAX_FAILURE_ROWS]]
+    notes = [f"{describe_failures(failed)}: these cells produced no episode, so they are in no rate, mean or paired "
+             f"difference of this report (each method's counts above are of the episodes it flew). The records, "
+             f"with full tracebacks, are in {FAILED_DIR}/; `uam-compare run ... --resume` flies them again."]
+    if len(failed) > MAX_FAILURE_ROWS:
+        notes.append(f"The first {MAX_FAILURE_ROWS} of {len(failed)} (run order).")
+    header = ["scenario", "episode", "seed", "method", "kind", "reason", "after [s]", "where"]
+    pages.add_all(F.table_pages("Failed cells: no episode", header, table, notes=notes), "failed_cells")
 
 
 def _cell_rank(run: _Run, cell: tuple[str, int, str, int]) -> tuple:

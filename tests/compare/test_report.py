@@ -394,3 +394,16 @@ def test_seed_curves_figure_and_script(tmp_path: Path) -> None:
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and _hidden(tmp_path / "figs") == []
     assert mod.seed_label(dirs[1]) == "seed 1"
     assert mod.main([str(tmp_path / "nowhere"), "--out", str(out)]) == 2
+
+
+def test_failed_cells_are_listed_and_said_to_be_in_no_rate(tmp_path: Path) -> None:
+    from compare.results.failures import FailedCell, FailureKind, write_failure
+
+    run_dir = tmp_path / "run"
+    write_run(run_dir, None)
+    write_failure(run_dir, FailedCell(EpisodeKey(SCENARIO, 2, "rrt_mpc", 0), FailureKind.CRASH,
+                                      "the worker process was killed by SIGKILL", 12.5, "ray", "node 10.0.0.7 pid 4242"))
+    text = " ".join(t.replace("\n", " ") for t in _texts(build_report(run_dir)))
+    assert "Failed cells: no episode" in text
+    assert "killed by SIGKILL" in text and "ray node 10.0.0.7 pid 4242" in text
+    assert "1 cell failed (crash 1; rrt_mpc 1): these cells produced no episode, so they are in no rate" in text
