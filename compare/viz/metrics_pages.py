@@ -226,7 +226,7 @@ def _paired_pages(vehicle: str, summary: Summary, style: MethodStyle) -> list[Fi
         for p in pairs:
             st = p.stats.get(key)
             excl = st.excludes_zero if st is not None else None
-            mdd = "n/a" if st is None else mdd_cell(st, key, scale, digits)
+            mdd = "n/a" if st is None else mdd_cell(st, key, scale, digits).replace(" (no spread)", " †")
             rows.append(ForestRow(style.pair_label(p), "0.15", _scaled(st, "mean", scale),
                                   _scaled(st, "ci_low", scale), _scaled(st, "ci_high", scale),
                                   note=f"MDD {mdd}" + (" *" if excl else ""), hollow=not excl))
@@ -234,7 +234,8 @@ def _paired_pages(vehicle: str, summary: Summary, style: MethodStyle) -> list[Fi
         panels.append(ForestPanel(unit, tuple(rows), zero_line=True))
     subtitle = ("Mean paired difference (first − second; same scenario, episode and seed; time and energy where both "
                 "succeeded) with its 95 % interval (rates: Newcombe; the rest: bootstrap). Filled and * : the "
-                "interval excludes 0. MDD: the smallest difference these pairs detect (alpha 0.05, power 0.8).")
+                "interval excludes 0. MDD: the smallest difference these pairs detect (alpha 0.05, power 0.8); "
+                "†: every pair agreed, so the observed spread says nothing (see the table's design value).")
     figs = [forest_figure(f"{vehicle}: paired differences", panels, subtitle=subtitle, columns=2)]
     table = []
     for p in pairs:

@@ -402,7 +402,8 @@ def test_failed_cells_are_listed_and_said_to_be_in_no_rate(tmp_path: Path) -> No
     run_dir = tmp_path / "run"
     write_run(run_dir, None)
     write_failure(run_dir, FailedCell(EpisodeKey(SCENARIO, 2, "rrt_mpc", 0), FailureKind.CRASH,
-                                      "the worker process was killed by SIGKILL", 12.5, "ray", "node 10.0.0.7 pid 4242"))
+                                      "the worker process was killed by SIGKILL", 12.5, "ray",
+                                      "node 10.0.0.7 pid 4242"))
     text = " ".join(t.replace("\n", " ") for t in _texts(build_report(run_dir)))
     assert "Failed cells: no episode" in text
     assert "killed by SIGKILL" in text and "ray node 10.0.0.7 pid 4242" in text
