@@ -99,7 +99,8 @@ def draw_map_3d(ax: Axes3D, bmap: BuildingMap, *, shade: bool = True) -> Poly3DC
             normal = np.array([edge[1], -edge[0], 0.0]) / max(float(np.hypot(*edge)), 1e-12)
             colors.append(_shaded(base, normal, shade))
     coll = Poly3DCollection(faces, facecolors=colors, edgecolors=(0, 0, 0, 0.25), linewidths=0.2)
-    ax.add_collection3d(coll)
+    # the limits are set just below: autoscaling first can reach infinite limits (numpy overflow warnings)
+    ax.add_collection3d(coll, autolim=False)
     lo, hi = bmap.bounds_min_m, bmap.bounds_max_m
     top = max([float(hi[2])] + [p.height_m for p in bmap.buildings])
     ax.set_xlim(lo[0], hi[0])
