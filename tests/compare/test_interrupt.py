@@ -86,7 +86,10 @@ def test_a_parallel_run_stops_promptly_with_its_workers(tmp_path: Path, how: str
     proc = subprocess.Popen(
         [sys.executable, "-m", "compare", "run", str(TINY), "--methods", "ppo", "--seeds", SEEDS, "--jobs", "2",
          "--out", str(out), "--no-progress", "--videos", "none"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
+        # as from a terminal, even when these tests run where SIGINT is ignored (a shell's background job):
+        # Python then keeps ignoring it and never raises KeyboardInterrupt
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 120.0
         while not episode_files(out) and proc.poll() is None and time.monotonic() < deadline:

@@ -85,7 +85,7 @@ def test_apf_appears_in_metrics_summary_run_json_and_report(tmp_path):
     assert apf["outcome"] in {o.value for o in Outcome} and apf["plan_time_s"] == "nan"  # it does not plan
     assert math.isnan(float(apf["mpc_solve_ms_median"])) and float(apf["compute_ms_mean"]) > 0.0
     summary = json.loads((out / "summary.json").read_text())
-    assert list(summary["methods"]) == ["apf", "ppo"] and "apf - ppo" in summary["paired"]
+    assert list(summary["methods"]) == ["ppo", "apf"] and "ppo - apf" in summary["paired"]  # table order
     assert summary["methods"]["apf"]["episodes"] == 1 and summary["methods"]["apf"]["plan_time_s"]["n"] == 0
     run = json.loads((out / "run.json").read_text())
     assert list(run["methods"]) == ["ppo", "apf"]  # table order
