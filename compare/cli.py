@@ -134,6 +134,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return INTERRUPTED_EXIT
     _print_summary(run_dir)
     _print_suite(run_dir)
+    _print_headline_json(run_dir)
     return 0
 
 
@@ -142,6 +143,30 @@ def _videos(chosen: str | None, scenarios: Sequence[Scenario]) -> str:
     if chosen is not None:
         return chosen
     return "none" if any(sc.suite is not None for sc in scenarios) else "scenario"
+
+
+def _print_headline_json(run_dir: Path) -> None:
+    """The run's headline figures as the last line, one JSON object (for scripts): per vehicle and method the
+    episodes, success and collision rates with their 95 % Wilson intervals; the task set and its version; the
+    failed cells."""
+    import json
+
+    from compare.results.failures import read_failures
+    from compare.results.run_info import read_run_info
+    from compare.results.summary import Stat, read_summary_json
+
+    def rate(st: Stat | None) -> dict:
+        return {"rate": st.mean, "ci95": [st.ci_low, st.ci_high]} if st is not None else {}
+
+    per_vehicle = read_summary_json(run_dir / "summary.json").per_vehicle() or {}
+    suite = read_run_info(run_dir).suite
+    print(json.dumps({
+        "run_dir": str(run_dir),
+        "suite": None if suite is None else {"name": suite.name, "version": suite.version},
+        "vehicles": {v: {m: {"episodes": ms.episodes, "success": rate(ms.stats.get("success")),
+                             "collision": rate(ms.stats.get("collision"))} for m, ms in part.methods.items()}
+                     for v, part in per_vehicle.items()},
+        "failed_cells": len(read_failures(run_dir))}))
 
 
 def _print_suite(run_dir: Path) -> None:
@@ -231,6 +256,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     run_dir = finalize(args.run_dir)
     _print_summary(run_dir)
     _print_suite(run_dir)
+    _print_headline_json(run_dir)
     return 0
 
 

@@ -103,9 +103,15 @@ def test_report_pdf_has_the_expected_pages(tiny_run):
         assert heading in text, heading
 
 
-def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path):
+def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path, capsys):
     out2 = tmp_path / "tiny-jobs2"
     assert main(["run", str(TINY), "--out", str(out2), "--jobs", "2", "--no-progress", "--videos", "none"]) == 0
+    # the last line: the headline figures as one JSON object, per vehicle and method, rates with Wilson intervals
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert last["run_dir"] == str(out2) and last["suite"] is None and last["failed_cells"] == 0
+    ppo = last["vehicles"]["small_quad"]["ppo"]
+    assert set(last["vehicles"]["small_quad"]) == {"ppo", "rrt_mpc"} and ppo["episodes"] == 1
+    assert ppo["success"]["rate"] == 1.0 and ppo["success"]["ci95"] == pytest.approx([0.2065, 1.0], abs=1e-4)
     a, b = _rows(tiny_run / "metrics.csv"), _rows(out2 / "metrics.csv")
     assert _deterministic(a) == _deterministic(b)
     # an interrupted run: one episode missing, no metrics or report yet -> `report` scores what exists

@@ -123,7 +123,8 @@ def test_resume_flies_only_the_missing_cells_and_keeps_the_saved_episodes(
     monkeypatch.setattr(compare.campaign.CellRunner, "run", counted)
     capsys.readouterr()
     assert main([*argv, "--resume"]) == 0  # the fault is spent: the failed cell flies now
-    assert "failed" not in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "failed (" not in printed and json.loads(printed.splitlines()[-1])["failed_cells"] == 0
     assert [(c.method, c.seed) for c in flown] == [(failed.key.method, failed.key.seed)]
     assert read_failures(out) == [] and not failure_path(out, failed.key).exists()  # its record went with it
     after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns, p.read_bytes()) for p in episode_files(out)}
