@@ -1,6 +1,6 @@
 """Single-lever ablations of the learned pilot's environment, on validation cities only.
 
-Each variant changes one lever of the shipped training set-up (`rl.train.TrainConfig` defaults)
+Each variant changes one lever of the shipped training set-up (`rl.training.config.TrainConfig` defaults)
 and trains plain PPO from scratch with the same seed and the same number of decisions; the kept
 checkpoint (chosen on validation, as `uam-compare train` chooses) is then flown on
 `--episodes` validation tasks (never the test pool). Results are written to OUT/<variant>/result.json
@@ -42,10 +42,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from compare.viz.report import read_reward_curve
-from rl.agent import load_policy
-from rl.evaluation import evaluate
-from rl.policy_folder import PolicyFolder
-from rl.train import Curriculum, TrainConfig, train
+from rl.pilots.learned import load_policy
+from rl.policies.folder import PolicyFolder
+from rl.training.config import Curriculum, TrainConfig
+from rl.training.evaluation import evaluate
+from rl.training.loop import train
 
 FINAL_EVAL_SEED = 20_000  # the final validation flight's slot seeds (training-time selection uses seed + 10,000)
 

@@ -1,4 +1,4 @@
-"""Perception speed and size: `rl.perception.Perception.observe` (rays + height map) and its build.
+"""Perception speed and size: `rl.sensing.perception.Perception.observe` (rays + height map) and its build.
 
 Query points are spread uniformly over the cities' bounds (altitude 2-60 m, random headings), one
 point per city for the batched call (N = 256 points in 256 different training cities); the single
@@ -20,8 +20,8 @@ import tracemalloc
 
 import numpy as np
 
-from rl.cities import CityDistribution
-from rl.perception import Perception, PerceptionConfig
+from rl.sensing.perception import Perception, PerceptionConfig
+from rl.task.cities import CityDistribution
 
 RADIUS_M = 0.42  # small_quad's collision radius
 

@@ -37,10 +37,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from compare.viz.report import read_reward_curve
-from rl.env import UAMNavEnv
-from rl.nav import NavConfig, NavWorld
-from rl.policy_folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
-from rl.vec_env import UAMNavVecEnv
+from rl.env.gym_env import UAMNavEnv
+from rl.env.vec_env import UAMNavVecEnv
+from rl.env.world import NavWorld
+from rl.policies.folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
+from rl.task.config import NavConfig
 
 BENCH_CITY_POOL = 128  # training cities of the benchmark world (NavConfig trains on 1024): short start-up
 EVAL_SEED = 0          # `uam-compare evaluate-policy`'s default
@@ -74,10 +75,10 @@ def vec_rate(venv, n_envs: int, seconds: float) -> float:
 
 
 def ppo_rate(world: NavWorld, n_envs: int, steps: int) -> float:
-    """PPO (paper preset, as `rl.train` builds it) training timesteps/s on the batched env, after a warm-up."""
+    """PPO (paper preset, as `rl.training.loop` builds it) training timesteps/s on the batched env, after a warm-up."""
     import torch
 
-    from rl.train import PRESETS, make_model, normalized_env
+    from rl.training.ppo import PRESETS, make_model, normalized_env
 
     torch.set_num_threads(1)
     pr = PRESETS["paper"]
@@ -138,8 +139,8 @@ def test_evaluation(episodes: int, seed: int = EVAL_SEED) -> dict:
     cannot act is reported on the console and its figures are None; the potential field then flies
     `NavConfig()`'s task on the test pool.
     """
-    from rl.agent import load_policy
-    from rl.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
+    from rl.pilots.learned import load_policy
+    from rl.training.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
 
     out: dict = {"test_episodes": episodes, "test_success_rate": None, "test_success_ci95": None,
                  "test_collision_rate": None, "test_collision_ci95": None, "expert_success_rate": None,

@@ -1,4 +1,4 @@
-"""Geodesic route fields (rl/route.py): time to build one field, to store it, and to query a bank.
+"""Geodesic route fields (rl/sensing/route.py): time to build one field, to store it, and to query a bank.
 
 `route_field` is timed on 420 m x 420 m training-style cities (the largest extent the training
 distribution draws) at the default 4 m cells, one random free goal per repetition, with its two
@@ -20,8 +20,8 @@ import time
 import numpy as np
 import skfmm
 
-from rl.cities import CityDistribution
-from rl.route import RouteBank, RouteConfig, _blocking_boxes, _rasterise, grid_shape, route_field
+from rl.sensing.route import RouteBank, RouteConfig, _blocking_boxes, _rasterise, grid_shape, route_field
+from rl.task.cities import CityDistribution
 
 RADIUS_M = 0.5
 ALT_M = 20.0

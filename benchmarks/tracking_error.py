@@ -3,7 +3,7 @@
 Flies `planners.agent.ClassicalAgent` (fixed margins, no replanning: the tracker as it is) through
 the comparison's own runner (`compare.episode_loop.run_episode`, 500 Hz physics, 50 Hz decisions) on
 generated cities and legs from the learned pilot's **validation** pool of each vehicle
-(`rl.tasks.task_for(vehicle)`, `rl.evaluation.eval_config(..., pool="validation")`: city i of the
+(`rl.task.vehicles.task_for(vehicle)`, `rl.training.evaluation.eval_config(..., pool="validation")`: city i of the
 pool, a leg drawn from the vehicle's task distribution with its own seed, a steady wind up to the
 task's maximum). The comparison's scenario sets (`default`, `full`) are the evaluation and are
 never flown here. The same cities, legs and winds serve every condition (paired).
@@ -67,8 +67,8 @@ class Job:
 
 def _validation_task(vehicle: str, index: int, seed: int):
     """City `index` of the vehicle's validation pool, a leg and a steady wind drawn from (seed, index)."""
-    from rl.evaluation import eval_config
-    from rl.tasks import task_for
+    from rl.task.vehicles import task_for
+    from rl.training.evaluation import eval_config
     from uam_fdm.vehicle.params import load_vehicle
 
     nav = eval_config(task_for(vehicle), index + 1, pool="validation")
@@ -196,8 +196,8 @@ def main() -> None:
     if not args.check:
         provenance = {
             "command": "OMP_NUM_THREADS=1 python " + " ".join([sys.argv[0].split("/work/wt15/")[-1], *sys.argv[1:]]),
-            "pool": "validation (rl.evaluation.eval_config(task_for(vehicle), n, pool='validation'): cities "
-                    "1,050,000 on of rl.cities.EVAL_SEEDS), never the comparison's scenario sets",
+            "pool": "validation (rl.training.evaluation.eval_config(task_for(vehicle), n, pool='validation'): cities "
+                    "1,050,000 on of rl.task.cities.EVAL_SEEDS), never the comparison's scenario sets",
             "seed": args.seed, "episodes": n, "uam_max_leg_m": UAM_MAX_LEG_M,
             "pilot": "planners.agent.ClassicalAgent(margin_rule=None, replan_error_m=None, replan_on_clearance=False): "
                      "fixed 1 m planner / 0.5 m MPC margins, no replanning",

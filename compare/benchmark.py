@@ -1,11 +1,11 @@
 """The benchmark sets: held-out task distributions per vehicle, generated, seeded and versioned.
 
 `build_suite("benchmark")` (or "benchmark-quick") generates the scenarios of a set: per vehicle, cities
-drawn from the learned pilot's own city distribution (`rl.tasks.task_for(vehicle).cities`) at seeds no
-pool of its training or evaluation uses (`rl.cities`: training 0.., test 1,000,000.., validation
+drawn from the learned pilot's own city distribution (`rl.task.vehicles.task_for(vehicle).cities`) at seeds no
+pool of its training or evaluation uses (`rl.task.cities`: training 0.., test 1,000,000.., validation
 1,050,000..; here 3,000,000.. for the small quad and 3,100,000.. for the UAM), each flown in one air and
 turbulence condition on several start/goal legs at that vehicle's task scale (goal radius, clearances,
-margins and time limits of its task; `rl.tasks`). Every scenario is a plain scenario mapping checked by
+margins and time limits of its task; `rl.task.vehicles`). Every scenario is a plain scenario mapping checked by
 the same strict loader as a file (`compare.scenario.scenario_from_dict`), so `uam-compare validate
 benchmark` checks every one.
 
@@ -46,8 +46,8 @@ from compare.fingerprint import scenario_fingerprint
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import SuiteInfo
 from compare.scenario import BENCHMARK_SETS, Scenario, scenario_from_dict
-from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
-from rl.tasks import task_for
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
+from rl.task.vehicles import task_for
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.generator import CityGenParams, generate_city
@@ -63,7 +63,8 @@ MAX_LEG_DRAWS = 256  # candidate legs per leg before a free straight line is acc
 _DRAW_BATCH = 32
 _STREAM_AIR, _STREAM_LEG = 0xA1B, 0x1E6  # PCG64 stream tags: a scenario's air and wind, its legs
 LEARNED_PILOT_POOLS: dict[str, range] = {"training": TRAIN_SEEDS, "test and validation": EVAL_SEEDS}
-"""The learned pilot's city seed pools (`rl.cities`, `rl.evaluation`), which the benchmark's seeds avoid."""
+"""The learned pilot's city seed pools (`rl.task.cities`, `rl.training.evaluation`), which the benchmark's seeds
+avoid."""
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,7 @@ AIR_LEVELS = (
 
 @dataclass(frozen=True)
 class VehicleBenchmark:
-    """The task distribution of one vehicle (the rest is its learned pilot's task, `rl.tasks.task_for`).
+    """The task distribution of one vehicle (the rest is its learned pilot's task, `rl.task.vehicles.task_for`).
 
     Attributes:
         vehicle: the vehicle preset.

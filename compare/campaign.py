@@ -498,7 +498,7 @@ def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[Fa
 def policy_facts(policy: Path | None) -> PolicyFacts:
     """Load the whole policy folder (network, statistics, config) as plain data and return what a run
     needs of it: a broken or foreign policy is an error before the run folder exists."""
-    from rl.agent import load_policy
+    from rl.pilots.learned import load_policy
     from uam_fdm.vehicle.params import load_vehicle
 
     loaded = load_policy(policy)  # None: the shipped default
@@ -515,7 +515,7 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
     Raises:
         ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
     """
-    from rl.policy_folder import shipped_policy_dir
+    from rl.policies.folder import shipped_policy_dir
 
     def flies_policy(methods: Sequence[str]) -> bool:
         return any(pilots.pilot(m).needs_policy for m in methods)

@@ -317,8 +317,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from rl.tasks import task_for
-    from rl.train import Curriculum, TrainConfig, train
+    from rl.task.vehicles import task_for
+    from rl.training.config import Curriculum, TrainConfig
+    from rl.training.loop import train
 
     task = task_for(args.vehicle)
     if args.city_pool is not None and args.city_pool < 1:
@@ -338,9 +339,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     import json
 
-    from rl.agent import load_policy
-    from rl.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
-    from rl.nav import NavWorld
+    from rl.env.world import NavWorld
+    from rl.pilots.learned import load_policy
+    from rl.training.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
@@ -493,7 +494,7 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     tr.add_argument("--envs", type=int, default=256, help="vehicles stepped together (default 256)")
     tr.add_argument("--seed", type=int, default=0, help="the one seed of the run (default 0)")
     tr.add_argument("--vehicle", default="small_quad",
-                    help="the vehicle and its task (rl/tasks.py): small_quad (default) or uam_multicopter")
+                    help="the vehicle and its task (rl/task/vehicles.py): small_quad (default) or uam_multicopter")
     tr.add_argument("--city-pool", type=int, default=None,
                     help="training cities (default: the task's, 1024 for small_quad, 256 for uam_multicopter)")
     tr.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")

@@ -21,7 +21,7 @@ import numpy as np
 
 from compare.results.run_info import RUN_INFO_NAME, read_run_info
 from compare.scenario import Scenario
-from rl.policy_folder import FLYING_FILES
+from rl.policies.folder import FLYING_FILES
 from uam_fdm.files.version import code_version
 
 # Words for the parts of a scenario's fingerprint, in the error that lists differences.
@@ -70,7 +70,7 @@ def scenario_fingerprint(sc: Scenario) -> dict[str, str]:
 
 
 def policy_fingerprint(folder: Path) -> dict[str, str]:
-    """SHA-256 of each of the files a policy folder's pilot flies with (`rl.policy_folder.FLYING_FILES`;
+    """SHA-256 of each of the files a policy folder's pilot flies with (`rl.policies.folder.FLYING_FILES`;
     "missing" for an absent one)."""
     out = {}
     for name in FLYING_FILES:

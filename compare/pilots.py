@@ -81,7 +81,7 @@ class PilotSpec:
 
 
 def _learned(sc: Scenario, policy: Path | None) -> Agent:
-    from rl.agent import PolicyAgent, load_policy
+    from rl.pilots.learned import PolicyAgent, load_policy
 
     if policy is None:
         raise ValueError(f"{sc.source}: no learned policy for vehicle {sc.vehicle_name!r}")
@@ -95,7 +95,7 @@ def _classical(sc: Scenario, policy: Path | None) -> Agent:
 
 
 def _potential_field(sc: Scenario, policy: Path | None) -> Agent:
-    from rl.apf_agent import PotentialFieldAgent
+    from rl.pilots.potential_field import PotentialFieldAgent
 
     return PotentialFieldAgent()
 
@@ -131,9 +131,9 @@ PILOTS: dict[str, PilotSpec] = {spec.name: spec for spec in (
         name="apf", label="Potential field", color="tab:purple",
         description="Reactive baseline: artificial potential field (attraction along the straight line to the "
                     "goal, repulsion and a climb bias from the k = 5 nearest buildings within its range, slowing "
-                    "near them; the learned pilot's evaluation baseline, rl/expert.py) choosing a 3D velocity "
-                    "command every control period -> the same low-level controller -> rotor speeds; no planning, "
-                    "no memory, no learning.",
+                    "near them; the learned pilot's evaluation baseline, rl/pilots/potential_field.py) choosing a "
+                    "3D velocity command every control period -> the same low-level controller -> rotor speeds; no "
+                    "planning, no memory, no learning.",
         given="The potential-field pilot decides at the scenario's control rate, sees only its position, the "
               "straight-line direction to the goal and the nearest points of the 5 nearest buildings within its "
               "range (30 m for the small quad, scaled with the learned pilot's clearance scale for other vehicles; "

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from compare.viz.figures import seed_curves_figure
 from compare.viz.report import read_reward_curve
-from rl.policy_folder import PolicyFolder
+from rl.policies.folder import PolicyFolder
 from uam_fdm.city.plot import save_figure
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "learned_pilot_seeds.png"

@@ -24,10 +24,10 @@ from shapely.geometry import Polygon, box
 
 from compare.results.metrics import EpisodeMetrics
 from compare.results.run_info import ScenarioInfo
-from compare.results.stats import wilson_interval
 from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.air.wind import TurbulenceLevel
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.stats import wilson_interval
 
 MAX_BINS = 4
 """Bins per axis: an axis with at most this many distinct values gets one bin per value, else equal-count bins."""

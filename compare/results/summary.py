@@ -42,9 +42,9 @@ from compare.results.stats import (
     design_mdd_rate,
     mdd,
     newcombe_paired_interval,
-    wilson_interval,
 )
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.stats import wilson_interval
 
 SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
                    "time_s", "path_length_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",

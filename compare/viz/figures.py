@@ -127,7 +127,7 @@ def trace_from_episode(ep: SavedEpisode, label: str, color: str,
         bbox_min_m=ends.min(axis=0), bbox_max_m=ends.max(axis=0))
 
 
-# reward_curve.csv columns beyond timesteps, mean_episode_reward and success_rate (rl.train.CURVE_COLUMNS)
+# reward_curve.csv columns beyond timesteps, mean_episode_reward and success_rate (rl.training.loop.CURVE_COLUMNS)
 CURVE_FIELDS: tuple[str, ...] = ("train_success_rate", "train_collision_rate", "train_timeout_rate",
                                  "train_episodes", "difficulty", "collision_rate", "eval_episodes", "wall_s")
 SMOOTH_FRACTION = 0.02

@@ -47,7 +47,7 @@ from compare.results.summary import Summary, read_summary_json, summarize_run
 from compare.results.trajectory import EpisodeKey, episode_files, load_episode
 from compare.viz import figures as F
 from compare.viz.metrics_pages import SUMMARY_ROWS, MethodStyle, episode_table_pages, format_ci, vehicle_pages
-from rl.policy_folder import PolicyFolder, Provenance
+from rl.policies.folder import PolicyFolder, Provenance
 from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
@@ -114,7 +114,7 @@ class _Run:
 def read_reward_curve(path: Path) -> F.RewardCurve | None:
     """A policy's `reward_curve.csv` as a `RewardCurve`, or None if the file is absent.
 
-    Reads `rl.train`'s format (one row per PPO update: timesteps, mean_episode_reward,
+    Reads `rl.training.loop`'s format (one row per PPO update: timesteps, mean_episode_reward,
     train_success_rate, train_collision_rate, train_timeout_rate, train_episodes, difficulty,
     success_rate, collision_rate, eval_episodes, wall_s; the validation columns empty on rows without
     an evaluation) and older files with only some of these columns: an absent column or an empty or
@@ -549,7 +549,7 @@ def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:
 
 def _training_subtitle(prov: Provenance | None, curve: F.RewardCurve) -> str:
     method = (prov.method if prov is not None else None) or ""
-    # a run still training has no provenance yet; its per-update columns say rl.train wrote it (plain PPO)
+    # a run still training has no provenance yet; its per-update columns say rl.training.loop wrote it (plain PPO)
     assert curve.difficulty is not None  # RewardCurve.__post_init__ fills an absent column with NaN
     per_update = prov is None and bool(np.any(np.isfinite(curve.difficulty)))
     if method.lower() == "ppo from scratch" or per_update:

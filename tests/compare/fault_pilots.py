@@ -14,7 +14,7 @@ import signal
 import time
 from pathlib import Path
 
-from rl.apf_agent import PotentialFieldAgent
+from rl.pilots.potential_field import PotentialFieldAgent
 from uam_fdm.pilot import Actuation, Observation
 
 ARMED_AFTER_S = 0.2

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from compare.pilots import PILOTS, PilotSpec
-from rl.apf_agent import PotentialFieldAgent
+from rl.pilots.potential_field import PotentialFieldAgent
 
 
 class NoAct:

@@ -33,9 +33,9 @@ from compare.fingerprint import scenario_fingerprint
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import read_run_info
 from compare.scenario import builtin_sets, load_scenario, resolve_scenarios, scenario_from_dict
-from rl.cities import EVAL_SEEDS, TRAIN_SEEDS
-from rl.evaluation import VALIDATION_OFFSET
-from rl.tasks import task_for
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS
+from rl.task.vehicles import task_for
+from rl.training.evaluation import VALIDATION_OFFSET
 from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.city import generator as citygen
 

@@ -16,7 +16,7 @@ from pypdf import PdfReader
 from compare.cli import main
 from compare.results.metrics import COLUMNS, TRACKER_METRICS
 from compare.results.trajectory import load_episode
-from rl.agent import DEFAULT_POLICY_DIR
+from rl.policies.folder import DEFAULT_POLICY_DIR
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 GOLDEN = Path(__file__).resolve().parents[1] / "golden" / "tiny_metrics.json"

@@ -10,7 +10,7 @@ import pytest
 
 from compare.campaign import RunOptions, plan_cells, select_policies
 from compare.scenario import resolve_scenarios
-from rl.agent import SHIPPED_POLICIES
+from rl.policies.folder import SHIPPED_POLICIES
 
 
 @pytest.mark.parametrize("name", ["default", "full"])
@@ -48,9 +48,9 @@ def test_two_policies_for_one_vehicle_are_refused(tmp_path: Path) -> None:
 
 def test_a_vehicle_without_a_policy_flies_only_the_classical_pilot(tmp_path: Path,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
-    import rl.agent
+    import rl.policies.folder
 
-    monkeypatch.setitem(rl.agent.SHIPPED_POLICIES, "uam_multicopter", tmp_path / "none-shipped")
+    monkeypatch.setitem(rl.policies.folder.SHIPPED_POLICIES, "uam_multicopter", tmp_path / "none-shipped")
     scenarios = resolve_scenarios("default")
     opts = RunOptions(out_dir=tmp_path)
     cells, notes = plan_cells(scenarios, opts, select_policies(scenarios, opts))

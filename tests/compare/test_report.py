@@ -255,7 +255,7 @@ def _labelled(ax) -> dict:
 
 
 def test_curve_columns_match_the_trainer() -> None:
-    from rl.train import CURVE_COLUMNS as TRAIN_COLUMNS
+    from rl.policies.folder import CURVE_COLUMNS as TRAIN_COLUMNS
 
     assert tuple(CURVE_COLUMNS) == TRAIN_COLUMNS
     assert set(TRAIN_COLUMNS) == {"timesteps", "mean_episode_reward", "success_rate", *CURVE_FIELDS}

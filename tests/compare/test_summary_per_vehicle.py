@@ -16,7 +16,7 @@ from compare.results.difficulty import (
     success_by_difficulty,
 )
 from compare.results.metrics import EpisodeMetrics
-from compare.results.stats import PairedCounts, design_mdd_rate, mdd, newcombe_paired_interval, wilson_interval
+from compare.results.stats import PairedCounts, design_mdd_rate, mdd, newcombe_paired_interval
 from compare.results.summary import (
     IntervalMethods,
     PairedStat,
@@ -29,6 +29,7 @@ from compare.results.summary import (
 )
 from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.stats import wilson_interval
 
 Z_SUM = 1.959963984540054 + 0.8416212335729143  # z_0.975 + z_0.8
 

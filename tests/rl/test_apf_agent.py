@@ -1,5 +1,5 @@
 """The potential-field pilot as an agent: the runner flies it exactly as the evaluation environment
-flies `rl.expert.PotentialFieldPilot` (same sensing, same command path, same low-level controller)."""
+flies `rl.pilots.potential_field.PotentialFieldPilot` (same sensing, same command path, same low-level controller)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from compare.episode_loop import run_episode
-from rl.apf_agent import PotentialFieldAgent, gains_for
-from rl.env import UAMNavEnv
-from rl.evaluation import eval_config
-from rl.expert import PotentialField, PotentialFieldPilot
-from rl.nav import NavConfig, NavWorld
+from rl.env.gym_env import UAMNavEnv
+from rl.env.world import NavWorld
+from rl.pilots.potential_field import PotentialField, PotentialFieldAgent, PotentialFieldPilot, gains_for
+from rl.task.config import NavConfig
+from rl.training.evaluation import eval_config
 from uam_fdm.pilot import Agent, World
 from uam_fdm.vehicle.params import load_vehicle
 
@@ -20,7 +20,7 @@ from uam_fdm.vehicle.params import load_vehicle
 @pytest.mark.parametrize("seed", [3])
 def test_apf_agent_flies_exactly_like_the_evaluation_environment(seed):
     """One held-out episode (light turbulence), the field deciding every control period as in
-    `rl.evaluation.evaluate_potential_field`: the same states at every decision, the same outcome."""
+    `rl.training.evaluation.evaluate_potential_field`: the same states at every decision, the same outcome."""
     nav = NavConfig()
     base = NavWorld(replace(eval_config(nav, 3), decision_hz=nav.control_hz))
     env = UAMNavEnv(world=base)

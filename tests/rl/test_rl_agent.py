@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from compare.episode_loop import run_episode
-from rl.agent import SHIPPED_POLICIES, PolicyAgent, load_policy, shipped_policy_dir
-from rl.env import UAMNavEnv
-from rl.evaluation import eval_config, evaluate
-from rl.nav import NavWorld
-from rl.route import flight_levels
+from rl.env.gym_env import UAMNavEnv
+from rl.env.world import NavWorld
+from rl.pilots.learned import PolicyAgent, load_policy
+from rl.policies.folder import SHIPPED_POLICIES, shipped_policy_dir
+from rl.sensing.route import flight_levels
+from rl.training.evaluation import eval_config, evaluate
 from uam_fdm.pilot import ResetInfo, World
 from uam_fdm.vehicle.params import load_vehicle
 

@@ -8,13 +8,14 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import rl  # noqa: F401  (registers UAMNav-v0)
-from rl.cities import CityDistribution
-from rl.env import UAMNavEnv
-from rl.nav import FixedEpisodes, NavConfig, NavWorld
-from rl.observation import obs_size
-from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
-from rl.sensor import BoxSensor
-from rl.vec_env import UAMNavVecEnv
+from rl.env.gym_env import UAMNavEnv
+from rl.env.vec_env import UAMNavVecEnv
+from rl.env.world import NavWorld
+from rl.sensing.observation import obs_size
+from rl.sensing.sensor import BoxSensor
+from rl.task.cities import CityDistribution
+from rl.task.config import FixedEpisodes, NavConfig
+from rl.task.reward import TERMS, RewardConfig, reward_terms, stopping_distance
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.pilot import Task
 
@@ -215,7 +216,7 @@ def test_time_limit_adds_the_climb_time_only_when_asked():
     """The UAM's time limit adds per_climb x |Δz| / max vertical speed; the same draws, the same legs."""
     from dataclasses import replace
 
-    from rl.cities import TaskDistribution
+    from rl.task.cities import TaskDistribution
 
     city = CityDistribution().city(3)
     plain = TaskDistribution()

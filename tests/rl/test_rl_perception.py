@@ -1,4 +1,4 @@
-"""Perception (rl.perception): rays against brute force and closed forms, the height map's bounds,
+"""Perception (rl.sensing.perception): rays against brute force and closed forms, the height map's bounds,
 the heading frame, and batched == single."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from rl.cities import CityDistribution
-from rl.perception import Perception, PerceptionConfig
+from rl.sensing.perception import Perception, PerceptionConfig
+from rl.task.cities import CityDistribution
 from uam_fdm.city.buildings import Building, BuildingMap
 
 R = 0.42  # collision radius [m]

@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 import torch
 
-from rl.agent import load_policy
-from rl.nav import NavConfig
-from rl.observation import obs_size
-from rl.policy_file import VEC_NORM_KEYS, load_model_for_resume, restore_vec_normalize
-from rl.train import PRESETS, TrainConfig, train
-from rl.vec_env import UAMNavVecEnv
+from rl.env.vec_env import UAMNavVecEnv
+from rl.pilots.learned import load_policy
+from rl.sensing.observation import obs_size
+from rl.task.config import NavConfig
+from rl.training.checkpoints import VEC_NORM_KEYS, load_model_for_resume, restore_vec_normalize
+from rl.training.config import TrainConfig
+from rl.training.loop import train
+from rl.training.ppo import PRESETS
 
 TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
 
@@ -73,8 +75,7 @@ def test_flying_loads_weights_only_and_acts_like_sb3(folder):
     policy = load_policy(folder)
     obs = np.random.default_rng(0).normal(size=(16, obs_size(TINY_NAV.perception)))
     sb3 = PPO.load(str(folder / "model.zip"), device="cpu")  # trusted here: written by this test's training
-    from rl.train import normalize_obs
-    ref, _ = sb3.predict(normalize_obs(obs, policy.obs_stats), deterministic=True)
+    ref, _ = sb3.predict(policy.obs_norm.normalize(obs), deterministic=True)
     assert np.array_equal(policy.act_batch(obs), np.asarray(ref, dtype=np.float64))
 
 

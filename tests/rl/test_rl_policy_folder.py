@@ -8,14 +8,15 @@ from pathlib import Path
 import pytest
 
 from compare.fingerprint import policy_fingerprint
-from rl import train
-from rl.agent import load_policy
-from rl.policy_folder import (
+from rl.training import loop
+from rl.pilots.learned import load_policy
+from rl.policies.folder import (
     CHECKPOINT_FILES,
     CURVE_COLUMNS,
     DEFAULT_POLICY_DIR,
     FLYING_FILES,
     SHIPPED_POLICIES,
+    NetworkSpec,
     PolicyFolder,
     Provenance,
     shipped_policy_dir,
@@ -31,6 +32,7 @@ def test_a_shipped_policy_reads_through_the_folder(vehicle: str) -> None:
         assert path.is_file(), path
     cfg = pf.config()
     assert cfg.nav.vehicle == vehicle and cfg.preset == "paper" and list(cfg.ppo["net_arch"]) == [128, 128]
+    assert cfg.network == NetworkSpec((128, 128), -1.0)  # the paper's network
     prov = pf.provenance()
     assert isinstance(prov, Provenance) and prov.method == "PPO from scratch"
     assert all(isinstance(v, int) for v in (prov.seed, prov.timesteps, prov.kept_timesteps))
@@ -45,7 +47,7 @@ def test_a_shipped_policy_reads_through_the_folder(vehicle: str) -> None:
 
 def test_names_are_defined_once() -> None:
     assert PolicyFolder.open().path == DEFAULT_POLICY_DIR == SHIPPED_POLICIES["small_quad"]
-    assert train.CURVE_COLUMNS is CURVE_COLUMNS
+    assert loop.CURVE_COLUMNS is CURVE_COLUMNS
     assert set(FLYING_FILES) <= set(CHECKPOINT_FILES)
     assert PolicyFolder("x").checkpoint(2_000_128).path == Path("x/checkpoints/step_00002000128")
 

@@ -1,4 +1,4 @@
-"""Geodesic route fields (rl/route.py): exactness, no local minima, detours, flying over, the bank."""
+"""Geodesic route fields (rl/sensing/route.py): exactness, no local minima, detours, flying over, the bank."""
 from __future__ import annotations
 
 import math
@@ -6,8 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from rl.cities import CityDistribution
-from rl.route import (
+from rl.sensing.route import (
     LeveledRoute,
     RouteBank,
     RouteConfig,
@@ -18,6 +17,7 @@ from rl.route import (
     max_levels,
     route_field,
 )
+from rl.task.cities import CityDistribution
 from uam_fdm.city.buildings import Building, BuildingMap, Prism
 
 RADIUS = 0.5

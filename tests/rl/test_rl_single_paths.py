@@ -1,6 +1,6 @@
 """The one-vehicle fast paths give exactly (bit for bit) what the vectorised paths give for that row.
 
-A single environment (`rl.env.UAMNavEnv`, a `NavBatch` of one) takes plain-Python or fewer-call
+A single environment (`rl.env.gym_env.UAMNavEnv`, a `NavBatch` of one) takes plain-Python or fewer-call
 paths where NumPy's per-call overhead dominated (`WindBank._wind_one`, `BatchSimulator._env_one`,
 `episode._period_outcome_one`, `Perception._rays_one/_roofs_one`, `RouteBank._potential_one/
 _direction_one`, `observation._build_observation_one`). Each is compared here with the vectorised
@@ -14,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from rl.cities import CityDistribution
-from rl.observation import ObservationScales, build_observations, obs_size
-from rl.perception import Perception, PerceptionConfig, PerceptionReading
-from rl.route import RouteBank, grid_shape, route_field
+from rl.sensing.observation import ObservationScales, build_observations, obs_size
+from rl.sensing.perception import Perception, PerceptionConfig, PerceptionReading
+from rl.sensing.route import RouteBank, grid_shape, route_field
+from rl.task.cities import CityDistribution
 from uam_fdm import episode
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.air.wind import GustStack, TurbulenceLevel, WindBank, WindShear

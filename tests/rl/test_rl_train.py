@@ -8,15 +8,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rl.agent import load_policy
-from rl.env import UAMNavEnv
-from rl.evaluation import evaluate, paired_counts, wilson_interval
-from rl.expert import PotentialFieldPilot
-from rl.nav import FixedEpisodes, NavConfig, NavWorld
-from rl.observation import obs_size
-from rl.train import CURVE_COLUMNS, PRESETS, Curriculum, TrainConfig, train
+from rl.env.gym_env import UAMNavEnv
+from rl.env.world import NavWorld
+from rl.pilots.learned import load_policy
+from rl.pilots.potential_field import PotentialFieldPilot
+from rl.sensing.observation import obs_size
+from rl.task.config import FixedEpisodes, NavConfig
+from rl.training.config import Curriculum, TrainConfig
+from rl.training.evaluation import evaluate, paired_counts
+from rl.policies.folder import CURVE_COLUMNS
+from rl.training.loop import train
+from rl.training.ppo import PRESETS
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.pilot import Task
+from uam_fdm.stats import wilson_interval
 
 TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
 
@@ -139,8 +144,8 @@ def test_training_is_deterministic_from_its_seed(tmp_path):
     a, b = (load_policy(out) for out in runs)
     for (name, wa), (_, wb) in zip(a.network.state_dict().items(), b.network.state_dict().items()):
         assert np.array_equal(wa.numpy(), wb.numpy()), name
-    for key in a.obs_stats:
-        assert np.array_equal(a.obs_stats[key], b.obs_stats[key]), key
+    for key in ("mean", "var", "count", "epsilon", "clip_obs"):
+        assert np.array_equal(getattr(a.obs_norm, key), getattr(b.obs_norm, key)), key
     rows_a, rows_b = (_rows(out / "reward_curve.csv") for out in runs)
     assert [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_a] == \
            [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_b]

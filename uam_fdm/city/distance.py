@@ -8,7 +8,7 @@ to the height range, the distance is hypot(max(d2, 0), max(dz, 0)) outside and m
 The formula is written here once, for every consumer in the project:
   * `vertical_prism_key`: the product-set combination above (signed squared distance), fed by a box
     (`box_signed_sq_distance`, the kernel every box distance calls: BuildingMap.clearance and
-    `rl.sensor.BoxSensor`) or by a convex footprint; `signed_sqrt` turns keys into distances.
+    `rl.sensing.sensor.BoxSensor`) or by a convex footprint; `signed_sqrt` turns keys into distances.
   * `box_frame_xy`: a point in a box's own horizontal frame (the rotation the formula starts with;
     also used for footprint distances, nearest points and inside tests here and in `rl`).
   * `box_signed_distance_one` / `_prism_distance_py`: the same arithmetic for one point in plain

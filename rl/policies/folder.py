@@ -2,10 +2,10 @@
 settings (config.json) and training record (provenance.json).
 
 ```
-folder/model.zip          SB3 PPO model (policy and value networks; read without unpickling: `rl.policy_file`)
+folder/model.zip          SB3 PPO model (policy and value networks; read without unpickling: `rl.policies.reader`)
 folder/obs_norm.npz       observation-normalisation statistics (mean, var, count, epsilon, clip)
-folder/config.json        the training configuration (`rl.train.TrainConfig.to_dict`): preset, "ppo"
-                          (the PPO settings the network is built from), "nav" (the task, `rl.nav.NavConfig`)
+folder/config.json        the training configuration (`rl.training.config.TrainConfig.to_dict`): preset, "ppo"
+                          (the PPO settings the network is built from), "nav" (the task, `rl.task.config.NavConfig`)
 folder/vecnormalize.npz   all of VecNormalize's statistics, as plain arrays (for resuming)
 folder/curriculum.json    the curriculum's difficulty when written (for resuming)
 folder/reward_curve.csv   one row per PPO update (training episodes) + validation columns (`CURVE_COLUMNS`)
@@ -19,7 +19,7 @@ update, raw return), train_success_rate, train_collision_rate, train_timeout_rat
 difficulty (curriculum), success_rate, collision_rate, eval_episodes (validation pool; empty on
 rows without an evaluation), wall_s.
 
-`rl.train` writes a folder through `PolicyFolder`'s paths; `rl.agent.load_policy` flies one
+`rl.training.loop` writes a folder through `PolicyFolder`'s paths; `rl.pilots.learned.load_policy` flies one
 (`FLYING_FILES`); `compare` fingerprints the flying files, takes a policy's vehicle and rates from
 its config and draws its reward curve and provenance in the report.
 """
@@ -30,10 +30,9 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:  # rl.nav pulls in the flight model; reading file names must stay light
-    from rl.nav import NavConfig
+from rl.task.config import NavConfig
 
 MODEL = "model.zip"
 OBS_NORM = "obs_norm.npz"
@@ -53,7 +52,7 @@ CURVE_COLUMNS = ("timesteps", "mean_episode_reward", "train_success_rate", "trai
                  "train_timeout_rate", "train_episodes", "difficulty", "success_rate", "collision_rate",
                  "eval_episodes", "wall_s")
 
-POLICIES_DIR = Path(__file__).parent / "policies"
+POLICIES_DIR = Path(__file__).parent
 DEFAULT_POLICY_DIR = POLICIES_DIR / "default"
 # The shipped policies, by the vehicle preset each was trained for (its config.json says so too).
 SHIPPED_POLICIES: dict[str, Path] = {"small_quad": DEFAULT_POLICY_DIR,
@@ -67,17 +66,49 @@ def shipped_policy_dir(vehicle: str) -> Path | None:
 
 
 @dataclass(frozen=True)
+class NetworkSpec:
+    """The policy network's shape: the paper's two dense layers of 128 units for the actor and for the
+    critic (`rl.policies.network.TanhMeanPolicy`), and the initial log standard deviation of its actions.
+
+    Attributes:
+        net_arch: hidden units per layer (the same for actor and critic).
+        log_std_init: initial log standard deviation of the Gaussian action noise.
+    """
+
+    net_arch: tuple[int, ...] = (128, 128)
+    log_std_init: float = -1.0
+
+    @classmethod
+    def from_settings(cls, ppo: Mapping[str, Any]) -> NetworkSpec:
+        """From config.json's "ppo" settings (the PPO preset's fields).
+
+        Raises:
+            KeyError, TypeError, ValueError: a setting missing or not a number (list) of the right kind.
+        """
+        arch = ppo["net_arch"]
+        if not isinstance(arch, (list, tuple)) or not arch:
+            raise TypeError(f"'net_arch' must be a list of layer sizes, got {arch!r}")
+        return cls(tuple(int(u) for u in arch), float(ppo["log_std_init"]))
+
+    def policy_kwargs(self) -> dict[str, Any]:
+        """The network's arguments to an SB3 actor-critic policy (separate actor and critic layers)."""
+        return {"net_arch": {"pi": list(self.net_arch), "vf": list(self.net_arch)}, "log_std_init": self.log_std_init}
+
+
+@dataclass(frozen=True)
 class PolicyConfig:
     """What config.json says a policy is.
 
     Attributes:
         nav: the task it was trained on (vehicle, rates, perception, route field, ...).
-        ppo: the PPO settings the network is built from (net_arch, log_std_init, ...; `rl.train.PPOPreset`).
+        ppo: the PPO settings it was trained with (`rl.training.ppo.PPOPreset`'s fields, and gamma).
+        network: the network's shape, read from `ppo`.
         preset: the PPO preset's name.
     """
 
     nav: NavConfig
     ppo: Mapping[str, Any]
+    network: NetworkSpec
     preset: str | None = None
 
 
@@ -188,8 +219,6 @@ class PolicyFolder:
         Raises:
             ValueError: "<folder>/config.json: not a policy configuration (<why>)".
         """
-        from rl.nav import NavConfig
-
         try:
             cfg = json.loads(self.config_file.read_text())
             nav = NavConfig.from_dict(cfg["nav"])
@@ -197,9 +226,10 @@ class PolicyFolder:
             preset = cfg.get("preset")
             if not isinstance(ppo, dict):
                 raise TypeError(f"'ppo' must be an object, got {type(ppo).__name__}")
+            network = NetworkSpec.from_settings(ppo)
         except (ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{self.config_file}: not a policy configuration ({exc})") from None
-        return PolicyConfig(nav, ppo, preset if isinstance(preset, str) else None)
+        return PolicyConfig(nav, ppo, network, preset if isinstance(preset, str) else None)
 
     def provenance(self) -> Provenance | None:
         """provenance.json's record, or None when the folder has none (an older folder, or a run

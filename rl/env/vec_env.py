@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
-from rl.env import ACTION_SPACE, observation_space
-from rl.nav import FixedEpisodes, NavBatch, NavConfig, NavWorld
+from rl.env.gym_env import ACTION_SPACE, observation_space
+from rl.env.world import NavBatch, NavWorld
+from rl.task.config import FixedEpisodes, NavConfig
 
 
 class UAMNavVecEnv(VecEnv):

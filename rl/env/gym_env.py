@@ -1,7 +1,7 @@
 """`UAMNav-v0`: one multirotor flying to a goal through a city, as a gymnasium environment.
 
-The observation, action and reward are documented in `rl.observation` and `rl.reward`; the
-episode mechanics in `rl.nav`. Episodes end (terminated) on arrival, collision, leaving the flight
+The observation, action and reward are documented in `rl.sensing.observation` and `rl.task.reward`;
+the episode mechanics in `rl.env.world`. Episodes end (terminated) on arrival, collision, leaving the flight
 volume or a non-finite state, and are truncated at the task's time limit. `info["reward_terms"]`
 holds each reward term of the step; the final step's info has `outcome` and `is_success`.
 
@@ -16,8 +16,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from rl.nav import FixedEpisodes, NavBatch, NavConfig, NavWorld
-from rl.observation import OBS_CLIP
+from rl.env.world import NavBatch, NavWorld
+from rl.sensing.observation import OBS_CLIP
+from rl.task.config import FixedEpisodes, NavConfig
 
 
 def observation_space(size: int) -> gym.spaces.Box:
@@ -95,9 +96,3 @@ class UAMNavEnv(gym.Env):
         ax.tick_params(labelsize=6)
         canvas.draw()
         return np.asarray(canvas.buffer_rgba())[..., :3].copy()
-
-
-def register() -> None:
-    """Register `UAMNav-v0` with gymnasium (idempotent; done on `import rl`)."""
-    if "UAMNav-v0" not in gym.registry:
-        gym.register(id="UAMNav-v0", entry_point="rl.env:UAMNavEnv")

@@ -1,6 +1,6 @@
 """Held-out evaluation of a pilot on the navigation task: outcome counts with Wilson 95 % intervals.
 
-Three disjoint city pools (seed ranges of `rl.cities`): training (0 on), validation (1,050,000
+Three disjoint city pools (seed ranges of `rl.task.cities`): training (0 on), validation (1,050,000
 on: every choice made during training, e.g. which checkpoint ships) and test (1,000,000 on:
 touched only to report). `eval_config(nav, n, pool)` gives the task on one of the held-out pools,
 one city per episode; episode i of an evaluation seeded s is the same task (city, start, goal,
@@ -8,36 +8,23 @@ wind) for every pilot, whatever its decision rate, so pilots are compared on pai
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from rl.nav import NavBatch, NavConfig, NavWorld
-from rl.observation import ObservationScales
-from rl.vec_env import UAMNavVecEnv
+from rl.env.vec_env import UAMNavVecEnv
+from rl.env.world import NavBatch, NavWorld
+from rl.pilots.potential_field import PotentialFieldPilot, gains_for_task
+from rl.task.config import NavConfig
 from uam_fdm.episode import Outcome
+from uam_fdm.stats import wilson_interval
 
 VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
 POOLS = ("test", "validation")
 
 Pilot = Callable[[np.ndarray, NavBatch], np.ndarray]
 """A pilot for evaluation: (raw observations (N, obs), the batch) -> actions (N, 3) in [-1, 1]."""
-
-
-def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score interval (95 % by default) for k successes in n trials."""
-    if n <= 0:
-        return (float("nan"), float("nan"))
-    if not 0 <= k <= n:
-        raise ValueError(f"wilson_interval needs 0 <= k <= n, got k={k}, n={n}")
-    p = k / n
-    den = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    # at k = 0 or k = n one bound is exactly 0 or 1 (rounding would leave 1e-16 off)
-    return (0.0 if k == 0 else max(0.0, centre - half), 1.0 if k == n else min(1.0, centre + half))
 
 
 @dataclass(frozen=True)
@@ -126,23 +113,21 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
 
 def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
                              world: NavWorld | None = None) -> EvalResult:
-    """The reactive potential-field pilot (`rl.expert`) on the same tasks as `evaluate(..., nav, episodes,
-    seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the tasks do not depend on it),
-    its distances scaled by the task's clearance scale over the small quad's (1 for the small quad).
+    """The reactive potential-field pilot (`rl.pilots.potential_field`) on the same tasks as
+    `evaluate(..., nav, episodes, seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the
+    tasks do not depend on it), its distances scaled by the task's clearance scale over the small quad's (1 for
+    the small quad).
 
     Args:
         world: a world whose dynamics and atmosphere to reuse (e.g. the policy's evaluation world).
     """
-    from rl.expert import PotentialField, PotentialFieldPilot
-
     base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
                        decision_hz=nav.control_hz)
     base_world = NavWorld(base_nav, dynamics=world.dynamics if world else None,
                           atmosphere=world.atmosphere if world else None, wind_from=world)
     holder: dict[str, PotentialFieldPilot] = {}
 
-    # its gains were tuned for the small quad's task (30 m clearance scale); a larger task scales them
-    gains = PotentialField().scaled(nav.scales.clearance_m / ObservationScales().clearance_m)
+    gains = gains_for_task(nav.scales)  # tuned for the small quad's task; a larger task scales them
 
     def potential_field(obs: np.ndarray, batch: NavBatch) -> np.ndarray:
         if "pilot" not in holder:  # its sensor is built on the batch's cities

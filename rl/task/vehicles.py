@@ -35,7 +35,7 @@ stopping distance and its slow loops:
   than it cruises (the quad 4x), so with weight 1 closing a height gap earned a twelfth of the
   cruise's progress rate and a first run learned to climb away from the roofs and time out
   above its goal; with 3, climbing and descending earn a quarter of it, as for the quad.
-* A braking term (`rl.reward`): heading at a wall closer than 1.5 stopping distances costs up to
+* A braking term (`rl.task.reward`): heading at a wall closer than 1.5 stopping distances costs up to
   20 per second. The time-to-contact `danger` term is blind for this vehicle: at 20-30 m/s it needs
   3.4-4.5 s to stop, at or beyond the 4 s horizon where that term is ~0, and the clearance it uses
   is often set by a nearer roof below while a taller wall comes up ahead. A run without it crashed
@@ -45,12 +45,12 @@ stopping distance and its slow loops:
 """
 from __future__ import annotations
 
-from rl.cities import CityDistribution, TaskDistribution
-from rl.nav import NavConfig
-from rl.observation import ObservationScales
-from rl.perception import PerceptionConfig
-from rl.reward import RewardConfig
-from rl.route import RouteConfig
+from rl.sensing.observation import ObservationScales
+from rl.sensing.perception import PerceptionConfig
+from rl.sensing.route import RouteConfig
+from rl.task.cities import CityDistribution, TaskDistribution
+from rl.task.config import NavConfig
+from rl.task.reward import RewardConfig
 
 UAM_TASK = NavConfig(
     vehicle="uam_multicopter",

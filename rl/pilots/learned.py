@@ -1,7 +1,7 @@
 """The learned pilot as an `Agent`: policy -> velocity command -> the vehicle's low-level controller.
 
 Loads a policy folder (the shipped `rl/policies/default` or one written by `uam-compare train`),
-builds the same observation the environment builds (`rl.nav.observe_slots`: the same perception,
+builds the same observation the environment builds (`rl.sensing.senses.observe_slots`: the same perception,
 route field and memory), normalises it with the training statistics and acts deterministically.
 At reset it computes the task's geodesic route field (timed, reported as planning time). It returns
 a `VelocityCommand` held for the policy's decision period (e.g. 5 control periods at 10 Hz), which
@@ -18,22 +18,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rl.cities import boxes_only
-from rl.nav import NavConfig, clearance_sensor, nearest_surface, observe_slots, route_for
-from rl.observation import PilotMemory, goal_heading, obs_size, velocity_command
-from rl.perception import Perception
-from rl.policy_file import OBS_NORM_KEYS, load_arrays, load_network
-
-# re-exported: the shipped folders are defined with the folder format, and the pilot's users find them here
-from rl.policy_folder import DEFAULT_POLICY_DIR, SHIPPED_POLICIES, PolicyFolder, shipped_policy_dir  # noqa: F401
-from rl.route import RouteBank, grid_shape
-from rl.train import normalize_obs
+from rl.policies.folder import PolicyFolder
+from rl.policies.reader import ObsNorm, load_network
+from rl.sensing.observation import PilotMemory, goal_heading, obs_size, velocity_command
+from rl.sensing.perception import Perception
+from rl.sensing.route import RouteBank, grid_shape
+from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
+from rl.task.cities import boxes_only
+from rl.task.config import NavConfig
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
-if TYPE_CHECKING:  # rl.policy pulls in torch and stable-baselines3, loaded only with a network
-    from rl.policy import TanhMeanPolicy
+if TYPE_CHECKING:  # the network's module pulls in torch and stable-baselines3, loaded only with a network
+    from rl.policies.network import TanhMeanPolicy
 
 
 @dataclass
@@ -42,19 +40,18 @@ class Policy:
 
     folder: Path
     network: TanhMeanPolicy
-    obs_stats: dict
+    obs_norm: ObsNorm
     nav: NavConfig
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (N, 3) in [-1, 1] for raw observations (N, obs)."""
-        act, _ = self.network.predict(normalize_obs(np.asarray(obs, dtype=np.float64), self.obs_stats),
-                                      deterministic=True)
+        act, _ = self.network.predict(self.obs_norm.normalize(np.asarray(obs, dtype=np.float64)), deterministic=True)
         return np.asarray(act, dtype=np.float64).reshape(-1, 3)
 
 
 def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None = None) -> Policy:
     """Load a policy folder (default: the shipped small-quad policy) from plain data only
-    (`rl.policy_file`): nothing in the folder is unpickled or executed.
+    (`rl.policies.reader`): nothing in the folder is unpickled or executed.
 
     `vehicle`: the vehicle it is to fly; a policy trained for another vehicle (another preset, or the
     same name with other parameters) is refused.
@@ -73,11 +70,11 @@ def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None 
     if vehicle is not None:
         check_vehicle(pf.path, nav, vehicle)
     n_obs = obs_size(nav.perception)
-    stats = load_arrays(pf.obs_norm, OBS_NORM_KEYS)
-    if stats["mean"].shape != (n_obs,) or stats["var"].shape != (n_obs,):
-        raise ValueError(f"{pf.obs_norm}: statistics for {stats['mean'].size} observations; "
+    stats = ObsNorm.load(pf.obs_norm)
+    if stats.mean.shape != (n_obs,) or stats.var.shape != (n_obs,):
+        raise ValueError(f"{pf.obs_norm}: statistics for {stats.mean.size} observations; "
                          f"config.json's task gives {n_obs}")
-    return Policy(pf.path, load_network(pf.model, n_obs, dict(cfg.ppo)), stats, nav)
+    return Policy(pf.path, load_network(pf.model, n_obs, cfg.network), stats, nav)
 
 
 def check_vehicle(folder: Path, nav: NavConfig, vehicle: VehicleParams) -> None:
@@ -95,7 +92,7 @@ class _CitySenses:
 
     def __init__(self, city: BuildingMap, nav: NavConfig, radius_m: float) -> None:
         self.city = city
-        self.clearance = clearance_sensor([city], nav, radius_m)
+        self.clearance = clearance_sensor([city], nav.scales, radius_m)
         self.perception = Perception([city], radius_m, nav.perception)
         self.route_cells = grid_shape(city, nav.route.cell_m)
 
@@ -168,7 +165,8 @@ class PolicyAgent:
         clear, nearest = nearest_surface(senses.clearance, pos, self._CITY)
         t_frac = np.array([t_s / self._task.timeout_s])
         return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY,
-                             senses.perception, self._routes, m, nav, world.vehicle)
+                             senses.perception, self._routes, m, nav.perception, nav.scales, nav.decision_hz,
+                             world.vehicle)
 
     def act(self, obs: Observation) -> VelocityCommand:
         nav = self.policy.nav

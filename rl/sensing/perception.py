@@ -10,7 +10,7 @@ r on each side (half-extents hx + r, hy + r) of the buildings whose roof plus r 
 (height + r > z). The distance is the ray's entry parameter into the first such rectangle (0 when the
 point is already inside one), capped at `ray_range_m`. It is an analytic slab test in each box's own
 frame, exact to rounding (~1e-12 m). Speed comes from a per-city candidate grid (as in
-`rl.sensor.BoxSensor`): each grid cell lists the buildings whose inflated rectangle lies within
+`rl.sensing.sensor.BoxSensor`): each grid cell lists the buildings whose inflated rectangle lies within
 `ray_range_m` of some point of the cell (an exact convex-polygon distance), and the grid covers every
 inflated rectangle, so a point anywhere (also outside the city's bounds: it is clamped to the grid's
 edge cells, which cannot lose a hit because projection onto a convex region containing all the

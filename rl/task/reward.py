@@ -2,7 +2,7 @@
 
 Per decision (whatever the decision rate), summed into the reward; each term is also reported in
 the environment's `info["reward_terms"]`. Δt is the flight time the decision covered (shorter when
-the episode ended inside it), Φ the geodesic distance-to-go around the buildings (`rl.route`):
+the episode ended inside it), Φ the geodesic distance-to-go around the buildings (`rl.sensing.route`):
 
 ===========  ==================================================================================
 term         value
@@ -20,13 +20,13 @@ proximity    -proximity_per_s x Δt x max(0, 1 - clearance / proximity_m)² x (1
              speed (per second alone, a fast graze would cost less than a slow one, being shorter),
              so the cheapest way past a wall is wide or slow
 braking      -braking_per_s x Δt x max(0, 1 - s / (braking_margin x d))², s the free distance along the
-             horizontal velocity (a ray of the collision sphere's stand-in, `rl.perception`) and
+             horizontal velocity (a ray of the collision sphere's stand-in, `rl.sensing.perception`) and
              d = v² / (2 a) + v τ the vehicle's stopping distance from its horizontal speed v at its
              braking deceleration a = g tan(max tilt) after its velocity loop's lag τ = 1 / gain:
              it costs to be heading at a wall closer than a margin times the distance needed to
              stop. The TTC of `danger` cannot say this for a vehicle that needs more time to stop
              than its horizon, nor see a wall while a nearer roof below sets the clearance. Off
-             (0) for the small quad; on for the UAM (`rl.tasks`)
+             (0) for the small quad; on for the UAM (`rl.task.vehicles`)
 arrival      +arrival_bonus on reaching the goal radius
 collision    -collision_penalty on a collision, leaving the flight volume or a non-finite state
 ===========  ==================================================================================

@@ -13,7 +13,7 @@ elements               count  meaning
 =====================  =====  ==================================================================
 0   goal distance        1    horizontal distance to the goal / goal scale (100 m)
 1   goal height          1    (goal z - z) / height scale (20 m)
-2   route distance       1    geodesic distance-to-go Φ (`rl.route`, around the buildings) / goal scale
+2   route distance       1    geodesic distance-to-go Φ (`rl.sensing.route`, around the buildings) / goal scale
 3:5 route direction      2    the route's horizontal direction (steepest descent of Φ), goal frame
 5:8 velocity             3    (v_x', v_y') / max horizontal speed, v_z / max vertical speed
 8   altitude             1    z / altitude scale (50 m)
@@ -26,13 +26,13 @@ elements               count  meaning
 15:18 nearest surface     3    vector to the nearest point of a building or the ground, goal frame,
                               / clearance scale (zero when nothing is within it): where the clearance is
 18: rays              n_rays  horizontal sphere-cast distances / range, ray j at bearing 2πj/n
-                              counter-clockwise from x' (`rl.perception`)
+                              counter-clockwise from x' (`rl.sensing.perception`)
  .. height map        g²     (roof height - z) / height scale, clipped to [-1, 1], of a g x g grid of
                               cells around the vehicle in the goal frame (x' index slow)
 =====================  =====  ==================================================================
 
 The scales (in brackets: the small quad's) are an `ObservationScales` of the task: a vehicle ten
-times larger and faster sees its world at its own scale (`rl.tasks`).
+times larger and faster sees its world at its own scale (`rl.task.vehicles`).
 
 Action: a = (a_x', a_y', a_z) in [-1, 1]³ in the goal frame: horizontal velocity command
 (a_x', a_y') x max horizontal speed (its norm clipped to the max speed) rotated to the world, and
@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rl.perception import PerceptionConfig, PerceptionReading
+from rl.sensing.perception import PerceptionConfig, PerceptionReading
 from uam_fdm.pilot import VelocityCommand
 from uam_fdm.vehicle.params import VehicleParams
 

@@ -9,7 +9,7 @@ compiled model through `uam_fdm.sim.BatchSimulator` (the low-level controller an
 substeps for every vehicle), followed by the episode rules of `uam_fdm.episode` (the comparison
 runner's own): collision at every physics substep, bounds, arrival, then the time limit. A vehicle
 whose episode ends inside a decision stops there; the others fly the rest of the decision. The
-learned pilot in the runner (`rl.agent.PolicyAgent`) holds its command the same way, so an episode
+learned pilot in the runner (`rl.pilots.learned.PolicyAgent`) holds its command the same way, so an episode
 flown through the env and through the runner is bit-identical (tested).
 
 Collision at every substep is exact and cheap: the clearance field is 1-Lipschitz, so a vehicle
@@ -21,16 +21,15 @@ once per decision, for the observation and the reward.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from rl.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
-from rl.observation import ObservationScales, PilotMemory, action_to_command, build_observations, goal_heading, obs_size
-from rl.perception import Perception, PerceptionConfig
-from rl.reward import TERMS, RewardConfig, reward_terms, stopping_distance
-from rl.route import LeveledRoute, RouteBank, RouteConfig, flight_levels, grid_shape, leveled_route, max_levels
-from rl.sensor import BoxSensor
+from rl.sensing.observation import PilotMemory, action_to_command, goal_heading, obs_size
+from rl.sensing.perception import Perception
+from rl.sensing.route import RouteBank, flight_levels, grid_shape, max_levels
+from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
+from rl.task.config import FixedEpisodes, NavConfig
+from rl.task.reward import TERMS, reward_terms, stopping_distance
 from uam_fdm import episode
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.air.wind import (
@@ -42,7 +41,6 @@ from uam_fdm.air.wind import (
     gust_stack,
     probe_heights_up_to,
 )
-from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Task
 from uam_fdm.sim import BatchSimulator
 from uam_fdm.vehicle.dynamics import VehicleDynamics
@@ -50,110 +48,6 @@ from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.ground_effect import range_m as ground_effect_range_m
 from uam_fdm.vehicle.model import hover_state
 from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle
-
-OUTCOMES = episode.OUTCOMES
-
-
-@dataclass(frozen=True)
-class NavConfig:
-    """Everything that defines the navigation task (all defaults are the shipped policy's).
-
-    Attributes:
-        vehicle: preset name or vehicle YAML path.
-        physics_hz, control_hz: physics and low-level control period rates [Hz].
-        decision_hz: the policy's decision rate [Hz] (must divide control_hz); the command is held
-            between decisions.
-        perception: rays and height map (`rl.perception`); route: the geodesic potential (`rl.route`).
-        scales: the observation's length scales (`rl.observation`); the clearance is measured
-            exactly up to `scales.clearance_m` and reads that value beyond.
-        city_split: "train" or "eval": which seed range the city pool comes from.
-        city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
-        cities: city generator parameter ranges; tasks: start/goal distribution.
-        turbulence: turbulence level (none/light/moderate/severe).
-        steady_wind_max_m_s: steady horizontal wind speed drawn uniformly in [0, this] [m/s].
-        wind_pool_size: turbulence stacks (series at the probe heights up to the cities' ceiling,
-            `uam_fdm.air.wind.gust_stack`) shared by all episodes (each episode starts at a random sample
-            of one); wind_series_s: length of each [s]. The steady wind is uniform with height.
-        reward: reward weights.
-    """
-
-    vehicle: str = "small_quad"
-    physics_hz: float = 500.0
-    control_hz: float = 50.0
-    decision_hz: float = 10.0
-    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
-    route: RouteConfig = field(default_factory=RouteConfig)
-    scales: ObservationScales = field(default_factory=ObservationScales)
-    city_split: str = "train"
-    city_pool_size: int = 1024
-    city_pool_offset: int = 0
-    cities: CityDistribution = field(default_factory=CityDistribution)
-    tasks: TaskDistribution = field(default_factory=TaskDistribution)
-    turbulence: str = "light"
-    steady_wind_max_m_s: float = 3.0
-    wind_pool_size: int = 16
-    wind_series_s: float = 400.0
-    reward: RewardConfig = field(default_factory=RewardConfig)
-
-    def __post_init__(self) -> None:
-        if self.city_split not in ("train", "eval"):
-            raise ValueError(f"city_split must be 'train' or 'eval', got {self.city_split!r}")
-        TurbulenceLevel.parse(self.turbulence)
-        if self.city_pool_size < 1 or self.wind_pool_size < 1:
-            raise ValueError("city_pool_size and wind_pool_size must be positive")
-        ratio = self.control_hz / self.decision_hz if self.decision_hz > 0 else 0.0
-        if self.decision_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(f"decision_hz {self.decision_hz} must divide control_hz {self.control_hz}")
-
-    @property
-    def action_repeat(self) -> int:
-        """Control periods per decision."""
-        return int(round(self.control_hz / self.decision_hz))
-
-    def city_seeds(self) -> list[int]:
-        """The pool's city seeds."""
-        rng = TRAIN_SEEDS if self.city_split == "train" else EVAL_SEEDS
-        seeds = list(rng[self.city_pool_offset: self.city_pool_offset + self.city_pool_size])
-        if len(seeds) < self.city_pool_size:
-            raise ValueError(f"city pool {self.city_pool_offset}+{self.city_pool_size} exceeds the "
-                             f"{self.city_split} range")
-        return seeds
-
-    def to_dict(self) -> dict:
-        """Plain-data form (for the policy's config file)."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> NavConfig:
-        """The inverse of `to_dict`.
-
-        Raises:
-            ValueError: a key this version does not know (e.g. a policy written by an older
-                version), naming it.
-        """
-        d = dict(d)
-        nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
-                  "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales}
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown navigation settings {unknown} (written by another version?)")
-        for key, typ in nested.items():
-            if key in d:
-                sub = d[key]
-                bad = sorted(set(sub) - {f.name for f in fields(typ)})
-                if bad:
-                    raise ValueError(f"unknown {key} settings {bad} (written by another version?)")
-                d[key] = typ(**{k: tuple(v) if isinstance(v, list) else v for k, v in sub.items()})
-        return cls(**d)
-
-
-@dataclass(frozen=True)
-class FixedEpisodes:
-    """Episodes from a scenario instead of sampled ones: cities and (city index, task) pairs, cycled."""
-
-    cities: tuple[BuildingMap, ...]
-    tasks: tuple[tuple[int, Task], ...]
 
 
 class NavWorld:
@@ -177,7 +71,7 @@ class NavWorld:
         else:
             self.cities = [config.cities.city(s) for s in config.city_seeds()]
         radius = self.vehicle.collision_radius_m
-        self.clearance_sensor = clearance_sensor(self.cities, config, radius)
+        self.clearance_sensor = clearance_sensor(self.cities, config.scales, radius)
         self.perception = Perception(self.cities, radius, config.perception)
         self.lo = np.array([c.bounds_min_m for c in self.cities])
         self.hi = np.array([c.bounds_max_m for c in self.cities])
@@ -315,7 +209,8 @@ class NavBatch:
         w = self.world
         self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
                                        self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception,
-                                       self.routes, self.memory, w.config, w.vehicle)
+                                       self.routes, self.memory, w.config.perception, w.config.scales,
+                                       w.config.decision_hz, w.vehicle)
 
     def _collided(self, idx: np.ndarray, sel, states: np.ndarray, finite: np.ndarray,
                   clear_lb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -437,21 +332,6 @@ class NavBatch:
         return self._obs.copy(), reward.astype(np.float32), terminated, truncated, infos
 
 
-def clearance_sensor(cities: Sequence[BuildingMap], config: NavConfig, radius_m: float) -> BoxSensor:
-    """The exact clearance sensor of a task (range `config.scales.clearance_m`) for a vehicle of
-    collision radius `radius_m` [m]. Its candidate grid's cells are a third of the range (10 m at
-    least): the readings are exact whatever the cell, the cell only trades memory for work."""
-    rng = config.scales.clearance_m
-    return BoxSensor(cities, 1, rng, radius_m, cell_m=max(10.0, rng / 3.0))
-
-
-def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig) -> LeveledRoute:
-    """The geodesic route fields of a task at its flight levels (`rl.route.flight_levels`: the
-    higher of start and goal alone, or levels from the lower to the higher)."""
-    levels = flight_levels(task.start_m[2], task.goal_m[2], config.level_step_m)
-    return leveled_route(city, task.goal_m, levels, radius_m, config)
-
-
 def route_levels(config: NavConfig, fixed: FixedEpisodes | None) -> int:
     """The most flight levels a task of this configuration (or of these fixed episodes) needs."""
     step = config.route.level_step_m
@@ -460,32 +340,3 @@ def route_levels(config: NavConfig, fixed: FixedEpisodes | None) -> int:
     return max_levels(config.tasks.altitude_m, step)
 
 
-def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Clearance (N,) [m] and the vector (N, 3) [m, world] to the nearest surface point (a building
-    within the sensor's range, or the ground; zero when neither is within range)."""
-    r = sensor.query(points_m, city)
-    vec = r.nearest_m[:, 0, :] - points_m  # zero for an empty row (the nearest point is the query point)
-    ground = ((points_m[:, 2] - sensor.radius_m < r.distance_m[:, 0])
-              & (points_m[:, 2] - sensor.radius_m < sensor.range_m))
-    vec[ground] = 0.0
-    vec[ground, 2] = -points_m[ground, 2]
-    return r.clearance_m, vec
-
-
-def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
-                  nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception,
-                  routes: RouteBank, memory: PilotMemory, config: NavConfig, vehicle: VehicleParams) -> np.ndarray:
-    """Observations (M, obs) of slots idx (the env's batch, or the policy agent's single slot).
-
-    Args:
-        idx: (M,) slots of `routes` and `memory`; x: (M, nx) states; goal_m: (M, 3) [m];
-        route_m: (M,) Φ [m]; clearance_m: (M,) [m]; nearest_m: (M, 3) vector to the nearest surface [m];
-        t_frac: (M,) time used / limit;
-        city: (M,) city indices of `perception`.
-    """
-    pos = x[:, 0:3]
-    heading = memory.heading_rad[idx]
-    reading = perception.observe(pos, heading, city)
-    return build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m, nearest_m,
-                              memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
-                              config.perception, vehicle, config.decision_hz, config.scales)

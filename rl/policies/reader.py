@@ -1,0 +1,149 @@
+"""Reading a policy folder without running code from it: weights, statistics and settings as plain data.
+
+A policy folder is shared between researchers, so loading one must not execute anything it holds.
+SB3's own `PPO.load` unpickles the entries of `model.zip`'s `data` (spaces, schedules, buffers) and
+`VecNormalize.load` unpickles a whole object; a crafted file runs arbitrary code in either. Here:
+
+- the network's weights come from `model.zip`'s `policy.pth` through `torch.load(weights_only=True)`
+  (tensors only) into a network built from `config.json`;
+- normalisation statistics are `.npz` arrays read with `allow_pickle=False`;
+- resuming training (`rl.training.checkpoints`) loads `model.zip` through `PPO.load` with *every* pickled entry
+  of `data`
+  replaced by an object built here (`custom_objects`, which SB3 uses instead of unpickling), and
+  refuses a file with a pickled entry it does not know.
+"""
+from __future__ import annotations
+
+import io
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from rl.policies.folder import NetworkSpec
+from uam_fdm.files.atomic import atomic_open
+
+if TYPE_CHECKING:  # torch and stable-baselines3 load only with a network
+    from rl.policies.network import TanhMeanPolicy
+
+OBS_NORM_KEYS = ("mean", "var", "count", "epsilon", "clip_obs")
+
+
+def load_arrays(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The arrays `keys` of an `.npz` file, read without unpickling; all finite.
+
+    Raises:
+        ValueError: the file is missing, not an npz, holds objects, lacks a key or has a non-finite
+            value (naming the file and the key).
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in keys if k not in z.files]
+            if missing:
+                raise ValueError(f"{path}: missing arrays {missing}")
+            out = {k: np.array(z[k], dtype=np.float64) for k in keys}
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a plain-number .npz file ({exc})") from None
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{path}: unreadable ({exc})") from None
+    for k, v in out.items():
+        if not np.isfinite(v).all():
+            raise ValueError(f"{path}: array {k!r} has non-finite values")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class ObsNorm:
+    """A policy's observation-normalisation statistics (SB3 VecNormalize's, frozen), `obs_norm.npz`.
+
+    Attributes:
+        mean, var: (obs,) running mean and variance of the raw observations.
+        count: observations the statistics were estimated from.
+        epsilon: added to the variance; clip_obs: normalised observations are clipped to +-this.
+    """
+
+    mean: np.ndarray
+    var: np.ndarray
+    count: float
+    epsilon: float
+    clip_obs: float
+
+    @classmethod
+    def load(cls, path: Path) -> ObsNorm:
+        """Read `obs_norm.npz` (`load_arrays`: no unpickling, all finite).
+
+        Raises:
+            ValueError: as `load_arrays`, naming the file.
+        """
+        a = load_arrays(path, OBS_NORM_KEYS)
+        return cls(a["mean"], a["var"], float(a["count"]), float(a["epsilon"]), float(a["clip_obs"]))
+
+    @classmethod
+    def of(cls, venv_norm: Any) -> ObsNorm:
+        """The current statistics of a training VecNormalize (shared arrays, not copies)."""
+        rms = venv_norm.obs_rms
+        return cls(rms.mean, rms.var, float(rms.count), float(venv_norm.epsilon), float(venv_norm.clip_obs))
+
+    def save(self, path: Path) -> None:
+        """Write them as `obs_norm.npz` (plain arrays, atomic)."""
+        with atomic_open(path, "wb") as f:
+            np.savez(f, mean=self.mean, var=self.var, count=self.count, epsilon=self.epsilon, clip_obs=self.clip_obs)
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        """SB3 VecNormalize's observation transform with these frozen statistics: (N, obs) -> float32."""
+        z = (obs - self.mean) / np.sqrt(self.var + self.epsilon)
+        return np.clip(z, -self.clip_obs, self.clip_obs).astype(np.float32)
+
+
+def zip_entry(path: Path, name: str) -> bytes:
+    """The bytes of entry `name` of the zip file `path` (ValueError naming both when absent or unreadable)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            if name not in z.namelist():
+                raise ValueError(f"{path}: no {name!r} inside (not a model written by `uam-compare train`?)")
+            return z.read(name)
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: not a readable zip file ({exc})") from None
+
+
+def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> TanhMeanPolicy:
+    """The actor-critic of `model.zip` at `path`, built from settings and filled with its weights only.
+
+    Args:
+        n_obs: observation size the network must take; spec: the network's shape (config.json's "ppo").
+
+    Raises:
+        ValueError: the file is unreadable, holds anything but tensors, or its weights do not fit
+            the network (e.g. another observation size; both sizes named).
+    """
+    # torch and stable-baselines3 are loaded only here: reading a folder's statistics and settings needs neither
+    import gymnasium as gym
+    import torch
+
+    from rl.policies.network import TanhMeanPolicy
+
+    raw = zip_entry(path, "policy.pth")
+    try:
+        state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises UnpicklingError, RuntimeError, ... for a bad file
+        raise ValueError(f"{path}: policy.pth holds something other than tensors; "
+                         f"refused ({type(exc).__name__})") from None
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise ValueError(f"{path}: policy.pth is not a table of tensors")
+    first = state.get("mlp_extractor.policy_net.0.weight")
+    if first is not None and first.shape[1] != n_obs:
+        raise ValueError(f"{path}: the network takes {first.shape[1]} observations; "
+                         f"the task (config.json) gives {n_obs}")
+    net = TanhMeanPolicy(gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32),
+                         gym.spaces.Box(-1.0, 1.0, (3,), np.float32), lambda _: 0.0, **spec.policy_kwargs())
+    try:
+        net.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: weights do not fit the network of config.json ({exc})") from None
+    net.set_training_mode(False)
+    return net

@@ -1,0 +1,121 @@
+"""The navigation task: what a learned pilot is trained and evaluated on (`NavConfig`), and fixed episodes.
+
+`NavConfig` gathers the vehicle, the rates, the senses' settings (`rl.sensing`), the city and leg
+distributions (`rl.task.cities`), the air and the reward (`rl.task.reward`); a policy folder's
+config.json stores it (`to_dict` / `from_dict`). The per-vehicle tasks are in `rl.task.vehicles`.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+from rl.sensing.observation import ObservationScales
+from rl.sensing.perception import PerceptionConfig
+from rl.sensing.route import RouteConfig
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
+from rl.task.reward import RewardConfig
+from uam_fdm.air.wind import TurbulenceLevel
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.pilot import Task
+
+
+@dataclass(frozen=True)
+class NavConfig:
+    """Everything that defines the navigation task (all defaults are the shipped policy's).
+
+    Attributes:
+        vehicle: preset name or vehicle YAML path.
+        physics_hz, control_hz: physics and low-level control period rates [Hz].
+        decision_hz: the policy's decision rate [Hz] (must divide control_hz); the command is held
+            between decisions.
+        perception: rays and height map (`rl.sensing.perception`); route: the geodesic potential (`rl.sensing.route`).
+        scales: the observation's length scales (`rl.sensing.observation`); the clearance is measured
+            exactly up to `scales.clearance_m` and reads that value beyond.
+        city_split: "train" or "eval": which seed range the city pool comes from.
+        city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
+        cities: city generator parameter ranges; tasks: start/goal distribution.
+        turbulence: turbulence level (none/light/moderate/severe).
+        steady_wind_max_m_s: steady horizontal wind speed drawn uniformly in [0, this] [m/s].
+        wind_pool_size: turbulence stacks (series at the probe heights up to the cities' ceiling,
+            `uam_fdm.air.wind.gust_stack`) shared by all episodes (each episode starts at a random sample
+            of one); wind_series_s: length of each [s]. The steady wind is uniform with height.
+        reward: reward weights.
+    """
+
+    vehicle: str = "small_quad"
+    physics_hz: float = 500.0
+    control_hz: float = 50.0
+    decision_hz: float = 10.0
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    route: RouteConfig = field(default_factory=RouteConfig)
+    scales: ObservationScales = field(default_factory=ObservationScales)
+    city_split: str = "train"
+    city_pool_size: int = 1024
+    city_pool_offset: int = 0
+    cities: CityDistribution = field(default_factory=CityDistribution)
+    tasks: TaskDistribution = field(default_factory=TaskDistribution)
+    turbulence: str = "light"
+    steady_wind_max_m_s: float = 3.0
+    wind_pool_size: int = 16
+    wind_series_s: float = 400.0
+    reward: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        if self.city_split not in ("train", "eval"):
+            raise ValueError(f"city_split must be 'train' or 'eval', got {self.city_split!r}")
+        TurbulenceLevel.parse(self.turbulence)
+        if self.city_pool_size < 1 or self.wind_pool_size < 1:
+            raise ValueError("city_pool_size and wind_pool_size must be positive")
+        ratio = self.control_hz / self.decision_hz if self.decision_hz > 0 else 0.0
+        if self.decision_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(f"decision_hz {self.decision_hz} must divide control_hz {self.control_hz}")
+
+    @property
+    def action_repeat(self) -> int:
+        """Control periods per decision."""
+        return int(round(self.control_hz / self.decision_hz))
+
+    def city_seeds(self) -> list[int]:
+        """The pool's city seeds."""
+        rng = TRAIN_SEEDS if self.city_split == "train" else EVAL_SEEDS
+        seeds = list(rng[self.city_pool_offset: self.city_pool_offset + self.city_pool_size])
+        if len(seeds) < self.city_pool_size:
+            raise ValueError(f"city pool {self.city_pool_offset}+{self.city_pool_size} exceeds the "
+                             f"{self.city_split} range")
+        return seeds
+
+    def to_dict(self) -> dict:
+        """Plain-data form (for the policy's config file)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> NavConfig:
+        """The inverse of `to_dict`.
+
+        Raises:
+            ValueError: a key this version does not know (e.g. a policy written by an older
+                version), naming it.
+        """
+        d = dict(d)
+        nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
+                  "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales}
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown navigation settings {unknown} (written by another version?)")
+        for key, typ in nested.items():
+            if key in d:
+                sub = d[key]
+                bad = sorted(set(sub) - {f.name for f in fields(typ)})
+                if bad:
+                    raise ValueError(f"unknown {key} settings {bad} (written by another version?)")
+                d[key] = typ(**{k: tuple(v) if isinstance(v, list) else v for k, v in sub.items()})
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class FixedEpisodes:
+    """Episodes from a scenario instead of sampled ones: cities and (city index, task) pairs, cycled."""
+
+    cities: tuple[BuildingMap, ...]
+    tasks: tuple[tuple[int, Task], ...]
+

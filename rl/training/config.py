@@ -1,0 +1,82 @@
+"""One training run's settings: the task, the PPO preset, the success-gated curriculum, evaluation and checkpoints."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from rl.task.config import NavConfig
+from rl.training.ppo import PRESETS
+
+
+@dataclass(frozen=True)
+class Curriculum:
+    """Success-gated task difficulty (`TaskDistribution.sample`'s `difficulty`, the leg length).
+
+    Starts at `start`; whenever the success rate of the last `window` training episodes reaches
+    `gate`, the difficulty rises by `step` (to 1 at most; the window then starts afresh).
+    `start` = 1 turns the curriculum off.
+    """
+
+    start: float = 0.25
+    step: float = 0.25
+    gate: float = 0.8
+    window: int = 512
+
+    def __post_init__(self) -> None:
+        if not (0 < self.start <= 1 and 0 < self.step <= 1 and 0 < self.gate <= 1 and self.window >= 1):
+            raise ValueError(f"curriculum needs 0 < start, step, gate <= 1 and window >= 1; got {self}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run.
+
+    Attributes:
+        preset: PPO preset name (see PRESETS).
+        total_timesteps: decisions to train for (all vehicles together).
+        n_envs: vehicles stepped together.
+        seed: the one seed (environment slots, PPO's torch and numpy generators, evaluation).
+        nav: the task definition (training cities).
+        curriculum: the success-gated difficulty schedule.
+        eval_every: evaluate on validation cities every this many timesteps; eval_episodes: episodes each.
+        collision_weight: the kept checkpoint maximises validation success - collision_weight x
+            collision rate (a crash costs more than a time-out: it is the failure a user cannot accept).
+        checkpoint_every: save a checkpoint every this many timesteps (0 = never).
+        torch_threads: torch intra-op threads (1: small-tensor work is fastest single-threaded here).
+    """
+
+    preset: str = "paper"
+    total_timesteps: int = 10_000_000
+    n_envs: int = 256
+    seed: int = 0
+    nav: NavConfig = field(default_factory=NavConfig)
+    curriculum: Curriculum = field(default_factory=Curriculum)
+    eval_every: int = 1_000_000
+    eval_episodes: int = 500
+    collision_weight: float = 2.0
+    checkpoint_every: int = 2_000_000
+    torch_threads: int = 1
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; choose from {sorted(PRESETS)}")
+        for k in ("total_timesteps", "n_envs", "eval_every", "eval_episodes"):
+            if getattr(self, k) < 1:
+                raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+        if not (np.isfinite(self.collision_weight) and self.collision_weight >= 0):
+            raise ValueError(f"collision_weight must be a finite number >= 0, got {self.collision_weight!r}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["ppo"] = asdict(PRESETS[self.preset])
+        d["ppo"]["gamma"] = PRESETS[self.preset].gamma(self.nav.decision_hz)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        d = {k: v for k, v in d.items() if k != "ppo"}
+        d["nav"] = NavConfig.from_dict(d["nav"])
+        if "curriculum" in d:
+            d["curriculum"] = Curriculum(**d["curriculum"])
+        return cls(**d)
