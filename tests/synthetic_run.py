@@ -123,7 +123,7 @@ def write_run(run_dir: Path, policy_dir: Path | None) -> None:
 
 def write_reward_curve(policy_dir: Path, updates: int = 240, seed: int = 0, eval_every: int = 30,
                        kept_update: int | None = 210, rate: float = 1.0) -> dict:
-    """A policy folder's `reward_curve.csv` in the format of `rl.training.loop` (one row per update) and provenance.json.
+    """A policy folder's `reward_curve.csv` as `rl.training.loop` writes it (one row per update) and provenance.json.
 
     The return rises from about -110 and levels off near 160 (`rate` scales how fast); the curriculum
     goes 0.25 -> 0.5 -> 0.75 -> 1 at 30 %, 38 % and 45 % of the run; validation runs every

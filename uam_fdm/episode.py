@@ -2,7 +2,7 @@
 
 The comparison runner (`compare.episode_loop`, one vehicle) and the learned pilot's environment
 (`rl.env.world`, N vehicles) both call these after every control period, so an episode flown through
-either ends at the same physics substep for the same reason (tests/rl/test_rl_agent.py flies one
+either ends at the same physics substep for the same reason (tests/rl/pilots/test_learned_pilot.py flies one
 episode both ways and compares the states bit for bit).
 
 After a control period of S physics substeps, in this order (the first that applies wins):

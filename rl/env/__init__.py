@@ -1,0 +1,1 @@
+"""The navigation environment: the batched engine (`world`), the gymnasium env, the SB3 VecEnv."""

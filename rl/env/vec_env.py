@@ -2,7 +2,7 @@
 
 The paper's parallel agents without N processes: one `NavBatch` steps every vehicle through the
 compiled model at once. Slot i seeded with `seed + i` produces exactly the transitions of a
-`UAMNavEnv` seeded with `seed + i` (tests/rl/test_rl_env.py). Finished episodes reset automatically
+`UAMNavEnv` seeded with `seed + i` (tests/rl/env/test_nav_env.py). Finished episodes reset automatically
 (SB3 convention): the returned observation is the new episode's first, the last one is in
 `infos[i]["terminal_observation"]`, and `infos[i]["TimeLimit.truncated"]` marks time-outs.
 """

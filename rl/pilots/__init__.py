@@ -1,0 +1,1 @@
+"""The learned pilots as `uam_fdm.pilot.Agent`s: the trained policy and the potential field."""

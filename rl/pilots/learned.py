@@ -7,7 +7,7 @@ At reset it computes the task's geodesic route field (timed, reported as plannin
 a `VelocityCommand` held for the policy's decision period (e.g. 5 control periods at 10 Hz), which
 the runner flies through the same low-level controller, period by period, with the same end
 rules the environment applies; so an episode flown through the runner is bit-identical to the
-environment's (tests/rl/test_rl_agent.py).
+environment's (tests/rl/pilots/test_learned_pilot.py).
 """
 from __future__ import annotations
 
@@ -30,8 +30,8 @@ from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
-if TYPE_CHECKING:  # the network's module pulls in torch and stable-baselines3, loaded only with a network
-    from rl.policies.network import TanhMeanPolicy
+if TYPE_CHECKING:  # the network's module pulls in PyTorch, loaded only with a network
+    from rl.policies.network import ActorCritic
 
 
 @dataclass
@@ -39,14 +39,14 @@ class Policy:
     """A trained policy: its network, its observation statistics and the task it was trained on."""
 
     folder: Path
-    network: TanhMeanPolicy
+    network: ActorCritic
     obs_norm: ObsNorm
     nav: NavConfig
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (N, 3) in [-1, 1] for raw observations (N, obs)."""
-        act, _ = self.network.predict(self.obs_norm.normalize(np.asarray(obs, dtype=np.float64)), deterministic=True)
-        return np.asarray(act, dtype=np.float64).reshape(-1, 3)
+        act = self.network.act(self.obs_norm.normalize(np.asarray(obs, dtype=np.float64)))
+        return np.asarray(act, dtype=np.float64)
 
 
 def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None = None) -> Policy:

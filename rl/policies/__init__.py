@@ -1,0 +1,1 @@
+"""Policy folders: their format (`folder`), safe reader (`reader`), network, and the shipped ones."""

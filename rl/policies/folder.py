@@ -68,7 +68,7 @@ def shipped_policy_dir(vehicle: str) -> Path | None:
 @dataclass(frozen=True)
 class NetworkSpec:
     """The policy network's shape: the paper's two dense layers of 128 units for the actor and for the
-    critic (`rl.policies.network.TanhMeanPolicy`), and the initial log standard deviation of its actions.
+    critic (`rl.policies.network.ActorCritic`), and the initial log standard deviation of its actions.
 
     Attributes:
         net_arch: hidden units per layer (the same for actor and critic).

@@ -25,8 +25,8 @@ import numpy as np
 from rl.policies.folder import NetworkSpec
 from uam_fdm.files.atomic import atomic_open
 
-if TYPE_CHECKING:  # torch and stable-baselines3 load only with a network
-    from rl.policies.network import TanhMeanPolicy
+if TYPE_CHECKING:  # PyTorch loads only with a network
+    from rl.policies.network import ActorCritic
 
 OBS_NORM_KEYS = ("mean", "var", "count", "epsilon", "clip_obs")
 
@@ -111,7 +111,7 @@ def zip_entry(path: Path, name: str) -> bytes:
         raise ValueError(f"{path}: not a readable zip file ({exc})") from None
 
 
-def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> TanhMeanPolicy:
+def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> ActorCritic:
     """The actor-critic of `model.zip` at `path`, built from settings and filled with its weights only.
 
     Args:
@@ -121,11 +121,10 @@ def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> TanhMeanPolicy:
         ValueError: the file is unreadable, holds anything but tensors, or its weights do not fit
             the network (e.g. another observation size; both sizes named).
     """
-    # torch and stable-baselines3 are loaded only here: reading a folder's statistics and settings needs neither
-    import gymnasium as gym
+    # PyTorch is loaded only here: reading a folder's statistics and settings (fingerprints, reports) needs none
     import torch
 
-    from rl.policies.network import TanhMeanPolicy
+    from rl.policies.network import ActorCritic
 
     raw = zip_entry(path, "policy.pth")
     try:
@@ -139,11 +138,9 @@ def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> TanhMeanPolicy:
     if first is not None and first.shape[1] != n_obs:
         raise ValueError(f"{path}: the network takes {first.shape[1]} observations; "
                          f"the task (config.json) gives {n_obs}")
-    net = TanhMeanPolicy(gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32),
-                         gym.spaces.Box(-1.0, 1.0, (3,), np.float32), lambda _: 0.0, **spec.policy_kwargs())
+    net = ActorCritic(n_obs, spec)
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError as exc:
         raise ValueError(f"{path}: weights do not fit the network of config.json ({exc})") from None
-    net.set_training_mode(False)
-    return net
+    return net.eval()

@@ -5,7 +5,7 @@ distinct buildings within the sensing range (nearest point on each building's su
 signed distance to it) and the clearance to buildings and the ground. Distances are the exact
 point-to-box kernel of `uam_fdm.city.distance` (`box_signed_sq_distance`, `box_signed_distance_one`), the
 one `uam_fdm.city.buildings.BuildingMap.clearance` uses (which agrees with FCL to ~1e-12 m;
-tests/rl/test_rl_env.py::test_sensor_matches_fcl checks this sensor against FCL directly).
+tests/rl/env/test_nav_env.py::test_sensor_matches_fcl checks this sensor against FCL directly).
 
 Speed comes from a per-city grid: each cell of `cell_m` lists every building whose footprint
 could lie within `range_m` of a point in the cell (a conservative circumscribed-circle test), so a

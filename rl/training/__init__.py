@@ -1,0 +1,1 @@
+"""Training the learned pilot with PPO: presets, run settings, the loop, resuming, evaluation."""

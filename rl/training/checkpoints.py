@@ -17,9 +17,8 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from rl.policies.network import TanhMeanPolicy
 from rl.policies.reader import OBS_NORM_KEYS, ObsNorm, load_arrays, zip_entry
-from rl.training.ppo import PPOPreset
+from rl.training.ppo import PPOPreset, TanhMeanPolicy
 from uam_fdm.files.atomic import atomic_open
 
 VEC_NORM_KEYS = OBS_NORM_KEYS + ("ret_mean", "ret_var", "ret_count", "clip_reward", "gamma")

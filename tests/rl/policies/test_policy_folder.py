@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 
 from compare.fingerprint import policy_fingerprint
-from rl.training import loop
 from rl.pilots.learned import load_policy
 from rl.policies.folder import (
     CHECKPOINT_FILES,
@@ -21,6 +20,7 @@ from rl.policies.folder import (
     Provenance,
     shipped_policy_dir,
 )
+from rl.training import loop
 
 
 @pytest.mark.parametrize("vehicle", sorted(SHIPPED_POLICIES))

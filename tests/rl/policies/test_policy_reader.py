@@ -142,7 +142,7 @@ def test_run_checks_the_whole_policy_before_creating_its_folder(folder, tmp_path
 
     (folder / "obs_norm.npz").write_bytes(b"not an npz")
     out = tmp_path / "run"
-    tiny = Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml"
+    tiny = Path(__file__).resolve().parents[2] / "data" / "tiny_scenario.yaml"
     assert main(["run", str(tiny), "--policy", str(folder), "--out", str(out), "--no-progress"]) == 2
     assert "obs_norm.npz: not a plain-number .npz file" in capsys.readouterr().err
     assert not out.exists()

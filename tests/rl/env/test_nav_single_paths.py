@@ -5,7 +5,7 @@ paths where NumPy's per-call overhead dominated (`WindBank._wind_one`, `BatchSim
 `episode._period_outcome_one`, `Perception._rays_one/_roofs_one`, `RouteBank._potential_one/
 _direction_one`, `observation._build_observation_one`). Each is compared here with the vectorised
 path on the same row inside a batch of many, over random inputs and the edge cases, including the
-sign of zeros; tests/rl/test_rl_env.py checks a whole single env against the batched one.
+sign of zeros; tests/rl/env/test_nav_env.py checks a whole single env against the batched one.
 """
 from __future__ import annotations
 

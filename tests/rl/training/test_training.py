@@ -12,11 +12,11 @@ from rl.env.gym_env import UAMNavEnv
 from rl.env.world import NavWorld
 from rl.pilots.learned import load_policy
 from rl.pilots.potential_field import PotentialFieldPilot
+from rl.policies.folder import CURVE_COLUMNS
 from rl.sensing.observation import obs_size
 from rl.task.config import FixedEpisodes, NavConfig
 from rl.training.config import Curriculum, TrainConfig
 from rl.training.evaluation import evaluate, paired_counts
-from rl.policies.folder import CURVE_COLUMNS
 from rl.training.loop import train
 from rl.training.ppo import PRESETS
 from uam_fdm.city.buildings import Building, BuildingMap

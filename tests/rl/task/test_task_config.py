@@ -1,0 +1,51 @@
+"""The task definition (`rl.task`): a policy's config.json round trip, strict reading, rates, per-vehicle tasks
+and the disjoint city pools."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS
+from rl.task.config import NavConfig
+from rl.task.vehicles import TASKS, task_for
+from rl.training.evaluation import eval_config
+
+
+@pytest.mark.parametrize("vehicle", sorted(TASKS))
+def test_a_task_survives_its_config_file(vehicle: str) -> None:
+    nav = task_for(vehicle)
+    again = NavConfig.from_dict(json.loads(json.dumps(nav.to_dict())))
+    assert again == nav and again.vehicle == vehicle
+
+
+def test_unknown_settings_are_named() -> None:
+    d = NavConfig().to_dict()
+    with pytest.raises(ValueError, match=r"unknown navigation settings \['wings'\]"):
+        NavConfig.from_dict({**d, "wings": 2})
+    with pytest.raises(ValueError, match=r"unknown reward settings \['bonus'\]"):
+        NavConfig.from_dict({**d, "reward": {**d["reward"], "bonus": 1.0}})
+
+
+def test_the_decision_rate_must_divide_the_control_rate() -> None:
+    assert NavConfig(control_hz=50.0, decision_hz=10.0).action_repeat == 5
+    with pytest.raises(ValueError, match="decision_hz 15.0 must divide control_hz 50.0"):
+        NavConfig(decision_hz=15.0)
+    with pytest.raises(ValueError, match="city_split"):
+        NavConfig(city_split="test")
+
+
+def test_a_vehicle_without_a_task_is_named() -> None:
+    with pytest.raises(ValueError, match=r"no learned-pilot task for vehicle 'glider'; tasks exist for"):
+        task_for("glider")
+
+
+def test_training_validation_and_test_cities_are_disjoint() -> None:
+    train = set(NavConfig(city_pool_size=len(TRAIN_SEEDS)).city_seeds())
+    test = set(eval_config(NavConfig(), 1000, pool="test").city_seeds())
+    validation = set(eval_config(NavConfig(), 1000, pool="validation").city_seeds())
+    assert len(test) == len(validation) == 1000
+    assert not (train & test) and not (train & validation) and not (test & validation)
+    assert test <= set(EVAL_SEEDS) and validation <= set(EVAL_SEEDS)
+    with pytest.raises(ValueError, match="exceeds the train range"):
+        NavConfig(city_pool_size=len(TRAIN_SEEDS) + 1).city_seeds()
