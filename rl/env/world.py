@@ -40,6 +40,7 @@ from uam_fdm.air.wind import (
     WindField,
     gust_stack,
     probe_heights_up_to,
+    turbulence_airspeed_m_s,
 )
 from uam_fdm.pilot import Task
 from uam_fdm.sim import BatchSimulator
@@ -84,7 +85,8 @@ class NavWorld:
         if self.turbulent:
             cond = WindConditions((0.0, 0.0, 0.0), level)
             heights = probe_heights_up_to(float(self.hi[:, 2].max()))
-            airspeed = self.vehicle.controller.max_speed_m_s
+            # one airspeed for the pool: every episode's steady wind is at most steady_wind_max_m_s
+            airspeed = turbulence_airspeed_m_s(self.vehicle.controller.max_speed_m_s, config.steady_wind_max_m_s)
             seeds = [7919 * (j + 1) for j in range(config.wind_pool_size)]
             donor = wind_from.gust_stacks[:len(seeds)] if wind_from is not None else []
             if (wind_from is not None and len(donor) == len(seeds)

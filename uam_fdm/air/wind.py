@@ -434,6 +434,14 @@ def probe_heights_up_to(ceiling_m: float, ladder: Sequence[float] = PROBE_HEIGHT
     return ladder[: max(k, 1) + 1]
 
 
+def turbulence_airspeed_m_s(max_speed_m_s: float, steady_wind_m_s: float = 0.0) -> float:
+    """The reference airspeed of a flight's turbulence model [m/s] (one per flight, see `gust_stack`): the
+    vehicle's top speed, or the steady wind's speed when that is stronger (holding station against it is
+    flying at that airspeed), within [1, 100] m/s. The comparison's runner and the learned pilot's
+    environment both take it from here."""
+    return float(np.clip(max(max_speed_m_s, steady_wind_m_s), 1.0, 100.0))
+
+
 @dataclass(frozen=True, eq=False)
 class GustStack:
     """Gust series at a ladder of probe heights, filters of the same white noise (one seed, one spin-up).
