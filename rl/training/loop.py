@@ -16,6 +16,7 @@ import shutil
 import sys
 import time
 from collections import deque
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +27,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.env.vec_env import UAMNavVecEnv
-from rl.env.world import NavWorld
+from rl.env.world import NavBatch, NavWorld
 from rl.policies.folder import CHECKPOINT_FILES, CURVE_COLUMNS, PolicyFolder
 from rl.policies.reader import ObsNorm
 from rl.training.checkpoints import load_model_for_resume, restore_vec_normalize, save_vec_normalize
@@ -57,141 +58,182 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         The kept model's evaluation on `cfg.eval_episodes` validation episodes.
     """
     torch.set_num_threads(cfg.torch_threads)
-    out_dir = Path(out_dir)
-    out = PolicyFolder(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    out.checkpoints.mkdir(exist_ok=True)
-    preset = PRESETS[cfg.preset]
-    t_start = time.perf_counter()
-    log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
-    base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
-    eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"), dynamics=base.world.dynamics,
-                          atmosphere=base.world.atmosphere, wind_from=base.world)
-    curve_path = out.reward_curve
-    if resume is not None:
-        resume = Path(resume)
-        src = PolicyFolder(resume)
-        venv = restore_vec_normalize(src.vec_normalize, base)
-        model = load_model_for_resume(src.model, venv, preset, out.tensorboard)
-        state_file = src.curriculum
-        difficulty = json.loads(state_file.read_text())["difficulty"] if state_file.is_file() else 1.0
-        log(f"resumed from {resume} at {model.num_timesteps} timesteps (difficulty {difficulty:g})")
-    else:
-        venv = normalized_env(base, preset, cfg.nav.decision_hz)
-        model = make_model(preset, venv, cfg.seed, cfg.nav.decision_hz, out.tensorboard)
-        difficulty = cfg.curriculum.start
-    base.batch.difficulty = difficulty
-    if resume is None or not curve_path.exists():
-        with open(curve_path, "w", newline="") as f:
-            csv.writer(f).writerow(CURVE_COLUMNS)
+    run = _TrainingRun(cfg, Path(out_dir), Path(resume) if resume is not None else None, log, world)
+    remaining = cfg.total_timesteps - run.model.num_timesteps
+    if remaining > 0:
+        run.model.learn(total_timesteps=remaining, callback=_Periodic(run), progress_bar=progress,
+                        reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
+    run.write_row(run.evaluate())
+    best_steps, kept = run.keep_best()
+    _write_json(run.out.provenance_file, run.provenance(best_steps, kept, command or " ".join(sys.argv)))
+    return kept
 
-    def pilot(obs: np.ndarray, _batch) -> np.ndarray:
-        act, _ = model.predict(ObsNorm.of(venv).normalize(obs), deterministic=True)
+
+class _TrainingRun:
+    """One training run's environments, model and records: what the PPO callback and the end of the run use.
+
+    Args:
+        cfg: the run's settings; out_dir: the policy folder to write; resume: a checkpoint folder to resume
+        from (None: a fresh model); log: where progress lines go; world: replaces the training world.
+    """
+
+    def __init__(self, cfg: TrainConfig, out_dir: Path, resume: Path | None, log: Callable[[str], object],
+                 world: NavWorld | None) -> None:
+        self.cfg, self.out_dir, self.resume, self.log = cfg, out_dir, resume, log
+        self.out = PolicyFolder(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.out.checkpoints.mkdir(exist_ok=True)
+        preset = PRESETS[cfg.preset]
+        self.t_start = time.perf_counter()
+        log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
+        self.base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
+        self.eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
+                                   dynamics=self.base.world.dynamics, atmosphere=self.base.world.atmosphere,
+                                   wind_from=self.base.world)
+        if resume is not None:
+            src = PolicyFolder(resume)
+            self.venv = restore_vec_normalize(src.vec_normalize, self.base)
+            self.model = load_model_for_resume(src.model, self.venv, preset, self.out.tensorboard)
+            state_file = src.curriculum
+            difficulty = json.loads(state_file.read_text())["difficulty"] if state_file.is_file() else 1.0
+            log(f"resumed from {resume} at {self.model.num_timesteps} timesteps (difficulty {difficulty:g})")
+        else:
+            self.venv = normalized_env(self.base, preset, cfg.nav.decision_hz)
+            self.model = make_model(preset, self.venv, cfg.seed, cfg.nav.decision_hz, self.out.tensorboard)
+            difficulty = cfg.curriculum.start
+        self.base.batch.difficulty = difficulty
+        if resume is None or not self.out.reward_curve.exists():
+            with open(self.out.reward_curve, "w", newline="") as f:
+                csv.writer(f).writerow(CURVE_COLUMNS)
+        steps = self.model.num_timesteps
+        self.next_eval = (steps // cfg.eval_every + 1) * cfg.eval_every
+        self.next_ckpt = (steps // max(cfg.checkpoint_every, 1) + 1) * max(cfg.checkpoint_every, 1)
+        self.best: tuple[int, EvalResult] | None = None
+        self.recent: deque[str] = deque(maxlen=cfg.curriculum.window)  # the curriculum's window of outcomes
+        self.outcomes: list[str] = []  # training episodes that ended in this update
+        self.returns: list[float] = []
+
+    def pilot(self, obs: np.ndarray, _batch: NavBatch) -> np.ndarray:
+        """The current policy, deterministic, with the current normalisation (for evaluation)."""
+        act, _ = self.model.predict(ObsNorm.of(self.venv).normalize(obs), deterministic=True)
         return act
 
-    def save_to(folder: Path) -> None:
+    def save_to(self, folder: Path) -> None:
+        """Write the current model as a checkpoint folder (`CHECKPOINT_FILES`)."""
         folder.mkdir(parents=True, exist_ok=True)
         pf = PolicyFolder(folder)
-        _write_json(pf.config_file, cfg.to_dict())
-        _write_json(pf.curriculum, {"difficulty": base.batch.difficulty})
+        _write_json(pf.config_file, self.cfg.to_dict())
+        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty})
         with atomic_path(pf.model, suffix=".zip") as tmp:
-            model.save(str(tmp))
-        save_vec_normalize(pf.vec_normalize, venv)
-        ObsNorm.of(venv).save(pf.obs_norm)
+            self.model.save(str(tmp))
+        save_vec_normalize(pf.vec_normalize, self.venv)
+        ObsNorm.of(self.venv).save(pf.obs_norm)
 
-    state: dict[str, Any] = {"next_eval": (model.num_timesteps // cfg.eval_every + 1) * cfg.eval_every,
-                             "next_ckpt": (model.num_timesteps // max(cfg.checkpoint_every, 1) + 1)
-                             * max(cfg.checkpoint_every, 1),
-                             "best": None}
-    recent: deque[str] = deque(maxlen=cfg.curriculum.window)
-    update: dict[str, list] = {"returns": [], "outcomes": []}
-
-    def write_row(res: EvalResult | None) -> None:
-        outs, rets = update["outcomes"], update["returns"]
+    def write_row(self, res: EvalResult | None) -> None:
+        """Append this update's row to the reward curve (with the evaluation `res`, if one ran) and start afresh."""
+        outs, rets = self.outcomes, self.returns
         n = len(outs)
         rate = (lambda k: f"{outs.count(k) / n:.4f}") if n else (lambda k: "")
-        row = [model.num_timesteps, f"{np.mean(rets):.4f}" if rets else "", rate(Outcome.SUCCESS),
-               rate(Outcome.COLLISION), rate(Outcome.TIMEOUT), n, f"{base.batch.difficulty:.3f}",
+        row = [self.model.num_timesteps, f"{np.mean(rets):.4f}" if rets else "", rate(Outcome.SUCCESS),
+               rate(Outcome.COLLISION), rate(Outcome.TIMEOUT), n, f"{self.base.batch.difficulty:.3f}",
                f"{res.success_rate:.4f}" if res else "", f"{res.collision_rate:.4f}" if res else "",
-               res.episodes if res else "", f"{time.perf_counter() - t_start:.1f}"]
-        with open(curve_path, "a", newline="") as f:
+               res.episodes if res else "", f"{time.perf_counter() - self.t_start:.1f}"]
+        with open(self.out.reward_curve, "a", newline="") as f:
             csv.writer(f).writerow(row)
-        update["outcomes"], update["returns"] = [], []
+        self.outcomes, self.returns = [], []
 
-    def run_eval() -> EvalResult:
-        res = evaluate(pilot, cfg.nav, cfg.eval_episodes, seed=cfg.seed + 10_000, pool="validation", world=eval_world)
+    def evaluate(self) -> EvalResult:
+        """Evaluate the current model on the validation pool; keep it (as `best/`) when it is the best so far."""
+        cfg, model = self.cfg, self.model
+        res = evaluate(self.pilot, cfg.nav, cfg.eval_episodes, seed=cfg.seed + 10_000, pool="validation",
+                       world=self.eval_world)
         if getattr(model, "_logger", None) is not None:  # no logger before the first learn() call
             model.logger.record("eval/success_rate", res.success_rate)
             model.logger.record("eval/collision_rate", res.collision_rate)
-        log(f"{model.num_timesteps:>11,d} steps  {time.perf_counter() - t_start:7.0f} s  difficulty "
-            f"{base.batch.difficulty:4.2f}  validation success {res.success_rate:6.1%}  collisions "
-            f"{res.collision_rate:6.1%}  ({res.outcomes})")
-        best = state["best"]
+        self.log(f"{model.num_timesteps:>11,d} steps  {time.perf_counter() - self.t_start:7.0f} s  difficulty "
+                 f"{self.base.batch.difficulty:4.2f}  validation success {res.success_rate:6.1%}  collisions "
+                 f"{res.collision_rate:6.1%}  ({res.outcomes})")
+
         def score(r: EvalResult) -> float:
             return r.success_rate - cfg.collision_weight * r.collision_rate
 
         # only full-difficulty checkpoints compete; ties go to the later (more trained) one
-        if base.batch.difficulty >= 1.0 and (best is None or score(res) >= score(best[1])):
-            state["best"] = (model.num_timesteps, res)
-            save_to(out_dir / "best")
+        if self.base.batch.difficulty >= 1.0 and (self.best is None or score(res) >= score(self.best[1])):
+            self.best = (model.num_timesteps, res)
+            self.save_to(self.out_dir / "best")
         return res
 
-    class Periodic(BaseCallback):
-        def _on_step(self) -> bool:
-            for info in self.locals["infos"]:
-                if "outcome" in info:
-                    update["outcomes"].append(info["outcome"])
-                    update["returns"].append(info["episode"]["r"])
-                    recent.append(info["outcome"])
-            cur = cfg.curriculum
-            if (base.batch.difficulty < 1.0 and len(recent) == recent.maxlen
-                    and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate):
-                base.batch.difficulty = min(1.0, base.batch.difficulty + cur.step)
-                recent.clear()
-                log(f"{self.num_timesteps:>11,d} steps  curriculum: difficulty {base.batch.difficulty:.2f}")
-            return True
+    def episodes_ended(self, infos: Sequence[dict], num_timesteps: int) -> None:
+        """Record the training episodes that ended in a step; raise the curriculum's difficulty when earned."""
+        for info in infos:
+            if "outcome" in info:
+                self.outcomes.append(info["outcome"])
+                self.returns.append(info["episode"]["r"])
+                self.recent.append(info["outcome"])
+        cur, batch, recent = self.cfg.curriculum, self.base.batch, self.recent
+        if (batch.difficulty < 1.0 and len(recent) == recent.maxlen
+                and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate):
+            batch.difficulty = min(1.0, batch.difficulty + cur.step)
+            recent.clear()
+            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {batch.difficulty:.2f}")
 
-        def _on_rollout_end(self) -> None:
-            res = None
-            if self.num_timesteps >= state["next_eval"]:
-                state["next_eval"] += cfg.eval_every
-                res = run_eval()
-            write_row(res)
-            if cfg.checkpoint_every and self.num_timesteps >= state["next_ckpt"]:
-                state["next_ckpt"] += cfg.checkpoint_every
-                save_to(out.checkpoint(self.num_timesteps).path)
+    def update_ended(self, num_timesteps: int) -> None:
+        """After each rollout: the reward curve's row, an evaluation and a checkpoint when due."""
+        res = None
+        if num_timesteps >= self.next_eval:
+            self.next_eval += self.cfg.eval_every
+            res = self.evaluate()
+        self.write_row(res)
+        if self.cfg.checkpoint_every and num_timesteps >= self.next_ckpt:
+            self.next_ckpt += self.cfg.checkpoint_every
+            self.save_to(self.out.checkpoint(num_timesteps).path)
 
-    remaining = cfg.total_timesteps - model.num_timesteps
-    if remaining > 0:
-        model.learn(total_timesteps=remaining, callback=Periodic(), progress_bar=progress,
-                    reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
-    write_row(run_eval())
-    if state["best"] is None:  # the curriculum never reached full difficulty: keep the last model
-        state["best"] = (model.num_timesteps, run_eval())
-        save_to(out_dir / "best")
-        log("the curriculum never reached full difficulty; keeping the last model")
-    best_steps, kept = state["best"]
-    for name in CHECKPOINT_FILES:
-        os.replace(out_dir / "best" / name, out_dir / name)
-    shutil.rmtree(out_dir / "best", ignore_errors=True)
-    log(f"kept the checkpoint at {best_steps:,d} timesteps: validation success {kept.success_rate:.1%}, "
-        f"collisions {kept.collision_rate:.1%}")
-    wall = time.perf_counter() - t_start
-    prov = {
-        "command": command or " ".join(sys.argv), "seed": cfg.seed, "preset": cfg.preset, "method": "PPO from scratch",
-        "timesteps": int(model.num_timesteps), "wall_time_s": round(wall, 1), "kept_timesteps": int(best_steps),
-        "timesteps_per_s": round(model.num_timesteps / wall, 1) if resume is None else None,
-        "resumed_from": str(resume) if resume else None,
-        "pools": {"training": f"train seeds {cfg.nav.city_pool_offset}.."
-                              f"{cfg.nav.city_pool_offset + cfg.nav.city_pool_size - 1}",
-                  "selection": f"validation pool, {cfg.eval_episodes} cities (eval seeds 1,050,000 on), "
-                               f"max success - {cfg.collision_weight:g} x collisions",
-                  "test": "test pool (eval seeds 1,000,000 on): never used here; "
-                          "`uam-compare evaluate-policy` reports it"},
-        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                    "cpus": os.cpu_count(), "torch_threads": cfg.torch_threads},
-        "versions": _versions(), "validation_of_kept_model": kept.as_dict(),
-        "code": code_version(),  # which physics the policy learned on (the flight model changes with the code)
-    }
-    _write_json(out.provenance_file, prov)
-    return kept
+    def keep_best(self) -> tuple[int, EvalResult]:
+        """Move the best checkpoint's files into the policy folder: (its timesteps, its validation)."""
+        if self.best is None:  # the curriculum never reached full difficulty: keep the last model
+            self.best = (self.model.num_timesteps, self.evaluate())
+            self.save_to(self.out_dir / "best")
+            self.log("the curriculum never reached full difficulty; keeping the last model")
+        best_steps, kept = self.best
+        for name in CHECKPOINT_FILES:
+            os.replace(self.out_dir / "best" / name, self.out_dir / name)
+        shutil.rmtree(self.out_dir / "best", ignore_errors=True)
+        self.log(f"kept the checkpoint at {best_steps:,d} timesteps: validation success {kept.success_rate:.1%}, "
+                 f"collisions {kept.collision_rate:.1%}")
+        return best_steps, kept
+
+    def provenance(self, best_steps: int, kept: EvalResult, command: str) -> dict[str, Any]:
+        """provenance.json's record of the finished run."""
+        cfg, model, resume = self.cfg, self.model, self.resume
+        wall = time.perf_counter() - self.t_start
+        return {
+            "command": command, "seed": cfg.seed, "preset": cfg.preset, "method": "PPO from scratch",
+            "timesteps": int(model.num_timesteps), "wall_time_s": round(wall, 1), "kept_timesteps": int(best_steps),
+            "timesteps_per_s": round(model.num_timesteps / wall, 1) if resume is None else None,
+            "resumed_from": str(resume) if resume else None,
+            "pools": {"training": f"train seeds {cfg.nav.city_pool_offset}.."
+                                  f"{cfg.nav.city_pool_offset + cfg.nav.city_pool_size - 1}",
+                      "selection": f"validation pool, {cfg.eval_episodes} cities (eval seeds 1,050,000 on), "
+                                   f"max success - {cfg.collision_weight:g} x collisions",
+                      "test": "test pool (eval seeds 1,000,000 on): never used here; "
+                              "`uam-compare evaluate-policy` reports it"},
+            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                        "cpus": os.cpu_count(), "torch_threads": cfg.torch_threads},
+            "versions": _versions(), "validation_of_kept_model": kept.as_dict(),
+            "code": code_version(),  # which physics the policy learned on (the flight model changes with the code)
+        }
+
+
+class _Periodic(BaseCallback):
+    """SB3's hooks into the run: every step (episodes that ended, the curriculum) and every rollout's end."""
+
+    def __init__(self, run: _TrainingRun) -> None:
+        super().__init__()
+        self.run = run
+
+    def _on_step(self) -> bool:
+        self.run.episodes_ended(self.locals["infos"], self.num_timesteps)
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self.run.update_ended(self.num_timesteps)
