@@ -25,6 +25,7 @@ import yaml
 from pypdf import PdfReader
 
 import compare.campaign
+import compare.cells
 import compare.fingerprint
 from compare.cli import main
 from compare.results.trajectory import EpisodeMeta, load_episode, save_episode
@@ -439,16 +440,16 @@ def test_maps_on_a_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
 @pytest.fixture
 def synthetic_flying(monkeypatch: pytest.MonkeyPatch) -> None:
     """`run` flies each cell as a short synthetic flight and scores it without report or viewer (fast)."""
-    def fly(self: compare.campaign.CellRunner, c: compare.campaign.Cell) -> Path:
+    def fly(self: compare.cells.CellRunner, c: compare.cells.Cell) -> Path:
         sc = self.scenarios[c.scenario]
-        task, key = sc.episodes[c.episode].task, compare.campaign.cell_key(self.scenarios, c)
+        task, key = sc.episodes[c.episode].task, compare.cells.cell_key(self.scenarios, c)
         meta = EpisodeMeta(key, sc.city.name or sc.name, sc.vehicle_name, tuple(task.start_m), tuple(task.goal_m),
                            task.goal_radius_m, task.timeout_s, sc.vehicle.collision_radius_m, sc.vehicle.n_rotors,
                            1e4, "success", 0.0, "synthetic")
         return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta,
                             trajectory(200, 10.0, 0.0, 1.0, "success", 0))
     finalize = compare.campaign.finalize
-    monkeypatch.setattr(compare.campaign.CellRunner, "run", fly)
+    monkeypatch.setattr(compare.cells.CellRunner, "run", fly)
     monkeypatch.setattr(compare.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))
 
 

@@ -15,7 +15,8 @@ import yaml
 from pypdf import PdfReader
 
 from compare import pilots
-from compare.campaign import Cell, CellRunner, fairness
+from compare.campaign import fairness
+from compare.cells import Cell, CellRunner
 from compare.cli import main
 from compare.results.trajectory import load_episode
 from compare.scenario import load_scenario, scenario_from_dict
