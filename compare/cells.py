@@ -64,7 +64,8 @@ class CellRunner:
         """The agent flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
         fp = sc.vehicle.fingerprint() if pilots.pilot(method).needs_policy else ""
         if (method, fp) not in self._agents:
-            self._agents[method, fp] = pilots.build(method, sc, self.policies.get(fp) if fp else None)
+            request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source, self.policies.get(fp) if fp else None)
+            self._agents[method, fp] = pilots.build(method, request)
         return self._agents[method, fp]
 
     def run(self, c: Cell) -> Path:

@@ -88,7 +88,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from compare.backends import check_backend
     from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
     from compare.results.outputs import check_output_dir
-    from compare.scenario import resolve_scenarios, seeds_problem, with_methods
+    from compare.scenario import seeds_problem, with_methods
+    from compare.sets import resolve_scenarios
 
     for flag, names in (("--method", args.method), ("--methods", args.methods or ())):
         for m in names:  # registered, or a plug-in (imported here, before anything flies)
@@ -305,7 +306,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from compare.scenario import resolve_scenarios
+    from compare.sets import resolve_scenarios
 
     for sc in resolve_scenarios(args.scenario):
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
