@@ -63,7 +63,7 @@ from compare.results.run_info import (
 )
 from compare.results.summary import summarize_run, write_summary_json
 from compare.results.trajectory import episode_files, load_episode
-from compare.scenario import Scenario
+from compare.scenario import Scenario, seeds_problem
 from rl.policy_folder import shipped_policy_dir
 from uam_fdm.city.generator import map_yaml_text
 from uam_fdm.files.atomic import remove_stale_temporaries, write_text_atomic
@@ -134,6 +134,28 @@ class RunOptions:
     def in_process(self) -> bool:
         """Cells fly in this process (no worker to survive a crash or enforce a time limit)."""
         return self.backend == "local" and self.jobs <= 1 and self.cell_timeout_s is None
+
+    def validate(self) -> None:
+        """Raise ValueError for an option no run can take, naming it as the command line does: the one check of
+        each option, made by `run_comparison` and, before it reads any scenario, by the CLI.
+
+        Raises:
+            ValueError: seeds that a scenario's `seeds` would refuse, jobs < 1, a cell timeout <= 0, an unknown
+                backend, an address without Ray or Ray missing (`check_backend`), an unknown `videos`.
+        """
+        from compare.viz.animate import VIDEO_CHOICES  # matplotlib, which the run's figures import anyway
+
+        if self.seeds is not None and (problem := seeds_problem(list(self.seeds))) is not None:
+            index, reason = problem  # the same limits as a scenario's `seeds`
+            where = "" if index is None else f" (index {index})"
+            raise ValueError(f"--seeds {','.join(map(str, self.seeds))}{where}: {reason}")
+        if self.jobs < 1:
+            raise ValueError(f"--jobs {self.jobs}: must be >= 1")
+        if self.cell_timeout_s is not None and not self.cell_timeout_s > 0.0:
+            raise ValueError(f"--cell-timeout {self.cell_timeout_s:g}: must be > 0 s")
+        check_backend(self.backend, self.address)
+        if self.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
+            raise ValueError(f"--videos {self.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
 
 
 @dataclass(frozen=True)
@@ -338,14 +360,13 @@ def fairness(methods: Sequence[str]) -> str:
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
-    """Fly every cell, then score and report (see the module docstring). Returns the run folder."""
-    from compare.viz.animate import VIDEO_CHOICES  # matplotlib: the figure modules load only in a run
+    """Fly every cell, then score and report (see the module docstring). Returns the run folder.
 
-    if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
-        raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
-    check_backend(opts.backend, opts.address)
-    if opts.cell_timeout_s is not None and not opts.cell_timeout_s > 0.0:
-        raise ValueError(f"--cell-timeout {opts.cell_timeout_s:g}: must be > 0 s")
+    Raises:
+        ValueError: a bad option (`RunOptions.validate`), a bad policy, nothing to fly, a refused resume, or a
+            backend that cannot start; before the run folder is written.
+    """
+    opts.validate()
     scenarios = list(scenarios)
     policies = select_policies(scenarios, opts)
     cells, notes = plan_cells(scenarios, opts, policies)

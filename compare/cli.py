@@ -15,7 +15,7 @@ from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 
-from compare.backends import check_backend
+from compare.backends import BACKENDS
 from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_run, finalize, run_comparison
 from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
@@ -23,7 +23,7 @@ from compare.results.failures import FAILED_DIR, describe_failures, read_failure
 from compare.results.outputs import check_output_dir, check_output_file
 from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
-from compare.scenario import Scenario, seeds_problem, with_methods
+from compare.scenario import Scenario, with_methods
 from compare.sets import resolve_scenarios
 from uam_fdm.vehicle.params import preset_names
 
@@ -96,29 +96,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 pilot(m)
             except ValueError as exc:
                 raise ValueError(f"{flag}: {exc}") from None
-    if args.seeds is not None and (problem := seeds_problem(list(args.seeds))) is not None:
-        index, reason = problem  # the same limits as a scenario's `seeds`
-        where = "" if index is None else f" (index {index})"
-        raise ValueError(f"--seeds {','.join(map(str, args.seeds))}{where}: {reason}")
-    if args.jobs < 1:
-        raise ValueError(f"--jobs {args.jobs}: must be >= 1")
-    if args.cell_timeout is not None and not args.cell_timeout > 0.0:
-        raise ValueError(f"--cell-timeout {args.cell_timeout:g}: must be > 0 s")
-    check_backend(args.backend, args.address)  # e.g. Ray missing: before anything is read or flown
+    out = args.out if args.out is not None else _default_run_dir(args.scenario)
+    # --videos' default is settled once the scenarios are read (`_videos`)
+    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
+                      resume=args.resume, progress=not args.no_progress, videos=args.videos or "scenario",
+                      command="uam-compare " + " ".join(args.argv), backend=args.backend, address=args.address,
+                      cell_timeout_s=args.cell_timeout)
+    opts.validate()  # e.g. Ray missing: before anything is read or flown
     if args.jobs > (os.cpu_count() or 1):
         print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
               f"processes only compete for them", file=sys.stderr)
-    out = args.out if args.out is not None else _default_run_dir(args.scenario)
     check_output_dir(out, "--out")
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
     scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
     scenarios = [with_methods(sc, tuple(args.method)) for sc in scenarios]
+    opts = replace(opts, videos=_videos(args.videos, scenarios))  # its default depends on the scenarios
     _one_torch_thread()
-    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
-                      resume=args.resume, progress=not args.no_progress, videos=_videos(args.videos, scenarios),
-                      command="uam-compare " + " ".join(args.argv), backend=args.backend, address=args.address,
-                      cell_timeout_s=args.cell_timeout)
     est = estimate_run(scenarios, opts)
     if est.large:
         print(f"uam-compare: warning: {est.cells} episodes may take up to {est.wall_h:.1f} h with --jobs {opts.jobs} "
@@ -412,7 +406,7 @@ def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
                           "worker replaced (default: 300 s + 10 x the episode's simulated time limit x the "
                           "pilot's wall time per simulated second); with --jobs 1 giving it flies the cells in "
                           "one worker process (in this process nothing could stop a cell)")
-    run.add_argument("--backend", choices=("local", "ray"), default="local",
+    run.add_argument("--backend", choices=BACKENDS, default="local",
                      help="where cells fly: local processes (default) or Ray tasks (pip install -e \".[ray]\"; "
                           "see docs/scale_out.md)")
     run.add_argument("--address", default=None, metavar="ADDR",

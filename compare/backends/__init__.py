@@ -54,7 +54,8 @@ def open_backend(kind: str, setup: WorkerSetup, jobs: int, address: str | None =
     """The backend `kind` for a run, closed (its workers ended) when the block ends, normally or not.
 
     Args:
-        kind: "local" or "ray".
+        kind: "local" or "ray", already checked (`check_backend`, which `compare.campaign.RunOptions.validate`
+            calls before anything is read or flown).
         setup: the run's scenarios, folder and policies.
         jobs: worker processes (local), or the CPUs of the local Ray instance started when `address` is None
             (with `address`: at most this many cells in flight when > 1, else the cluster's CPUs).
@@ -62,9 +63,8 @@ def open_backend(kind: str, setup: WorkerSetup, jobs: int, address: str | None =
         isolate: local with one job: fly in one worker process (for the cell time limit) rather than here.
 
     Raises:
-        ValueError: the backend cannot be used (see `check_backend`), or the Ray cluster cannot be reached.
+        ValueError: Ray cannot be imported, or the Ray cluster cannot be reached.
     """
-    check_backend(kind, address)
     backend: Backend
     if kind == "ray":
         try:  # Ray is imported only when asked for (an optional extra, and slow to import)
