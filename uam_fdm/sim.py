@@ -92,7 +92,8 @@ class Simulator:
         """One control period from state x at time t_s with rotor-speed commands u [rad/s] held.
 
         `env`: the period's environment input when the caller has it already (`self.env(x, t_s, h)`, e.g. to
-        record the wind and density flown), so it is built once; None: built here."""
+        record the wind and density flown), so it is built once (`height_above_surface_m` is then unused);
+        None: built here."""
         return self.dynamics.period_rotor(x, u, self._period_env(x, t_s, height_above_surface_m, env))
 
     def step_velocity(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, t_s: float,
