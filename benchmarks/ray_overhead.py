@@ -28,7 +28,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from compare.campaign import RunOptions, plan_cells, run_comparison, select_policies  # noqa: E402
-from compare.scenario import resolve_scenarios  # noqa: E402
+from compare.sets import resolve_scenarios  # noqa: E402
 
 WALL_CLOCK_COLUMNS = {"compute_ms_mean", "compute_ms_max", "plan_time_s", "mpc_solve_ms_median",
                       "mpc_solve_ms_p95"}  # measured, not simulated (as tests/compare/test_compare_run.py)

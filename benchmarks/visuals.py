@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from compare.campaign import RunOptions, run_comparison
-from compare.scenario import resolve_scenarios
+from compare.sets import resolve_scenarios
 from compare.viz.animate import AnimationOptions, _Scene, ffmpeg_available, frame_times, render_animation
 from compare.viz.flights import flight_groups
 from compare.viz.viewer import build_viewer

@@ -45,7 +45,7 @@ import numpy as np
 from compare.fingerprint import scenario_fingerprint
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import SuiteInfo
-from compare.scenario import BENCHMARK_SETS, Scenario, scenario_from_dict
+from compare.scenario import Scenario, scenario_from_dict
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
 from rl.task.vehicles import task_for
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
@@ -55,6 +55,7 @@ from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 GENERATOR_VERSION = "1"
 """Bumped by hand when the design changes on purpose; the hash in the version catches every change anyway."""
+BENCHMARK_SETS = ("benchmark", "benchmark-quick")  # the generated sets' names (`compare.sets` resolves them)
 FULL, QUICK = BENCHMARK_SETS
 METHODS = ("ppo", "rrt_mpc", "apf")
 TURBULENCE_LEVELS = ("none", "light", "moderate")
@@ -164,7 +165,7 @@ def levels(index: int) -> Levels:
 
 # ---- the sets ---------------------------------------------------------------------------------------
 def build_suite(name: str, design: BenchmarkDesign = DESIGN) -> Suite:
-    """Generate and check the benchmark set `name` (one of `compare.scenario.BENCHMARK_SETS`).
+    """Generate and check the benchmark set `name` (one of `BENCHMARK_SETS`).
 
     Raises:
         ValueError: an unknown set name, or a design whose quick set is not a subset of the full one or whose

@@ -33,13 +33,13 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-import numpy as np
+from tqdm import tqdm
 
 from compare import pilots
-from compare.backends import Backend, CellFlown, CellTask, WorkerSetup, check_backend, open_backend
-from compare.episode_loop import Trajectory, run_episode
+from compare.backends import check_backend, open_backend
+from compare.backends.base import Backend, CellFlown, CellTask, WorkerSetup
+from compare.cells import Cell, cell_key
 from compare.fingerprint import check_resume, run_fingerprints
 from compare.results.failures import (
     FAILED_DIR,
@@ -62,14 +62,12 @@ from compare.results.run_info import (
     write_run_info,
 )
 from compare.results.summary import summarize_run, write_summary_json
-from compare.results.trajectory import EpisodeKey, EpisodeMeta, episode_files, load_episode, save_episode, xyz
-from compare.scenario import Scenario
-from compare.seeding import cell_seed
-from uam_fdm.files.atomic import write_text_atomic
-from uam_fdm.pilot import Agent
-
-if TYPE_CHECKING:  # the flight model is built (and casadi imported) only when a cell is flown
-    from uam_fdm.vehicle.dynamics import VehicleDynamics
+from compare.results.trajectory import episode_files, load_episode
+from compare.scenario import Scenario, seeds_problem
+from rl.policies.folder import shipped_policy_dir
+from uam_fdm.city.generator import map_yaml_text
+from uam_fdm.files.atomic import remove_stale_temporaries, write_text_atomic
+from uam_fdm.vehicle.params import load_vehicle
 
 log = logging.getLogger(__name__)
 
@@ -89,16 +87,6 @@ WARN_RUN_GB = 3.0
 # covers a worker's first cell (imports, building the flight model and the pilot) on a busy machine.
 CELL_LIMIT_BASE_S = 300.0
 CELL_LIMIT_FACTOR = 10.0
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One episode to fly: scenario (index into the run's list), episode index, seed and method."""
-
-    scenario: int
-    episode: int
-    seed: int
-    method: str
 
 
 @dataclass(frozen=True)
@@ -146,6 +134,28 @@ class RunOptions:
     def in_process(self) -> bool:
         """Cells fly in this process (no worker to survive a crash or enforce a time limit)."""
         return self.backend == "local" and self.jobs <= 1 and self.cell_timeout_s is None
+
+    def validate(self) -> None:
+        """Raise ValueError for an option no run can take, naming it as the command line does: the one check of
+        each option, made by `run_comparison` and, before it reads any scenario, by the CLI.
+
+        Raises:
+            ValueError: seeds that a scenario's `seeds` would refuse, jobs < 1, a cell timeout <= 0, an unknown
+                backend, an address without Ray or Ray missing (`check_backend`), an unknown `videos`.
+        """
+        from compare.viz.animate import VIDEO_CHOICES  # matplotlib, which the run's figures import anyway
+
+        if self.seeds is not None and (problem := seeds_problem(list(self.seeds))) is not None:
+            index, reason = problem  # the same limits as a scenario's `seeds`
+            where = "" if index is None else f" (index {index})"
+            raise ValueError(f"--seeds {','.join(map(str, self.seeds))}{where}: {reason}")
+        if self.jobs < 1:
+            raise ValueError(f"--jobs {self.jobs}: must be >= 1")
+        if self.cell_timeout_s is not None and not self.cell_timeout_s > 0.0:
+            raise ValueError(f"--cell-timeout {self.cell_timeout_s:g}: must be > 0 s")
+        check_backend(self.backend, self.address)
+        if self.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
+            raise ValueError(f"--videos {self.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
 
 
 @dataclass(frozen=True)
@@ -240,10 +250,6 @@ def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate
     return RunEstimate(len(cells), flight_s, wall_s / workers / 3600.0, n_bytes / 1e9)
 
 
-def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
-    return EpisodeKey(scenarios[c.scenario].name, c.episode, c.method, c.seed)
-
-
 def cell_limit_s(scenarios: Sequence[Scenario], c: Cell, opts: RunOptions) -> float | None:
     """The wall-time limit of cell `c` [s]: `opts.cell_timeout_s` when given, else CELL_LIMIT_BASE_S +
     CELL_LIMIT_FACTOR x the episode's simulated time limit x its pilot's `wall_s_per_flight_s`; None in this
@@ -254,75 +260,6 @@ def cell_limit_s(scenarios: Sequence[Scenario], c: Cell, opts: RunOptions) -> fl
         return float(opts.cell_timeout_s)
     timeout_s = scenarios[c.scenario].episodes[c.episode].task.timeout_s
     return CELL_LIMIT_BASE_S + CELL_LIMIT_FACTOR * timeout_s * pilots.pilot(c.method).wall_s_per_flight_s
-
-
-class CellRunner:
-    """Flies cells; holds per-process caches (worlds per scenario, one agent per method, or per method and
-    vehicle for a pilot that flies a policy)."""
-
-    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path]) -> None:
-        """`policies`: the policy folder of the pilots that need one, by vehicle fingerprint."""
-        self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
-        self._worlds: dict[int, object] = {}
-        self._dynamics: dict[tuple, VehicleDynamics] = {}
-        self._agents: dict[tuple[str, str], Agent] = {}
-
-    def world(self, si: int):
-        from uam_fdm.pilot import World
-        from uam_fdm.vehicle.dynamics import VehicleDynamics
-
-        if si not in self._worlds:
-            sc = self.scenarios[si]
-            key = (sc.vehicle.fingerprint(), sc.physics_hz, sc.control_hz)
-            if key not in self._dynamics:
-                self._dynamics[key] = VehicleDynamics(sc.vehicle, sc.physics_hz, sc.control_hz)
-            # the forecast turbulence level (a category) is the pilots' to know; its gusts are not
-            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
-        return self._worlds[si]
-
-    def agent(self, method: str, sc: Scenario) -> Agent:
-        """The agent flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
-        fp = sc.vehicle.fingerprint() if pilots.pilot(method).needs_policy else ""
-        if (method, fp) not in self._agents:
-            self._agents[method, fp] = pilots.build(method, sc, self.policies.get(fp) if fp else None)
-        return self._agents[method, fp]
-
-    def run(self, c: Cell) -> Path:
-        """Fly cell `c` and save its episode file in the run folder; returns the file."""
-        meta, traj = self.fly(c)
-        return save_episode(self.out_dir / "episodes" / f"{meta.key.stem}.npz", meta, traj)
-
-    def fly(self, c: Cell) -> tuple[EpisodeMeta, Trajectory]:
-        """Fly cell `c`: what its episode file holds (nothing is written)."""
-        from uam_fdm.air.wind import WindField, probe_heights_up_to
-
-        sc = self.scenarios[c.scenario]
-        spec = sc.episodes[c.episode]
-        task = spec.task
-        world = self.world(c.scenario)
-        p = sc.vehicle
-        wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
-        agent_seed = cell_seed(sc.name, c.episode, c.seed, "agent")
-        # one reference probe airspeed per episode; turbulence rungs up to the flight volume's ceiling
-        wind_speed = float(np.linalg.norm(sc.wind.steady_enu_m_s))
-        airspeed = float(np.clip(max(p.controller.max_speed_m_s, wind_speed), 1.0, 100.0))
-        heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
-        wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
-        agent = self.agent(c.method, sc)
-        traj = run_episode(world, agent, task, wind, agent_seed)
-        report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
-        key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
-        meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
-                           start_m=xyz(task.start_m), goal_m=xyz(task.goal_m), goal_radius_m=task.goal_radius_m,
-                           timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
-                           energy_J=float(traj.energy_J), outcome=traj.outcome,
-                           # planning at reset plus every replan, when the pilot reports it
-                           plan_time_s=float(traj.plan_time_s if report is None else report.plan_time_s),
-                           detail=traj.detail, wind_seed=wind_seed, agent_seed=agent_seed,
-                           mean_decision_ms=float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None,
-                           failure_reason=None if report is None else report.failure_reason(traj.outcome),
-                           report=report)
-        return meta, traj
 
 
 class RunInterrupted(Exception):
@@ -352,8 +289,6 @@ def _episode_kept(path: Path) -> bool:
 
 
 def _remove_stale_temporaries(run_dir: Path) -> None:
-    from uam_fdm.files.atomic import remove_stale_temporaries
-
     stale = remove_stale_temporaries(run_dir)
     if stale:
         log.info("removed %d temporary files left by an interrupted write: %s", len(stale),
@@ -376,8 +311,6 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
                     fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
     """run.json (with the inputs' `fingerprints`, see `compare.fingerprint`, the policy folders of the pilots
     that fly one, their vehicles and decision rates, the methods in table order) and maps/*.yaml."""
-    from uam_fdm.city.generator import map_yaml_text
-
     out = opts.out_dir
     for sc in scenarios:
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
@@ -427,16 +360,13 @@ def fairness(methods: Sequence[str]) -> str:
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
-    """Fly every cell, then score and report (see the module docstring). Returns the run folder."""
-    from tqdm import tqdm
+    """Fly every cell, then score and report (see the module docstring). Returns the run folder.
 
-    from compare.viz.animate import VIDEO_CHOICES
-
-    if opts.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
-        raise ValueError(f"--videos {opts.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
-    check_backend(opts.backend, opts.address)
-    if opts.cell_timeout_s is not None and not opts.cell_timeout_s > 0.0:
-        raise ValueError(f"--cell-timeout {opts.cell_timeout_s:g}: must be > 0 s")
+    Raises:
+        ValueError: a bad option (`RunOptions.validate`), a bad policy, nothing to fly, a refused resume, or a
+            backend that cannot start; before the run folder is written.
+    """
+    opts.validate()
     scenarios = list(scenarios)
     policies = select_policies(scenarios, opts)
     cells, notes = plan_cells(scenarios, opts, policies)
@@ -470,7 +400,7 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
             bar.close()
     log.info("flew %d cells (%d failed) in %.1f s", len(todo), len(failed), time.perf_counter() - t0)
     finalize(out, report=opts.report)
-    if opts.videos != "none":
+    if opts.videos != "none":  # matplotlib, and ffmpeg's writer, only for a run that animates
         from compare.viz.animate import render_videos
         from compare.viz.flights import flight_groups
         groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
@@ -498,8 +428,7 @@ def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[Fa
 def policy_facts(policy: Path | None) -> PolicyFacts:
     """Load the whole policy folder (network, statistics, config) as plain data and return what a run
     needs of it: a broken or foreign policy is an error before the run folder exists."""
-    from rl.pilots.learned import load_policy
-    from uam_fdm.vehicle.params import load_vehicle
+    from rl.pilots.learned import load_policy  # PyTorch: imported only by a run that flies a policy
 
     loaded = load_policy(policy)  # None: the shipped default
     nav = loaded.nav
@@ -515,8 +444,6 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
     Raises:
         ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
     """
-    from rl.policies.folder import shipped_policy_dir
-
     def flies_policy(methods: Sequence[str]) -> bool:
         return any(pilots.pilot(m).needs_policy for m in methods)
 
@@ -570,7 +497,7 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
     rows = read_metrics_csv(run_dir / "metrics.csv")
     # per scenario too: a run may mix vehicles (a quadrotor's and a multicopter's energies do not average)
     write_summary_json(summarize_run(rows), run_dir / "summary.json")
-    if report:
+    if report:  # matplotlib and plotly, only when the report is built: scoring alone needs neither
         from compare.viz.report import build_report
         from compare.viz.viewer import build_viewer
         # the skipped files were named above: the report lists them on its failures page without a second warning

@@ -2,28 +2,38 @@
 from __future__ import annotations
 
 import argparse
+import errno
+import json
 import logging
+import os
 import shlex
 import signal
 import sys
 import threading
 from collections.abc import Sequence
+from dataclasses import replace
+from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from compare.backends import BACKENDS
+from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_run, finalize, run_comparison
+from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
+from compare.results.failures import FAILED_DIR, describe_failures, read_failures
+from compare.results.outputs import check_output_dir, check_output_file
+from compare.results.run_info import read_run_info
+from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
+from compare.scenario import Scenario, with_methods
+from compare.sets import resolve_scenarios
 from uam_fdm.vehicle.params import preset_names
 
-if TYPE_CHECKING:  # the summary is read only at the end of a run
-    from compare.results.summary import PairedSummary, PowerSettings
-    from compare.scenario import Scenario
+# Imported inside the commands that use them: matplotlib and plotly (figures, viewer, maps) and PyTorch (the
+# learned pilot's training and evaluation), each slow to import, so that the other commands start without them.
 
 INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from compare.demo import demo_flight
-
     for preset in args.vehicles:
         r = demo_flight(preset, seed=args.seed)
         print(f"{r.vehicle}: {r.mass_kg:g} kg, {r.n_rotors} rotors, hover at {r.hover_rotor_speed_rad_s:.1f} rad/s "
@@ -39,8 +49,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_maps(args: argparse.Namespace) -> int:
-    from compare.results.outputs import check_output_dir
-    from uam_fdm.city.plot import render_named_maps
+    from uam_fdm.city.plot import render_named_maps  # matplotlib
 
     check_output_dir(Path(args.out_dir), "OUT_DIR")
     for path in render_named_maps(args.out_dir):
@@ -64,8 +73,6 @@ def _seed_list(text: str) -> tuple[int, ...]:
 
 
 def _default_run_dir(spec: str) -> Path:
-    from datetime import datetime
-
     stem = Path(spec).stem if spec.endswith((".yaml", ".yml")) else Path(spec).name
     base = Path("runs") / f"{datetime.now().strftime('%Y%m%d-%H%M%S')}-{stem}"
     out, k = base, 1
@@ -77,48 +84,35 @@ def _default_run_dir(spec: str) -> Path:
 
 def _one_torch_thread() -> None:
     """This process flies small networks one observation at a time: one torch thread is fastest."""
-    import torch
+    import torch  # PyTorch: seconds to import, only for the commands that fly
 
     torch.set_num_threads(1)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    import os
-
-    from compare.backends import check_backend
-    from compare.campaign import RunInterrupted, RunOptions, estimate_run, run_comparison
-    from compare.results.outputs import check_output_dir
-    from compare.scenario import resolve_scenarios, seeds_problem, with_methods
-
     for flag, names in (("--method", args.method), ("--methods", args.methods or ())):
         for m in names:  # registered, or a plug-in (imported here, before anything flies)
             try:
                 pilot(m)
             except ValueError as exc:
                 raise ValueError(f"{flag}: {exc}") from None
-    if args.seeds is not None and (problem := seeds_problem(list(args.seeds))) is not None:
-        index, reason = problem  # the same limits as a scenario's `seeds`
-        where = "" if index is None else f" (index {index})"
-        raise ValueError(f"--seeds {','.join(map(str, args.seeds))}{where}: {reason}")
-    if args.jobs < 1:
-        raise ValueError(f"--jobs {args.jobs}: must be >= 1")
-    if args.cell_timeout is not None and not args.cell_timeout > 0.0:
-        raise ValueError(f"--cell-timeout {args.cell_timeout:g}: must be > 0 s")
-    check_backend(args.backend, args.address)  # e.g. Ray missing: before anything is read or flown
+    out = args.out if args.out is not None else _default_run_dir(args.scenario)
+    # --videos' default is settled once the scenarios are read (`_videos`)
+    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
+                      resume=args.resume, progress=not args.no_progress, videos=args.videos or "scenario",
+                      command="uam-compare " + " ".join(args.argv), backend=args.backend, address=args.address,
+                      cell_timeout_s=args.cell_timeout)
+    opts.validate()  # e.g. Ray missing: before anything is read or flown
     if args.jobs > (os.cpu_count() or 1):
         print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
               f"processes only compete for them", file=sys.stderr)
-    out = args.out if args.out is not None else _default_run_dir(args.scenario)
     check_output_dir(out, "--out")
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
     scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
     scenarios = [with_methods(sc, tuple(args.method)) for sc in scenarios]
+    opts = replace(opts, videos=_videos(args.videos, scenarios))  # its default depends on the scenarios
     _one_torch_thread()
-    opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
-                      resume=args.resume, progress=not args.no_progress, videos=_videos(args.videos, scenarios),
-                      command="uam-compare " + " ".join(args.argv), backend=args.backend, address=args.address,
-                      cell_timeout_s=args.cell_timeout)
     est = estimate_run(scenarios, opts)
     if est.large:
         print(f"uam-compare: warning: {est.cells} episodes may take up to {est.wall_h:.1f} h with --jobs {opts.jobs} "
@@ -149,11 +143,6 @@ def _print_headline_json(run_dir: Path) -> None:
     """The run's headline figures as the last line, one JSON object (for scripts): per vehicle and method the
     episodes, success and collision rates with their 95 % Wilson intervals; the task set and its version; the
     failed cells."""
-    import json
-
-    from compare.results.failures import read_failures
-    from compare.results.run_info import read_run_info
-    from compare.results.summary import Stat, read_summary_json
 
     def rate(st: Stat | None) -> dict:
         return {"rate": st.mean, "ci95": [st.ci_low, st.ci_high]} if st is not None else {}
@@ -171,8 +160,6 @@ def _print_headline_json(run_dir: Path) -> None:
 
 def _print_suite(run_dir: Path) -> None:
     """The benchmark set a run flew, with its version (nothing for scenario files)."""
-    from compare.results.run_info import read_run_info
-
     suite = read_run_info(run_dir).suite
     if suite is not None:
         print(f"task set {suite.name}, version {suite.version}: {suite.description}")
@@ -185,11 +172,6 @@ SCENARIOS_PRINTED = 4
 def _print_summary(run_dir: Path) -> None:
     """Per vehicle (never pooled: a quadrotor's and a multicopter's numbers do not average) one row per method,
     then its scenarios when there are few, then its paired success differences with their MDD."""
-    import os
-
-    from compare.results.failures import FAILED_DIR, describe_failures, read_failures
-    from compare.results.summary import Summary, methods_table, read_summary_json
-
     summary = read_summary_json(run_dir / "summary.json")
     wanted = ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy", "compute mean")
 
@@ -251,8 +233,6 @@ def _paired_success_line(pair: PairedSummary, power: PowerSettings) -> str:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from compare.campaign import finalize
-
     run_dir = finalize(args.run_dir)
     _print_summary(run_dir)
     _print_suite(run_dir)
@@ -269,9 +249,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
-    from compare.campaign import VIDEOS_DIR
-    from compare.results.outputs import check_output_dir, check_output_file
-    from compare.viz.animate import AnimationOptions, render_animation, render_videos
+    from compare.viz.animate import AnimationOptions, render_animation, render_videos  # matplotlib
     from compare.viz.flights import flight_groups, select_group
 
     w, h = args.size
@@ -296,8 +274,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from compare.results.outputs import check_output_file
-    from compare.viz.viewer import VIEWER_NAME, build_viewer
+    from compare.viz.viewer import VIEWER_NAME, build_viewer  # plotly and matplotlib
 
     check_output_file(args.out if args.out is not None else args.run_dir / VIEWER_NAME, "--out")
     print(build_viewer(args.run_dir, args.out))
@@ -305,8 +282,6 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from compare.scenario import resolve_scenarios
-
     for sc in resolve_scenarios(args.scenario):
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
               f"vehicle {sc.vehicle_name}, {len(sc.episodes)} episodes x {len(sc.seeds)} seeds, "
@@ -315,8 +290,6 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from rl.task.vehicles import task_for
     from rl.training.config import Curriculum, TrainConfig
     from rl.training.loop import train
@@ -337,8 +310,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    import json
-
     from rl.env.world import NavWorld
     from rl.pilots.learned import load_policy
     from rl.training.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
@@ -436,7 +407,7 @@ def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
                           "worker replaced (default: 300 s + 10 x the episode's simulated time limit x the "
                           "pilot's wall time per simulated second); with --jobs 1 giving it flies the cells in "
                           "one worker process (in this process nothing could stop a cell)")
-    run.add_argument("--backend", choices=("local", "ray"), default="local",
+    run.add_argument("--backend", choices=BACKENDS, default="local",
                      help="where cells fly: local processes (default) or Ray tasks (pip install -e \".[ray]\"; "
                           "see docs/scale_out.md)")
     run.add_argument("--address", default=None, metavar="ADDR",
@@ -564,8 +535,6 @@ def main(argv: list[str] | None = None) -> int:
 
 def _os_error_message(exc: OSError) -> str:
     """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept."""
-    import errno
-
     text = f"{exc.filename}: {exc.strerror or exc}" if exc.filename is not None else str(exc)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         text += ": the disk is full; the file was not written (no partial file is left)"

@@ -101,11 +101,11 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         held -= 1
         # ground effect: the height above the surface below, from the clearance at the period's start
         height = float(height_above_surface(city, s.x[None, 0:3], clear[-1][-1:], p)[0])
-        env = sim.env(s.x, s.t_s, height)
+        env = sim.env(s.x, s.t_s, height)  # built once: flown, and recorded (wind, power)
         if isinstance(act, RotorCommand):
-            r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float), height)
+            r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float), env=env)
         elif isinstance(act, VelocityCommand):
-            r = sim.advance_velocity(act.as_vector(), height)
+            r = sim.advance_velocity(act.as_vector(), env=env)
         else:
             raise TypeError(f"agent {agent.name!r} returned {type(act).__name__}, not an Actuation")
         n_sub = r.states.shape[0]

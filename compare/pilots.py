@@ -5,8 +5,10 @@ agents through it, and run.json, the metrics, the report and its figures take la
 descriptions and the table order from it. Adding a pilot touches this file (one `PilotSpec`) and
 the pilot itself (an `uam_fdm.pilot.Agent`).
 
-The builders import their pilot's package only when called: reading a run folder, or checking a
-scenario, needs neither PyTorch nor CasADi.
+A builder is given a `BuildRequest` (the vehicle, the policy folder for it, the scenario's name for messages),
+not the scenario: this module imports no scenario code, so the scenario loader, the episode files and the
+metrics can all import it. The builders import their pilot's package only when called: reading a run folder,
+or checking a scenario, needs neither PyTorch nor OMPL.
 
 A pilot that is not ours flies as a plug-in, named wherever a method is (scenario files, --methods,
 --method) in one of two ways, resolved the same in every process (no registration step):
@@ -28,16 +30,31 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from planners.report import ClassicalReport
 from uam_fdm.pilot import Agent, PilotReport
+from uam_fdm.vehicle.params import VehicleParams
 
-if TYPE_CHECKING:  # the scenario module imports this one
-    from compare.scenario import Scenario
 
-Builder = Callable[["Scenario", "Path | None"], Agent]
-"""Builds a pilot for a scenario: (the scenario, the policy folder for its vehicle or None) -> agent."""
+@dataclass(frozen=True)
+class BuildRequest:
+    """What a pilot is built for.
+
+    Attributes:
+        vehicle: the parameters of the vehicle it flies.
+        vehicle_name: the vehicle as the scenario names it (a preset's name, else `vehicle.name`), for messages.
+        source: the scenario it flies first (its file, or its generated set and name), for messages.
+        policy: the policy folder for the vehicle, for a pilot that flies one (`PilotSpec.needs_policy`), else None.
+    """
+
+    vehicle: VehicleParams
+    vehicle_name: str
+    source: str
+    policy: Path | None = None
+
+
+Builder = Callable[[BuildRequest], Agent]
+"""Builds a pilot: (what it is built for) -> agent."""
 
 
 @dataclass(frozen=True)
@@ -80,21 +97,23 @@ class PilotSpec:
     wall_s_per_flight_s: float = 1.0
 
 
-def _learned(sc: Scenario, policy: Path | None) -> Agent:
+# Each builder imports its pilot's package when called, so that reading a run folder or checking a scenario
+# needs neither PyTorch (the learned pilot) nor OMPL (the classical one).
+def _learned(request: BuildRequest) -> Agent:
     from rl.pilots.learned import PolicyAgent, load_policy
 
-    if policy is None:
-        raise ValueError(f"{sc.source}: no learned policy for vehicle {sc.vehicle_name!r}")
-    return PolicyAgent(load_policy(policy, sc.vehicle))
+    if request.policy is None:
+        raise ValueError(f"{request.source}: no learned policy for vehicle {request.vehicle_name!r}")
+    return PolicyAgent(load_policy(request.policy, request.vehicle))
 
 
-def _classical(sc: Scenario, policy: Path | None) -> Agent:
+def _classical(request: BuildRequest) -> Agent:
     from planners.agent import ClassicalAgent
 
     return ClassicalAgent()
 
 
-def _potential_field(sc: Scenario, policy: Path | None) -> Agent:
+def _potential_field(request: BuildRequest) -> Agent:
     from rl.pilots.potential_field import PotentialFieldAgent
 
     return PotentialFieldAgent()
@@ -229,7 +248,7 @@ class _PluginBuilder:
     def __init__(self, name: str, cls: type) -> None:
         self.name, self.cls = name, cls
 
-    def __call__(self, scenario: Scenario, policy: Path | None) -> Agent:
+    def __call__(self, request: BuildRequest) -> Agent:
         agent = self.cls()
         if not isinstance(agent, Agent):
             raise ValueError(f"method {self.name!r}: {self.cls.__qualname__} is not a pilot: an Agent has a name "
@@ -270,14 +289,14 @@ def ordered(methods: Iterable[str]) -> list[str]:
     return [m for m in METHODS if m in names] + sorted(names - set(METHODS))
 
 
-def build(name: str, scenario: Scenario, policy: Path | None) -> Agent:
-    """Build the pilot `name` for `scenario` (`policy`: its vehicle's policy folder, for a pilot that
+def build(name: str, request: BuildRequest) -> Agent:
+    """Build the pilot `name` for `request` (its vehicle, and that vehicle's policy folder for a pilot that
     needs one).
 
     Raises:
         ValueError: an unknown method, or a pilot that needs a policy and has none (naming the file).
     """
-    agent = pilot(name).build(scenario, policy)
+    agent = pilot(name).build(request)
     if name in PILOTS and agent.name != name:  # the agent's own name labels its errors in the runner
         raise ValueError(f"the builder of method {name!r} made an agent named {agent.name!r}")
     return agent

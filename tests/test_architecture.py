@@ -1,40 +1,57 @@
 """The rooms keep their one-way flow (issue 14, docs/architecture.md): `uam_fdm` imports none of the other
 packages, `planners` and `rl` import only `uam_fdm` (and themselves), nothing imports `compare`; and no
-two modules import each other at module level (no import circles)."""
+two modules import each other (no import circles), counting every import: at module level, inside functions
+and in `TYPE_CHECKING` blocks (issue 27: an import moved into a function hides a circle, it does not remove it).
+Inside a function (or for the type checker only) `compare` imports only what is slow to import or optional
+(`DEFERRED_IMPORTS`)."""
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("uam_fdm", "planners", "rl", "compare")
 MAY_IMPORT = {"uam_fdm": {"uam_fdm"}, "planners": {"uam_fdm", "planners"}, "rl": {"uam_fdm", "rl"},
               "compare": set(PACKAGES)}
+# What `compare` may import inside a function or a TYPE_CHECKING block: PyTorch, Ray, matplotlib and plotly
+# (the figures, the viewer, the map plots) and the pilots' own packages (PyTorch, OMPL), so that printing help,
+# checking a scenario or reading a run folder needs none of them.
+DEFERRED_IMPORTS = ("torch", "ray", "compare.backends.ray", "compare.viz", "uam_fdm.city.plot", "rl", "planners")
+# What `rl` may import inside a function or for the type checker only: PyTorch (the network's module included,
+# so reading a policy folder's settings needs none) and matplotlib (the env's rgb_array frames).
+RL_DEFERRED_IMPORTS = ("torch", "rl.policies.network", "matplotlib", "uam_fdm.city.plot")
+# The learned pilot's rooms, in the order they may import each other: a module imports only rooms before its own.
+RL_ROOMS = ("sensing", "task", "policies", "env", "pilots", "training")
 
 
-def _module_name(path: Path) -> str:
-    parts = path.relative_to(ROOT).with_suffix("").parts
+def _module_name(path: Path, root: Path = ROOT) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports(path: Path, top_level_only: bool) -> set[str]:
-    """Our modules that `path` imports (all of them, or only those imported when the module loads)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    here = _module_name(path)
+def _sources(root: Path = ROOT) -> list[Path]:
+    return [p for pkg in PACKAGES for p in sorted((root / pkg).rglob("*.py"))]
+
+
+def _imported(path: Path, root: Path, deferred_only: bool = False, members: bool = True) -> set[str]:
+    """What `path` imports: every module named, and (`members`) `pkg.name` for `from pkg import name`, which may
+    be a module. Imports wherever they stand, or (`deferred_only`) those inside functions and TYPE_CHECKING
+    blocks only."""
+    here = _module_name(path, root)
     package = here if path.name == "__init__.py" else here.rpartition(".")[0]
-    nodes = []
+    nodes: list[ast.Import | ast.ImportFrom] = []
 
-    def visit(node: ast.AST) -> None:
+    def visit(node: ast.AST, deferred: bool) -> None:
         for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
-                continue  # for the type checker only
-            if top_level_only and isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                continue
-            if isinstance(child, (ast.Import, ast.ImportFrom)):
+            inner = deferred or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)) or (
+                isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test))
+            if isinstance(child, (ast.Import, ast.ImportFrom)) and (inner or not deferred_only):
                 nodes.append(child)
-            visit(child)
+            visit(child, inner)
 
-    visit(tree)
+    visit(ast.parse(path.read_text(encoding="utf-8")), False)
     found = set()
     for node in nodes:
         if isinstance(node, ast.Import):
@@ -45,26 +62,58 @@ def _imports(path: Path, top_level_only: bool) -> set[str]:
                 parts = package.split(".")
                 base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
             found.add(base)
-            found |= {f"{base}.{a.name}" for a in node.names}  # `from pkg import module`
-    return {m for m in found if m.split(".")[0] in PACKAGES}
+            if members:
+                found |= {f"{base}.{a.name}" for a in node.names}  # `from pkg import module`
+    return found
 
 
-def _sources() -> list[Path]:
-    return [p for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))]
+def _imports(path: Path, root: Path = ROOT) -> set[str]:
+    """Our modules that `path` imports, wherever the import stands."""
+    return {m for m in _imported(path, root) if m.split(".")[0] in PACKAGES}
 
 
 def test_packages_import_one_way() -> None:
     assert _wrong_imports() == []
 
 
-def test_no_import_circles_at_module_level() -> None:
+def test_no_import_circles() -> None:
     assert _circles() == []
 
 
-def _circles() -> list[str]:
-    modules = {_module_name(p): p for p in _sources()}
-    graph = {name: {m for m in _imports(path, top_level_only=True) if m in modules and m != name}
-             for name, path in modules.items()}
+def test_compare_and_rl_defer_only_slow_or_optional_imports() -> None:
+    """An import inside a function in `compare` or `rl` defers something slow to import or optional (and says so
+    in a comment), never dodges a circle."""
+    assert _needless_deferred_imports() == []
+    assert _needless_deferred_imports(package="rl", allowed=RL_DEFERRED_IMPORTS) == []
+
+
+def test_the_learned_pilots_rooms_import_one_way() -> None:
+    """rl/sensing, task, policies, env, pilots, training: each imports only the rooms before it (and `uam_fdm`)."""
+    wrong = []
+    for path in sorted((ROOT / "rl").rglob("*.py")):
+        parts = path.relative_to(ROOT / "rl").parts
+        if len(parts) < 2:
+            continue  # rl/__init__.py imports none of the rooms
+        rank = RL_ROOMS.index(parts[0])
+        for m in sorted(_imports(path)):
+            room = m.split(".")[1] if m.startswith("rl.") else None
+            if room is not None and room in RL_ROOMS and RL_ROOMS.index(room) > rank:
+                wrong.append(f"{path.relative_to(ROOT)} imports {m}")
+    assert wrong == []
+
+
+def _wrong_imports(root: Path = ROOT) -> list[str]:
+    out = []
+    for path in _sources(root):
+        pkg = _module_name(path, root).split(".")[0]
+        out += [f"{path.relative_to(root)} imports {m}" for m in sorted(_imports(path, root))
+                if m.split(".")[0] not in MAY_IMPORT[pkg]]
+    return out
+
+
+def _circles(root: Path = ROOT) -> list[str]:
+    modules = {_module_name(p, root): p for p in _sources(root)}
+    graph = {name: {m for m in _imports(path, root) if m in modules and m != name} for name, path in modules.items()}
     state: dict[str, int] = {}  # 1: on the current path, 2: done
     circles: list[str] = []
 
@@ -83,24 +132,50 @@ def _circles() -> list[str]:
     return circles
 
 
-def test_the_checks_see_a_wrong_import_and_a_circle() -> None:
-    """The scans themselves: a planners module importing rl, and two modules importing each other."""
-    probes = {ROOT / "planners" / "_probe_a.py": "from rl.route import RouteConfig\nfrom planners import _probe_b\n",
-              ROOT / "planners" / "_probe_b.py": "from planners._probe_a import RouteConfig\n"}
-    try:
-        for path, text in probes.items():
-            path.write_text(text, encoding="utf-8")
-        assert any("_probe_a.py imports rl.route" in w for w in _wrong_imports())
-        assert any("planners._probe_a" in c and "planners._probe_b" in c for c in _circles())
-    finally:
-        for path in probes:
-            path.unlink(missing_ok=True)
-
-
-def _wrong_imports() -> list[str]:
+def _needless_deferred_imports(root: Path = ROOT, package: str = "compare",
+                               allowed: tuple[str, ...] = DEFERRED_IMPORTS) -> list[str]:
     out = []
-    for path in _sources():
-        pkg = _module_name(path).split(".")[0]
-        out += [f"{path.relative_to(ROOT)} imports {m}" for m in _imports(path, False)
-                if m.split(".")[0] not in MAY_IMPORT[pkg]]
+    for path in sorted((root / package).rglob("*.py")):
+        out += [f"{path.relative_to(root)} defers {m}" for m in sorted(_imported(path, root, True, members=False))
+                if not any(m == d or m.startswith(f"{d}.") for d in allowed)]
     return out
+
+
+PROBES = {
+    "planners/_probe_wrong.py": "from rl.sensing.route import RouteConfig\n",
+    # a circle at module level
+    "planners/_probe_a.py": "from planners import _probe_b\n",
+    "planners/_probe_b.py": "from planners._probe_a import X\n",
+    # a lazy circle: one side imports the other inside a function
+    "compare/_probe_lazy_a.py": "from compare._probe_lazy_b import Y\n",
+    "compare/_probe_lazy_b.py": "def f():\n    from compare._probe_lazy_a import X\n    return X\n",
+    # a circle through a TYPE_CHECKING block
+    "compare/_probe_typed_a.py": "from compare._probe_typed_b import Y\n",
+    "compare/_probe_typed_b.py": ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                 "    from compare._probe_typed_a import X\n"),
+}
+
+
+@pytest.fixture
+def probe_tree(tmp_path: Path) -> Path:
+    """A source tree of the four packages holding only the probe modules."""
+    for pkg in PACKAGES:
+        (tmp_path / pkg).mkdir()
+        (tmp_path / pkg / "__init__.py").write_text("", encoding="utf-8")
+    for name, text in PROBES.items():
+        (tmp_path / name).write_text(text, encoding="utf-8")
+    return tmp_path
+
+
+def test_the_checks_see_a_wrong_import_and_every_kind_of_circle(probe_tree: Path) -> None:
+    """The scans themselves: a planners module importing rl; two modules importing each other at module level,
+    inside a function, and in a TYPE_CHECKING block; an import inside a function that dodges a circle."""
+    assert _wrong_imports(probe_tree) == ["planners/_probe_wrong.py imports rl.sensing.route",
+                                          "planners/_probe_wrong.py imports rl.sensing.route.RouteConfig"]
+    circles = _circles(probe_tree)
+    for a, b in (("planners._probe_a", "planners._probe_b"), ("compare._probe_lazy_a", "compare._probe_lazy_b"),
+                 ("compare._probe_typed_a", "compare._probe_typed_b")):
+        assert any(a in c and b in c for c in circles), (a, b, circles)
+    assert len(circles) == 3
+    assert _needless_deferred_imports(probe_tree) == ["compare/_probe_lazy_b.py defers compare._probe_lazy_a",
+                                                      "compare/_probe_typed_b.py defers compare._probe_typed_a"]

@@ -87,15 +87,24 @@ class Simulator:
         return period_env(self.atmosphere, self.wind.wind_enu_m_s(t_s + 0.5 * self.control_period_s, z), z,
                           height_above_surface_m)
 
-    def step(self, x: np.ndarray, u: np.ndarray, t_s: float,
-             height_above_surface_m: float | None = None) -> PeriodResult:
-        """One control period from state x at time t_s with rotor-speed commands u [rad/s] held."""
-        return self.dynamics.period_rotor(x, u, self.env(x, t_s, height_above_surface_m))
+    def step(self, x: np.ndarray, u: np.ndarray, t_s: float, height_above_surface_m: float | None = None, *,
+             env: np.ndarray | None = None) -> PeriodResult:
+        """One control period from state x at time t_s with rotor-speed commands u [rad/s] held.
+
+        `env`: the period's environment input when the caller has it already (`self.env(x, t_s, h)`, e.g. to
+        record the wind and density flown), so it is built once (`height_above_surface_m` is then unused);
+        None: built here."""
+        return self.dynamics.period_rotor(x, u, self._period_env(x, t_s, height_above_surface_m, env))
 
     def step_velocity(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, t_s: float,
-                      height_above_surface_m: float | None = None) -> PeriodResult:
-        """One control period under the low-level controller; cmd = [v_e, v_n, v_u (m/s), yaw (rad)]."""
-        return self.dynamics.period_velocity(x, ctrl_state, cmd, self.env(x, t_s, height_above_surface_m))
+                      height_above_surface_m: float | None = None, *, env: np.ndarray | None = None) -> PeriodResult:
+        """One control period under the low-level controller; cmd = [v_e, v_n, v_u (m/s), yaw (rad)]; `env` as
+        in `step`."""
+        return self.dynamics.period_velocity(x, ctrl_state, cmd, self._period_env(x, t_s, height_above_surface_m, env))
+
+    def _period_env(self, x: np.ndarray, t_s: float, height_above_surface_m: float | None,
+                    env: np.ndarray | None) -> np.ndarray:
+        return self.env(x, t_s, height_above_surface_m) if env is None else env
 
     # -- stateful shell ------------------------------------------------------------------------
     @property
@@ -112,18 +121,20 @@ class Simulator:
         self._state = SimState(float(t0_s), x0, np.zeros(N_CTRL_STATE), 0.0)
         return self._state
 
-    def advance(self, u: np.ndarray, height_above_surface_m: float | None = None) -> PeriodResult:
-        """Advance the held state one control period with rotor commands u [rad/s]."""
+    def advance(self, u: np.ndarray, height_above_surface_m: float | None = None, *,
+                env: np.ndarray | None = None) -> PeriodResult:
+        """Advance the held state one control period with rotor commands u [rad/s]; `env` as in `step`."""
         s = self.state
-        r = self.step(s.x, u, s.t_s, height_above_surface_m)
+        r = self.step(s.x, u, s.t_s, height_above_surface_m, env=env)
         self._state = SimState(s.t_s + self.control_period_s, r.final_state, s.ctrl_state,
                                s.energy_J + float(r.energy_J))
         return r
 
-    def advance_velocity(self, cmd: np.ndarray, height_above_surface_m: float | None = None) -> PeriodResult:
-        """Advance the held state one control period under the velocity controller."""
+    def advance_velocity(self, cmd: np.ndarray, height_above_surface_m: float | None = None, *,
+                         env: np.ndarray | None = None) -> PeriodResult:
+        """Advance the held state one control period under the velocity controller; `env` as in `step`."""
         s = self.state
-        r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s, height_above_surface_m)
+        r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s, height_above_surface_m, env=env)
         self._state = SimState(s.t_s + self.control_period_s, r.final_state, r.ctrl_state,
                                s.energy_J + float(r.energy_J))
         return r

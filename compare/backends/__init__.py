@@ -1,6 +1,7 @@
 """Where a run's cells fly: one small interface, two backends.
 
-`open_backend(kind, setup, jobs, address, isolate)` gives a `Backend`; its `fly(tasks)` yields one
+`open_backend(kind, setup, jobs, address, isolate)` gives a `Backend` (the interface and the types it trades
+in: `compare.backends.base`, which the backends import; this module imports them); its `fly(tasks)` yields one
 `CellOutcome` per task as each ends (in the order they end): `CellFlown` once the cell's episode file is
 in the run folder, or a `compare.results.failures.FailedCell` saying why there is none. A backend never
 raises for one cell's failure; it raises only for an interrupt (KeyboardInterrupt) or when it cannot
@@ -19,79 +20,15 @@ so the episodes do not depend on the backend.
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Iterator, Mapping, Sequence
+import sys
+from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
 
-from compare.results.failures import FailedCell
-from compare.results.trajectory import EpisodeKey
-
-if TYPE_CHECKING:  # the campaign imports this package
-    from compare.campaign import Cell
-    from compare.scenario import Scenario
+from compare.backends.base import Backend, WorkerSetup
+from compare.backends.local import InProcessBackend, ProcessPoolBackend
 
 BACKENDS = ("local", "ray")
 RAY_FIX = 'pip install -e ".[ray]"'
-
-
-@dataclass(frozen=True)
-class WorkerSetup:
-    """What every worker needs to fly a run's cells.
-
-    Attributes:
-        scenarios: the run's scenarios (a `Cell` indexes them).
-        out_dir: the run folder (local workers write episode files into it).
-        policies: the policy folder of the pilots that need one, by vehicle fingerprint.
-    """
-
-    scenarios: tuple[Scenario, ...]
-    out_dir: Path
-    policies: Mapping[str, Path]
-
-
-@dataclass(frozen=True)
-class CellTask:
-    """One cell to fly: the cell, its episode key and its wall-time limit [s] (None: none)."""
-
-    cell: Cell
-    key: EpisodeKey
-    limit_s: float | None = None
-
-
-@dataclass(frozen=True)
-class CellFlown:
-    """A cell that produced its episode.
-
-    Attributes:
-        key: the cell.
-        elapsed_s: wall time of the cell in its worker [s].
-        worker: which process flew it ("in-process", "pid 1234", a Ray node and pid).
-        data: the episode file's content for the driver to write (Ray workers); None once it is written.
-    """
-
-    key: EpisodeKey
-    elapsed_s: float
-    worker: str
-    data: bytes | None = None
-
-
-CellOutcome = CellFlown | FailedCell
-
-
-class Backend(Protocol):
-    """Flies cells and says how each ended."""
-
-    name: str
-
-    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
-        """Fly `tasks`, yielding one outcome per task as each ends."""
-        ...
-
-    def close(self) -> None:
-        """End the workers at once (a cell in flight is lost: its episode file is not written); idempotent."""
-        ...
 
 
 def check_backend(kind: str, address: str | None) -> None:
@@ -106,8 +43,6 @@ def check_backend(kind: str, address: str | None) -> None:
 
 def ray_available() -> bool:
     """Ray can be imported here (without importing it)."""
-    import sys
-
     if "ray" in sys.modules:  # imported already, or hidden (None)
         return sys.modules["ray"] is not None
     return importlib.util.find_spec("ray") is not None
@@ -119,7 +54,8 @@ def open_backend(kind: str, setup: WorkerSetup, jobs: int, address: str | None =
     """The backend `kind` for a run, closed (its workers ended) when the block ends, normally or not.
 
     Args:
-        kind: "local" or "ray".
+        kind: "local" or "ray", already checked (`check_backend`, which `compare.campaign.RunOptions.validate`
+            calls before anything is read or flown).
         setup: the run's scenarios, folder and policies.
         jobs: worker processes (local), or the CPUs of the local Ray instance started when `address` is None
             (with `address`: at most this many cells in flight when > 1, else the cluster's CPUs).
@@ -127,19 +63,16 @@ def open_backend(kind: str, setup: WorkerSetup, jobs: int, address: str | None =
         isolate: local with one job: fly in one worker process (for the cell time limit) rather than here.
 
     Raises:
-        ValueError: the backend cannot be used (see `check_backend`), or the Ray cluster cannot be reached.
+        ValueError: Ray cannot be imported, or the Ray cluster cannot be reached.
     """
-    check_backend(kind, address)
     backend: Backend
     if kind == "ray":
-        try:
+        try:  # Ray is imported only when asked for (an optional extra, and slow to import)
             from compare.backends.ray import RayBackend
         except ImportError as exc:  # installed but broken
             raise ValueError(f"--backend ray: cannot import Ray ({exc}); reinstall it with {RAY_FIX}") from exc
         backend = RayBackend(setup, jobs, address)
     else:
-        from compare.backends.local import InProcessBackend, ProcessPoolBackend
-
         backend = ProcessPoolBackend(setup, jobs) if jobs > 1 or isolate else InProcessBackend(setup)
     try:
         yield backend

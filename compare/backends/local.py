@@ -14,14 +14,12 @@ from collections import deque
 from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING
 
-from compare.backends import CellOutcome, CellTask, WorkerSetup
+from pebble import ProcessExpired, ProcessPool
+
+from compare.backends.base import CellOutcome, CellTask, WorkerSetup
 from compare.backends.worker import fly_cell, fly_in_pool_worker, init_pool_worker, new_runner
 from compare.results.failures import FailedCell, FailureKind, error_failure, exit_reason
-
-if TYPE_CHECKING:
-    from pebble import ProcessPool
 
 NAME = "local"
 
@@ -78,8 +76,6 @@ class ProcessPoolBackend:
         self._stop()
 
     def _start(self) -> ProcessPool:
-        from pebble import ProcessPool
-
         # spawn: fresh interpreters, no casadi/ompl/torch state copied from this process
         self._pool = ProcessPool(max_workers=self.workers, initializer=init_pool_worker, initargs=(self.setup,),
                                  context=multiprocessing.get_context("spawn"))
@@ -94,8 +90,6 @@ class ProcessPoolBackend:
 
 def _outcome(future: Future, task: CellTask, elapsed_s: float) -> tuple[CellOutcome, bool]:
     """How a pool task ended, and whether the pool broke with it."""
-    from pebble import ProcessExpired
-
     try:
         return future.result(), False
     except concurrent.futures.TimeoutError:  # pebble killed the worker; a new one takes its place

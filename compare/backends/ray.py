@@ -19,25 +19,23 @@ import logging
 import os
 import shutil
 import signal
+import socket
 import tempfile
 import threading
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import ray
 import ray.exceptions
 
 from compare import pilots
-from compare.backends import CellFlown, CellOutcome, CellTask, WorkerSetup
+from compare.backends.base import CellFlown, CellOutcome, CellTask, WorkerSetup
 from compare.backends.worker import fly_cell, new_runner, prepare_process
+from compare.cells import CellRunner
 from compare.results.failures import FailedCell, FailureKind, error_failure
 from compare.results.trajectory import write_episode_bytes
-
-if TYPE_CHECKING:
-    from compare.campaign import CellRunner
 
 log = logging.getLogger(__name__)
 
@@ -148,8 +146,6 @@ class RayBackend:
 def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
     """Raise ValueError unless a TCP connection to `address` ("host:port" or "ray://host:port") opens within
     `timeout_s` [s]; other forms (e.g. "auto") are left to Ray."""
-    import socket
-
     host, _, port = address.removeprefix("ray://").rpartition(":")
     if not host or not port.isdigit():
         return

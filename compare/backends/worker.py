@@ -6,15 +6,12 @@ from __future__ import annotations
 
 import os
 import time
-from typing import TYPE_CHECKING
 
 from compare import pilots
-from compare.backends import CellFlown, CellOutcome, CellTask, WorkerSetup
+from compare.backends.base import CellFlown, CellOutcome, CellTask, WorkerSetup
+from compare.cells import CellRunner
 from compare.results.failures import error_failure
 from compare.results.trajectory import episode_bytes
-
-if TYPE_CHECKING:  # the campaign imports the backends
-    from compare.campaign import CellRunner
 
 
 def fly_cell(runner: CellRunner, task: CellTask, backend: str, worker: str, to_bytes: bool) -> CellOutcome:
@@ -47,15 +44,13 @@ def prepare_process(setup: WorkerSetup) -> None:
     networks one observation at a time, and the run's parallelism is its workers)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if any(pilots.pilot(m).uses_torch for sc in setup.scenarios for m in sc.methods):
-        import torch
+        import torch  # only in a process that flies a torch pilot: PyTorch takes seconds to import
 
         torch.set_num_threads(1)
 
 
 def new_runner(setup: WorkerSetup) -> CellRunner:
     """A cell runner for `setup` (its caches are filled as cells fly)."""
-    from compare.campaign import CellRunner
-
     return CellRunner(setup.scenarios, setup.out_dir, setup.policies)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 import traceback
 from collections import Counter
 from collections.abc import Sequence
@@ -83,8 +84,6 @@ def error_failure(key: EpisodeKey, exc: BaseException, elapsed_s: float, backend
 
 def exit_reason(exitcode: int | None) -> str:
     """Why a worker process died, from its exit code (negative: the signal that killed it)."""
-    import signal
-
     if exitcode is None:
         return "the worker process died (exit code unknown)"
     if exitcode < 0:

@@ -24,10 +24,10 @@ vehicle (`rl.task.vehicles`) over the small quad's; a vehicle without a task kee
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rl.env.world import NavBatch
 from rl.sensing.observation import ObservationScales, goal_heading, velocity_command, world_velocity_to_action
 from rl.sensing.sensor import BoxSensor
 from rl.task.cities import boxes_only
@@ -35,9 +35,6 @@ from rl.task.vehicles import TASKS
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.vehicle.params import VehicleParams
-
-if TYPE_CHECKING:  # flying a batch is the evaluation's; the runner's pilot needs no environment
-    from rl.env.world import NavBatch
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,8 @@ import yaml
 from pypdf import PdfReader
 
 import compare.campaign
+import compare.cells
+import compare.cli
 import compare.fingerprint
 from compare.cli import main
 from compare.results.trajectory import EpisodeMeta, load_episode, save_episode
@@ -115,7 +117,7 @@ def no_flying(monkeypatch: pytest.MonkeyPatch) -> None:
     """`run` must stop before flying: fail loudly (and fast) if it ever gets to the runner."""
     def refuse(*_args: Any, **_kwargs: Any) -> Path:
         raise AssertionError("run_comparison was called: the bad input was not rejected")
-    monkeypatch.setattr(compare.campaign, "run_comparison", refuse)
+    monkeypatch.setattr(compare.cli, "run_comparison", refuse)
 
 
 @pytest.fixture(scope="module")
@@ -272,7 +274,7 @@ def test_large_run_warns_with_time_and_disk(tmp_path: Path, capsys: pytest.Captu
                                             monkeypatch: pytest.MonkeyPatch) -> None:
     def stop(*_args: Any, **_kwargs: Any) -> Path:
         raise ValueError("stopped before flying (test)")
-    monkeypatch.setattr(compare.campaign, "run_comparison", stop)
+    monkeypatch.setattr(compare.cli, "run_comparison", stop)
     out = tmp_path / "run"
     seeds = ",".join(str(s) for s in range(400))
     assert main(["run", str(TINY), "--seeds", seeds, "--out", str(out), "--no-progress"]) == 2
@@ -404,6 +406,23 @@ def test_jobs_below_one_rejected_and_above_cpus_warned(tmp_path: Path, capsys: p
     assert f"uam-compare: warning: --jobs {many} is more than the {os.cpu_count()} CPUs" in err
 
 
+@pytest.mark.parametrize("options, expected", [
+    ({"seeds": (3, 4, 3)}, "--seeds 3,4,3 (index 2): duplicate seed 3"),
+    ({"jobs": 0}, "--jobs 0: must be >= 1"),
+    ({"cell_timeout_s": 0.0}, "--cell-timeout 0: must be > 0 s"),
+    ({"address": "10.0.0.5:6379"}, "--address 10.0.0.5:6379: a Ray cluster's address, only with --backend ray"),
+    ({"videos": "some"}, "--videos 'some': choose from scenario, all, none"),
+])
+def test_a_library_run_checks_its_options_as_the_command_line_does(tmp_path: Path, options: dict,
+                                                                   expected: str) -> None:
+    """One check per option (`RunOptions.validate`): a library caller gets the CLI's message, before anything
+    is read or written."""
+    opts = compare.campaign.RunOptions(out_dir=tmp_path / "run", **options)
+    with pytest.raises(ValueError) as exc:
+        compare.campaign.run_comparison([], opts)
+    assert str(exc.value).startswith(expected) and list(tmp_path.iterdir()) == []
+
+
 def test_animate_duration_is_bounded(run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     before = _snapshot(run_dir)
     _fails(["animate", str(run_dir), "--duration", "1e9", "--out", str(tmp_path / "clip.gif")], capsys, tmp_path,
@@ -439,16 +458,16 @@ def test_maps_on_a_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
 @pytest.fixture
 def synthetic_flying(monkeypatch: pytest.MonkeyPatch) -> None:
     """`run` flies each cell as a short synthetic flight and scores it without report or viewer (fast)."""
-    def fly(self: compare.campaign.CellRunner, c: compare.campaign.Cell) -> Path:
+    def fly(self: compare.cells.CellRunner, c: compare.cells.Cell) -> Path:
         sc = self.scenarios[c.scenario]
-        task, key = sc.episodes[c.episode].task, compare.campaign.cell_key(self.scenarios, c)
+        task, key = sc.episodes[c.episode].task, compare.cells.cell_key(self.scenarios, c)
         meta = EpisodeMeta(key, sc.city.name or sc.name, sc.vehicle_name, tuple(task.start_m), tuple(task.goal_m),
                            task.goal_radius_m, task.timeout_s, sc.vehicle.collision_radius_m, sc.vehicle.n_rotors,
                            1e4, "success", 0.0, "synthetic")
         return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta,
                             trajectory(200, 10.0, 0.0, 1.0, "success", 0))
     finalize = compare.campaign.finalize
-    monkeypatch.setattr(compare.campaign.CellRunner, "run", fly)
+    monkeypatch.setattr(compare.cells.CellRunner, "run", fly)
     monkeypatch.setattr(compare.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))
 
 

@@ -32,7 +32,8 @@ from compare.cli import main
 from compare.fingerprint import scenario_fingerprint
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import read_run_info
-from compare.scenario import builtin_sets, load_scenario, resolve_scenarios, scenario_from_dict
+from compare.scenario import load_scenario, scenario_from_dict
+from compare.sets import builtin_sets, resolve_scenarios
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS
 from rl.task.vehicles import task_for
 from rl.training.evaluation import VALIDATION_OFFSET

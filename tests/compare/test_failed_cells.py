@@ -11,7 +11,9 @@ from pathlib import Path
 import pytest
 
 import compare.campaign
-from compare.campaign import Cell, RunOptions, cell_limit_s
+import compare.cells
+from compare.campaign import RunOptions, cell_limit_s
+from compare.cells import Cell
 from compare.cli import main
 from compare.results.failures import (
     FAILED_DIR,
@@ -113,14 +115,14 @@ def test_resume_flies_only_the_missing_cells_and_keeps_the_saved_episodes(
     [failed] = read_failures(out)
     saved = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns, p.read_bytes()) for p in episode_files(out)}
     assert len(saved) == 3 and f"{failed.key.stem}.npz" not in saved
-    fly = compare.campaign.CellRunner.run
+    fly = compare.cells.CellRunner.run
     flown: list[Cell] = []
 
-    def counted(self: compare.campaign.CellRunner, c: Cell) -> Path:
+    def counted(self: compare.cells.CellRunner, c: Cell) -> Path:
         flown.append(c)
         return fly(self, c)
 
-    monkeypatch.setattr(compare.campaign.CellRunner, "run", counted)
+    monkeypatch.setattr(compare.cells.CellRunner, "run", counted)
     capsys.readouterr()
     assert main([*argv, "--resume"]) == 0  # the fault is spent: the failed cell flies now
     printed = capsys.readouterr().out

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from test_bad_inputs import TINY, synthetic_flying  # noqa: F401  (a fixture)
 
-import compare.campaign
+import compare.cells
 from compare.cli import INTERRUPTED_EXIT, main
 from compare.results.trajectory import episode_files
 from uam_fdm.files.atomic import TEMP_MARK, atomic_open, remove_stale_temporaries
@@ -24,16 +24,16 @@ SEEDS = "0,1,2,3,4,5,6,7"
 def test_ctrl_c_keeps_the_finished_episodes_and_says_how_to_resume(
         tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,  # noqa: F811
         monkeypatch: pytest.MonkeyPatch) -> None:
-    fly = compare.campaign.CellRunner.run
+    fly = compare.cells.CellRunner.run
     flown = []
 
-    def interrupted_on_the_third(self: compare.campaign.CellRunner, c: compare.campaign.Cell) -> Path:
+    def interrupted_on_the_third(self: compare.cells.CellRunner, c: compare.cells.Cell) -> Path:
         if len(flown) == 2:
             raise KeyboardInterrupt
         flown.append(c)
         return fly(self, c)
 
-    monkeypatch.setattr(compare.campaign.CellRunner, "run", interrupted_on_the_third)
+    monkeypatch.setattr(compare.cells.CellRunner, "run", interrupted_on_the_third)
     out = tmp_path / "run"
     argv = ["run", str(TINY), "--methods", "rrt_mpc", "--seeds", SEEDS, "--out", str(out), "--no-progress",
             "--videos", "none"]
@@ -45,7 +45,7 @@ def test_ctrl_c_keeps_the_finished_episodes_and_says_how_to_resume(
                      f"run {TINY} --methods rrt_mpc --seeds {SEEDS} --out {out} --no-progress --videos none "
                      f"--resume"], err
     assert len(episode_files(out)) == 2 and not (out / "metrics.csv").exists()
-    monkeypatch.setattr(compare.campaign.CellRunner, "run", fly)  # the synthetic flight: resume flies the other 6
+    monkeypatch.setattr(compare.cells.CellRunner, "run", fly)  # the synthetic flight: resume flies the other 6
     assert main([*argv, "--resume"]) == 0
     assert len(episode_files(out)) == 8
 

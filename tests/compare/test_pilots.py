@@ -15,7 +15,8 @@ import yaml
 from pypdf import PdfReader
 
 from compare import pilots
-from compare.campaign import Cell, CellRunner, fairness
+from compare.campaign import fairness
+from compare.cells import Cell, CellRunner
 from compare.cli import main
 from compare.results.trajectory import load_episode
 from compare.scenario import load_scenario, scenario_from_dict
@@ -47,7 +48,8 @@ def test_the_registry_keeps_the_existing_pilots_and_adds_apf():
     assert pilots.ordered(["apf", "x", "rrt_mpc", "apf"]) == ["rrt_mpc", "apf", "x"]
     with pytest.raises(ValueError, match=r"unknown method 'astar' \(registered: ppo, rrt_mpc, apf\)"):
         pilots.pilot("astar")
-    agent = pilots.build("apf", load_scenario(TINY), None)
+    sc = load_scenario(TINY)
+    agent = pilots.build("apf", pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source))
     assert isinstance(agent, Agent) and agent.name == "apf"
 
 

@@ -62,10 +62,11 @@ def test_a_broken_plugin_is_a_clear_error(on_path, name, reason):
 
 def test_the_agent_name_of_a_plugin_need_not_be_its_method_name(on_path):
     sc = load_scenario(TINY)
-    agent = pilots.build("plugin_fixtures:NamedWrong", sc, None)
+    request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source)
+    agent = pilots.build("plugin_fixtures:NamedWrong", request)
     assert agent.name == "apf"
     with pytest.raises(ValueError, match="unknown method"):  # a registered name still must match
-        pilots.build("no_such", sc, None)
+        pilots.build("no_such", request)
 
 
 def test_an_entry_point_names_a_plugin(on_path, tmp_path, monkeypatch):

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from compare.campaign import RunOptions, plan_cells, select_policies
-from compare.scenario import resolve_scenarios
+from compare.sets import resolve_scenarios
 from rl.policies.folder import SHIPPED_POLICIES
 
 

@@ -11,15 +11,8 @@ from typing import Any
 import pytest
 import yaml
 
-from compare.scenario import (
-    DEFAULT_METHODS,
-    SCENARIO_DIR,
-    Scenario,
-    builtin_sets,
-    load_scenario,
-    resolve_scenarios,
-    scenario_from_dict,
-)
+from compare.scenario import DEFAULT_METHODS, Scenario, load_scenario, scenario_from_dict
+from compare.sets import SCENARIO_DIR, builtin_sets, resolve_scenarios
 from scenario_box import BASE
 from uam_fdm.air.wind import ShearLaw, TurbulenceLevel, WindShear
 from uam_fdm.errors import ConfigError

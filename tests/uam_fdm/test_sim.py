@@ -59,6 +59,25 @@ def test_pure_step_equals_stateful_advance(vehicles, compiled_dynamics, atmosphe
         sim.reset(np.full(dyn.layout.nx, np.nan))
 
 
+def test_a_period_flown_with_the_callers_env_is_the_same_period(vehicles, compiled_dynamics, atmosphere):
+    """The runner builds a period's environment input once (to record its wind and power) and hands it over."""
+    p, dyn = vehicles["small_quad"], compiled_dynamics["small_quad"]
+    own, given = Simulator(dyn, atmosphere, _wind(5)), Simulator(dyn, atmosphere, _wind(5))
+    for sim in (own, given):
+        sim.reset(hover_state(p, (0.0, 0.0, 30.0)))
+    for k in range(25):
+        cmd = np.array([3.0, -1.0, 0.5 * (k % 2), 0.0])
+        height = 30.0 - 0.1 * k
+        s = given.state
+        a = own.advance_velocity(cmd, height) if k % 3 else own.advance(p.hover_rotor_speeds_rad_s(), height)
+        env = given.env(s.x, s.t_s, height)
+        b = (given.advance_velocity(cmd, env=env) if k % 3 else
+             given.advance(p.hover_rotor_speeds_rad_s(), env=env))
+        np.testing.assert_array_equal(a.states, b.states)
+    assert own.state.energy_J == given.state.energy_J
+    np.testing.assert_array_equal(own.state.ctrl_state, given.state.ctrl_state)
+
+
 def test_batch_simulator_equals_single_simulators(vehicles, compiled_dynamics, atmosphere):
     p, dyn = vehicles["small_quad"], compiled_dynamics["small_quad"]
     winds = [_wind(s) for s in (1, 2, 3)]

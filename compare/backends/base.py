@@ -1,0 +1,75 @@
+"""What the backends share: the cells they are given, how each ended, and the `Backend` interface.
+
+The campaign (`compare.campaign`) makes the tasks and reads the outcomes; every backend (`compare.backends.local`,
+`compare.backends.ray`) and the worker code they share (`compare.backends.worker`) import this module, which
+imports none of them.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from compare.cells import Cell
+from compare.results.failures import FailedCell
+from compare.results.trajectory import EpisodeKey
+from compare.scenario import Scenario
+
+
+@dataclass(frozen=True)
+class WorkerSetup:
+    """What every worker needs to fly a run's cells.
+
+    Attributes:
+        scenarios: the run's scenarios (a `Cell` indexes them).
+        out_dir: the run folder (local workers write episode files into it).
+        policies: the policy folder of the pilots that need one, by vehicle fingerprint.
+    """
+
+    scenarios: tuple[Scenario, ...]
+    out_dir: Path
+    policies: Mapping[str, Path]
+
+
+@dataclass(frozen=True)
+class CellTask:
+    """One cell to fly: the cell, its episode key and its wall-time limit [s] (None: none)."""
+
+    cell: Cell
+    key: EpisodeKey
+    limit_s: float | None = None
+
+
+@dataclass(frozen=True)
+class CellFlown:
+    """A cell that produced its episode.
+
+    Attributes:
+        key: the cell.
+        elapsed_s: wall time of the cell in its worker [s].
+        worker: which process flew it ("in-process", "pid 1234", a Ray node and pid).
+        data: the episode file's content for the driver to write (Ray workers); None once it is written.
+    """
+
+    key: EpisodeKey
+    elapsed_s: float
+    worker: str
+    data: bytes | None = None
+
+
+CellOutcome = CellFlown | FailedCell
+
+
+class Backend(Protocol):
+    """Flies cells and says how each ended."""
+
+    name: str
+
+    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
+        """Fly `tasks`, yielding one outcome per task as each ends."""
+        ...
+
+    def close(self) -> None:
+        """End the workers at once (a cell in flight is lost: its episode file is not written); idempotent."""
+        ...

@@ -1,0 +1,104 @@
+"""A run's cells and how one is flown: the part of a run every backend's worker shares.
+
+A `Cell` is one episode to fly (scenario, episode, seed, method); `CellRunner` flies cells in one process
+and writes (or returns) each one's episode file, seeded from the cell alone (`compare.seeding`), so a cell
+flies the same wherever it flies. The campaign (`compare.campaign`) plans the cells and the backends
+(`compare.backends`) carry them to their workers; both import this module, which imports neither.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from compare import pilots
+from compare.episode_loop import Trajectory, run_episode
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, save_episode, xyz
+from compare.scenario import Scenario
+from compare.seeding import cell_seed
+from uam_fdm.air.wind import WindField, probe_heights_up_to, turbulence_airspeed_m_s
+from uam_fdm.pilot import Agent, World
+from uam_fdm.vehicle.dynamics import VehicleDynamics
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One episode to fly: scenario (index into the run's list), episode index, seed and method."""
+
+    scenario: int
+    episode: int
+    seed: int
+    method: str
+
+
+def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
+    """The episode key (and so the episode file's name) of cell `c` of a run of `scenarios`."""
+    return EpisodeKey(scenarios[c.scenario].name, c.episode, c.method, c.seed)
+
+
+class CellRunner:
+    """Flies cells; holds per-process caches (worlds per scenario, one agent per method, or per method and
+    vehicle for a pilot that flies a policy)."""
+
+    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path]) -> None:
+        """`policies`: the policy folder of the pilots that need one, by vehicle fingerprint."""
+        self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
+        self._worlds: dict[int, World] = {}
+        self._dynamics: dict[tuple, VehicleDynamics] = {}
+        self._agents: dict[tuple[str, str], Agent] = {}
+
+    def world(self, si: int) -> World:
+        """What the pilots of scenario `si` are given at take-off (one flight model per vehicle and rates)."""
+        if si not in self._worlds:
+            sc = self.scenarios[si]
+            key = (sc.vehicle.fingerprint(), sc.physics_hz, sc.control_hz)
+            if key not in self._dynamics:
+                self._dynamics[key] = VehicleDynamics(sc.vehicle, sc.physics_hz, sc.control_hz)
+            # the forecast turbulence level (a category) is the pilots' to know; its gusts are not
+            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
+        return self._worlds[si]
+
+    def agent(self, method: str, sc: Scenario) -> Agent:
+        """The agent flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
+        fp = sc.vehicle.fingerprint() if pilots.pilot(method).needs_policy else ""
+        if (method, fp) not in self._agents:
+            request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source, self.policies.get(fp) if fp else None)
+            self._agents[method, fp] = pilots.build(method, request)
+        return self._agents[method, fp]
+
+    def run(self, c: Cell) -> Path:
+        """Fly cell `c` and save its episode file in the run folder; returns the file."""
+        meta, traj = self.fly(c)
+        return save_episode(self.out_dir / "episodes" / f"{meta.key.stem}.npz", meta, traj)
+
+    def fly(self, c: Cell) -> tuple[EpisodeMeta, Trajectory]:
+        """Fly cell `c`: what its episode file holds (nothing is written)."""
+        sc = self.scenarios[c.scenario]
+        spec = sc.episodes[c.episode]
+        task = spec.task
+        world = self.world(c.scenario)
+        p = sc.vehicle
+        wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
+        agent_seed = cell_seed(sc.name, c.episode, c.seed, "agent")
+        # one reference probe airspeed per episode; turbulence rungs up to the flight volume's ceiling
+        wind_speed = float(np.linalg.norm(sc.wind.steady_enu_m_s))
+        airspeed = turbulence_airspeed_m_s(p.controller.max_speed_m_s, wind_speed)
+        heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
+        wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
+        agent = self.agent(c.method, sc)
+        traj = run_episode(world, agent, task, wind, agent_seed)
+        report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
+        key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
+        meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
+                           start_m=xyz(task.start_m), goal_m=xyz(task.goal_m), goal_radius_m=task.goal_radius_m,
+                           timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
+                           energy_J=float(traj.energy_J), outcome=traj.outcome,
+                           # planning at reset plus every replan, when the pilot reports it
+                           plan_time_s=float(traj.plan_time_s if report is None else report.plan_time_s),
+                           detail=traj.detail, wind_seed=wind_seed, agent_seed=agent_seed,
+                           mean_decision_ms=float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None,
+                           failure_reason=None if report is None else report.failure_reason(traj.outcome),
+                           report=report)
+        return meta, traj
