@@ -24,7 +24,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rl.sensing.observation import PilotMemory, action_to_command, goal_heading, obs_size
+from rl.sensing.observation import (
+    TURBULENCE_VALUE,
+    PilotMemory,
+    Surroundings,
+    action_to_command,
+    goal_heading,
+    obs_size,
+)
 from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, flight_levels, grid_shape, max_levels
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
@@ -90,7 +97,7 @@ class NavWorld:
         self.level_stacks: list[list[int]] = []  # per turbulence level: its stacks' indices in gust_stacks
         if self.turbulent:
             self._make_gust_stacks(wind_from)
-        self.obs_size = obs_size(config.perception)
+        self.obs_size = obs_size(config.perception, config.observe)
 
     @property
     def atmosphere(self) -> Atmosphere:
@@ -160,7 +167,7 @@ class NavBatch:
         self.level = np.zeros(n, dtype=np.int64)  # each slot's turbulence level: an index of world.levels
         self.sim = BatchSimulator(world.dynamics, self.atmospheres, self.winds)
         self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight, world.route_levels)
-        self.memory = PilotMemory.empty(n, cfg.decision_hz)
+        self.memory = PilotMemory.empty(n, cfg.decision_hz, cfg.observe.history)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
         self._radius = world.vehicle.collision_radius_m
         self._ground_effect_range_m = ground_effect_range_m(world.vehicle) if world.vehicle.ground_effect else -np.inf
@@ -254,10 +261,19 @@ class NavBatch:
     def _observe(self, idx: np.ndarray) -> None:
         """Recompute the observations of slots idx from their current state and memory."""
         w = self.world
+        cfg = w.config
         self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
                                        self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception,
-                                       self.routes, self.memory, w.config.perception, w.config.scales,
-                                       w.config.decision_hz, w.vehicle)
+                                       self.routes, self.memory, cfg.perception, cfg.scales, cfg.decision_hz, w.vehicle,
+                                       cfg.observe, self._surroundings(idx) if cfg.observe.size() else None)
+
+    def _surroundings(self, idx: np.ndarray) -> Surroundings:
+        """What the pilot interface tells slots idx about their air and flight volume."""
+        z = self.x[idx, 2]
+        a = self.atmospheres
+        sigma = a.density_ratio_clamped(z, idx) if isinstance(a, AtmosphereBank) else a.density_ratio_clamped(z)
+        turbulence = np.array([TURBULENCE_VALUE[self.world.levels[k]] for k in self.level[idx]])
+        return Surroundings(np.asarray(sigma, dtype=float), turbulence, self.lo[idx], self.hi[idx])
 
     def _collided(self, idx: np.ndarray, sel, states: np.ndarray, finite: np.ndarray,
                   clear_lb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -358,7 +374,7 @@ class NavBatch:
         for k in TERMS[1:]:
             reward += terms[k]
         m = self.memory
-        m.record(everyone, act, self.route_m)
+        m.record(everyone, act, self.route_m, vel)
         m.heading_rad[:] = goal_heading(pos, self.goal, m.heading_rad)
         self._observe(everyone)
         terminated = arrived | crashed

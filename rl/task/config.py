@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 
-from rl.sensing.observation import ObservationScales
+from rl.sensing.observation import ObservationScales, ObservedContext
 from rl.sensing.perception import PerceptionConfig
 from rl.sensing.route import RouteConfig
 from rl.task.air import AirDistribution
@@ -33,6 +33,8 @@ class NavConfig:
         perception: rays and height map (`rl.sensing.perception`); route: the geodesic potential (`rl.sensing.route`).
         scales: the observation's length scales (`rl.sensing.observation`); the clearance is measured
             exactly up to `scales.clearance_m` and reads that value beyond.
+        observe: what the observation holds beyond the base elements and the perception (the air, the
+            geofence, a history of decisions; `rl.sensing.observation.ObservedContext`).
         city_split: "train" or "eval": which seed range the city pool comes from.
         city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
         cities: city generator parameter ranges; tasks: start/goal distribution.
@@ -52,6 +54,7 @@ class NavConfig:
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
     scales: ObservationScales = field(default_factory=ObservationScales)
+    observe: ObservedContext = field(default_factory=ObservedContext)
     city_split: str = "train"
     city_pool_size: int = 1024
     city_pool_offset: int = 0
@@ -105,7 +108,7 @@ class NavConfig:
             d["air"] = {_LEGACY_AIR[k]: ([v] if k == "turbulence" else v) for k, v in legacy.items()}
         nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
                   "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales,
-                  "air": AirDistribution}
+                  "air": AirDistribution, "observe": ObservedContext}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:

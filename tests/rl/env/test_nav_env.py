@@ -13,7 +13,7 @@ import rl  # noqa: F401  (registers UAMNav-v0)
 from rl.env.gym_env import UAMNavEnv
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavWorld
-from rl.sensing.observation import obs_size
+from rl.sensing.observation import ObservedContext, obs_size
 from rl.sensing.sensor import BoxSensor
 from rl.task.air import AirDistribution
 from rl.task.cities import CityDistribution
@@ -63,11 +63,13 @@ def test_seeded_rollout_repeats_exactly(world):
 
 @pytest.fixture(scope="module")
 def airy_world(world) -> NavWorld:
-    """A world whose episodes draw their field (of 3), turbulence level (of 3) and a wind up to 8 m/s."""
+    """A world whose episodes draw their field (of 3), turbulence level (of 3) and a wind up to 8 m/s, and whose
+    observation holds the air, the geofence and two past decisions."""
     air = AirDistribution(elevation_m=(0.0, 3000.0), isa_offset_k=(-10.0, 30.0),
                           turbulence=("none", "light", "moderate"),
                           steady_wind_max_m_s=8.0, pool_size=3)
-    return NavWorld(replace(SMALL, air=air), dynamics=world.dynamics)
+    observe = ObservedContext(air=True, geofence=True, history=2)
+    return NavWorld(replace(SMALL, air=air, observe=observe), dynamics=world.dynamics)
 
 
 def test_batched_equals_single_envs(world):
@@ -86,6 +88,10 @@ def test_batched_equals_single_envs_each_in_its_own_air(airy_world):
     assert sigma[0] == venv.batch.atmosphere(0).density_ratio_clamped(float(venv.batch.x[0, 2]))
     assert sigma[i] == venv.batch.atmosphere(i).density_ratio_clamped(float(venv.batch.x[i, 2]))
     assert sigma[0] != sigma[i]
+    obs = venv.batch.observations  # the air elements: the density ratio each slot flies, less 1
+    assert airy_world.obs_size == obs_size(SMALL.perception) + 2 + 4 + 12
+    base = obs_size(SMALL.perception)
+    np.testing.assert_allclose(obs[:, base], sigma - 1.0, rtol=1e-6)
 
 
 def test_a_task_of_one_field_and_one_level_draws_as_before(world):

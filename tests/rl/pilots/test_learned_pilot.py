@@ -85,6 +85,29 @@ def test_agent_flies_exactly_like_the_environment_in_air_drawn_per_episode(seed)
     _assert_env_equals_runner(policy, seed, air=air)
 
 
+def test_agent_flies_exactly_like_the_environment_observing_air_geofence_and_history():
+    """A policy observing the air (density, forecast), the flight volume's edge and 3 past decisions: the
+    runner's pilot builds the environment's observation from what the pilot interface states (an untrained
+    network of that input size flies; the point is the observation, element for element)."""
+    import torch
+
+    from rl.pilots.learned import Policy
+    from rl.policies.folder import NetworkSpec
+    from rl.policies.network import ActorCritic
+    from rl.policies.reader import ObsNorm
+    from rl.sensing.observation import ObservedContext, obs_size
+
+    shipped = load_policy(SHIPPED_POLICIES["small_quad"])
+    nav = dataclasses.replace(shipped.nav, observe=ObservedContext(air=True, geofence=True, history=3))
+    n_obs = obs_size(nav.perception, nav.observe)
+    assert n_obs == obs_size(shipped.nav.perception) + 2 + 4 + 18
+    torch.manual_seed(0)
+    norm = ObsNorm(np.zeros(n_obs), np.ones(n_obs), 1.0, 1e-8, 10.0)
+    policy = Policy(shipped.folder, ActorCritic(n_obs, NetworkSpec()).eval(), norm, nav)
+    air = AirDistribution.at_level("warm-and-raised", turbulence=("light", "moderate"), pool_size=3)
+    _assert_env_equals_runner(policy, 5, air=air)
+
+
 def _assert_env_equals_runner(policy, seed: int, levels: bool = False, air: AirDistribution | None = None) -> None:
     base = NavWorld(eval_config(policy.nav, 3, air=air))
     env = UAMNavEnv(world=base)
@@ -92,7 +115,7 @@ def _assert_env_equals_runner(policy, seed: int, levels: bool = False, air: AirD
     task, wind, city = env.batch.task(0), env.batch.wind_field(0), base.cities[int(env.batch.city[0])]
     atmosphere, turbulence = env.batch.atmosphere(0), env.batch.turbulence(0)
     if air is not None:  # the slot flies one of the pool's fields
-        assert len(base.atmospheres) == 4 and atmosphere.conditions.elevation_m >= 1800.0
+        assert len(base.atmospheres) == air.pool_size and atmosphere.conditions in air.fields()
     if levels:
         assert len(flight_levels(task.start_m[2], task.goal_m[2], policy.nav.route.level_step_m)) > 2, task
     env_states, outcome = [], None
