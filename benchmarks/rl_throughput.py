@@ -239,7 +239,7 @@ def main() -> None:
         fig.update(test_evaluation(args.episodes))
 
     print(f"rl throughput: {nav.vehicle}, {hz:g} Hz decisions ({nav.action_repeat} control periods of "
-          f"{1000 / nav.control_hz:g} ms, {nav.physics_hz:g} Hz physics), {nav.turbulence} turbulence, "
+          f"{1000 / nav.control_hz:g} ms, {nav.physics_hz:g} Hz physics), {'/'.join(nav.air.turbulence)} turbulence, "
           f"{BENCH_CITY_POOL} training cities; {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           "torch 1 thread")
     print(f"{'what':34s} {'path':18s} {'decisions/s':>12s} {'sim s/s':>9s}  note")

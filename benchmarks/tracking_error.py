@@ -81,7 +81,7 @@ def _validation_task(vehicle: str, index: int, seed: int):
     rng = np.random.default_rng([seed, index, 0x7E])
     task = tasks.sample(city, rng, p.collision_radius_m, p.controller.max_speed_m_s,
                         max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s)
-    speed, heading = rng.uniform(0.0, nav.steady_wind_max_m_s), rng.uniform(-math.pi, math.pi)
+    speed, heading = rng.uniform(0.0, nav.air.steady_wind_max_m_s), rng.uniform(-math.pi, math.pi)
     return p, city, city_seed, task, (speed * math.cos(heading), speed * math.sin(heading), 0.0)
 
 

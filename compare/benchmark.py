@@ -46,6 +46,7 @@ from compare.fingerprint import scenario_fingerprint
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import SuiteInfo
 from compare.scenario import Scenario, scenario_from_dict
+from rl.task.air import AIR_LEVELS as LEVELS_OF_AIR
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
 from rl.task.vehicles import task_for
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
@@ -68,21 +69,8 @@ LEARNED_PILOT_POOLS: dict[str, range] = {"training": TRAIN_SEEDS, "test and vali
 avoid."""
 
 
-@dataclass(frozen=True)
-class AirLevel:
-    """A level of the air axis: field elevation [m MSL] and ISA temperature offset [K], each drawn
-    uniformly in its range per scenario."""
-
-    name: str
-    elevation_m: tuple[float, float]
-    isa_offset_k: tuple[float, float]
-
-
-AIR_LEVELS = (
-    AirLevel("sea level", (0.0, 0.0), (0.0, 0.0)),  # a standard day
-    AirLevel("warm and raised", (600.0, 1200.0), (10.0, 20.0)),
-    AirLevel("hot and high", (1800.0, 2600.0), (20.0, 30.0)),
-)
+AIR_LEVELS = tuple(LEVELS_OF_AIR.values())
+"""The air axis's levels (`rl.task.air.AIR_LEVELS`: sea level on a standard day, warm and raised, hot and high)."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +83,8 @@ class VehicleBenchmark:
         first_seed: the first city seed (scenario i flies city first_seed + i).
         leg_bins_m: straight start-goal distance ranges [m]; leg j is drawn in bin j mod len.
         altitude_m: start and goal height range above the ground [m].
+        steady_wind_max_m_s: each scenario's steady wind speed is uniform in [0, this] [m/s] (the learned
+            pilot's training air when the set was made; fixed here so the set does not move with training).
     """
 
     vehicle: str
@@ -102,6 +92,7 @@ class VehicleBenchmark:
     first_seed: int
     leg_bins_m: tuple[tuple[float, float], ...]
     altitude_m: tuple[float, float]
+    steady_wind_max_m_s: float
 
 
 @dataclass(frozen=True)
@@ -119,11 +110,11 @@ class BenchmarkDesign:
     vehicles: tuple[VehicleBenchmark, ...] = (
         # the learned quad's legs are 40-250 m at 5-30 m; the shipped scenarios 120-250 m at 8-20 m
         VehicleBenchmark("small_quad", "quad", 3_000_000, ((60.0, 120.0), (120.0, 180.0), (180.0, 240.0)),
-                         (8.0, 25.0)),
+                         (8.0, 25.0), 3.0),
         # the learned UAM's legs are 300-1500 m at 30-90 m; a 1.2 km leg still fits the smallest city's
         # flyable square (1000 m less 2 x 80 m margins: 1188 m across the diagonal)
         VehicleBenchmark("uam_multicopter", "uam", 3_100_000, ((300.0, 600.0), (600.0, 900.0), (900.0, 1200.0)),
-                         (30.0, 90.0)),
+                         (30.0, 90.0), 5.0),
     )
     # 36 = 4 blocks of the orthogonal array: every pair of levels 4 times, each level 12 times
     scenarios_per_vehicle: int = 36
@@ -249,7 +240,7 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
     air = AIR_LEVELS[lv.air]
     elevation = round(float(rng.uniform(*air.elevation_m)), -1)
     offset = round(float(rng.uniform(*air.isa_offset_k)), 1)
-    speed, heading = float(rng.uniform(0.0, nav.steady_wind_max_m_s)), float(rng.uniform(-math.pi, math.pi))
+    speed, heading = float(rng.uniform(0.0, vb.steady_wind_max_m_s)), float(rng.uniform(-math.pi, math.pi))
     wind = [round(speed * math.cos(heading), 1), round(speed * math.sin(heading), 1), 0.0]
     turbulence = TURBULENCE_LEVELS[lv.turbulence]
     legs = [_leg(city, nav.tasks, vb, vehicle.collision_radius_m, seed, j) for j in range(n_legs)]

@@ -5,12 +5,13 @@ import argparse
 import errno
 import json
 import logging
+import math
 import os
 import shlex
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
@@ -25,7 +26,12 @@ from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
 from compare.scenario import Scenario, with_methods
 from compare.sets import resolve_scenarios
+from rl.task.air import AIR_LEVELS, AirDistribution
+from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
 from uam_fdm.vehicle.params import preset_names
+
+AIR_FIELDS = 16
+"""Fields drawn (and tabulated) for air given as ranges (--air): each episode flies one."""
 
 # Imported inside the commands that use them: matplotlib and plotly (figures, viewer, maps) and PyTorch (the
 # learned pilot's training and evaluation), each slow to import, so that the other commands start without them.
@@ -297,7 +303,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     task = task_for(args.vehicle)
     if args.city_pool is not None and args.city_pool < 1:
         raise ValueError(f"--city-pool {args.city_pool}: must be >= 1")
-    nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, turbulence=args.turbulence)
+    air = task.air if args.turbulence is None else replace(task.air, turbulence=_turbulence_levels(args.turbulence))
+    nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air)
     cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
@@ -317,17 +324,20 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
     _one_torch_thread()
+    air = _air_from_options(args)  # before anything is loaded: a bad option is named at once
     policy = load_policy(args.policy)
-    nav = eval_config(policy.nav, args.episodes, pool=args.pool, turbulence=args.turbulence)
+    nav = eval_config(policy.nav, args.episodes, pool=args.pool, air=air(policy.nav.air))
     world = NavWorld(nav)
     res = evaluate(lambda obs, _batch: policy.act_batch(obs), nav, args.episodes, seed=args.seed, pool=args.pool,
                    world=world)
-    out = {"pool": args.pool, "episodes": res.episodes, "seed": args.seed, "turbulence": nav.turbulence,
-           "steady_wind_max_m_s": nav.steady_wind_max_m_s, "policy": str(policy.folder),
+    a = nav.air
+    out = {"pool": args.pool, "episodes": res.episodes, "seed": args.seed, "turbulence": ",".join(a.turbulence),
+           "steady_wind_max_m_s": a.steady_wind_max_m_s, "elevation_m": list(a.elevation_m),
+           "isa_offset_k": list(a.isa_offset_k), "fields": len(world.atmospheres), "policy": str(policy.folder),
            "success_rate": res.success_rate, "success_ci95": res.success_ci95,
            "collision_rate": res.collision_rate, "collision_ci95": res.collision_ci95, "outcomes": res.outcomes}
-    print(f"{res.episodes} {args.pool} episodes ({nav.turbulence} turbulence, steady wind up to "
-          f"{nav.steady_wind_max_m_s:g} m/s, {policy.nav.vehicle}), Wilson 95 % intervals:")
+    print(f"{res.episodes} {args.pool} episodes ({'/'.join(a.turbulence)} turbulence, steady wind up to "
+          f"{a.steady_wind_max_m_s:g} m/s, {_describe_fields(a)}, {policy.nav.vehicle}), Wilson 95 % intervals:")
     print(f"  ppo              success {res.success_rate:6.1%} [{res.success_ci95[0]:.1%}, {res.success_ci95[1]:.1%}]"
           f"  collisions {res.collision_rate:5.1%} [{res.collision_ci95[0]:.1%}, {res.collision_ci95[1]:.1%}]"
           f"  {res.outcomes}")
@@ -345,6 +355,61 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                    paired=pairs)
     print(json.dumps(out))
     return 0
+
+
+def _turbulence_levels(text: str) -> tuple[str, ...]:
+    """--turbulence's levels ("moderate", or "none,light,moderate").
+
+    Raises:
+        ValueError: an unknown or repeated level, naming the option.
+    """
+    levels = tuple(t.strip() for t in text.split(","))
+    try:
+        AirDistribution(turbulence=levels)
+    except ValueError as exc:
+        raise ValueError(f"--turbulence {text}: {str(exc).removeprefix('air.turbulence ')}") from None
+    return levels
+
+
+def _air_from_options(args: argparse.Namespace) -> Callable[[AirDistribution], AirDistribution]:
+    """The air `evaluate-policy` flies, from --air or --elevation/--isa-offset, --wind-max and --turbulence, as a
+    function of the policy's training air (what is not given stays the policy's). Checked here, before any work.
+
+    Raises:
+        ValueError: conflicting or out-of-range options, naming them.
+    """
+    if args.air is not None and (args.elevation is not None or args.isa_offset is not None):
+        raise ValueError("--air and --elevation/--isa-offset: give a level or an explicit field, not both")
+    for option, value, valid in (("--elevation", args.elevation, ELEVATION_RANGE_M),
+                                 ("--isa-offset", args.isa_offset, ISA_OFFSET_RANGE_K)):
+        if value is not None and not valid[0] <= value <= valid[1]:
+            raise ValueError(f"{option} {value:g}: must be within [{valid[0]:g}, {valid[1]:g}]")
+    if args.wind_max is not None and not (math.isfinite(args.wind_max) and args.wind_max >= 0.0):
+        raise ValueError(f"--wind-max {args.wind_max:g}: must be a finite speed >= 0 m/s")
+    levels = _turbulence_levels(args.turbulence) if args.turbulence is not None else None
+
+    def air(trained: AirDistribution) -> AirDistribution:
+        elevation, offset = trained.elevation_m, trained.isa_offset_k
+        if args.air is not None:
+            elevation, offset = AIR_LEVELS[args.air].elevation_m, AIR_LEVELS[args.air].isa_offset_k
+        if args.elevation is not None:
+            elevation = (args.elevation, args.elevation)
+        if args.isa_offset is not None:
+            offset = (args.isa_offset, args.isa_offset)
+        return replace(trained, elevation_m=elevation, isa_offset_k=offset, turbulence=levels or trained.turbulence,
+                       steady_wind_max_m_s=trained.steady_wind_max_m_s if args.wind_max is None else args.wind_max,
+                       pool_size=max(trained.pool_size, AIR_FIELDS))
+
+    return air
+
+
+def _describe_fields(air: AirDistribution) -> str:
+    """The fields of `air` in words: "field 0 m, ISA +0 K" or "fields 1800-2600 m, ISA +20-30 K"."""
+    def span(r: tuple[float, float], fmt: str) -> str:
+        return fmt.format(r[0]) if r[0] == r[1] else f"{fmt.format(r[0])}-{fmt.format(r[1]).lstrip('+')}"
+
+    many = air.elevation_m[0] != air.elevation_m[1] or air.isa_offset_k[0] != air.isa_offset_k[1]
+    return f"field{'s' if many else ''} {span(air.elevation_m, '{:g}')} m, ISA {span(air.isa_offset_k, '{:+g}')} K"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -468,7 +533,9 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
                     help="the vehicle and its task (rl/task/vehicles.py): small_quad (default) or uam_multicopter")
     tr.add_argument("--city-pool", type=int, default=None,
                     help="training cities (default: the task's, 1024 for small_quad, 256 for uam_multicopter)")
-    tr.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
+    tr.add_argument("--turbulence", default=None, metavar="LEVELS",
+                    help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
+                         "(default: the vehicle's task's)")
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
     tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")
@@ -488,7 +555,18 @@ def _add_evaluate_command(sub: argparse._SubParsersAction[argparse.ArgumentParse
     ev.add_argument("--pool", choices=("test", "validation"), default="test",
                     help="held-out city pool (default test; validation is for choices made while developing)")
     ev.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
-    ev.add_argument("--turbulence", default="light", help="none|light|moderate|severe (default light)")
+    ev.add_argument("--air", choices=tuple(AIR_LEVELS), default=None,
+                    help="the benchmark's air levels: fields drawn in its elevation and temperature ranges "
+                         "(default: the air the policy was trained in)")
+    ev.add_argument("--elevation", type=float, default=None, metavar="M",
+                    help="one field elevation above mean sea level [m] (instead of --air)")
+    ev.add_argument("--isa-offset", type=float, default=None, metavar="K",
+                    help="one ISA temperature offset [K] (instead of --air)")
+    ev.add_argument("--wind-max", type=float, default=None, metavar="M/S",
+                    help="steady wind speed uniform in [0, this] (default: the policy's training air's)")
+    ev.add_argument("--turbulence", default=None, metavar="LEVELS",
+                    help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
+                         "(default: the policy's training air's)")
     ev.add_argument("--no-baseline", action="store_true", help="skip the potential-field pilot on the same tasks")
     ev.set_defaults(func=_cmd_evaluate)
 

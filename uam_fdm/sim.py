@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uam_fdm.air.atmosphere import Atmosphere
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereBank
 from uam_fdm.air.wind import WindBank, WindField
 from uam_fdm.vehicle.control import N_CTRL_STATE
 from uam_fdm.vehicle.dynamics import PeriodResult, VehicleDynamics
@@ -145,11 +145,11 @@ class BatchSimulator:
 
     Args:
         dynamics: the compiled vehicle.
-        atmosphere: shared atmosphere.
+        atmosphere: one atmosphere for every vehicle, or an `AtmosphereBank` (each vehicle in its own).
         winds: one wind field per vehicle, or a `WindBank` of N vehicles.
     """
 
-    def __init__(self, dynamics: VehicleDynamics, atmosphere: Atmosphere,
+    def __init__(self, dynamics: VehicleDynamics, atmosphere: Atmosphere | AtmosphereBank,
                  winds: Sequence[WindField] | WindBank) -> None:
         self.dynamics = dynamics
         self.atmosphere = atmosphere
@@ -165,9 +165,9 @@ class BatchSimulator:
         """Environment inputs (M, 5) for vehicles `idx` (default all) in states x (M, nx) at times t_s (M,) [s];
         heights above the surface below (M,) [m] from the caller (None: open ground, h = z)."""
         m = x.shape[0]
+        first = 0 if idx is None else int(np.asarray(idx).reshape(-1)[0])
         if m == 1 and isinstance(self.winds, WindBank):
-            return self._env_one(self.winds, x, t_s, 0 if idx is None else int(np.asarray(idx).reshape(-1)[0]),
-                                 height_above_surface_m)
+            return self._env_one(self.winds, x, t_s, first, height_above_surface_m)
         t = np.asarray(t_s, dtype=float)
         t_mid = (t if t.shape == (m,) else np.broadcast_to(t, (m,))) + 0.5 * self.control_period_s
         if isinstance(self.winds, WindBank):
@@ -177,8 +177,18 @@ class BatchSimulator:
             wind = np.array([self.winds[int(i)].wind_enu_m_s(float(t), float(z))
                              for i, t, z in zip(which, t_mid, x[:, 2])]).reshape(m, 3)
         if m == 1:  # the scalar density lookup: the same numbers, cheaper
-            return period_env(self.atmosphere, wind[0], float(x[0, 2]), height_above_surface_m)[None]
+            return period_env(self._atmosphere(first), wind[0], float(x[0, 2]), height_above_surface_m)[None]
+        if isinstance(self.atmosphere, AtmosphereBank):  # each vehicle's own density, the same arithmetic
+            env = np.empty((m, 5))
+            env[:, 0:3] = wind
+            env[:, 3] = self.atmosphere.density_ratio_clamped(x[:, 2], idx)
+            env[:, 4] = x[:, 2] if height_above_surface_m is None else height_above_surface_m
+            return env
         return period_env(self.atmosphere, wind, x[:, 2], height_above_surface_m)
+
+    def _atmosphere(self, i: int) -> Atmosphere:
+        """Vehicle i's atmosphere."""
+        return self.atmosphere.atmosphere(i) if isinstance(self.atmosphere, AtmosphereBank) else self.atmosphere
 
     def _env_one(self, bank: WindBank, x: np.ndarray, t_s: np.ndarray | float, i: int,
                  height_above_surface_m: np.ndarray | None) -> np.ndarray:
@@ -189,7 +199,7 @@ class BatchSimulator:
         z = float(x[0, 2])
         we, wn, wu = bank._wind_one(i, t_mid, z)
         h = z if height_above_surface_m is None else float(np.asarray(height_above_surface_m).reshape(-1)[0])
-        return np.array([[we, wn, wu, self.atmosphere.density_ratio_clamped(z), h]])
+        return np.array([[we, wn, wu, self._atmosphere(i).density_ratio_clamped(z), h]])
 
     def step_batch(self, x: np.ndarray, u: np.ndarray, t_s: np.ndarray, idx: np.ndarray | None = None,
                    height_above_surface_m: np.ndarray | None = None) -> PeriodResult:

@@ -24,14 +24,21 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rl.sensing.observation import PilotMemory, action_to_command, goal_heading, obs_size
+from rl.sensing.observation import (
+    TURBULENCE_VALUE,
+    PilotMemory,
+    Surroundings,
+    action_to_command,
+    goal_heading,
+    obs_size,
+)
 from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, flight_levels, grid_shape, max_levels
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
 from rl.task.config import FixedEpisodes, NavConfig
 from rl.task.reward import TERMS, reward_terms, stopping_distance
 from uam_fdm import episode
-from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereBank
 from uam_fdm.air.wind import (
     GustStack,
     TurbulenceLevel,
@@ -55,17 +62,22 @@ class NavWorld:
     """What the slots share (built once): vehicle, compiled dynamics, atmosphere, cities, sensors, wind pool."""
 
     def __init__(self, config: NavConfig, fixed: FixedEpisodes | None = None,
-                 dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | None = None,
+                 dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | Sequence[Atmosphere] | None = None,
                  wind_from: NavWorld | None = None) -> None:
-        """`wind_from`: a world whose turbulence stacks are the ones this one would generate (same
-        level, series length, probe heights and airspeed, a pool at least as large; checked), e.g. the
-        training world for its validation world: they are shared instead of generated again."""
+        """`atmosphere`: the one atmosphere every episode flies (e.g. a scenario's), or the pool of fields
+        (e.g. another world's `atmospheres`, shared instead of tabulated again); None: the pool of
+        `config.air.fields()`. `wind_from`: a world whose turbulence stacks this one would generate too
+        (same level, seed, series length, probe heights and airspeed; checked stack by stack), e.g. the
+        training world for its validation world: those are shared instead of generated again."""
         self.config = config
         self.vehicle: VehicleParams = dynamics.params if dynamics is not None else load_vehicle(config.vehicle)
         self.dynamics = dynamics or VehicleDynamics(self.vehicle, config.physics_hz, config.control_hz)
         if abs(self.dynamics.control_hz - config.control_hz) > 1e-9:
             raise ValueError(f"dynamics run at {self.dynamics.control_hz} Hz control, the task at {config.control_hz}")
-        self.atmosphere = atmosphere or Atmosphere.from_jsbsim(AtmosphereConditions(0.0, 0.0), z_max_m=400.0)
+        if atmosphere is None:
+            self.atmospheres = [Atmosphere.from_jsbsim(c, z_max_m=400.0) for c in config.air.fields()]
+        else:
+            self.atmospheres = [atmosphere] if isinstance(atmosphere, Atmosphere) else list(atmosphere)
         self.fixed = fixed
         if fixed is not None:
             self.cities = list(fixed.cities)
@@ -79,24 +91,44 @@ class NavWorld:
         shapes = np.array([grid_shape(c, config.route.cell_m) for c in self.cities])
         self.route_cells = (int(shapes[:, 0].max()), int(shapes[:, 1].max()))  # the largest city's route grid
         self.route_levels = route_levels(config, fixed)
-        level = TurbulenceLevel.parse(config.turbulence)
-        self.turbulent = level is not TurbulenceLevel.NONE
+        self.levels = config.air.levels
+        self.turbulent = any(level is not TurbulenceLevel.NONE for level in self.levels)
         self.gust_stacks: list[GustStack] = []
+        self.level_stacks: list[list[int]] = []  # per turbulence level: its stacks' indices in gust_stacks
         if self.turbulent:
-            cond = WindConditions((0.0, 0.0, 0.0), level)
-            heights = probe_heights_up_to(float(self.hi[:, 2].max()))
-            # one airspeed for the pool: every episode's steady wind is at most steady_wind_max_m_s
-            airspeed = turbulence_airspeed_m_s(self.vehicle.controller.max_speed_m_s, config.steady_wind_max_m_s)
-            seeds = [7919 * (j + 1) for j in range(config.wind_pool_size)]
-            donor = wind_from.gust_stacks[:len(seeds)] if wind_from is not None else []
-            if (wind_from is not None and len(donor) == len(seeds)
-                    and wind_from.config.wind_series_s == config.wind_series_s
-                    and all(g.turbulence is level and g.heights_m == heights and g.airspeed_m_s == airspeed
-                            and g.seed == seed for g, seed in zip(donor, seeds))):
-                self.gust_stacks = list(donor)
-            else:
-                self.gust_stacks = [gust_stack(cond, seed, config.wind_series_s, airspeed, heights) for seed in seeds]
-        self.obs_size = obs_size(config.perception)
+            self._make_gust_stacks(wind_from)
+        self.obs_size = obs_size(config.perception, config.observe)
+
+    @property
+    def atmosphere(self) -> Atmosphere:
+        """The one atmosphere of a world that flies a single field.
+
+        Raises:
+            ValueError: the world flies a pool of fields (each episode's is `NavBatch.atmosphere(i)`).
+        """
+        if len(self.atmospheres) != 1:
+            raise ValueError(f"this world flies {len(self.atmospheres)} fields; an episode's is NavBatch.atmosphere(i)")
+        return self.atmospheres[0]
+
+    def _make_gust_stacks(self, wind_from: NavWorld | None) -> None:
+        """The turbulence stacks: `wind_pool_size` per turbulent level (one zero stack for none), each at its
+        own seed, shared with `wind_from` where it holds the same stack."""
+        config = self.config
+        heights = probe_heights_up_to(float(self.hi[:, 2].max()))
+        # one airspeed for the pool: every episode's steady wind is at most steady_wind_max_m_s
+        airspeed = turbulence_airspeed_m_s(self.vehicle.controller.max_speed_m_s, config.air.steady_wind_max_m_s)
+        wanted: list[tuple[TurbulenceLevel, int]] = []
+        for k, level in enumerate(self.levels):
+            n = 1 if level is TurbulenceLevel.NONE else config.wind_pool_size
+            self.level_stacks.append(list(range(len(wanted), len(wanted) + n)))
+            wanted += [(level, 7919 * (j + 1) + 104_729 * k) for j in range(n)]  # level 0: the earlier seeds
+        donor = {}
+        if wind_from is not None and wind_from.config.wind_series_s == config.wind_series_s:
+            donor = {(g.turbulence, g.seed): g for g in wind_from.gust_stacks
+                     if g.heights_m == heights and g.airspeed_m_s == airspeed}
+        self.gust_stacks = [donor.get((level, seed)) or gust_stack(WindConditions((0.0, 0.0, 0.0), level), seed,
+                                                                   config.wind_series_s, airspeed, heights)
+                            for level, seed in wanted]
 
 
 class NavBatch:
@@ -128,9 +160,14 @@ class NavBatch:
         self.episode_count = np.zeros(n, dtype=np.int64)
         self.rngs: list[np.random.Generator] = [np.random.Generator(np.random.PCG64(i)) for i in range(n)]
         self.winds = WindBank(world.gust_stacks, n)
-        self.sim = BatchSimulator(world.dynamics, world.atmosphere, self.winds)
+        # each slot in its own field when the world has several (the same numbers as its Atmosphere's)
+        pool = world.atmospheres
+        self.atmospheres: Atmosphere | AtmosphereBank = AtmosphereBank(pool, n) if len(pool) > 1 else pool[0]
+        self.air = np.zeros(n, dtype=np.int64)  # each slot's field: an index of world.atmospheres
+        self.level = np.zeros(n, dtype=np.int64)  # each slot's turbulence level: an index of world.levels
+        self.sim = BatchSimulator(world.dynamics, self.atmospheres, self.winds)
         self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight, world.route_levels)
-        self.memory = PilotMemory.empty(n, cfg.decision_hz)
+        self.memory = PilotMemory.empty(n, cfg.decision_hz, cfg.observe.history)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
         self._radius = world.vehicle.collision_radius_m
         self._ground_effect_range_m = ground_effect_range_m(world.vehicle) if world.vehicle.ground_effect else -np.inf
@@ -161,9 +198,12 @@ class NavBatch:
                 task = cfg.tasks.sample(w.cities[ci], rng, p.collision_radius_m, p.controller.max_speed_m_s,
                                         difficulty=self.difficulty,
                                         max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s)
-            speed = rng.uniform(0.0, cfg.steady_wind_max_m_s)
+            speed = rng.uniform(0.0, cfg.air.steady_wind_max_m_s)
             heading = rng.uniform(-np.pi, np.pi)
-            series = int(rng.integers(max(1, len(w.gust_stacks))))
+            # draws only where there is a choice, so a task of one field and one level draws as it always did
+            level = int(rng.integers(len(w.levels))) if len(w.levels) > 1 else 0
+            stacks = w.level_stacks[level] if w.turbulent else []
+            series = stacks[int(rng.integers(len(stacks)))] if stacks else int(rng.integers(1))
             start = 0
             if w.turbulent:
                 span = self.winds.samples - 2 - int(np.ceil((task.timeout_s + 1.0) / self.winds.dt_s))
@@ -171,13 +211,17 @@ class NavBatch:
                     raise ValueError(f"wind_series_s {cfg.wind_series_s} s is too short for a "
                                      f"{task.timeout_s} s episode")
                 start = int(rng.integers(span))
+            air = int(rng.integers(len(w.atmospheres))) if len(w.atmospheres) > 1 else 0
             self.winds.assign(i, (speed * np.cos(heading), speed * np.sin(heading), 0.0), series, start)
+            self.air[i], self.level[i] = air, level
+            if isinstance(self.atmospheres, AtmosphereBank):
+                self.atmospheres.assign(i, air)
             self.city[i] = ci
             self.lo[i], self.hi[i] = w.lo[ci], w.hi[ci]
             self.start[i], self.goal[i] = task.start_m, task.goal_m
             self.goal_radius[i], self.timeout[i], self.yaw[i] = task.goal_radius_m, task.timeout_s, task.start_yaw_rad
             self.x[i] = hover_state(p, task.start_m, task.start_yaw_rad,
-                                    density_ratio=w.atmosphere.density_ratio(task.start_m[2]))
+                                    density_ratio=w.atmospheres[air].density_ratio(task.start_m[2]))
             self.xi[i] = 0.0
             self.t[i] = 0.0
             self.routes.set(i, route_for(w.cities[ci], task, p.collision_radius_m, cfg.route))
@@ -201,6 +245,14 @@ class NavBatch:
         """Slot i's wind as a `WindField` (the same numbers the batch uses), for flying the episode elsewhere."""
         return self.winds.field(i)
 
+    def atmosphere(self, i: int) -> Atmosphere:
+        """Slot i's atmosphere (the same numbers the batch uses), for flying the episode elsewhere."""
+        return self.world.atmospheres[int(self.air[i])]
+
+    def turbulence(self, i: int) -> TurbulenceLevel:
+        """Slot i's turbulence level (its forecast, as a scenario states it)."""
+        return self.world.levels[int(self.level[i])]
+
     @property
     def observations(self) -> np.ndarray:
         return self._obs
@@ -209,10 +261,19 @@ class NavBatch:
     def _observe(self, idx: np.ndarray) -> None:
         """Recompute the observations of slots idx from their current state and memory."""
         w = self.world
+        cfg = w.config
         self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
                                        self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception,
-                                       self.routes, self.memory, w.config.perception, w.config.scales,
-                                       w.config.decision_hz, w.vehicle)
+                                       self.routes, self.memory, cfg.perception, cfg.scales, cfg.decision_hz, w.vehicle,
+                                       cfg.observe, self._surroundings(idx) if cfg.observe.size() else None)
+
+    def _surroundings(self, idx: np.ndarray) -> Surroundings:
+        """What the pilot interface tells slots idx about their air and flight volume."""
+        z = self.x[idx, 2]
+        a = self.atmospheres
+        sigma = a.density_ratio_clamped(z, idx) if isinstance(a, AtmosphereBank) else a.density_ratio_clamped(z)
+        turbulence = np.array([TURBULENCE_VALUE[self.world.levels[k]] for k in self.level[idx]])
+        return Surroundings(np.asarray(sigma, dtype=float), turbulence, self.lo[idx], self.hi[idx])
 
     def _collided(self, idx: np.ndarray, sel, states: np.ndarray, finite: np.ndarray,
                   clear_lb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -313,7 +374,7 @@ class NavBatch:
         for k in TERMS[1:]:
             reward += terms[k]
         m = self.memory
-        m.record(everyone, act, self.route_m)
+        m.record(everyone, act, self.route_m, vel)
         m.heading_rad[:] = goal_heading(pos, self.goal, m.heading_rad)
         self._observe(everyone)
         terminated = arrived | crashed

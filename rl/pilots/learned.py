@@ -20,7 +20,14 @@ import numpy as np
 
 from rl.policies.folder import PolicyFolder
 from rl.policies.reader import ObsNorm, load_network
-from rl.sensing.observation import PilotMemory, goal_heading, obs_size, velocity_command
+from rl.sensing.observation import (
+    TURBULENCE_VALUE,
+    PilotMemory,
+    Surroundings,
+    goal_heading,
+    obs_size,
+    velocity_command,
+)
 from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, grid_shape
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
@@ -69,7 +76,7 @@ def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None 
     nav = cfg.nav
     if vehicle is not None:
         check_vehicle(pf.path, nav, vehicle)
-    n_obs = obs_size(nav.perception)
+    n_obs = obs_size(nav.perception, nav.observe)
     stats = ObsNorm.load(pf.obs_norm)
     if stats.mean.shape != (n_obs,) or stats.var.shape != (n_obs,):
         raise ValueError(f"{pf.obs_norm}: statistics for {stats.mean.size} observations; "
@@ -143,7 +150,7 @@ class PolicyAgent:
         route = route_for(world.city, task, radius, nav.route)
         self._routes = RouteBank(1, self._senses.route_cells, nav.route.climb_weight, len(route.fields))
         self._routes.set(0, route)
-        self._memory = PilotMemory.empty(1, nav.decision_hz)
+        self._memory = PilotMemory.empty(1, nav.decision_hz, nav.observe.history)
         start = np.asarray(task.start_m, dtype=float)[None]
         self._memory.start(self._SLOT, start, self._goal, self._routes.potential(start, self._SLOT))
         self._last_action: np.ndarray | None = None
@@ -160,13 +167,20 @@ class PolicyAgent:
         pos = xs[:, 0:3]
         route = self._routes.potential(pos, self._SLOT)
         if self._last_action is not None:
-            m.record(self._SLOT, self._last_action, route)
+            m.record(self._SLOT, self._last_action, route, xs[:, 3:6])
             m.heading_rad[:] = goal_heading(pos, self._goal, m.heading_rad)
         clear, nearest = nearest_surface(senses.clearance, pos, self._CITY)
         t_frac = np.array([t_s / self._task.timeout_s])
+        around = None
+        if nav.observe.size():  # what the pilot interface states: the air, the forecast, the flight volume
+            city = world.city
+            around = Surroundings(np.asarray(world.atmosphere.density_ratio_clamped(xs[:, 2]), dtype=float),
+                                  np.array([TURBULENCE_VALUE[world.turbulence]]),
+                                  np.asarray(city.bounds_min_m, dtype=float)[None],
+                                  np.asarray(city.bounds_max_m, dtype=float)[None])
         return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY,
                              senses.perception, self._routes, m, nav.perception, nav.scales, nav.decision_hz,
-                             world.vehicle)
+                             world.vehicle, nav.observe, around)
 
     def act(self, obs: Observation) -> VelocityCommand:
         nav = self.policy.nav

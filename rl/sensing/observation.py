@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rl.sensing.perception import PerceptionConfig, PerceptionReading
+from uam_fdm.air.wind import TurbulenceLevel
 from uam_fdm.pilot import VelocityCommand
 from uam_fdm.vehicle.params import VehicleParams
 
@@ -80,9 +81,102 @@ class ObservationScales:
                 raise ValueError(f"observation scale {k} must be positive and finite, got {v!r}")
 
 
-def obs_size(perception: PerceptionConfig) -> int:
-    """Observation length for a perception configuration."""
-    return N_BASE + perception.n_rays + perception.grid_cells ** 2
+TURBULENCE_VALUE = {TurbulenceLevel.NONE: 0.0, TurbulenceLevel.LIGHT: 1.0 / 3.0, TurbulenceLevel.MODERATE: 2.0 / 3.0,
+                    TurbulenceLevel.SEVERE: 1.0}
+"""The forecast turbulence level as an observation element."""
+
+
+@dataclass(frozen=True)
+class ObservedContext:
+    """What the observation holds after the base elements and the perception (all off: the shipped layout).
+
+    Attributes:
+        air: the air as the pilot interface states it to every pilot (2 elements): the density ratio at
+            the vehicle's altitude minus 1 (0 at sea level on a standard day, about -0.26 at a density
+            altitude of 3 km: the thrust lost at the same rotor speed) and the forecast turbulence level
+            (`TURBULENCE_VALUE`: none 0 ... severe 1).
+        geofence: the flight volume's edge (4 elements): the horizontal distance to its nearest side
+            / goal scale and the direction to that side in the goal frame (2), both zero beyond one goal
+            scale, and the height below its ceiling / altitude scale, capped at 1.
+        history: decisions remembered (0: none), each the velocity (goal frame, scaled as the base
+            velocity) and the action taken then (6 elements per decision, newest first): from what was
+            commanded and what followed the policy can infer its thrust margin and the wind.
+    """
+
+    air: bool = False
+    geofence: bool = False
+    history: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.history <= 50:
+            raise ValueError(f"observe.history must be 0 to 50 decisions, got {self.history!r}")
+
+    def size(self) -> int:
+        """Number of elements it adds."""
+        return 2 * self.air + 4 * self.geofence + 6 * self.history
+
+
+@dataclass(frozen=True)
+class Surroundings:
+    """What a pilot is told about where its M vehicles fly (for `ObservedContext`'s air and geofence).
+
+    Attributes:
+        density_ratio: (M,) air density / sea-level standard at each vehicle's altitude.
+        turbulence: (M,) forecast turbulence levels as `TURBULENCE_VALUE`s.
+        lo_m, hi_m: (M, 3) the flight volume's corners [m, world].
+    """
+
+    density_ratio: np.ndarray
+    turbulence: np.ndarray
+    lo_m: np.ndarray
+    hi_m: np.ndarray
+
+
+def obs_size(perception: PerceptionConfig, observe: ObservedContext | None = None) -> int:
+    """Observation length for a perception configuration and what else is observed."""
+    return N_BASE + perception.n_rays + perception.grid_cells ** 2 + (observe.size() if observe else 0)
+
+
+def context_elements(observe: ObservedContext, x: np.ndarray, heading_rad: np.ndarray, memory_vel: np.ndarray,
+                     memory_act: np.ndarray, around: Surroundings | None, vehicle: VehicleParams,
+                     scales: ObservationScales) -> np.ndarray:
+    """The `ObservedContext` elements (M, observe.size()) of M vehicles in states x (M, nx).
+
+    Args:
+        heading_rad: (M,) goal-frame headings; memory_vel: (M, K, 3) past world velocities [m/s] and
+        memory_act: (M, K, 3) past actions, newest first (K >= observe.history); around: the vehicles'
+        surroundings (needed for air and geofence).
+    """
+    m = len(x)
+    parts: list[np.ndarray] = []
+    if observe.air or observe.geofence:
+        if around is None:
+            raise ValueError("observing the air or the geofence needs the vehicles' surroundings")
+    if observe.air:
+        assert around is not None
+        parts.append(np.stack([around.density_ratio - 1.0, around.turbulence], axis=1))
+    if observe.geofence:
+        assert around is not None
+        p = x[:, 0:3]
+        sides = np.stack([p[:, 0] - around.lo_m[:, 0], around.hi_m[:, 0] - p[:, 0],
+                          p[:, 1] - around.lo_m[:, 1], around.hi_m[:, 1] - p[:, 1]], axis=1)
+        k = np.argmin(sides, axis=1)
+        dist = sides[np.arange(m), k] / scales.goal_m
+        outward = np.array([[-1.0, 0.0], [1.0, 0.0], [0.0, -1.0], [0.0, 1.0]])[k]
+        near = dist < 1.0
+        direction = to_goal_frame(outward, heading_rad) * near[:, None]
+        ceiling = np.minimum((around.hi_m[:, 2] - p[:, 2]) / scales.altitude_m, 1.0)
+        parts.append(np.stack([np.where(near, dist, 0.0), direction[:, 0], direction[:, 1], ceiling], axis=1))
+    if observe.history:
+        c = vehicle.controller
+        k = observe.history
+        vel = memory_vel[:, :k]
+        cos, sin = np.cos(heading_rad)[:, None], np.sin(heading_rad)[:, None]
+        vx = (cos * vel[..., 0] + sin * vel[..., 1]) / c.max_speed_m_s
+        vy = (cos * vel[..., 1] - sin * vel[..., 0]) / c.max_speed_m_s
+        vz = vel[..., 2] / c.max_vertical_speed_m_s
+        parts.append(np.concatenate([np.stack([vx, vy, vz], axis=2), memory_act[:, :k]], axis=2).reshape(m, 6 * k))
+    return np.concatenate(parts, axis=1) if parts else np.zeros((m, 0))
 
 
 def goal_heading(p_m: np.ndarray, goal_m: np.ndarray, held_rad: np.ndarray) -> np.ndarray:
@@ -117,11 +211,14 @@ class PilotMemory:
     heading_rad: np.ndarray
     prev_action: np.ndarray
     route_history_m: np.ndarray
+    velocity_history: np.ndarray  # (N, K, 3) world velocities after the last K decisions [m/s], newest first
+    action_history: np.ndarray  # (N, K, 3) the last K actions, newest first
 
     @classmethod
-    def empty(cls, n: int, decision_hz: float) -> PilotMemory:
+    def empty(cls, n: int, decision_hz: float, history: int = 0) -> PilotMemory:
         h = max(1, int(round(STALL_WINDOW_S * decision_hz)))
-        return cls(np.zeros(n), np.zeros((n, 3)), np.zeros((n, h)))
+        return cls(np.zeros(n), np.zeros((n, 3)), np.zeros((n, h)), np.zeros((n, history, 3)),
+                   np.zeros((n, history, 3)))
 
     def start(self, idx: np.ndarray, p_m: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray) -> None:
         """New episodes in slots idx: positions, goals (M, 3) [m] and route distances (M,) [m]."""
@@ -129,14 +226,25 @@ class PilotMemory:
         self.heading_rad[idx] = np.arctan2(d[:, 1], d[:, 0])
         self.prev_action[idx] = 0.0
         self.route_history_m[idx] = route_m[:, None]
+        self.velocity_history[idx] = 0.0
+        self.action_history[idx] = 0.0
 
-    def record(self, idx: np.ndarray, action: np.ndarray, route_m: np.ndarray) -> None:
-        """After a decision in slots idx: the action taken (M, 3) and the route distance now (M,)."""
+    def record(self, idx: np.ndarray, action: np.ndarray, route_m: np.ndarray,
+               velocity_m_s: np.ndarray | None = None) -> None:
+        """After a decision in slots idx: the action taken (M, 3), the route distance now (M,) and (with a
+        history) the world velocity now (M, 3) [m/s]."""
         self.prev_action[idx] = action
         hist = self.route_history_m[idx]
         hist[:, :-1] = hist[:, 1:]
         hist[:, -1] = route_m
         self.route_history_m[idx] = hist
+        if self.velocity_history.shape[1]:
+            assert velocity_m_s is not None, "a memory with a history needs the velocity"
+            for h, new in ((self.velocity_history, velocity_m_s), (self.action_history, action)):
+                rows = h[idx]
+                rows[:, 1:] = rows[:, :-1]
+                rows[:, 0] = new
+                h[idx] = rows
 
 
 def build_observations(x: np.ndarray, goal_m: np.ndarray, heading_rad: np.ndarray, route_m: np.ndarray,

@@ -6,7 +6,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rl.sensing.observation import ObservationScales, PilotMemory, build_observations
+from rl.sensing.observation import (
+    OBS_CLIP,
+    ObservationScales,
+    ObservedContext,
+    PilotMemory,
+    Surroundings,
+    build_observations,
+    context_elements,
+)
 from rl.sensing.perception import Perception, PerceptionConfig
 from rl.sensing.route import LeveledRoute, RouteBank, RouteConfig, flight_levels, leveled_route
 from rl.sensing.sensor import BoxSensor
@@ -45,7 +53,8 @@ def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -
 def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
                   nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception,
                   routes: RouteBank, memory: PilotMemory, perception_config: PerceptionConfig,
-                  scales: ObservationScales, decision_hz: float, vehicle: VehicleParams) -> np.ndarray:
+                  scales: ObservationScales, decision_hz: float, vehicle: VehicleParams,
+                  observe: ObservedContext | None = None, around: Surroundings | None = None) -> np.ndarray:
     """Observations (M, obs) of slots idx (the env's batch, or the policy agent's single slot).
 
     Args:
@@ -53,11 +62,17 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
         route_m: (M,) Φ [m]; clearance_m: (M,) [m]; nearest_m: (M, 3) vector to the nearest surface [m];
         t_frac: (M,) time used / limit;
         city: (M,) city indices of `perception`.
-        perception_config, scales, decision_hz: the task's (`rl.task.config.NavConfig`).
+        perception_config, scales, decision_hz, observe: the task's (`rl.task.config.NavConfig`).
+        around: the vehicles' surroundings, when `observe` asks for the air or the geofence.
     """
     pos = x[:, 0:3]
     heading = memory.heading_rad[idx]
     reading = perception.observe(pos, heading, city)
-    return build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m, nearest_m,
-                              memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
-                              perception_config, vehicle, decision_hz, scales)
+    obs = build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m, nearest_m,
+                             memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
+                             perception_config, vehicle, decision_hz, scales)
+    if observe is None or not observe.size():
+        return obs
+    extra = context_elements(observe, x, heading, memory.velocity_history[idx], memory.action_history[idx], around,
+                             vehicle, scales)
+    return np.concatenate([obs, np.clip(extra, -OBS_CLIP, OBS_CLIP).astype(np.float32)], axis=1)

@@ -8,14 +8,17 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 
-from rl.sensing.observation import ObservationScales
+from rl.sensing.observation import ObservationScales, ObservedContext
 from rl.sensing.perception import PerceptionConfig
 from rl.sensing.route import RouteConfig
+from rl.task.air import AirDistribution
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
 from rl.task.reward import RewardConfig
-from uam_fdm.air.wind import TurbulenceLevel
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Task
+
+_LEGACY_AIR = {"turbulence": "turbulence", "steady_wind_max_m_s": "steady_wind_max_m_s"}
+"""Settings of policies trained before `NavConfig.air`: one turbulence level and the wind's top speed."""
 
 
 @dataclass(frozen=True)
@@ -30,14 +33,17 @@ class NavConfig:
         perception: rays and height map (`rl.sensing.perception`); route: the geodesic potential (`rl.sensing.route`).
         scales: the observation's length scales (`rl.sensing.observation`); the clearance is measured
             exactly up to `scales.clearance_m` and reads that value beyond.
+        observe: what the observation holds beyond the base elements and the perception (the air, the
+            geofence, a history of decisions; `rl.sensing.observation.ObservedContext`).
         city_split: "train" or "eval": which seed range the city pool comes from.
         city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
         cities: city generator parameter ranges; tasks: start/goal distribution.
-        turbulence: turbulence level (none/light/moderate/severe).
-        steady_wind_max_m_s: steady horizontal wind speed drawn uniformly in [0, this] [m/s].
-        wind_pool_size: turbulence stacks (series at the probe heights up to the cities' ceiling,
-            `uam_fdm.air.wind.gust_stack`) shared by all episodes (each episode starts at a random sample
-            of one); wind_series_s: length of each [s]. The steady wind is uniform with height.
+        air: the air of the episodes (`rl.task.air`): fields (elevation, temperature), turbulence levels,
+            steady wind.
+        wind_pool_size: turbulence stacks per turbulence level (series at the probe heights up to the
+            cities' ceiling, `uam_fdm.air.wind.gust_stack`) shared by all episodes (each episode starts at a
+            random sample of one of its level's); wind_series_s: length of each [s]. The steady wind is
+            uniform with height.
         reward: reward weights.
     """
 
@@ -48,13 +54,13 @@ class NavConfig:
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
     scales: ObservationScales = field(default_factory=ObservationScales)
+    observe: ObservedContext = field(default_factory=ObservedContext)
     city_split: str = "train"
     city_pool_size: int = 1024
     city_pool_offset: int = 0
     cities: CityDistribution = field(default_factory=CityDistribution)
     tasks: TaskDistribution = field(default_factory=TaskDistribution)
-    turbulence: str = "light"
-    steady_wind_max_m_s: float = 3.0
+    air: AirDistribution = field(default_factory=AirDistribution)
     wind_pool_size: int = 16
     wind_series_s: float = 400.0
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -62,7 +68,6 @@ class NavConfig:
     def __post_init__(self) -> None:
         if self.city_split not in ("train", "eval"):
             raise ValueError(f"city_split must be 'train' or 'eval', got {self.city_split!r}")
-        TurbulenceLevel.parse(self.turbulence)
         if self.city_pool_size < 1 or self.wind_pool_size < 1:
             raise ValueError("city_pool_size and wind_pool_size must be positive")
         ratio = self.control_hz / self.decision_hz if self.decision_hz > 0 else 0.0
@@ -96,8 +101,14 @@ class NavConfig:
                 version), naming it.
         """
         d = dict(d)
+        legacy = {k: d.pop(k) for k in _LEGACY_AIR if k in d}  # written before the task described the air
+        if legacy and "air" in d:
+            raise ValueError(f"navigation settings {sorted(legacy)} and 'air' both given")
+        if legacy:
+            d["air"] = {_LEGACY_AIR[k]: ([v] if k == "turbulence" else v) for k, v in legacy.items()}
         nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
-                  "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales}
+                  "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales,
+                  "air": AirDistribution, "observe": ObservedContext}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:

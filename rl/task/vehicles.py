@@ -48,6 +48,7 @@ from __future__ import annotations
 from rl.sensing.observation import ObservationScales
 from rl.sensing.perception import PerceptionConfig
 from rl.sensing.route import RouteConfig
+from rl.task.air import AirDistribution
 from rl.task.cities import CityDistribution, TaskDistribution
 from rl.task.config import NavConfig
 from rl.task.reward import RewardConfig
@@ -67,7 +68,7 @@ UAM_TASK = NavConfig(
     tasks=TaskDistribution(distance_m=(300.0, 1500.0), altitude_m=(30.0, 90.0), min_clearance_m=10.0,
                            bounds_margin_m=80.0, goal_radius_m=10.0, timeout_base_s=30.0, timeout_per_speed=2.5,
                            timeout_per_climb=2.0),
-    steady_wind_max_m_s=5.0,
+    air=AirDistribution(steady_wind_max_m_s=5.0),
     reward=RewardConfig(progress_per_m=0.15, time_per_s=0.2, danger_per_s=4.0, ttc_horizon_s=4.0,
                         proximity_per_s=5.0, proximity_m=15.0, proximity_speed_m_s=15.0,
                         braking_per_s=20.0, braking_margin=1.5),

@@ -16,6 +16,7 @@ import numpy as np
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.pilots.potential_field import PotentialFieldPilot, gains_for_task
+from rl.task.air import AirDistribution
 from rl.task.config import NavConfig
 from uam_fdm.episode import Outcome
 from uam_fdm.stats import wilson_interval
@@ -57,14 +58,21 @@ class EvalResult:
         return d
 
 
-def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None) -> NavConfig:
+def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None,
+                air: AirDistribution | None = None) -> NavConfig:
     """The task on a held-out pool ("test" or "validation"), one city per episode, and at most one
-    turbulence stack per episode (each stack costs ~1 s of JSBSim at start-up; `NavWorld`)."""
+    turbulence stack per episode and level (each stack costs ~1 s of JSBSim at start-up; `NavWorld`).
+
+    Args:
+        air: the air to fly in (default: the task's); turbulence: one level replacing its levels.
+    """
     if pool not in POOLS:
         raise ValueError(f"pool must be one of {POOLS}, got {pool!r}")
+    air = air or nav.air
+    if turbulence is not None:
+        air = replace(air, turbulence=(turbulence,))
     return replace(nav, city_split="eval", city_pool_size=episodes, wind_pool_size=min(nav.wind_pool_size, episodes),
-                   city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0,
-                   turbulence=turbulence or nav.turbulence)
+                   city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0, air=air)
 
 
 def evaluate(pilot: Pilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
@@ -124,7 +132,7 @@ def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool:
     base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
                        decision_hz=nav.control_hz)
     base_world = NavWorld(base_nav, dynamics=world.dynamics if world else None,
-                          atmosphere=world.atmosphere if world else None, wind_from=world)
+                          atmosphere=world.atmospheres if world else None, wind_from=world)
     holder: dict[str, PotentialFieldPilot] = {}
 
     gains = gains_for_task(nav.scales)  # tuned for the small quad's task; a larger task scales them

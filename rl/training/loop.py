@@ -88,7 +88,7 @@ class _TrainingRun:
         log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
         self.base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
         self.eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
-                                   dynamics=self.base.world.dynamics, atmosphere=self.base.world.atmosphere,
+                                   dynamics=self.base.world.dynamics, atmosphere=self.base.world.atmospheres,
                                    wind_from=self.base.world)
         if resume is not None:
             src = PolicyFolder(resume)

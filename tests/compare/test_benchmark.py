@@ -267,3 +267,9 @@ def test_a_benchmark_run_animates_nothing_unless_asked(quick: Suite) -> None:
     assert _videos(None, list(quick.scenarios)) == "none"
     assert _videos(None, [tiny]) == "scenario"
     assert _videos("all", list(quick.scenarios)) == "all"
+
+
+def test_the_quick_set_stays_the_version_reported() -> None:
+    """The sets are made from fixed settings (not the learned pilots' current training tasks): retraining a pilot
+    in other air or cities leaves the benchmark, and before-and-after figures, comparable."""
+    assert build_suite("benchmark-quick").info.version == "1+b27f29cc25"  # docs/benchmark.md

@@ -41,7 +41,7 @@ import logging
 import math
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, overload
@@ -402,6 +402,58 @@ class Atmosphere:
 
 
 # --------------------------------------------------------------------------------- JSBSim glue
+class AtmosphereBank:
+    """The atmospheres of N vehicles, looked up in one call (the learned pilot's batched environment).
+
+    Vehicle i flies one atmosphere of a shared pool (tables on one height grid: same lowest height,
+    spacing and rows), so a batch flies fields at many elevations and temperatures at once. Vehicle i's
+    density is exactly (bit for bit) that of `atmosphere(i)`, the `Atmosphere` the comparison runner
+    flies: the same interpolation on the same doubles.
+
+    Args:
+        pool: the atmospheres (at least one), all on one grid.
+        n: number of vehicles (each starts with pool entry 0).
+
+    Raises:
+        ValueError: an empty pool, or tables on different grids.
+    """
+
+    def __init__(self, pool: Sequence[Atmosphere], n: int) -> None:
+        self.pool = list(pool)
+        if not self.pool:
+            raise ValueError("an AtmosphereBank needs at least one atmosphere")
+        first = self.pool[0]
+        grid = (first.z_min_m, first.spacing_m, first.table.shape[0])
+        if any((a.z_min_m, a.spacing_m, a.table.shape[0]) != grid for a in self.pool):
+            raise ValueError("the atmospheres of an AtmosphereBank must share one height grid")
+        self._z_min, self._dz, self._n = grid
+        self._z_max = first.z_max_m
+        self._rho = np.stack([a.table[:, _RHO] for a in self.pool])  # (K, rows)
+        self.which = np.zeros(int(n), dtype=np.int64)
+
+    def assign(self, i: int, k: int) -> None:
+        """Vehicle i flies pool entry k."""
+        if not 0 <= k < len(self.pool):
+            raise ValueError(f"atmosphere {k} is not in a pool of {len(self.pool)}")
+        self.which[i] = int(k)
+
+    def atmosphere(self, i: int) -> Atmosphere:
+        """Vehicle i's atmosphere (the same numbers), for flying its episode elsewhere."""
+        return self.pool[int(self.which[i])]
+
+    def density_ratio_clamped(self, z_m: ArrayLike, idx: ArrayLike | None = None) -> NDArray[np.float64]:
+        """`Atmosphere.density_ratio_clamped` (M,) of vehicles `idx` (default all) at heights z_m (M,)
+        [m above their fields], each in its own atmosphere."""
+        sel = slice(None) if idx is None else np.asarray(idx, dtype=np.int64)
+        k = self.which[sel]
+        z = np.clip(np.asarray(z_m, dtype=np.float64).reshape(-1), self._z_min, self._z_max)
+        s = (z - self._z_min) / self._dz
+        i = np.minimum(s.astype(np.intp), self._n - 2)
+        f = s - i
+        lo = self._rho[k, i]
+        return (lo + f * (self._rho[k, i + 1] - lo)) / SEA_LEVEL_DENSITY_KG_M3
+
+
 class _JSBSimToLogging:
     """A JSBSim log backend that forwards records to Python ``logging``.
 

@@ -1,6 +1,8 @@
 """The learned pilot's environment: API checks, determinism, batched == single, sensing, outcomes."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -11,8 +13,9 @@ import rl  # noqa: F401  (registers UAMNav-v0)
 from rl.env.gym_env import UAMNavEnv
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavWorld
-from rl.sensing.observation import obs_size
+from rl.sensing.observation import ObservedContext, obs_size
 from rl.sensing.sensor import BoxSensor
+from rl.task.air import AirDistribution
 from rl.task.cities import CityDistribution
 from rl.task.config import FixedEpisodes, NavConfig
 from rl.task.reward import TERMS, RewardConfig, reward_terms, stopping_distance
@@ -20,6 +23,8 @@ from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.pilot import Task
 
 SMALL = NavConfig(city_pool_size=4, wind_pool_size=2, wind_series_s=150.0)
+
+CALM = AirDistribution(turbulence=("none",), steady_wind_max_m_s=0.0)  # no gusts, no wind
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +61,50 @@ def test_seeded_rollout_repeats_exactly(world):
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
 
 
+@pytest.fixture(scope="module")
+def airy_world(world) -> NavWorld:
+    """A world whose episodes draw their field (of 3), turbulence level (of 3) and a wind up to 8 m/s, and whose
+    observation holds the air, the geofence and two past decisions."""
+    air = AirDistribution(elevation_m=(0.0, 3000.0), isa_offset_k=(-10.0, 30.0),
+                          turbulence=("none", "light", "moderate"),
+                          steady_wind_max_m_s=8.0, pool_size=3)
+    observe = ObservedContext(air=True, geofence=True, history=2)
+    return NavWorld(replace(SMALL, air=air, observe=observe), dynamics=world.dynamics)
+
+
 def test_batched_equals_single_envs(world):
-    n, steps, seed = 4, 300, 40
+    _assert_batched_equals_single(world)
+
+
+def test_batched_equals_single_envs_each_in_its_own_air(airy_world):
+    """Each slot in its own field and turbulence level: the batch's per-slot density (`AtmosphereBank`) and
+    gusts are the single env's, and the draws cover several fields and levels."""
+    _assert_batched_equals_single(airy_world, seed=50)
+    venv = UAMNavVecEnv(8, world=airy_world, seed=1)
+    venv.reset()
+    assert len(set(venv.batch.air.tolist())) > 1 and len(set(venv.batch.level.tolist())) > 1
+    i = int(np.flatnonzero(venv.batch.air != venv.batch.air[0])[0])
+    sigma = venv.batch.sim.env(venv.batch.x, venv.batch.t)[:, 3]  # the density ratio each slot flies
+    assert sigma[0] == venv.batch.atmosphere(0).density_ratio_clamped(float(venv.batch.x[0, 2]))
+    assert sigma[i] == venv.batch.atmosphere(i).density_ratio_clamped(float(venv.batch.x[i, 2]))
+    assert sigma[0] != sigma[i]
+    obs = venv.batch.observations  # the air elements: the density ratio each slot flies, less 1
+    assert airy_world.obs_size == obs_size(SMALL.perception) + 2 + 4 + 12
+    base = obs_size(SMALL.perception)
+    np.testing.assert_allclose(obs[:, base], sigma - 1.0, rtol=1e-6)
+
+
+def test_a_task_of_one_field_and_one_level_draws_as_before(world):
+    """The air's draws happen only where there is a choice: the shipped tasks' episodes are unchanged."""
+    one = NavWorld(replace(SMALL, air=AirDistribution(pool_size=8)), dynamics=world.dynamics)
+    assert len(one.atmospheres) == 1 and one.levels == world.levels
+    a, b = UAMNavVecEnv(4, world=world, seed=9), UAMNavVecEnv(4, world=one, seed=9)
+    assert np.array_equal(a.reset(), b.reset())
+    assert np.array_equal(a.batch.winds.series_index, b.batch.winds.series_index)
+
+
+def _assert_batched_equals_single(world: NavWorld, seed: int = 40) -> None:
+    n, steps = 4, 300
     acts = np.clip(_actions(2, steps, n) * 0.3 + np.array([0.5, 0.3, -0.9], dtype=np.float32), -1, 1)  # descend: ends
     venv = UAMNavVecEnv(n, world=world, seed=seed)
     singles = [UAMNavEnv(world=world) for _ in range(n)]
@@ -108,7 +155,7 @@ def test_proximity_cost_per_metre_grows_with_speed():
 
 def _box_world(tasks, timeout_s=30.0, turbulence="none"):
     city = BuildingMap([Building(0, (60.0, 50.0), (20.0, 40.0), 40.0)], (0, 0, 0), (120, 100, 60), name="one-box")
-    cfg = NavConfig(city_pool_size=1, turbulence=turbulence, steady_wind_max_m_s=0.0)
+    cfg = NavConfig(city_pool_size=1, air=AirDistribution(turbulence=(turbulence,), steady_wind_max_m_s=0.0))
     fixed = FixedEpisodes((city,), tuple((0, Task(s, g, 3.0, timeout_s)) for s, g in tasks))
     return NavWorld(cfg, fixed=fixed), city
 
@@ -192,15 +239,17 @@ def test_render_rgb_array(world):
 def test_bad_config_rejected():
     with pytest.raises(ValueError, match="city_split"):
         NavConfig(city_split="test")
-    with pytest.raises(ValueError):
-        NavConfig(turbulence="hurricane")
+    with pytest.raises(ValueError, match="hurricane"):
+        NavConfig(air=AirDistribution(turbulence=("hurricane",)))
+    with pytest.raises(ValueError, match=r"air.elevation_m must be a range \[low, high\]"):
+        AirDistribution(elevation_m=(2000.0, 1000.0))
+    with pytest.raises(ValueError, match="names a level twice"):
+        AirDistribution(turbulence=("light", "light"))
 
 
 def test_a_validation_world_shares_the_training_worlds_turbulence_only_when_identical(world):
     """The same stacks a fresh build gives (same seeds and settings), shared instead of generated again;
     a world that would generate other stacks (here: longer series) builds its own."""
-    from dataclasses import replace
-
     shared = NavWorld(replace(SMALL, wind_pool_size=1, city_split="eval"), dynamics=world.dynamics,
                       atmosphere=world.atmosphere, wind_from=world)
     assert len(shared.gust_stacks) == 1 and shared.gust_stacks[0] is world.gust_stacks[0]
@@ -256,7 +305,7 @@ def test_braking_term_in_the_env_charges_heading_at_a_wall():
     task = Task((20.0, 50.0, 10.0), (200.0, 50.0, 10.0), 3.0, 30.0)
     costs = []
     for per_s in (0.0, 10.0):
-        cfg = NavConfig(city_pool_size=1, turbulence="none", steady_wind_max_m_s=0.0,
+        cfg = NavConfig(city_pool_size=1, air=CALM,
                         reward=RewardConfig(braking_per_s=per_s))
         env = UAMNavEnv(world=NavWorld(cfg, fixed=FixedEpisodes((city,), ((0, task),))))
         env.reset(seed=0)

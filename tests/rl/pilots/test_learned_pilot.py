@@ -14,6 +14,7 @@ from rl.env.world import NavWorld
 from rl.pilots.learned import PolicyAgent, load_policy
 from rl.policies.folder import SHIPPED_POLICIES, shipped_policy_dir
 from rl.sensing.route import flight_levels
+from rl.task.air import AirDistribution
 from rl.training.evaluation import eval_config, evaluate
 from uam_fdm.pilot import ResetInfo, World
 from uam_fdm.vehicle.params import load_vehicle
@@ -74,11 +75,47 @@ def test_agent_flies_exactly_like_the_environment_with_route_levels():
     _assert_env_equals_runner(policy, 7, levels=True)
 
 
-def _assert_env_equals_runner(policy, seed: int, levels: bool = False) -> None:
-    base = NavWorld(eval_config(policy.nav, 3))
+@pytest.mark.parametrize("seed", [3, 4])
+def test_agent_flies_exactly_like_the_environment_in_air_drawn_per_episode(seed):
+    """The same where each episode draws its field (elevation, temperature), turbulence level and wind: the
+    batch flies the slot's density and gusts, the runner the same episode's `Atmosphere` and `WindField`."""
+    policy = load_policy(SHIPPED_POLICIES["small_quad"])
+    air = AirDistribution.at_level("hot-and-high", turbulence=("none", "light", "moderate"), steady_wind_max_m_s=6.0,
+                                   pool_size=4)
+    _assert_env_equals_runner(policy, seed, air=air)
+
+
+def test_agent_flies_exactly_like_the_environment_observing_air_geofence_and_history():
+    """A policy observing the air (density, forecast), the flight volume's edge and 3 past decisions: the
+    runner's pilot builds the environment's observation from what the pilot interface states (an untrained
+    network of that input size flies; the point is the observation, element for element)."""
+    import torch
+
+    from rl.pilots.learned import Policy
+    from rl.policies.folder import NetworkSpec
+    from rl.policies.network import ActorCritic
+    from rl.policies.reader import ObsNorm
+    from rl.sensing.observation import ObservedContext, obs_size
+
+    shipped = load_policy(SHIPPED_POLICIES["small_quad"])
+    nav = dataclasses.replace(shipped.nav, observe=ObservedContext(air=True, geofence=True, history=3))
+    n_obs = obs_size(nav.perception, nav.observe)
+    assert n_obs == obs_size(shipped.nav.perception) + 2 + 4 + 18
+    torch.manual_seed(0)
+    norm = ObsNorm(np.zeros(n_obs), np.ones(n_obs), 1.0, 1e-8, 10.0)
+    policy = Policy(shipped.folder, ActorCritic(n_obs, NetworkSpec()).eval(), norm, nav)
+    air = AirDistribution.at_level("warm-and-raised", turbulence=("light", "moderate"), pool_size=3)
+    _assert_env_equals_runner(policy, 5, air=air)
+
+
+def _assert_env_equals_runner(policy, seed: int, levels: bool = False, air: AirDistribution | None = None) -> None:
+    base = NavWorld(eval_config(policy.nav, 3, air=air))
     env = UAMNavEnv(world=base)
     obs, _ = env.reset(seed=seed)
     task, wind, city = env.batch.task(0), env.batch.wind_field(0), base.cities[int(env.batch.city[0])]
+    atmosphere, turbulence = env.batch.atmosphere(0), env.batch.turbulence(0)
+    if air is not None:  # the slot flies one of the pool's fields
+        assert len(base.atmospheres) == air.pool_size and atmosphere.conditions in air.fields()
     if levels:
         assert len(flight_levels(task.start_m[2], task.goal_m[2], policy.nav.route.level_step_m)) > 2, task
     env_states, outcome = [], None
@@ -88,7 +125,7 @@ def _assert_env_equals_runner(policy, seed: int, levels: bool = False) -> None:
         if term or trunc:
             outcome = info["outcome"]
             break
-    world = World(base.vehicle, base.dynamics, city, base.atmosphere)
+    world = World(base.vehicle, base.dynamics, city, atmosphere, turbulence)
     traj = run_episode(world, PolicyAgent(policy), task, wind, seed=0)
     per_decision = base.config.action_repeat * base.dynamics.n_substeps
     assert traj.outcome == outcome
@@ -138,3 +175,34 @@ def test_evaluate_policy_cli_prints_both_pilots_and_json(capsys):
     assert 0.0 <= last["expert_success_rate"] <= 1.0 and sum(last["paired"].values()) == 3
     assert any("potential field" in line for line in out)
     assert main(["evaluate-policy", "--episodes", "0"]) == 2
+
+
+def test_evaluate_policy_under_stated_air(capsys):
+    """--air hot-and-high --turbulence moderate --wind-max: fields drawn in the level's ranges, stated in the
+    JSON line; the potential field flies the same episodes."""
+    from compare.cli import main
+
+    assert main(["evaluate-policy", "--episodes", "2", "--pool", "validation", "--air", "hot-and-high",
+                 "--turbulence", "moderate", "--wind-max", "7"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(out[-1])
+    assert last["elevation_m"] == [1800.0, 2600.0] and last["isa_offset_k"] == [20.0, 30.0]
+    assert last["turbulence"] == "moderate" and last["steady_wind_max_m_s"] == 7.0 and last["fields"] == 16
+    assert "fields 1800-2600 m, ISA +20-30 K" in out[0] and sum(last["paired"].values()) == 2
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--air", "hot-and-high", "--elevation", "100"], "--air and --elevation/--isa-offset"),
+    (["--elevation", "12000"], "--elevation 12000: must be within [-500, 9000]"),
+    (["--isa-offset", "99"], "--isa-offset 99: must be within [-50, 50]"),
+    (["--wind-max", "-1"], "--wind-max -1: must be a finite speed >= 0 m/s"),
+    (["--wind-max", "nan"], "--wind-max nan: must be a finite speed >= 0 m/s"),
+    (["--turbulence", "light,gale"], "--turbulence light,gale:"),
+    (["--turbulence", "light,light"], "--turbulence light,light: names a level twice"),
+])
+def test_evaluate_policy_names_a_bad_air_option(capsys, args, message):
+    from compare.cli import main
+
+    assert main(["evaluate-policy", "--episodes", "2", *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1

@@ -6,10 +6,12 @@ import json
 
 import pytest
 
+from rl.task.air import AIR_LEVELS, AirDistribution
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS
 from rl.task.config import NavConfig
 from rl.task.vehicles import TASKS, task_for
 from rl.training.evaluation import eval_config
+from uam_fdm.air.atmosphere import AtmosphereConditions
 
 
 @pytest.mark.parametrize("vehicle", sorted(TASKS))
@@ -49,3 +51,24 @@ def test_training_validation_and_test_cities_are_disjoint() -> None:
     assert test <= set(EVAL_SEEDS) and validation <= set(EVAL_SEEDS)
     with pytest.raises(ValueError, match="exceeds the train range"):
         NavConfig(city_pool_size=len(TRAIN_SEEDS) + 1).city_seeds()
+
+
+def test_a_policy_written_before_the_air_reads_with_its_one_level_and_wind() -> None:
+    d = NavConfig().to_dict()
+    d.pop("air")
+    old = NavConfig.from_dict({**d, "turbulence": "moderate", "steady_wind_max_m_s": 5.0})
+    assert old.air == AirDistribution(turbulence=("moderate",), steady_wind_max_m_s=5.0)
+    with pytest.raises(ValueError, match=r"\['turbulence'\] and 'air' both given"):
+        NavConfig.from_dict({**NavConfig().to_dict(), "turbulence": "light"})
+
+
+def test_the_air_pool_is_drawn_in_its_ranges_at_fixed_seeds() -> None:
+    air = AirDistribution.at_level("hot-and-high", pool_size=8)
+    fields = air.fields()
+    assert len(fields) == 8 and fields == air.fields()  # the same pool for every world of this air
+    assert all(1800.0 <= f.elevation_m <= 2600.0 and 20.0 <= f.isa_offset_k <= 30.0 for f in fields)
+    assert len({f.elevation_m for f in fields}) == 8
+    assert AirDistribution(pool_size=8).fields() == [AtmosphereConditions(0.0, 0.0)]  # one field: one table
+    assert set(AIR_LEVELS) == {"sea-level", "warm-and-raised", "hot-and-high"}
+    with pytest.raises(ValueError, match="unknown air level 'everest'; choose from sea-level"):
+        AirDistribution.at_level("everest")

@@ -14,6 +14,7 @@ from rl.pilots.learned import load_policy
 from rl.pilots.potential_field import PotentialFieldPilot
 from rl.policies.folder import CURVE_COLUMNS
 from rl.sensing.observation import obs_size
+from rl.task.air import AirDistribution
 from rl.task.config import FixedEpisodes, NavConfig
 from rl.training.config import Curriculum, TrainConfig
 from rl.training.evaluation import evaluate, paired_counts
@@ -24,6 +25,8 @@ from uam_fdm.pilot import Task
 from uam_fdm.stats import wilson_interval
 
 TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
+
+CALM = AirDistribution(turbulence=("none",), steady_wind_max_m_s=0.0)  # no gusts, no wind
 
 
 def _rows(path):
@@ -73,7 +76,7 @@ def _open_field(n_tasks: int = 32, seed: int = 0) -> FixedEpisodes:
 
 def test_tiny_training_run_increases_the_return(tmp_path):
     """Plain PPO on an easy configuration: the training return rises (seeded, seconds)."""
-    nav = replace(TINY_NAV, turbulence="none", steady_wind_max_m_s=0.0, city_pool_size=1)
+    nav = replace(TINY_NAV, air=CALM, city_pool_size=1)
     world = NavWorld(nav, fixed=_open_field())
     cfg = TrainConfig(total_timesteps=24 * 32 * 64, n_envs=32, nav=nav, curriculum=Curriculum(start=1.0),
                       eval_every=10**9, eval_episodes=2, checkpoint_every=0, seed=3)
@@ -105,7 +108,7 @@ def test_discount_keeps_its_horizon_in_seconds():
 
 def test_potential_field_flies_past_a_building_in_the_way():
     city = BuildingMap([Building(0, (60.0, 60.0), (20.0, 18.0), 40.0)], (0, 0, 0), (120, 100, 60), name="block")
-    cfg = NavConfig(city_pool_size=1, turbulence="none", steady_wind_max_m_s=0.0, decision_hz=50.0)
+    cfg = NavConfig(city_pool_size=1, air=CALM, decision_hz=50.0)
     fixed = FixedEpisodes((city,), ((0, Task((20.0, 50.0, 10.0), (100.0, 50.0, 10.0), 3.0, 60.0)),))
     env = UAMNavEnv(world=NavWorld(cfg, fixed=fixed))
     obs, _ = env.reset(seed=0)
@@ -120,7 +123,8 @@ def test_potential_field_flies_past_a_building_in_the_way():
 
 
 def test_evaluate_counts_outcomes_with_intervals():
-    res = evaluate(lambda o, _b: np.zeros((len(o), 3)), replace(TINY_NAV, turbulence="none"), 3, seed=0)
+    calm = replace(TINY_NAV, air=AirDistribution(turbulence=("none",)))
+    res = evaluate(lambda o, _b: np.zeros((len(o), 3)), calm, 3, seed=0)
     assert res.episodes == 3 and sum(res.outcomes.values()) == 3
     assert res.outcomes.get("timeout", 0) == 3 and res.per_episode == ("timeout",) * 3  # hovering never arrives
     assert res.success_ci95 == wilson_interval(0, 3) and res.success_ci95[0] == 0.0

@@ -11,6 +11,7 @@ import pytest
 from uam_fdm.air.atmosphere import (
     SEA_LEVEL_DENSITY_KG_M3,
     Atmosphere,
+    AtmosphereBank,
     AtmosphereConditions,
     AtmosphereSample,
 )
@@ -146,3 +147,29 @@ def test_bad_table_span_raises() -> None:
         Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=-100.0)
     with pytest.raises(ValueError, match="spacing_m"):
         Atmosphere.from_jsbsim(AtmosphereConditions(), spacing_m=0.0)
+
+
+def test_a_bank_flies_each_vehicle_in_its_own_atmosphere_bit_for_bit() -> None:
+    """Each vehicle's density ratio from the bank is its pool entry's, scalar and array lookups alike,
+    heights beyond the table held at its edge."""
+    pool = [Atmosphere.from_jsbsim(AtmosphereConditions(e, t), z_max_m=200.0)
+            for e, t in ((0.0, 0.0), (1500.0, 15.0), (3000.0, 30.0))]
+    bank = AtmosphereBank(pool, 5)
+    for i, k in enumerate((2, 0, 1, 2, 1)):
+        bank.assign(i, k)
+    z = np.array([-80.0, 0.0, 33.3, 199.99, 450.0])
+    sigma = bank.density_ratio_clamped(z)
+    for i in range(5):
+        assert bank.atmosphere(i) is pool[bank.which[i]]
+        assert sigma[i] == pool[bank.which[i]].density_ratio_clamped(float(z[i]))
+        assert sigma[i] == pool[bank.which[i]].density_ratio_clamped(z[i:i + 1])[0]
+    assert np.array_equal(bank.density_ratio_clamped(z[[1, 3]], np.array([1, 3])), sigma[[1, 3]])
+    assert sigma[0] < sigma[2] < sigma[1]  # 3 km / +30 K is thinner than 1.5 km / +15 K, both than sea level
+
+
+def test_a_bank_needs_one_grid() -> None:
+    with pytest.raises(ValueError, match="one height grid"):
+        AtmosphereBank([Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0),
+                        Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=200.0)], 2)
+    with pytest.raises(ValueError, match="at least one"):
+        AtmosphereBank([], 2)
