@@ -26,6 +26,7 @@ from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
 from compare.scenario import Scenario, with_methods
 from compare.sets import resolve_scenarios
+from rl.sensing.observation import ObservedContext
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
 from uam_fdm.vehicle.params import preset_names
@@ -300,11 +301,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from rl.training.config import Curriculum, TrainConfig
     from rl.training.loop import train
 
-    task = task_for(args.vehicle)
+    task = task_for(args.vehicle, envelope=args.envelope)
     if args.city_pool is not None and args.city_pool < 1:
         raise ValueError(f"--city-pool {args.city_pool}: must be >= 1")
     air = task.air if args.turbulence is None else replace(task.air, turbulence=_turbulence_levels(args.turbulence))
-    nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air)
+    observe = task.observe if args.observe is None else _observed(args.observe)
+    nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
     cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
@@ -369,6 +371,27 @@ def _turbulence_levels(text: str) -> tuple[str, ...]:
     except ValueError as exc:
         raise ValueError(f"--turbulence {text}: {str(exc).removeprefix('air.turbulence ')}") from None
     return levels
+
+
+def _observed(text: str) -> ObservedContext:
+    """--observe's items: "air", "geofence", "history=N" (comma-separated), or "none".
+
+    Raises:
+        ValueError: an unknown item or a bad count, naming the option.
+    """
+    air = geofence = False
+    history = 0
+    for item in (t.strip() for t in text.split(",")):
+        name, _, value = item.partition("=")
+        if item == "air":
+            air = True
+        elif item == "geofence":
+            geofence = True
+        elif name == "history" and value.isdigit() and 1 <= int(value) <= 50:
+            history = int(value)
+        elif item != "none":
+            raise ValueError(f"--observe {text}: {item!r} is not air, geofence, history=N (N 1 to 50) or none")
+    return ObservedContext(air=air, geofence=geofence, history=history)
 
 
 def _air_from_options(args: argparse.Namespace) -> Callable[[AirDistribution], AirDistribution]:
@@ -536,6 +559,13 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     tr.add_argument("--turbulence", default=None, metavar="LEVELS",
                     help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
                          "(default: the vehicle's task's)")
+    tr.add_argument("--envelope", action="store_true",
+                    help="train in the air the vehicle will meet: fields from density altitude -0.6 to 4.0 km, no to "
+                         "moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn per episode")
+    tr.add_argument("--observe", default=None, metavar="WHAT",
+                    help="what the policy observes beyond its task's observation, comma-separated: air (density "
+                         "ratio and forecast turbulence), geofence (the flight volume's edge), history=N (N past "
+                         "decisions), or none")
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
     tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")

@@ -47,8 +47,10 @@ class AirDistribution:
         isa_offset_k: ISA temperature offset range [K] of the pool's fields (uniform).
         turbulence: turbulence levels (none/light/moderate/severe); each episode draws one uniformly.
         steady_wind_max_m_s: each episode's steady horizontal wind speed is uniform in [0, this] [m/s].
-        pool_size: fields drawn from the ranges (at fixed seeds) and tabulated once per world; each
-            episode flies one, drawn uniformly. One field when both ranges are a single value.
+        pool_size: fields tabulated once per world, each episode flying one drawn uniformly: the densest
+            (lowest, coldest) and the thinnest (highest, hottest) corner of the ranges, so both ends of the
+            envelope are flown, and the rest drawn uniformly in the ranges at fixed seeds. One field when both
+            ranges are a single value.
     """
 
     elevation_m: tuple[float, float] = (0.0, 0.0)
@@ -97,11 +99,14 @@ class AirDistribution:
         return tuple(TurbulenceLevel.parse(t) for t in self.turbulence)
 
     def fields(self) -> list[AtmosphereConditions]:
-        """The pool's fields: one for single-valued ranges, else `pool_size` drawn at fixed seeds (the same
-        for every world of this distribution, so a training world and its validation world share them)."""
-        if self.elevation_m[0] == self.elevation_m[1] and self.isa_offset_k[0] == self.isa_offset_k[1]:
-            return [AtmosphereConditions(self.elevation_m[0], self.isa_offset_k[0])]
+        """The pool's fields: one for single-valued ranges, else `pool_size`: the densest and the thinnest
+        corner, then draws at fixed seeds (the same for every world of this distribution, so a training world
+        and its validation world share them)."""
+        (e0, e1), (t0, t1) = self.elevation_m, self.isa_offset_k
+        if e0 == e1 and t0 == t1:
+            return [AtmosphereConditions(e0, t0)]
+        corners = [AtmosphereConditions(e0, t0), AtmosphereConditions(e1, t1)][:self.pool_size]
         rng = np.random.Generator(np.random.PCG64([self.pool_size, _POOL_STREAM]))
-        return [AtmosphereConditions(round(float(rng.uniform(*self.elevation_m)), 1),
-                                     round(float(rng.uniform(*self.isa_offset_k)), 2))
-                for _ in range(self.pool_size)]
+        drawn = [AtmosphereConditions(round(float(rng.uniform(e0, e1)), 1), round(float(rng.uniform(t0, t1)), 2))
+                 for _ in range(self.pool_size - len(corners))]
+        return corners + drawn

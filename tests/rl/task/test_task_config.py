@@ -72,3 +72,20 @@ def test_the_air_pool_is_drawn_in_its_ranges_at_fixed_seeds() -> None:
     assert set(AIR_LEVELS) == {"sea-level", "warm-and-raised", "hot-and-high"}
     with pytest.raises(ValueError, match="unknown air level 'everest'; choose from sea-level"):
         AirDistribution.at_level("everest")
+
+
+@pytest.mark.parametrize("vehicle", sorted(TASKS))
+def test_the_envelope_spans_a_cold_sea_level_day_to_past_the_benchmarks_thinnest_air(vehicle: str) -> None:
+    """`train --envelope`: fields from density altitude below sea level to at least 4 km (the benchmark's
+    hot-and-high reaches 3.4 km), none to moderate turbulence, wind past the benchmark's."""
+    from uam_fdm.air.atmosphere import Atmosphere, density_altitude_m
+
+    nav = task_for(vehicle, envelope=True)
+    shipped = task_for(vehicle)
+    assert (nav.cities, nav.tasks, nav.observe) == (shipped.cities, shipped.tasks, shipped.observe)
+    fields = nav.air.fields()
+    altitudes = [density_altitude_m(Atmosphere.from_jsbsim(c, z_max_m=1.0, z_min_m=0.0).density_kg_m3(0.0))
+                 for c in fields[:2]]  # the densest and the thinnest corner come first
+    assert altitudes[0] < 0.0 and altitudes[1] >= 4000.0 and len(fields) == 64
+    assert nav.air.turbulence == ("none", "light", "moderate")
+    assert nav.air.steady_wind_max_m_s >= {"small_quad": 8.0, "uam_multicopter": 12.0}[vehicle]

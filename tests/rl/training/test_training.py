@@ -23,6 +23,8 @@ from rl.training.ppo import PRESETS
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.pilot import Task
 from uam_fdm.stats import wilson_interval
+from uam_fdm.vehicle.dynamics import VehicleDynamics
+from uam_fdm.vehicle.params import load_vehicle
 
 TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
 
@@ -155,3 +157,36 @@ def test_training_is_deterministic_from_its_seed(tmp_path):
            [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_b]
     prov_a, prov_b = (json.loads((out / "provenance.json").read_text()) for out in runs)
     assert prov_a["validation_of_kept_model"] == prov_b["validation_of_kept_model"]
+
+
+def test_a_policy_trained_in_drawn_air_observing_it_flies_in_the_runner(tmp_path):
+    """Training across fields, levels and wind with the air and a history in the observation: the folder
+    records the envelope and the observation, and the runner's pilot flies the policy (the same layout)."""
+    from compare.episode_loop import run_episode
+    from rl.pilots.learned import PolicyAgent
+    from rl.sensing.observation import ObservedContext
+    from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+    from uam_fdm.air.wind import WindField
+    from uam_fdm.pilot import World
+
+    air = AirDistribution(elevation_m=(0.0, 3000.0), isa_offset_k=(-15.0, 30.0), turbulence=("none", "moderate"),
+                          steady_wind_max_m_s=8.0, pool_size=3)
+    nav = replace(TINY_NAV, air=air, observe=ObservedContext(air=True, history=2))
+    cfg = TrainConfig(total_timesteps=8 * 64, n_envs=8, nav=nav, eval_every=8 * 64, eval_episodes=2, checkpoint_every=0)
+    train(cfg, tmp_path / "pol", progress=False, command="test", log=lambda *_: None)
+    policy = load_policy(tmp_path / "pol")
+    assert policy.nav.air == air and policy.nav.observe.history == 2
+    assert policy.obs_norm.mean.shape == (obs_size(nav.perception, nav.observe),)
+    city = BuildingMap([], (0, 0, 0), (200, 200, 60), name="open-field")
+    world = World(policy_vehicle := load_vehicle(nav.vehicle), VehicleDynamics(policy_vehicle, nav.physics_hz,
+                                                                                nav.control_hz),
+                  city, Atmosphere.from_jsbsim(AtmosphereConditions(2500.0, 25.0), z_max_m=100.0))
+    traj = run_episode(world, PolicyAgent(policy), Task((50, 50, 10), (80, 60, 12), 3.0, 5.0), WindField.calm(), seed=0)
+    assert traj.outcome in ("success", "timeout", "collision", "out_of_bounds")
+
+
+def test_train_names_a_bad_observe_option(capsys):
+    from compare.cli import main
+
+    assert main(["train", "--observe", "air,wings", "--out", "unused"]) == 2
+    assert "--observe air,wings: 'wings' is not air, geofence, history=N" in capsys.readouterr().err
