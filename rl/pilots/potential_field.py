@@ -23,7 +23,10 @@ vehicle (`rl.task.vehicles`) over the small quad's; a vehicle without a task kee
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import functools
+import json
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -111,9 +114,37 @@ def gains_for_task(scales: ObservationScales, base: PotentialField = TUNED) -> P
     return base.scaled(scales.clearance_m / ObservationScales().clearance_m)
 
 
+GAINS_FILE = Path(__file__).parent / "data" / "potential_field_gains.json"
+"""Gains tuned per vehicle on validation cities (`benchmarks/apf_gains.py --write`), with their provenance."""
+
+
+@functools.lru_cache(maxsize=4)
+def tuned_gains(path: Path = GAINS_FILE) -> dict[str, PotentialField]:
+    """The gains tuned per vehicle preset (empty when none were tuned), read once per process.
+
+    Raises:
+        ValueError: the file is not a table of gains per vehicle (naming it and the vehicle).
+    """
+    if not path.is_file():
+        return {}
+    table = json.loads(path.read_text(encoding="utf-8"))
+    known = {f.name for f in fields(PotentialField)}
+    out = {}
+    for vehicle, entry in table.get("vehicles", {}).items():
+        gains = entry.get("gains") if isinstance(entry, dict) else None
+        if not isinstance(gains, dict) or set(gains) != known:
+            raise ValueError(f"{path}: vehicles.{vehicle}.gains must hold exactly {sorted(known)}")
+        out[vehicle] = PotentialField(**gains)
+    return out
+
+
 def gains_for(vehicle: VehicleParams, base: PotentialField = TUNED) -> PotentialField:
-    """The potential field's gains for `vehicle`: `gains_for_task` of the vehicle's learned-pilot task
-    (`base` itself for a vehicle without one)."""
+    """The potential field's gains for `vehicle`: those tuned for its preset on validation cities
+    (`tuned_gains`) when `base` is the default, else `gains_for_task` of its learned-pilot task (`base` itself
+    for a vehicle without one)."""
+    tuned = tuned_gains().get(vehicle.name) if base == TUNED else None
+    if tuned is not None:
+        return tuned
     task = TASKS.get(vehicle.name)
     return base if task is None else gains_for_task(task.scales, base)
 

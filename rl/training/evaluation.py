@@ -15,7 +15,7 @@ import numpy as np
 
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
-from rl.pilots.potential_field import PotentialFieldPilot, gains_for_task
+from rl.pilots.potential_field import PotentialField, PotentialFieldPilot, gains_for
 from rl.task.air import AirDistribution
 from rl.task.config import NavConfig
 from uam_fdm.episode import Outcome
@@ -120,14 +120,15 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
 
 
 def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
-                             world: NavWorld | None = None) -> EvalResult:
+                             world: NavWorld | None = None, gains: PotentialField | None = None) -> EvalResult:
     """The reactive potential-field pilot (`rl.pilots.potential_field`) on the same tasks as
     `evaluate(..., nav, episodes, seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the
-    tasks do not depend on it), its distances scaled by the task's clearance scale over the small quad's (1 for
-    the small quad).
+    tasks do not depend on it), with the gains the comparison flies it with (`gains_for`: tuned for the
+    vehicle, or the small quad's scaled to the task).
 
     Args:
         world: a world whose dynamics and atmosphere to reuse (e.g. the policy's evaluation world).
+        gains: other gains (e.g. a candidate while tuning).
     """
     base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
                        decision_hz=nav.control_hz)
@@ -135,11 +136,11 @@ def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool:
                           atmosphere=world.atmospheres if world else None, wind_from=world)
     holder: dict[str, PotentialFieldPilot] = {}
 
-    gains = gains_for_task(nav.scales)  # tuned for the small quad's task; a larger task scales them
+    flown = gains or gains_for(base_world.vehicle)
 
     def potential_field(obs: np.ndarray, batch: NavBatch) -> np.ndarray:
         if "pilot" not in holder:  # its sensor is built on the batch's cities
-            holder["pilot"] = PotentialFieldPilot(batch, gains)
+            holder["pilot"] = PotentialFieldPilot(batch, flown)
         return holder["pilot"](obs, batch)
 
     return evaluate(potential_field, base_nav, episodes, seed=seed, pool=pool, world=base_world)

@@ -2,6 +2,7 @@
 flies `rl.pilots.potential_field.PotentialFieldPilot` (same sensing, same command path, same low-level controller)."""
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -48,3 +49,27 @@ def test_gains_scale_with_the_vehicles_task():
     assert gains_for(load_vehicle("small_quad")) == PotentialField()
     uam = gains_for(load_vehicle("uam_multicopter"))
     assert uam.range_m == 4 * PotentialField().range_m and uam.k_buildings == PotentialField().k_buildings
+
+
+def test_gains_tuned_per_vehicle_are_read_from_their_table(tmp_path):
+    """A vehicle with tuned gains flies them (read with every key checked); the others the small quad's gains
+    scaled to their task; a table with a missing or unknown gain is refused, naming the file and vehicle."""
+    from dataclasses import asdict
+
+    from rl.pilots.potential_field import TUNED, gains_for, gains_for_task, tuned_gains
+    from rl.task.vehicles import task_for
+    from uam_fdm.vehicle.params import load_vehicle
+
+    tuned = replace(TUNED, repulsion=3.0, range_m=77.0)
+    path = tmp_path / "gains.json"
+    path.write_text(json.dumps({"vehicles": {"uam_multicopter": {"gains": asdict(tuned), "provenance": {}}}}))
+    assert tuned_gains(path) == {"uam_multicopter": tuned}
+    assert tuned_gains(tmp_path / "none.json") == {}
+    bad = dict(asdict(tuned), wings=1)
+    path.write_text(json.dumps({"vehicles": {"uam_multicopter": {"gains": bad}}}))
+    tuned_gains.cache_clear()
+    with pytest.raises(ValueError, match=r"gains.json: vehicles.uam_multicopter.gains must hold exactly"):
+        tuned_gains(path)
+    tuned_gains.cache_clear()
+    quad = load_vehicle("small_quad")
+    assert gains_for(quad) == tuned_gains().get("small_quad", gains_for_task(task_for("small_quad").scales))
