@@ -112,7 +112,8 @@ def sweep_rates(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[SweepRate
         mine = [s for s in info.scenarios if s.vehicle == vehicle]
         envelopes = {m: env for m in methods for p in info.policies(m)
                      if p.vehicle == vehicle and (env := p.envelope) is not None}
-        for axis, steps in sweep_axes(mine).items():
+        axes = sweep_axes(mine)
+        for axis, steps in ((a, axes[a]) for a in AXES if a in axes):
             for method in methods:
                 for x, names in steps:
                     cells = [r for r in rows if r.method == method and r.scenario in names]

@@ -18,6 +18,8 @@ from compare.viz.metrics_pages import MethodStyle
 
 _X_LABEL = {"density altitude": "density altitude [km]", "wind": "steady wind [m/s]"}
 _X_SCALE = {"density altitude": 1e-3, "wind": 1.0}  # metres shown as km
+DODGE = 0.012
+"""Pilots are drawn this fraction of the axis span apart around each step, so equal rates stay visible."""
 
 
 def sweep_pages(info: RunInfo, rows: Sequence[EpisodeMetrics], style: MethodStyle) -> list[tuple[str, Figure]]:
@@ -41,7 +43,8 @@ def sweep_pages(info: RunInfo, rows: Sequence[EpisodeMetrics], style: MethodStyl
 def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: MethodStyle, notes: Sequence[str] = (),
                  subtitle: str = "") -> Figure:
     """One vehicle's sweep: rows success and collision rate, columns the axes (`AXES`), a line and Wilson band
-    per pilot; steps outside a pilot's trained air shaded in its colour and drawn with open markers.
+    per pilot (each `DODGE` of the span aside of the step, so that equal rates stay visible); steps outside a
+    pilot's trained air shaded in its colour and drawn with open markers.
 
     Args:
         vehicle: the vehicle (title).
@@ -68,9 +71,12 @@ def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: MethodStyle, n
             if not mine:
                 ax.text(0.5, 0.5, f"no {axis} steps in this run", ha="center", va="center", transform=ax.transAxes)
                 continue
-            for m in methods:
-                _draw_pilot(ax, [r for r in mine if r.method == m], what, axis, style.color(m), style.label(m))
             steps = sorted({r.x * _X_SCALE[axis] for r in mine})
+            # pilots with equal rates would hide each other: each is drawn a little aside (1.2 % of the span)
+            span = (steps[-1] - steps[0]) or 1.0
+            for k, m in enumerate(methods):
+                _draw_pilot(ax, [r for r in mine if r.method == m], what, axis, style.color(m), style.label(m),
+                            (k - (len(methods) - 1) / 2.0) * DODGE * span)
             ax.set_xticks(steps)
             ax.set_xticklabels([f"{x:g}" if axis == "wind" else f"{x:.2f}".rstrip("0").rstrip(".")
                                 for x in steps], fontsize=8)
@@ -81,12 +87,13 @@ def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: MethodStyle, n
     return fig
 
 
-def _draw_pilot(ax, rates: Sequence[SweepRate], what: str, axis: str, color: str, label: str) -> None:
-    """One pilot's line, band and outside-the-envelope shading on one panel."""
+def _draw_pilot(ax, rates: Sequence[SweepRate], what: str, axis: str, color: str, label: str,
+                dodge: float = 0.0) -> None:
+    """One pilot's line, band and outside-the-envelope shading on one panel, `dodge` aside on the x axis."""
     if not rates:
         return
     rates = sorted(rates, key=lambda r: r.x)
-    x = np.array([r.x * _X_SCALE[axis] for r in rates])
+    x = np.array([r.x * _X_SCALE[axis] for r in rates]) + dodge
     y = np.array([getattr(r, what) for r in rates])
     lo = np.array([getattr(r, f"{what}_ci95")[0] for r in rates])
     hi = np.array([getattr(r, f"{what}_ci95")[1] for r in rates])
