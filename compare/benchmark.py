@@ -197,13 +197,13 @@ def _check_design(design: BenchmarkDesign) -> None:
         taken[f"{vehicle} benchmark"] = seeds
 
 
-def suite_version(scenarios: Sequence[Scenario]) -> str:
-    """`GENERATOR_VERSION` + "+" + 10 hex digits of SHA-256 over the scenarios' mappings and their cities'
-    buildings and bounds (the mapping names the city by generator parameters and seed; the hash of what
-    was generated catches a change of the city generator too)."""
+def suite_version(scenarios: Sequence[Scenario], generator_version: str = GENERATOR_VERSION) -> str:
+    """`generator_version` (this module's `GENERATOR_VERSION`) + "+" + 10 hex digits of SHA-256 over the
+    scenarios' mappings and their cities' buildings and bounds (the mapping names the city by generator
+    parameters and seed; the hash of what was generated catches a change of the city generator too)."""
     content = [[sc.raw, scenario_fingerprint(sc)["map"]] for sc in scenarios]
     digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
-    return f"{GENERATOR_VERSION}+{digest[:10]}"
+    return f"{generator_version}+{digest[:10]}"
 
 
 def _describe(name: str, n_scenarios: int, n_legs: int, design: BenchmarkDesign) -> str:
@@ -243,12 +243,12 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
     speed, heading = float(rng.uniform(0.0, vb.steady_wind_max_m_s)), float(rng.uniform(-math.pi, math.pi))
     wind = [round(speed * math.cos(heading), 1), round(speed * math.sin(heading), 1), 0.0]
     turbulence = TURBULENCE_LEVELS[lv.turbulence]
-    legs = [_leg(city, nav.tasks, vb, vehicle.collision_radius_m, seed, j) for j in range(n_legs)]
+    legs = [draw_leg(city, nav.tasks, vb, vehicle.collision_radius_m, seed, j) for j in range(n_legs)]
     episodes = [{"start": a, "goal": b,
                  "timeout_s": round(nav.tasks.timeout_s(math.dist(a, b), b[2] - a[2], vehicle.controller.max_speed_m_s,
                                                         vehicle.controller.max_vertical_speed_m_s), 1)}
                 for a, b in legs]
-    density_altitude = density_altitude_m(_field_density(elevation, offset))
+    density_altitude = density_altitude_m(field_density_kg_m3(elevation, offset))
     name = f"benchmark-{vb.tag}-{index:03d}"
     fields = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(params).items()}
     return {
@@ -279,7 +279,7 @@ def city_params(cities: CityDistribution, seed: int, density_level: int) -> City
                                fill_range=(round(fill_low, 3), round(min(0.9, fill_low + spread), 3)))
 
 
-def _leg(city: BuildingMap, tasks: TaskDistribution, vb: VehicleBenchmark, radius_m: float, seed: int,
+def draw_leg(city: BuildingMap, tasks: TaskDistribution, vb: VehicleBenchmark, radius_m: float, seed: int,
          j: int) -> tuple[list[float], list[float]]:
     """Leg j of city `seed`: start and goal (ENU, rounded to 0.1 m) from the leg's own stream.
 
@@ -329,7 +329,7 @@ def _leg(city: BuildingMap, tasks: TaskDistribution, vb: VehicleBenchmark, radiu
 
 
 # ---- difficulty measures ------------------------------------------------------------------------------
-def _field_density(elevation_m: float, isa_offset_k: float) -> float:
+def field_density_kg_m3(elevation_m: float, isa_offset_k: float) -> float:
     """Air density at the field [kg/m³] in JSBSim's atmosphere (the one flown)."""
     air = Atmosphere.from_jsbsim(AtmosphereConditions(elevation_m, isa_offset_k), z_max_m=10.0, z_min_m=0.0)
     return float(air.density_kg_m3(0.0))

@@ -52,6 +52,7 @@ from compare.results.failures import (
 from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
 from compare.results.run_info import (
     RUN_INFO_NAME,
+    AirEnvelope,
     AtmosphereInfo,
     MethodInfo,
     PolicyRecord,
@@ -64,6 +65,7 @@ from compare.results.run_info import (
 from compare.results.summary import summarize_run, write_summary_json
 from compare.results.trajectory import episode_files, load_episode
 from compare.scenario import Scenario, seeds_problem
+from compare.trained_air import air_envelope, outside_trained_air
 from rl.policies.folder import shipped_policy_dir
 from uam_fdm.city.generator import map_yaml_text
 from uam_fdm.files.atomic import remove_stale_temporaries, write_text_atomic
@@ -168,6 +170,7 @@ class PolicyFacts:
         vehicle_fingerprint: `VehicleParams.fingerprint()` of the vehicle it was trained for.
         control_hz: the low-level controller rate it was trained with [Hz].
         decision_hz: the rate at which it chooses a command [Hz] (held for the control periods between).
+        envelope: the air it was trained in (None: not known).
     """
 
     folder: Path
@@ -175,6 +178,7 @@ class PolicyFacts:
     vehicle_fingerprint: str
     control_hz: float
     decision_hz: float
+    envelope: AirEnvelope | None = None
 
 
 def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
@@ -322,7 +326,7 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
                           f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
         rest = f"; {', '.join(at_control_rate)} at each scenario's control rate" if at_control_rate else ""
         notes = [*notes, *(f"{s.name} decides at its policy's rate: {rates}{rest}" for s in specs if s.needs_policy)]
-    records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz) for p in policies)
+    records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz, p.envelope) for p in policies)
     info = RunInfo(
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
@@ -375,6 +379,9 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     out = Path(opts.out_dir)
     flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if pilots.pilot(c.method).needs_policy}
     used = [f for fp, f in policies.items() if fp in flown]
+    # air outside a policy's training is flown all the same (where it breaks is the finding), warned and noted
+    notes += outside_trained_air(scenarios, cells, {f.vehicle_fingerprint: f.envelope for f in used
+                                                    if f.envelope is not None})
     fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
         fingerprints = check_resume(out, fingerprints)
@@ -432,8 +439,8 @@ def policy_facts(policy: Path | None) -> PolicyFacts:
 
     loaded = load_policy(policy)  # None: the shipped default
     nav = loaded.nav
-    return PolicyFacts(loaded.folder.resolve(), nav.vehicle,
-                       load_vehicle(nav.vehicle).fingerprint(), float(nav.control_hz), float(nav.decision_hz))
+    return PolicyFacts(loaded.folder.resolve(), nav.vehicle, load_vehicle(nav.vehicle).fingerprint(),
+                       float(nav.control_hz), float(nav.decision_hz), air_envelope(nav.air))
 
 
 def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str, PolicyFacts]:

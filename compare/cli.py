@@ -21,11 +21,14 @@ from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_ru
 from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
+from compare.results.metrics import read_metrics_csv
 from compare.results.outputs import check_output_dir, check_output_file
 from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
+from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lines
 from compare.scenario import Scenario, with_methods
 from compare.sets import resolve_scenarios
+from compare.sweep import SWEEP_SETS, build_sweep
 from rl.sensing.observation import ObservedContext
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
@@ -116,7 +119,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     check_output_dir(out, "--out")
     if out.exists() and any(out.iterdir()) and not args.resume:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
-    scenarios = resolve_scenarios(args.scenario)  # validates every file before anything flies
+    # validates every file before anything flies
+    if args.command == "sweep":
+        only = tuple(args.vehicle) if args.vehicle else None
+        scenarios = list(build_sweep(args.scenario, vehicles=only).scenarios)
+    else:
+        scenarios = resolve_scenarios(args.scenario)
     scenarios = [with_methods(sc, tuple(args.method)) for sc in scenarios]
     opts = replace(opts, videos=_videos(args.videos, scenarios))  # its default depends on the scenarios
     _one_torch_thread()
@@ -139,6 +147,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    args.scenario = SWEEP_SETS[1] if args.quick else SWEEP_SETS[0]
+    return _cmd_run(args)
+
+
 def _videos(chosen: str | None, scenarios: Sequence[Scenario]) -> str:
     """--videos, or its default: the first cell of each scenario, none for a benchmark set (dozens of scenarios)."""
     if chosen is not None:
@@ -155,19 +168,27 @@ def _print_headline_json(run_dir: Path) -> None:
         return {"rate": st.mean, "ci95": [st.ci_low, st.ci_high]} if st is not None else {}
 
     per_vehicle = read_summary_json(run_dir / "summary.json").per_vehicle() or {}
-    suite = read_run_info(run_dir).suite
-    print(json.dumps({
+    info = read_run_info(run_dir)
+    suite = info.suite
+    out: dict[str, object] = {
         "run_dir": str(run_dir),
         "suite": None if suite is None else {"name": suite.name, "version": suite.version},
         "vehicles": {v: {m: {"episodes": ms.episodes, "success": rate(ms.stats.get("success")),
                              "collision": rate(ms.stats.get("collision"))} for m, ms in part.methods.items()}
                      for v, part in per_vehicle.items()},
-        "failed_cells": len(read_failures(run_dir))}))
+        "failed_cells": len(read_failures(run_dir))}
+    if suite is not None and suite.name in SWEEP_SETS:  # per vehicle, axis, step and pilot (printed above)
+        out["sweep"] = sweep_json(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv")))
+    print(json.dumps(out))
 
 
 def _print_suite(run_dir: Path) -> None:
-    """The benchmark set a run flew, with its version (nothing for scenario files)."""
-    suite = read_run_info(run_dir).suite
+    """The benchmark set a run flew, with its version (nothing for scenario files); a sweep's rates per step."""
+    info = read_run_info(run_dir)
+    suite = info.suite
+    if suite is not None and suite.name in SWEEP_SETS:
+        for line in sweep_table_lines(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv"))):
+            print(line)
     if suite is not None:
         print(f"task set {suite.name}, version {suite.version}: {suite.description}")
 
@@ -442,6 +463,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo_command(sub)
     _add_maps_command(sub)
     _add_run_command(sub)
+    _add_sweep_command(sub)
     _add_report_command(sub)
     _add_animate_command(sub)
     _add_view_command(sub)
@@ -468,8 +490,26 @@ def _add_maps_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
 def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
     run.add_argument("scenario", nargs="?", default="default",
-                     help="a built-in set (default, full, benchmark, benchmark-quick), a scenario YAML or a folder "
-                          "of them (default: default)")
+                     help="a built-in set (default, full, benchmark, benchmark-quick, sweep, sweep-quick), a "
+                          "scenario YAML or a folder of them (default: default)")
+    _add_run_options(run)
+    run.set_defaults(func=_cmd_run)
+
+
+def _add_sweep_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    sweep = sub.add_parser("sweep", help="fly the robustness sweep (success and collision against density altitude "
+                                         "and steady wind, every pilot on the same tasks): `run sweep` with a "
+                                         "per-step table; the report draws it")
+    sweep.add_argument("--quick", action="store_true",
+                       help="the sweep-quick set (the first city, two legs, every step: minutes) instead of sweep")
+    sweep.add_argument("--vehicle", action="append", default=None, metavar="VEHICLE",
+                       help="only this vehicle's sweep (small_quad, uam_multicopter); repeat for more (default: both)")
+    _add_run_options(sweep)
+    sweep.set_defaults(func=_cmd_sweep)
+
+
+def _add_run_options(run: argparse.ArgumentParser) -> None:
+    """The options of `run` (and `sweep`): pilots, policies, seeds, jobs, output, resume, backend, videos."""
     run.add_argument("--method", action="append", default=[], metavar="METHOD",
                      help="fly this pilot too, in every scenario: a registered method, a plug-in as module:Class "
                           "or an installed plug-in's entry-point name; repeat for more")
@@ -505,7 +545,6 @@ def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
                      help="cells to animate into RUN_DIR/videos/: the first of each scenario (the default, but none "
                           "for a benchmark set: its product is numbers; `animate` draws any cell later), all, none")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
-    run.set_defaults(func=_cmd_run)
 
 
 def _add_report_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -1,10 +1,10 @@
 """Scenario sets by name: the shipped folders of scenario files and the generated benchmark sets.
 
 The shipped sets are the folders of ``compare/scenarios/<set>/*.yaml`` (`SCENARIO_DIR`), each file checked by
-the strict loader (`compare.scenario`); the benchmark sets (`compare.benchmark.BENCHMARK_SETS`) are generated
-and checked by the same loader. `builtin_sets()` lists both; `resolve_scenarios` accepts a set name, a YAML
-file or a folder of YAML files. This module sits above both the loader and the generator (which imports the
-loader); neither imports it.
+the strict loader (`compare.scenario`); the benchmark sets (`compare.benchmark.BENCHMARK_SETS`) and the
+robustness sweep's (`compare.sweep.SWEEP_SETS`) are generated and checked by the same loader. `builtin_sets()`
+lists them all; `resolve_scenarios` accepts a set name, a YAML file or a folder of YAML files. This module sits
+above the loader and the generators (which import the loader); none of them imports it.
 """
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from pathlib import Path
 
 from compare.benchmark import BENCHMARK_SETS, build_suite
 from compare.scenario import Scenario, load_scenario
+from compare.sweep import SWEEP_SETS, build_sweep
 from uam_fdm.errors import ConfigError
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
@@ -19,9 +20,9 @@ SCENARIO_DIR = Path(__file__).parent / "scenarios"
 
 def builtin_sets() -> list[str]:
     """Names of the built-in scenario sets (folders of `compare/scenarios` holding YAML files, and the
-    generated `BENCHMARK_SETS`), sorted."""
+    generated `BENCHMARK_SETS` and `compare.sweep.SWEEP_SETS`), sorted."""
     folders = [p.name for p in SCENARIO_DIR.iterdir() if p.is_dir() and any(p.glob("*.yaml"))]
-    return sorted([*folders, *BENCHMARK_SETS])
+    return sorted([*folders, *BENCHMARK_SETS, *SWEEP_SETS])
 
 
 def resolve_scenarios(spec: str | Path) -> list[Scenario]:
@@ -43,6 +44,8 @@ def resolve_scenarios(spec: str | Path) -> list[Scenario]:
     text = str(spec)
     if text in BENCHMARK_SETS:
         return list(build_suite(text).scenarios)
+    if text in SWEEP_SETS:
+        return list(build_sweep(text).scenarios)
     if text in builtin_sets():
         files = _yaml_files(SCENARIO_DIR / text)
     else:

@@ -4,8 +4,8 @@
 (version 1) is unchanged since the first runs; folders written by older versions read too: a key they
 lack reads as empty (None, "", no entries), and a run that recorded the learned pilot's one policy as
 `methods.ppo.policy_dir` (before policies per vehicle) reads as one `PolicyRecord` without a vehicle.
-Optional keys (`fingerprints`, `suite`) are written only when set, so rewriting an older file gives it back
-byte for byte.
+Optional keys (`fingerprints`, `suite`, a policy's `trained_air`) are written only when set, so rewriting an
+older file gives it back byte for byte.
 """
 from __future__ import annotations
 
@@ -70,13 +70,62 @@ class ScenarioInfo:
 
 
 @dataclass(frozen=True)
+class AirEnvelope:
+    """The air a policy was trained in, as a run compares it with its scenarios' air.
+
+    Attributes:
+        density_altitude_m: the lowest and highest density altitude of its training fields [m] (the densest
+            and thinnest corner of its elevation and ISA-offset ranges, `uam_fdm.air.atmosphere`).
+        steady_wind_max_m_s: its top steady wind speed [m/s] (at the scenarios' wind reference height).
+        turbulence: its turbulence levels (names).
+    """
+
+    density_altitude_m: tuple[float, float]
+    steady_wind_max_m_s: float
+    turbulence: tuple[str, ...]
+
+    DENSITY_ALTITUDE_SLACK_M = 50.0
+    """A field this close to the trained range counts as inside it [m] (a standard day at sea level is 0 m
+    give or take the atmosphere tables' rounding)."""
+
+    def outside(self, density_altitude_m: float | None, steady_wind_m_s: float | None,
+                turbulence: str | None) -> tuple[str, ...]:
+        """Why air lies outside this envelope, one phrase per reason ("density altitude 1500 m", "steady wind
+        6.0 m/s", "moderate turbulence"; empty: inside; an argument None: not recorded, not compared).
+
+        Args:
+            density_altitude_m: the field's density altitude [m].
+            steady_wind_m_s: the steady wind speed at the reference height [m/s].
+            turbulence: the turbulence level's name.
+        """
+        why = []
+        lo, hi = self.density_altitude_m
+        if density_altitude_m is not None and not (lo - self.DENSITY_ALTITUDE_SLACK_M <= density_altitude_m
+                                                   <= hi + self.DENSITY_ALTITUDE_SLACK_M):
+            why.append(f"density altitude {round(density_altitude_m):d} m")
+        if steady_wind_m_s is not None and steady_wind_m_s > self.steady_wind_max_m_s + 1e-6:
+            why.append(f"steady wind {steady_wind_m_s:.1f} m/s")
+        if turbulence is not None and turbulence not in self.turbulence:
+            why.append(f"{turbulence} turbulence")
+        return tuple(why)
+
+    def describe(self) -> str:
+        """The envelope in words: "density altitude 0 to 4100 m, steady wind to 8 m/s, none/light turbulence"."""
+        lo, hi = self.density_altitude_m
+        return (f"density altitude {round(lo):d} to {round(hi):d} m, steady wind to {self.steady_wind_max_m_s:g} m/s, "
+                f"{'/'.join(self.turbulence)} turbulence")
+
+
+@dataclass(frozen=True)
 class PolicyRecord:
     """A learned pilot's policy a run flew: the vehicle it was trained for (None in runs saved before
-    policies per vehicle), its folder, and its decision rate [Hz] (None where not recorded)."""
+    policies per vehicle), its folder, its decision rate [Hz] (None where not recorded) and the air it was
+    trained in (None in runs saved before it was recorded)."""
 
     vehicle: str | None
     policy_dir: str
     decision_hz: float | None = None
+    envelope: AirEnvelope | None = None
 
 
 @dataclass(frozen=True)
@@ -190,8 +239,16 @@ def _scenario_json(s: ScenarioInfo) -> dict[str, Any]:
 def _method_json(m: MethodInfo) -> dict[str, Any]:
     out: dict[str, Any] = {"label": m.label, "description": m.description}
     if m.policies:
-        out["policies"] = [{"vehicle": p.vehicle, "policy_dir": p.policy_dir, "decision_hz": p.decision_hz}
-                           for p in m.policies]
+        out["policies"] = [_policy_json(p) for p in m.policies]
+    return out
+
+
+def _policy_json(p: PolicyRecord) -> dict[str, Any]:
+    out: dict[str, Any] = {"vehicle": p.vehicle, "policy_dir": p.policy_dir, "decision_hz": p.decision_hz}
+    if p.envelope is not None:  # only when recorded: an older file rewrites byte for byte
+        e = p.envelope
+        out["trained_air"] = {"density_altitude_m": list(e.density_altitude_m),
+                              "steady_wind_max_m_s": e.steady_wind_max_m_s, "turbulence": list(e.turbulence)}
     return out
 
 
@@ -284,7 +341,20 @@ def _method_info(r: _Reader, value: Any, method: str, key: str) -> MethodInfo:
 def _policy(r: _Reader, value: Any, key: str) -> PolicyRecord:
     p = r.mapping(value, key)
     return PolicyRecord(r.text(p, "vehicle", f"{key}.vehicle") or None, r.text(p, "policy_dir", f"{key}.policy_dir"),
-                        r.number(p, "decision_hz", f"{key}.decision_hz"))
+                        r.number(p, "decision_hz", f"{key}.decision_hz"),
+                        _envelope(r, p.get("trained_air"), f"{key}.trained_air"))
+
+
+def _envelope(r: _Reader, value: Any, key: str) -> AirEnvelope | None:
+    if value is None:
+        return None
+    e = r.mapping(value, key)
+    da = [r.entry_number(v, f"{key}.density_altitude_m[{i}]")
+          for i, v in enumerate(r.sequence(e, "density_altitude_m", f"{key}.density_altitude_m"))]
+    wind = r.number(e, "steady_wind_max_m_s", f"{key}.steady_wind_max_m_s")
+    if len(da) != 2 or wind is None:
+        raise r.fail(key, value, "density_altitude_m [low, high] and steady_wind_max_m_s")
+    return AirEnvelope((da[0], da[1]), wind, tuple(str(t) for t in r.sequence(e, "turbulence", f"{key}.turbulence")))
 
 
 @dataclass(frozen=True)
@@ -335,6 +405,13 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.fail(key, value, "an integer")
         return value
+
+    def entry_number(self, value: Any, key: str) -> float:
+        """A number entry of a list (null is not one)."""
+        number = self.number({"entry": value}, "entry", key)
+        if number is None:
+            raise self.fail(key, value, "a finite number")
+        return number
 
     def entry_integer(self, value: Any, key: str) -> int:
         """An integer entry of a list (null is not one: a list has no absent entries)."""

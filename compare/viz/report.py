@@ -8,7 +8,8 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, `episodes/*.
 2. per vehicle, never pooled across vehicles (`compare.viz.metrics_pages`): per-method mean [95 % CI]
    table, summary forest plot, paired differences with their minimum detectable differences, success
    along task difficulty, the scenarios' conditions, per-scenario and per-episode tables (bounded);
-   then the classical pilot's tracker per scenario;
+   then the classical pilot's tracker per scenario; a robustness-sweep run's rates against density altitude
+   and wind per vehicle (`compare.viz.sweep_pages`);
 3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
    3D snapshots over time, for the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios of each vehicle and
    the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks of each (a benchmark run has hundreds: a page says which);
@@ -47,6 +48,7 @@ from compare.results.summary import Summary, read_summary_json, summarize_run
 from compare.results.trajectory import EpisodeKey, episode_files, load_episode
 from compare.viz import figures as F
 from compare.viz.metrics_pages import SUMMARY_ROWS, MethodStyle, episode_table_pages, format_ci, vehicle_pages
+from compare.viz.sweep_pages import sweep_pages
 from rl.policies.folder import PolicyFolder, Provenance
 from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.city.buildings import BuildingMap
@@ -173,6 +175,8 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
             rows, why = _read_metrics(run_dir / "metrics.csv")
             for name, figs in _metrics_pages(run, rows, why):
                 pages.add_all(figs, name)
+            for name, fig in sweep_pages(run.info, rows or [], run.style()):  # a sweep run's rates per step
+                pages.add(fig, name)
             drawn, left_out = _drawn_groups(run, groups, rows)
             if left_out:
                 pages.add_all(F.text_pages("Flights", left_out), "flights_drawn")

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from compare.results.run_info import (
+    AirEnvelope,
     AtmosphereInfo,
     MethodInfo,
     PolicyRecord,
@@ -124,4 +125,19 @@ def test_bad_run_json_names_the_file_and_key(tmp_path: Path, text: str, message:
 
 def test_missing_run_json_names_the_folder(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=rf"{tmp_path}: not a run folder \(no run\.json\)"):
+        read_run_info(tmp_path)
+
+
+def test_a_policys_trained_air_round_trips(tmp_path: Path) -> None:
+    """The envelope a policy was trained in is written with it (only when known) and read back exactly."""
+    env = AirEnvelope((-612.5, 4100.0), 8.0, ("none", "light", "moderate"))
+    info = replace(full_info(), methods={"ppo": MethodInfo("PPO policy", "", (PolicyRecord("small_quad", "/p", 10.0,
+                                                                                           env),))})
+    data = json.loads(write_run_info(info, tmp_path).read_text())
+    assert data["methods"]["ppo"]["policies"][0]["trained_air"] == {
+        "density_altitude_m": [-612.5, 4100.0], "steady_wind_max_m_s": 8.0, "turbulence": ["none", "light", "moderate"]}
+    assert read_run_info(tmp_path).policies() == (PolicyRecord("small_quad", "/p", 10.0, env),)
+    data["methods"]["ppo"]["policies"][0]["trained_air"] = {"density_altitude_m": [0.0]}
+    (tmp_path / "run.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="trained_air: expected density_altitude_m"):
         read_run_info(tmp_path)

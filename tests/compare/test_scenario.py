@@ -52,7 +52,8 @@ DELETE = object()
 
 # ---- shipped scenarios -------------------------------------------------------------------------------
 def test_builtin_sets() -> None:
-    assert builtin_sets() == ["benchmark", "benchmark-quick", "default", "full"]  # the first two generated
+    # benchmark* and sweep* are generated
+    assert builtin_sets() == ["benchmark", "benchmark-quick", "default", "full", "sweep", "sweep-quick"]
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: f"{p.parent.name}/{p.name}")
@@ -361,7 +362,8 @@ def test_resolve_rejects_duplicate_names_and_empty_folders(tmp_path: Path) -> No
 
 @pytest.mark.parametrize("spec", ["no-such-set", "missing/dir", "gone.yaml"])
 def test_resolve_missing_path_lists_builtin_sets(tmp_path: Path, spec: str) -> None:
-    with pytest.raises(ValueError, match=r"built-in scenario set \(benchmark, benchmark-quick, default, full\)") as exc:
+    sets = r"\(benchmark, benchmark-quick, default, full, sweep, sweep-quick\)"
+    with pytest.raises(ValueError, match=rf"built-in scenario set {sets}") as exc:
         resolve_scenarios(str(tmp_path / spec) if "/" in spec or spec.endswith(".yaml") else spec)
     assert not isinstance(exc.value, ConfigError)
 
