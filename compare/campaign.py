@@ -327,7 +327,8 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
         notes=tuple(notes),
-        methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else ()) for s in specs},
+        methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else (),
+                                   "" if s.name in pilots.PILOTS else s.color) for s in specs},
         versions=versions(), fairness=fairness(methods), fingerprints=fingerprints, suite=run_suite(scenarios))
     write_run_info(info, out)
 

@@ -198,13 +198,14 @@ def pilot(name: str) -> PilotSpec:
                      f"named as module:Class")
 
 
-def find(name: str) -> PilotSpec | None:
-    """The pilot `name` when it resolves here, else None (readers of a run folder made elsewhere, where a
-    plug-in may not be installed: its episodes still read, without its report type)."""
-    try:
-        return pilot(name)
-    except ValueError:
-        return None
+def registered(name: str) -> PilotSpec | None:
+    """The registered pilot `name` (`PILOTS`), else None; never imports anything.
+
+    Readers of a run folder (metrics, report, viewer, animation) use this, never `pilot`: a method name read
+    from a data file may be `module:Class`, and resolving it would import (run) code the file names. What a
+    reader needs of a plug-in (label, colour) comes from the run's own run.json (`compare.results.run_info`).
+    """
+    return PILOTS.get(name)
 
 
 def _entry_point(name: str) -> metadata.EntryPoint | None:

@@ -150,8 +150,9 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
     straight_m = float(np.linalg.norm(np.subtract(meta.goal_m, meta.start_m, dtype=float)))
     below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
     finite_clearance = clearance[~np.isnan(clearance)]
-    spec = pilots.find(key.method)
-    does_not_plan = spec is not None and not spec.plans and meta.plan_time_s == 0
+    # a method the registry does not hold (a plug-in) is not imported to ask whether it plans: the file names it.
+    spec = pilots.registered(key.method)
+    does_not_plan = (spec is None or not spec.plans) and meta.plan_time_s == 0
     return EpisodeMetrics(
         scenario=key.scenario, episode=int(key.episode), method=key.method, seed=int(key.seed),
         map=meta.map_name, vehicle=meta.vehicle, outcome=meta.outcome.value,

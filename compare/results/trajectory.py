@@ -215,7 +215,7 @@ def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
     extra = m.get("extra") or {}
     if not isinstance(extra, Mapping):
         raise TypeError(f"extra must be a mapping, got {type(extra).__name__}")
-    spec = pilots.find(key.method)
+    spec = pilots.registered(key.method)  # never a plug-in's import: the file names the method
     report_type = spec.report_type if spec is not None else None
     report = None
     if report_type is not None:

@@ -94,7 +94,7 @@ class _Run:
         """A method run.json does not list (found in the episode files or metrics.csv): its label and own colour."""
         self.methods.append(method)
         self.labels.setdefault(method, _registry_label(method))
-        self.colors = F.method_colors(self.methods)
+        self.colors = F.method_colors(self.methods, self.info.colors())
 
     def style(self) -> MethodStyle:
         """The methods' order, labels and colours, for the metrics pages."""
@@ -209,13 +209,14 @@ def _make_run(run_dir: Path, info: RunInfo) -> _Run:
     for s in info.scenarios:
         methods += [m for m in s.methods if m not in methods]
     labels = {m: info.methods[m].label if m in info.methods else _registry_label(m) for m in methods}
-    return _Run(run_dir, info, methods, labels, F.method_colors(methods), [s.name for s in info.scenarios])
+    return _Run(run_dir, info, methods, labels, F.method_colors(methods, info.colors()),
+                [s.name for s in info.scenarios])
 
 
 def _registry_label(method: str) -> str:
-    """The label of a method run.json does not describe: the registry's or its plug-in's, else its name (a plug-in
-    that cannot be imported where the report is built)."""
-    spec = pilots.find(method)
+    """The label of a method run.json does not describe: the registry's, else its name (a plug-in is never
+    imported to ask: the name comes from a data file)."""
+    spec = pilots.registered(method)
     return spec.label if spec is not None else method
 
 

@@ -1,0 +1,137 @@
+"""Hostile inputs, round three (issue 32): a run folder runs no code, a page runs no script, nothing a user
+made is overwritten, vehicles are never pooled by name, and every bad input is one clear line before work.
+
+Cases go through `compare.cli.main` where the command line reaches them and check the exit code, the one
+error line (naming the file, key or option and the value), that no traceback escaped and that nothing was
+written or changed.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+from compare.cli import main
+from compare.results.trajectory import load_episode, save_episode
+from synthetic_run import write_run
+
+
+# ---- helpers (as in test_bad_inputs.py) ------------------------------------------------------------------
+def _snapshot(root: Path) -> dict[str, str]:
+    """Every file and folder under root with a hash of its content: compared before and after a command."""
+    return {str(p.relative_to(root)): "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*"))}
+
+
+def _error_line(err: str) -> str:
+    """The single `uam-compare: error:` line of stderr (no traceback, no second error)."""
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("uam-compare: error:")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def _fails(argv: list[str], capsys: pytest.CaptureFixture, root: Path, *expected: str, code: int = 2) -> str:
+    """Run the CLI: exit `code`, one error line holding every `expected` text, `root` unchanged."""
+    before = _snapshot(root)
+    assert main(argv) == code
+    line = _error_line(capsys.readouterr().err)
+    for text in expected:
+        assert text in line, (text, line)
+    assert _snapshot(root) == before
+    return line
+
+
+@pytest.fixture(scope="module")
+def base_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("hostile") / "run"
+    write_run(out, None)
+    return out
+
+
+@pytest.fixture
+def run_copy(base_run: Path, tmp_path: Path) -> Path:
+    out = tmp_path / "run"
+    shutil.copytree(base_run, out)
+    return out
+
+
+# ---- 1: reading a run folder imports nothing a data file names ----------------------------------------------
+EVIL = "import pathlib\npathlib.Path(__file__).with_name('RAN').write_text('imported')\n"
+
+
+def _rename_method(run: Path, method: str) -> None:
+    """Give one episode file of `run` the method `method` (as a shared, hostile run folder could)."""
+    path = sorted((run / "episodes").glob("*rrt_mpc*.npz"))[0]
+    saved = load_episode(path)
+    meta = saved.meta
+    key = type(meta.key)(meta.key.scenario, meta.key.episode, method, meta.key.seed)
+    path.unlink()
+    save_episode(run / "episodes" / f"{key.stem}.npz", type(meta)(**{**vars(meta), "key": key}), saved.trajectory)
+
+
+@pytest.mark.parametrize("command", [["report"], ["view"], ["animate", "--format", "gif", "--fps", "2",
+                                                            "--duration", "1", "--size", "320x240"]])
+def test_reading_a_run_folder_imports_nothing_it_names(run_copy: Path, monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture, command: list[str]) -> None:
+    (run_copy / "evilpilot_i32.py").write_text(EVIL)  # shipped in the folder, started from inside it
+    monkeypatch.chdir(run_copy)
+    monkeypatch.syspath_prepend(str(run_copy))
+    _rename_method(run_copy, "evilpilot_i32:P")
+    code = main([command[0], str(run_copy), *command[1:], *(["--no-progress"] if command[0] == "animate" else [])])
+    assert code == 0, capsys.readouterr().err
+    assert not (run_copy / "RAN").exists()
+    assert "evilpilot_i32" not in sys.modules
+
+
+def test_a_plugin_label_and_colour_come_from_run_json(run_copy: Path) -> None:
+    from compare.viz.flights import flight_groups
+
+    _rename_method(run_copy, "someone.pilots:Mine")
+    info = json.loads((run_copy / "run.json").read_text())
+    info["methods"]["someone.pilots:Mine"] = {"label": "Their pilot", "description": "x", "color": "tab:brown"}
+    (run_copy / "run.json").write_text(json.dumps(info))
+    pilots = {p.method: p for g in flight_groups(run_copy) for p in g.pilots}
+    assert pilots["someone.pilots:Mine"].label == "Their pilot"
+    assert pilots["someone.pilots:Mine"].color == "tab:brown"
+
+
+# ---- 2: nothing from a run folder or scenario becomes script in a page -------------------------------------
+ATTACKS = ["</sCrIpT><img src=x onerror=alert(1)>", "</script ><script>alert(1)</script>",
+           "<!--<script>", "\u2028\u2029</SCRIPT\t>&lt;", "]]></style><svg onload=alert(1)>"]
+
+
+def test_the_viewer_embeds_hostile_text_as_data(run_copy: Path, tmp_path: Path) -> None:
+    info = json.loads((run_copy / "run.json").read_text())
+    info["scenarios"][0]["description"] = ATTACKS[0]
+    info["command"] = ATTACKS[1]
+    info["methods"]["ppo"]["label"] = ATTACKS[2]
+    info["methods"]["rrt_mpc"]["label"] = ATTACKS[3] + ATTACKS[4]
+    (run_copy / "run.json").write_text(json.dumps(info))
+    out = tmp_path / "v.html"
+    assert main(["view", str(run_copy), "--out", str(out)]) == 0
+    page = out.read_text(encoding="utf-8")
+    # the template's own three scripts close, nothing else does; no markup from the data
+    assert len(re.findall(r"</script", page, re.IGNORECASE)) == 3
+    for markup in ("<img src=x", "<svg onload", "<script>alert", "\u2028"):
+        assert markup.lower() not in page.lower()
+    data = page.split('<script type="application/json" id="uam-data">')[1].split("</script>")[0]
+    assert not re.search("[<>&\u2028\u2029]", data)
+    payload = json.loads(data)
+    assert payload["run"]["command"] == ATTACKS[1]  # the text itself comes back unchanged
+    assert payload["groups"][0]["description"] == ATTACKS[0]
+    assert {p["label"] for p in payload["groups"][0]["pilots"]} == {ATTACKS[2], ATTACKS[3] + ATTACKS[4]}
+
+
+def test_json_for_script_is_safe_for_any_text() -> None:
+    from compare.viz.embed import json_for_script
+
+    text = "".join(chr(c) for c in range(0x2100)) + "\u2028\u2029</ScRiPt>"
+    out = json_for_script({"t": text})
+    assert not re.search(r"[<>&\u2028\u2029]", out)
+    assert json.loads(out) == {"t": text}
