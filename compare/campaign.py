@@ -49,7 +49,7 @@ from compare.results.failures import (
     remove_failure,
     write_failure,
 )
-from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
+from compare.results.metrics import episode_metrics, label_vehicles, read_metrics_csv, write_metrics_csv
 from compare.results.run_info import (
     RUN_INFO_NAME,
     AtmosphereInfo,
@@ -492,6 +492,7 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
             unreadable.append(f.name)
             continue
         rows.append(episode_metrics(saved))
+    rows = label_vehicles(rows)  # by fingerprint: a vehicle file that keeps a preset's name is not the preset
     if not rows:
         raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")
     write_metrics_csv(rows, run_dir / "metrics.csv")

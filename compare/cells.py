@@ -92,6 +92,7 @@ class CellRunner:
         report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
         key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
+                           vehicle_fingerprint=sc.vehicle.fingerprint(),
                            start_m=xyz(task.start_m), goal_m=xyz(task.goal_m), goal_radius_m=task.goal_radius_m,
                            timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
                            energy_J=float(traj.energy_J), outcome=traj.outcome,

@@ -10,10 +10,11 @@ import shlex
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
+from typing import TypeVar
 
 from compare.backends import BACKENDS
 from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_run, finalize, run_comparison
@@ -23,8 +24,9 @@ from compare.results.failures import FAILED_DIR, describe_failures, read_failure
 from compare.results.outputs import check_output_dir, check_output_file
 from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
-from compare.scenario import Scenario, with_methods
+from compare.scenario import MAX_SEED, Scenario, with_methods
 from compare.sets import resolve_scenarios
+from uam_fdm.air.wind import TurbulenceLevel
 from uam_fdm.vehicle.params import preset_names
 
 # Imported inside the commands that use them: matplotlib and plotly (figures, viewer, maps) and PyTorch (the
@@ -293,12 +295,24 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from rl.task.vehicles import task_for
     from rl.training.config import Curriculum, TrainConfig
     from rl.training.loop import train
+    from rl.training.ppo import PRESETS
 
-    task = task_for(args.vehicle)
-    if args.city_pool is not None and args.city_pool < 1:
-        raise ValueError(f"--city-pool {args.city_pool}: must be >= 1")
+    # every option by its own name, before anything is built (TrainConfig would name its fields, not options)
+    _check_ranges({"--timesteps": (args.timesteps, 1, MAX_TIMESTEPS), "--envs": (args.envs, 1, MAX_ENVS),
+                   "--eval-every": (args.eval_every, 1, MAX_TIMESTEPS),
+                   "--eval-episodes": (args.eval_episodes, 1, MAX_EVAL_EPISODES),
+                   "--checkpoint-every": (args.checkpoint_every, 0, MAX_TIMESTEPS), "--seed": (args.seed, 0, MAX_SEED),
+                   **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
+    _option("--turbulence", TurbulenceLevel.parse, args.turbulence)
+    task = _option("--vehicle", task_for, args.vehicle)
+    check_output_dir(args.out, "--out")
+    if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
+        raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
+                         f"give another --out, --resume to continue its training, or --overwrite to replace it)")
     nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, turbulence=args.turbulence)
     cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
+    if args.preset not in PRESETS:
+        raise ValueError(f"--preset {args.preset}: unknown; choose from {', '.join(sorted(PRESETS))}")
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                       checkpoint_every=args.checkpoint_every)
@@ -309,6 +323,30 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+MAX_TIMESTEPS = 10**12
+MAX_ENVS = 65_536  # vehicles stepped in one call: far beyond one machine's memory already
+MAX_EVAL_EPISODES = 1_000_000
+MAX_CITY_POOL = 1_000_000
+
+
+def _check_ranges(values: dict[str, tuple[int, int, int]]) -> None:
+    """Raise ValueError naming the first option whose value is outside [low, high] (option -> value, low, high)."""
+    for option, (value, low, high) in values.items():
+        if not low <= value <= high:
+            raise ValueError(f"{option} {value}: must be between {low} and {high}")
+
+
+T = TypeVar("T")
+
+
+def _option(option: str, check: Callable[[str], T], value: str) -> T:
+    """`check(value)`, its ValueError said as the option's: "--option value: reason"."""
+    try:
+        return check(value)
+    except ValueError as exc:
+        raise ValueError(f"{option} {value}: {exc}") from None
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from rl.env.world import NavWorld
     from rl.pilots.learned import load_policy
@@ -316,6 +354,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
+    _check_ranges({"--seed": (args.seed, 0, MAX_SEED)})
     _one_torch_thread()
     policy = load_policy(args.policy)
     nav = eval_config(policy.nav, args.episodes, pool=args.pool, turbulence=args.turbulence)
@@ -475,7 +514,10 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     tr.add_argument("--eval-episodes", type=int, default=500, help="validation episodes per evaluation (default 500)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
     tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
-    tr.add_argument("--out", type=Path, default=Path("runs/policy"), help="policy folder to write")
+    tr.add_argument("--out", type=Path, default=Path("runs/policy"),
+                    help="policy folder to write (default runs/policy); an existing non-empty one is refused "
+                         "unless --resume or --overwrite")
+    tr.add_argument("--overwrite", action="store_true", help="replace the policy in a non-empty --out")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_cmd_train)
 

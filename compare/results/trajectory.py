@@ -83,6 +83,8 @@ class EpisodeMeta:
         mean_decision_ms: the mean wall time per decision [ms] (None: no decision).
         failure_reason: a more specific reason for a failure than the outcome, from the pilot's report
             (e.g. `Outcome.SOLVER_FAILURE`), else None.
+        vehicle_fingerprint: the vehicle's parameters' fingerprint (`VehicleParams.fingerprint`; "" in files saved
+            before it was recorded): two vehicles that share a name are told apart by it.
         report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
             method's `compare.pilots.PilotSpec.report_type`), None when it gives none.
     """
@@ -104,6 +106,7 @@ class EpisodeMeta:
     agent_seed: int | None = None
     mean_decision_ms: float | None = None
     failure_reason: Outcome | None = None
+    vehicle_fingerprint: str = ""
     report: PilotReport | None = None
 
     def __post_init__(self) -> None:
@@ -198,6 +201,8 @@ def _meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
         extra[_REPORT_KEY] = meta.report.to_json()
     if meta.failure_reason is not None:
         extra["failure_reason"] = meta.failure_reason.value
+    if meta.vehicle_fingerprint:
+        extra["vehicle_fingerprint"] = meta.vehicle_fingerprint
     return {"key": asdict(meta.key), "map_name": meta.map_name, "vehicle": meta.vehicle,
             "start_m": list(meta.start_m), "goal_m": list(meta.goal_m), "goal_radius_m": meta.goal_radius_m,
             "timeout_s": meta.timeout_s, "collision_radius_m": meta.collision_radius_m, "n_rotors": meta.n_rotors,
@@ -227,7 +232,8 @@ def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
         goal_m=xyz(m["goal_m"]), goal_radius_m=m["goal_radius_m"], timeout_s=m["timeout_s"],
         collision_radius_m=m["collision_radius_m"], n_rotors=m["n_rotors"], energy_J=m["energy_J"],
         outcome=m["outcome"], plan_time_s=m["plan_time_s"], detail=m.get("detail", ""), **context,
-        failure_reason=extra.get("failure_reason") or None, report=report)
+        failure_reason=extra.get("failure_reason") or None, report=report,
+        vehicle_fingerprint=str(extra.get("vehicle_fingerprint") or ""))
 
 
 def episode_files(run_dir: Path) -> list[Path]:

@@ -462,8 +462,8 @@ def _drawn_groups(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]], 
     """The tasks whose flights are drawn: of each vehicle the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios, of
     each the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks (run order); and, when that leaves some out, the text of
     a page saying so (else empty)."""
-    vehicle_of = {r.scenario: r.vehicle for r in rows or []}
-    vehicle_of.update({s.name: s.vehicle for s in run.info.scenarios if s.vehicle})
+    vehicle_of = {s.name: s.vehicle for s in run.info.scenarios if s.vehicle}
+    vehicle_of.update({r.scenario: r.vehicle for r in rows or []})  # the scored rows tell same-named vehicles apart
     scenarios: dict[str, list[str]] = {}  # per vehicle, the scenarios drawn
     count: dict[str, int] = {}
     drawn = {}

@@ -135,3 +135,52 @@ def test_json_for_script_is_safe_for_any_text() -> None:
     out = json_for_script({"t": text})
     assert not re.search(r"[<>&\u2028\u2029]", out)
     assert json.loads(out) == {"t": text}
+
+
+# ---- 3: train never replaces a policy without being asked ----------------------------------------------------
+def test_train_refuses_a_non_empty_out(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "policy"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"a policy someone trained for a week")
+    _fails(["train", "--out", str(out), "--timesteps", "10"], capsys, tmp_path, f"--out {out}", "--overwrite")
+
+
+@pytest.mark.parametrize(("argv", "expected"), [
+    (["--envs", "0"], "--envs 0"), (["--timesteps", "-5"], "--timesteps -5"), (["--eval-every", "0"], "--eval-every 0"),
+    (["--eval-episodes", "0"], "--eval-episodes 0"), (["--checkpoint-every", "-1"], "--checkpoint-every -1"),
+    (["--envs", "100000000"], "--envs 100000000"), (["--seed", "-1"], "--seed -1"),
+    (["--turbulence", "storm"], "--turbulence storm"), (["--vehicle", "zeppelin"], "--vehicle zeppelin"),
+    (["--preset", "huge"], "--preset huge"), (["--city-pool", "0"], "--city-pool 0"),
+])
+def test_train_options_are_named_as_options(tmp_path: Path, capsys: pytest.CaptureFixture, argv: list[str],
+                                            expected: str) -> None:
+    line = _fails(["train", "--out", str(tmp_path / "p"), *argv], capsys, tmp_path, expected)
+    assert "n_envs" not in line and "total_timesteps" not in line and "eval_every" not in line
+
+
+def test_evaluate_policy_seed_is_named_as_the_option(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    _fails(["evaluate-policy", "--seed", "-1", "--episodes", "1"], capsys, tmp_path, "--seed -1")
+
+
+# ---- 4: two vehicles that share a name are two vehicles -------------------------------------------------------
+def test_vehicles_sharing_a_name_are_never_pooled(run_copy: Path, capsys: pytest.CaptureFixture) -> None:
+    """Episode 1 is re-filed as a second scenario flying a heavier copy of the preset that kept its name."""
+    info = json.loads((run_copy / "run.json").read_text())
+    info["scenarios"].append({**info["scenarios"][0], "name": "heavy"})
+    (run_copy / "run.json").write_text(json.dumps(info))
+    shutil.copy(run_copy / "maps" / f"{info['scenarios'][0]['name']}.yaml", run_copy / "maps" / "heavy.yaml")
+    for path in sorted((run_copy / "episodes").glob("*.npz")):
+        saved = load_episode(path)
+        meta, heavy = saved.meta, saved.meta.key.episode == 1
+        key = type(meta.key)("heavy", 0, meta.key.method, 0) if heavy else meta.key
+        path.unlink()
+        save_episode(run_copy / "episodes" / f"{key.stem}.npz",
+                     type(meta)(**{**vars(meta), "key": key, "vehicle_fingerprint": ("b" if heavy else "a") * 64}),
+                     saved.trajectory)
+    assert main(["report", str(run_copy)]) == 0
+    summary = json.loads((run_copy / "summary.json").read_text())
+    assert sorted(summary["vehicles"]) == ["small_quad (aaaaaaaa)", "small_quad (bbbbbbbb)"]
+    text = (run_copy / "metrics.csv").read_text()
+    assert "small_quad (aaaaaaaa)" in text and "b" * 64 in text
+    out = capsys.readouterr().out
+    assert "small_quad (aaaaaaaa)" in out and "small_quad (bbbbbbbb)" in out
