@@ -12,12 +12,15 @@ import json
 import re
 import shutil
 import sys
+import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from compare.cli import main
 from compare.results.trajectory import load_episode, save_episode
+from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
 from synthetic_run import write_run
 
 
@@ -184,3 +187,55 @@ def test_vehicles_sharing_a_name_are_never_pooled(run_copy: Path, capsys: pytest
     assert "small_quad (aaaaaaaa)" in text and "b" * 64 in text
     out = capsys.readouterr().out
     assert "small_quad (aaaaaaaa)" in out and "small_quad (bbbbbbbb)" in out
+
+
+# ---- 5: the flight volume is bounded before anything is sized by it ------------------------------------------
+def _scenario(tmp_path: Path, data: dict, name: str = "scen.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.mark.parametrize(("lo", "hi", "expected"), [
+    ([0, 0, 0], [100, 100, 1e8], "bounds.max: ceiling z 1e+08 m"),
+    ([0, 0, 0], [100, 100, 1e13], "bounds.max: ceiling z 1e+13 m"),
+    ([0, 0, 0], [1e7, 100, 50], "bounds: x beyond"),
+    ([-3e4, 0, 0], [100, 100, 50], "wide in x"),
+    ([0, 0, 0], [100, 2e5, 50], "200000 m wide in y"),
+])
+def test_a_huge_flight_volume_is_refused_at_once(tmp_path: Path, capsys: pytest.CaptureFixture, lo: list,
+                                                 hi: list, expected: str) -> None:
+    path = _scenario(tmp_path, {**BASE, "bounds": {"min": lo, "max": hi}})
+    t0 = time.perf_counter()
+    _fails(["validate", str(path)], capsys, tmp_path, str(path), expected)
+    assert time.perf_counter() - t0 < 5.0
+
+
+# ---- 6: numbers too large to be numbers ----------------------------------------------------------------------
+HUGE = "1" + "0" * 400
+
+
+@pytest.mark.parametrize("where", ["height", "seeds", "episodes", "timeout"])
+def test_a_huge_integer_in_a_scenario_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture, where: str) -> None:
+    text = yaml.safe_dump({**BASE, "timeout_s": 60}, sort_keys=False)
+    text = {"height": text.replace("height: 30.0", f"height: {HUGE}"),
+            "seeds": text + f"seeds: [{HUGE}]\n",
+            "episodes": yaml.safe_dump({**BASE, "episodes": [{"start": [10.0, 50.0, 10.0],
+                                                                 "goal": [123456.789, 50.0, 10.0]}]},
+                                       sort_keys=False).replace("123456.789", HUGE),
+            "timeout": text.replace("timeout_s: 60", f"timeout_s: {HUGE}")}[where]
+    path = tmp_path / "scen.yaml"
+    path.write_text(text)
+    _fails(["validate", str(path)], capsys, tmp_path, str(path), "401 digits")
+
+
+def test_a_huge_integer_in_a_geojson_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    ring = [[100, 100], [200, 100], [200, 200], [100, 200], [100, 100]]
+    feature = {"type": "Feature", "properties": {"height": 123456.789},
+               "geometry": {"type": "Polygon", "coordinates": [ring]}}
+    doc = json.dumps({"type": "FeatureCollection", "features": [feature]}).replace("123456.789", HUGE)
+    (tmp_path / "fp.geojson").write_text(doc)
+    path = _scenario(tmp_path, {**BASE, "map": {"geojson": "fp.geojson"},
+                                "bounds": {"min": [0, 0, 0], "max": [300, 300, 100]},
+                                "episodes": [{"start": [10.0, 10.0, 10.0], "goal": [290.0, 20.0, 10.0]}]})
+    _fails(["validate", str(path)], capsys, tmp_path, "fp.geojson", "401 digits")
