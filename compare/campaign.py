@@ -23,6 +23,7 @@ same inputs (`compare.fingerprint`).
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import platform
@@ -44,6 +45,7 @@ from compare.fingerprint import check_resume, run_fingerprints
 from compare.results.failures import (
     FAILED_DIR,
     FailedCell,
+    FailureKind,
     describe_failures,
     read_failures,
     remove_failure,
@@ -417,6 +419,11 @@ def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[Fa
     for outcome in backend.fly(tasks):
         if isinstance(outcome, CellFlown):
             remove_failure(out, outcome.key)
+        elif outcome.kind == FailureKind.DISK_FULL:  # every cell after it would fail the same: stop, name the file
+            path = out / "episodes" / f"{outcome.key.stem}.npz"
+            raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} while saving an episode ({len(failed)} cells "
+                                        f"failed before it; `run --resume` flies the rest once there is room)",
+                          str(path))
         else:
             write_failure(out, outcome)
             failed.append(outcome)

@@ -9,7 +9,9 @@ import os
 import shlex
 import signal
 import sys
+import tempfile
 import threading
+import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from datetime import datetime
@@ -27,6 +29,7 @@ from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary,
 from compare.scenario import MAX_SEED, Scenario, with_methods
 from compare.sets import resolve_scenarios
 from uam_fdm.air.wind import TurbulenceLevel
+from uam_fdm.files.atomic import TEMP_MARK
 from uam_fdm.vehicle.params import preset_names
 
 # Imported inside the commands that use them: matplotlib and plotly (figures, viewer, maps) and PyTorch (the
@@ -566,18 +569,64 @@ def main(argv: list[str] | None = None) -> int:
         return INTERRUPTED_EXIT
     except ValueError as exc:   # bad user input (ConfigError is a ValueError): one clear line, non-zero exit
         print(f"uam-compare: error: {exc}", file=sys.stderr)
-        return 2
+        return BAD_INPUT_EXIT
     except OSError as exc:      # the file system said no (disk full, permissions): which file, and why
         print(f"uam-compare: error: {_os_error_message(exc)}", file=sys.stderr)
-        return 2
+        return BAD_INPUT_EXIT
+    except (Exception, SystemExit) as exc:  # the last resort: one line, the traceback in a file
+        if isinstance(exc, SystemExit) and exc.code in (None, 0):
+            return 0
+        print(f"uam-compare: error: {args.command}: internal error {_last_resort(exc, args.command)}",
+              file=sys.stderr)
+        return INTERNAL_ERROR_EXIT
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
 
 
+BAD_INPUT_EXIT = 2  # bad input (a file, a key, an option): the one error line says which and why
+INTERNAL_ERROR_EXIT = 1  # anything else: a bug or a broken installation; the traceback is in a log file
+LOG_DIR_ENV = "UAM_COMPARE_LOG_DIR"
+"""Where the last-resort handler writes tracebacks (default: <temporary folder>/uam-compare-logs)."""
+
+
+def _last_resort(exc: BaseException, command: str) -> str:
+    """Log `exc`'s full traceback to a new file in the log folder; returns the rest of the one error line: the
+    exception, and where its traceback is (or why it could not be written)."""
+    what = f"({type(exc).__name__}: {_one_line(str(exc))})"
+    folder = Path(os.environ.get(LOG_DIR_ENV) or Path(tempfile.gettempdir()) / "uam-compare-logs")
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f"{datetime.now().strftime('%Y%m%d-%H%M%S')}-{command}-",
+                                    suffix=".log", dir=folder)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(f"uam-compare {' '.join(sys.argv[1:])}\n{text}")
+    except OSError as log_exc:
+        return f"{what}; the traceback could not be logged in {folder} ({log_exc.strerror or log_exc})"
+    return f"{what}; full traceback in {name}"
+
+
+MAX_MESSAGE_CHARS = 300
+
+
+def _one_line(text: str) -> str:
+    """`text` on one line, at most `MAX_MESSAGE_CHARS` characters."""
+    flat = " ".join(text.split())
+    return flat if len(flat) <= MAX_MESSAGE_CHARS else flat[:MAX_MESSAGE_CHARS] + "..."
+
+
 def _os_error_message(exc: OSError) -> str:
-    """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept."""
-    text = f"{exc.filename}: {exc.strerror or exc}" if exc.filename is not None else str(exc)
+    """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept.
+
+    A temporary of an atomic write (".<name>.partial-...") is named by the file it was to become: the user never
+    made it and will not find it.
+    """
+    filename = exc.filename
+    if filename is not None and TEMP_MARK in Path(str(filename)).name:
+        temp = Path(str(filename))
+        filename = temp.with_name(temp.name[1:].split(TEMP_MARK)[0])
+    text = f"{filename}: {exc.strerror or exc}" if filename is not None else str(exc)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         text += ": the disk is full; the file was not written (no partial file is left)"
     return text

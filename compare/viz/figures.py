@@ -10,12 +10,14 @@ unknown methods) so a method looks the same on every page.
 """
 from __future__ import annotations
 
+import functools
 import math
 import textwrap
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
+import matplotlib
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.colors import is_color_like
@@ -41,6 +43,21 @@ START_STYLE: dict[str, Any] = {"marker": "^", "color": "tab:green", "markeredgec
                                "linestyle": "none"}
 GOAL_STYLE: dict[str, Any] = {"marker": "*", "color": "gold", "markeredgecolor": "k", "markersize": 13,
                               "linestyle": "none"}
+
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def plain_text(func: Callable[P, R]) -> Callable[P, R]:
+    """`func` with matplotlib's mathtext off: every text we draw (labels, descriptions, names from files) is shown
+    as written. A '$' in a scenario description or a pilot's label would otherwise be read as mathematics and a
+    stray one fail the report after all the flying. The setting is restored on return (`rc_context`)."""
+    @functools.wraps(func)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        with matplotlib.rc_context({"text.parse_math": False}):
+            return func(*args, **kwargs)
+    return wrapper
 
 
 def method_colors(methods: Iterable[str], recorded: Mapping[str, str] | None = None) -> dict[str, str]:

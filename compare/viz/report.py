@@ -140,6 +140,7 @@ def read_reward_curve(path: Path) -> F.RewardCurve | None:
     return F.RewardCurve(**{k: v[keep] for k, v in col.items()})
 
 
+@F.plain_text
 def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: bool = True) -> Path:
     """Write the run's PDF report (and its pages as PNGs under RUN_DIR/figures/).
 
