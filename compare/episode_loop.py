@@ -67,8 +67,13 @@ class Trajectory:
         return self.outcome == Outcome.SUCCESS
 
 
-def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int) -> Trajectory:
-    """Fly `agent` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period)."""
+def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int, *,
+                pilot_name: str | None = None) -> Trajectory:
+    """Fly `agent` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period).
+
+    Raises:
+        PilotError: the agent commanded what cannot be flown, naming it (`pilot_name`, default `agent.name`).
+    """
     p, dyn, city = world.vehicle, world.dynamics, world.city
     radius = p.collision_radius_m
     sim = Simulator(dyn, world.atmosphere, wind)
@@ -95,7 +100,7 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
             act = agent.act(obs)
             compute.append(time.perf_counter() - t0)
             decision_t.append(s.t_s)
-            command = _checked_command(agent.name, act, p.n_rotors, s.t_s)
+            command = _checked_command(pilot_name or agent.name, act, p.n_rotors, s.t_s)
             held = act.hold_periods
         held -= 1
         # ground effect: the height above the surface below, from the clearance at the period's start

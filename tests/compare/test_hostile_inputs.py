@@ -23,6 +23,8 @@ from compare.results.trajectory import load_episode, save_episode
 from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
 from synthetic_run import write_run
 
+TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml"
+
 
 # ---- helpers (as in test_bad_inputs.py) ------------------------------------------------------------------
 def _snapshot(root: Path) -> dict[str, str]:
@@ -239,3 +241,128 @@ def test_a_huge_integer_in_a_geojson_is_one_line(tmp_path: Path, capsys: pytest.
                                 "bounds": {"min": [0, 0, 0], "max": [300, 300, 100]},
                                 "episodes": [{"start": [10.0, 10.0, 10.0], "goal": [290.0, 20.0, 10.0]}]})
     _fails(["validate", str(path)], capsys, tmp_path, "fp.geojson", "401 digits")
+
+
+# ---- 6: a plug-in is checked whole before anything flies -------------------------------------------------------
+AGENT = '''
+from rl.pilots.potential_field import PotentialFieldAgent
+class P(PotentialFieldAgent):
+    """A plug-in pilot."""
+'''
+
+
+@pytest.mark.parametrize(("source", "expected"), [
+    ("raise RuntimeError('boom at import')", "failed: RuntimeError: boom at import"),
+    ("def broken(:\n    pass", "syntax error in"),
+    ("import sys\nsys.exit(3)", "it called sys.exit(3)"),
+    ("raise KeyError('x')", "failed: KeyError"),
+    (AGENT + "    def __init__(self, gain):\n        super().__init__()", "needs the argument(s) gain"),
+    (AGENT + "    color = 'not-a-colour'", "color 'not-a-colour' is not a matplotlib colour"),
+    (AGENT + "    label = 'costs $5 per $km'", "holds '$'"),
+    (AGENT + "    description = 'a $\\\\frac{1}{0$ pilot'", "holds '$'"),
+    (AGENT + "    label = 'x' * 5000", "5000 characters long"),
+])
+def test_a_broken_plugin_is_one_line_before_flying(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture, source: str, expected: str) -> None:
+    plugins = tmp_path / "plugins"
+    plugins.mkdir()
+    module = f"plug_i32_{abs(hash(source)) % 10**8}"
+    (plugins / f"{module}.py").write_text(source + "\n")
+    monkeypatch.syspath_prepend(str(plugins))
+    path = _scenario(tmp_path, {**BASE, "methods": ["apf", f"{module}:P"]})
+    _fails(["validate", str(path)], capsys, tmp_path, f"{module}:P", expected)
+    _fails(["run", str(TINY), "--method", f"{module}:P", "--out", str(tmp_path / "run")], capsys, tmp_path,
+           "--method", expected)
+
+
+# ---- 6: names the readers would hide or that break the pages ----------------------------------------------------
+def test_a_scenario_name_starting_with_a_dot_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    path = _scenario(tmp_path, {**BASE, "name": ".hidden"})
+    _fails(["validate", str(path)], capsys, tmp_path, str(path), "name", "not start with '.'")
+
+
+def test_an_absurdly_long_vehicle_name_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from uam_fdm.vehicle.params import PRESET_DIR
+
+    text = (PRESET_DIR / "small_quad.yaml").read_text()
+    vehicle = tmp_path / "v.yaml"
+    vehicle.write_text(re.sub(r"(?m)^name: .*$", "name: " + "q" * 5000, text))
+    path = _scenario(tmp_path, {**BASE, "vehicle": "v.yaml"})
+    _fails(["validate", str(path)], capsys, tmp_path, "v.yaml", "name", "got 5000")
+
+
+def test_dollars_in_a_description_do_not_break_the_report(run_copy: Path) -> None:
+    info = json.loads((run_copy / "run.json").read_text())
+    info["scenarios"][0]["description"] = "a $\\frac{1}{0$ district, $$ and $"
+    info["methods"]["rrt_mpc"]["label"] = "RRT$^*$ + $MPC"
+    (run_copy / "run.json").write_text(json.dumps(info))
+    assert main(["report", str(run_copy)]) == 0
+
+
+# ---- 6: the last resort -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("raised", [RuntimeError("an internal bug"), SystemExit(4), RecursionError("deep")])
+def test_an_internal_error_is_one_line_with_the_traceback_logged(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                capsys: pytest.CaptureFixture,
+                                                                raised: BaseException) -> None:
+    import compare.cli
+
+    def broken(*_args: object) -> None:
+        raise raised
+
+    monkeypatch.setenv(compare.cli.LOG_DIR_ENV, str(tmp_path / "logs"))
+    monkeypatch.setattr(compare.cli, "resolve_scenarios", broken)
+    line = _fails(["validate", str(TINY)], capsys, tmp_path / "nothing", "validate: internal error",
+                  type(raised).__name__, code=1)
+    logged = Path(line.split("full traceback in ")[1])
+    assert logged.parent == tmp_path / "logs" and "Traceback" in logged.read_text()
+
+
+def test_an_error_names_the_file_not_its_temporary(tmp_path: Path) -> None:
+    import errno
+
+    from compare.cli import _os_error_message
+
+    exc = OSError(errno.ENOSPC, "No space left on device", str(tmp_path / ".metrics.csv.partial-k2j4.tmp"))
+    text = _os_error_message(exc)
+    assert ".partial-" not in text and str(tmp_path / "metrics.csv") in text and "disk is full" in text
+
+
+# ---- 7: a pilot's unflyable command is a pilot error, not a collision ------------------------------------------
+NAN_PILOTS = '''
+import numpy as np
+from uam_fdm.pilot import RotorCommand, VelocityCommand
+from rl.pilots.potential_field import PotentialFieldAgent
+
+class NaNRotors(PotentialFieldAgent):
+    def act(self, obs):
+        return RotorCommand(np.full(4, np.nan))
+
+class ShortVelocity(PotentialFieldAgent):
+    def act(self, obs):
+        return VelocityCommand(np.array([1.0, 2.0]))
+
+class InfVelocity(PotentialFieldAgent):
+    def act(self, obs):
+        return VelocityCommand(np.array([1.0, np.inf, 0.0]))
+'''
+
+
+def test_an_unflyable_command_fails_the_cell_as_a_pilot_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture) -> None:
+    (tmp_path / "nan_pilots_i32.py").write_text(NAN_PILOTS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "run"
+    methods = ["nan_pilots_i32:NaNRotors", "nan_pilots_i32:ShortVelocity", "nan_pilots_i32:InfVelocity"]
+    argv = ["run", str(TINY), "--methods", ",".join(["apf", *methods]), "--out", str(out), "--no-progress",
+            "--videos", "none"]
+    for m in ["apf", *methods]:
+        argv += ["--method", m]
+    assert main(argv) == 0, capsys.readouterr().err
+    records = {json.loads(p.read_text())["key"]["method"]: json.loads(p.read_text())
+               for p in (out / "failed").glob("*.json")}
+    assert set(records) == set(methods)
+    for m, expected in zip(methods, ["[nan nan nan nan]: not finite", "of shape (2,)", "not finite"]):
+        assert records[m]["kind"] == "pilot error"
+        assert f"pilot '{m}'" in records[m]["reason"] and expected in records[m]["reason"], records[m]["reason"]
+    rows = (out / "metrics.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[2] for r in rows] == ["apf"]  # no episode, so no collision scored, for the three
