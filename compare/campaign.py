@@ -384,7 +384,8 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used})
     t0 = time.perf_counter()
     # the backend starts before anything is written: a Ray cluster that cannot be reached leaves no folder
-    with open_backend(opts.backend, setup, opts.jobs, opts.address, isolate=not opts.in_process) as backend:
+    jobs = min(opts.jobs, len(cells))  # a worker per cell at most: --jobs 64 for one cell starts one interpreter
+    with open_backend(opts.backend, setup, jobs, opts.address, isolate=not opts.in_process) as backend:
         out.mkdir(parents=True, exist_ok=True)
         _remove_stale_temporaries(out)
         for n in notes:  # cells left out (also in run.json and the report)
@@ -498,7 +499,11 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
             log.warning("skipping unreadable episode file %s", exc)  # the message names the file
             unreadable.append(f.name)
             continue
-        rows.append(episode_metrics(saved))
+        try:
+            rows.append(episode_metrics(saved))
+        except ValueError as exc:  # its message names the episode; the file is named here too
+            log.warning("skipping episode file %s: %s", f, exc)
+            unreadable.append(f.name)
     rows = label_vehicles(rows)  # by fingerprint: a vehicle file that keeps a preset's name is not the preset
     if not rows:
         raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")

@@ -23,7 +23,7 @@ from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_ru
 from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
-from compare.results.outputs import check_output_dir, check_output_file
+from compare.results.outputs import check_not_replacing, check_output_dir, check_output_file
 from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
 from compare.scenario import MAX_SEED, Scenario, with_methods
@@ -271,6 +271,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         group = select_group(groups, args.episode) if args.episode is not None else groups[0]
         out = args.out if args.out is not None else args.run_dir / VIDEOS_DIR / f"{group.stem}.{args.format}"
         check_output_file(out, "--out")
+        check_not_replacing(args.out, "--out", args.overwrite)
         results = [render_animation(group, out, opts, progress=not args.no_progress)]
     for r in results:
         print(f"{r.path}  ({r.format}, {r.frames} frames {r.width_px}x{r.height_px} at {r.fps:g} fps, "
@@ -282,6 +283,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from compare.viz.viewer import VIEWER_NAME, build_viewer  # plotly and matplotlib
 
     check_output_file(args.out if args.out is not None else args.run_dir / VIEWER_NAME, "--out")
+    check_not_replacing(args.out, "--out", args.overwrite)
     print(build_viewer(args.run_dir, args.out))
     return 0
 
@@ -477,6 +479,7 @@ def _add_animate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser
     anim.add_argument("--all", action="store_true", help="every cell of the run, one file each")
     anim.add_argument("--out", type=Path, default=None,
                       help="output file (.mp4 or .gif); with --all a folder (default: RUN_DIR/videos/)")
+    anim.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     anim.add_argument("--format", choices=("mp4", "gif"), default="mp4", help="format of default file names")
     anim.add_argument("--fps", type=float, default=20.0, help="frames per second (default 20)")
     anim.add_argument("--duration", type=float, default=None,
@@ -491,6 +494,7 @@ def _add_view_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     view = sub.add_parser("view", help="write a run folder's interactive 3D viewer (one self-contained HTML file)")
     view.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     view.add_argument("--out", type=Path, default=None, help="HTML file to write (default: RUN_DIR/viewer.html)")
+    view.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     view.set_defaults(func=_cmd_view)
 
 

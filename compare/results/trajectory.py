@@ -155,6 +155,10 @@ def write_episode_bytes(path: Path, data: bytes) -> Path:
     return path
 
 
+MAX_EPISODE_BYTES = 2**30
+"""Largest episode in memory [bytes] (an hour at 500 Hz takes about 300 MB): a larger file is refused unread."""
+
+
 def load_episode(path: Path) -> SavedEpisode:
     """Read an episode written by `save_episode`.
 
@@ -163,7 +167,14 @@ def load_episode(path: Path) -> SavedEpisode:
             naming the file.
     """
     path = Path(path)
+    if not path.is_file():  # a FIFO or a device named like an episode would block or never end
+        raise ValueError(f"{path}: not a saved episode (not a regular file)")
     try:
+        with zipfile.ZipFile(path) as archive:  # sizes before anything is inflated: a zip bomb is refused here
+            inflated = sum(info.file_size for info in archive.infolist())
+        if inflated > MAX_EPISODE_BYTES:
+            raise ValueError(f"its arrays would take {inflated / 2**20:,.0f} MiB in memory; at most "
+                             f"{MAX_EPISODE_BYTES / 2**20:,.0f} MiB")
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["meta_json"]))
             arrays = {name: np.array(z[name]) for name in _ARRAYS}
@@ -179,6 +190,9 @@ def load_episode(path: Path) -> SavedEpisode:
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a saved episode (its metadata is incomplete: {exc})") from exc
     n = len(arrays["t_s"])
+    t_s = arrays["t_s"]
+    if t_s.ndim != 1 or t_s.dtype.kind not in "fiu" or not np.all(np.isfinite(t_s)):
+        raise ValueError(f"{path}: not a saved episode (its times t_s are not a list of finite numbers)")
     if arrays["states"].ndim != 2 or len(arrays["states"]) != n or len(arrays["clearance_m"]) != n:
         raise ValueError(f"{path}: not a saved episode (time, state and clearance rows disagree)")
     power = optional["shaft_power_W"]
@@ -237,5 +251,7 @@ def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
 
 
 def episode_files(run_dir: Path) -> list[Path]:
-    """Saved episodes of a run, sorted by name (temporary files are ignored)."""
-    return sorted(p for p in (Path(run_dir) / "episodes").glob("*.npz") if not p.name.startswith("."))
+    """Saved episodes of a run, sorted by name (temporary files, and anything not a regular file, e.g. a FIFO
+    that would block its reader, are ignored)."""
+    return sorted(p for p in (Path(run_dir) / "episodes").glob("*.npz") if not p.name.startswith(".")
+                  and p.is_file())

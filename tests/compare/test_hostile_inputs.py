@@ -366,3 +366,63 @@ def test_an_unflyable_command_fails_the_cell_as_a_pilot_error(tmp_path: Path, mo
         assert f"pilot '{m}'" in records[m]["reason"] and expected in records[m]["reason"], records[m]["reason"]
     rows = (out / "metrics.csv").read_text().splitlines()[1:]
     assert [r.split(",")[2] for r in rows] == ["apf"]  # no episode, so no collision scored, for the three
+
+
+# ---- 6: nothing a user made is replaced without being asked ------------------------------------------------------
+@pytest.mark.parametrize("command", [["view"], ["animate", "--format", "gif"]])
+def test_view_and_animate_never_replace_a_named_file(run_copy: Path, tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                     command: list[str]) -> None:
+    mine = run_copy / "metrics.csv" if command[0] == "view" else tmp_path / "holiday.gif"
+    mine.write_text("my own file")
+    _fails([command[0], str(run_copy), "--out", str(mine), *command[1:]], capsys, tmp_path, f"--out {mine}",
+           "--overwrite")
+
+
+# ---- 6: resources: the readers never block, inflate or stop on one file ------------------------------------------
+def test_a_fifo_named_like_an_episode_is_not_read(run_copy: Path, capsys: pytest.CaptureFixture) -> None:
+    import os
+
+    os.mkfifo(run_copy / "episodes" / "toy-quad__ep009__ppo__s0.npz")
+    t0 = time.perf_counter()
+    assert main(["report", str(run_copy)]) == 0, capsys.readouterr().err
+    assert time.perf_counter() - t0 < 120.0
+
+
+def test_an_episode_that_inflates_hugely_is_refused_unread(run_copy: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          caplog: pytest.LogCaptureFixture) -> None:
+    import zipfile
+
+    import compare.results.trajectory
+
+    monkeypatch.setattr(compare.results.trajectory, "MAX_EPISODE_BYTES", 2**23)  # the same check, 128 times smaller
+    path = sorted((run_copy / "episodes").glob("*.npz"))[0]
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as z:  # a few kB on disk, 16 MiB inflated
+        z.writestr("padding.npy", bytes(2**24))
+    assert main(["report", str(run_copy)]) == 0
+    assert path.name in caplog.text and "MiB in memory" in caplog.text
+
+
+def test_one_nan_episode_is_skipped_by_name(run_copy: Path, caplog: pytest.LogCaptureFixture) -> None:
+    path = sorted((run_copy / "episodes").glob("*.npz"))[0]
+    saved = load_episode(path)
+    traj = saved.trajectory
+    t = traj.t_s.copy()
+    t[5] = float("nan")
+    save_episode(path, saved.meta, type(traj)(**{**vars(traj), "t_s": t}))
+    assert main(["report", str(run_copy)]) == 0
+    assert path.name in caplog.text and "t_s" in caplog.text
+
+
+def test_jobs_far_above_the_cells_start_one_worker_per_cell(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import compare.campaign
+
+    seen: list[int] = []
+
+    def open_backend(name: str, setup: object, jobs: int, *args: object, **kwargs: object) -> object:
+        seen.append(jobs)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(compare.campaign, "open_backend", open_backend)
+    assert main(["run", str(TINY), "--methods", "apf", "--method", "apf", "--jobs", "64",
+                 "--out", str(tmp_path / "run"), "--videos", "none"]) == 2
+    assert seen == [1]
