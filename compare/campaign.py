@@ -23,6 +23,7 @@ same inputs (`compare.fingerprint`).
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import platform
@@ -44,12 +45,13 @@ from compare.fingerprint import check_resume, run_fingerprints
 from compare.results.failures import (
     FAILED_DIR,
     FailedCell,
+    FailureKind,
     describe_failures,
     read_failures,
     remove_failure,
     write_failure,
 )
-from compare.results.metrics import episode_metrics, read_metrics_csv, write_metrics_csv
+from compare.results.metrics import episode_metrics, label_vehicles, read_metrics_csv, write_metrics_csv
 from compare.results.run_info import (
     RUN_INFO_NAME,
     AirEnvelope,
@@ -331,7 +333,8 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
         notes=tuple(notes),
-        methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else ()) for s in specs},
+        methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else (),
+                                   "" if s.name in pilots.PILOTS else s.color) for s in specs},
         versions=versions(), fairness=fairness(methods), fingerprints=fingerprints, suite=run_suite(scenarios))
     write_run_info(info, out)
 
@@ -388,7 +391,8 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used})
     t0 = time.perf_counter()
     # the backend starts before anything is written: a Ray cluster that cannot be reached leaves no folder
-    with open_backend(opts.backend, setup, opts.jobs, opts.address, isolate=not opts.in_process) as backend:
+    jobs = min(opts.jobs, len(cells))  # a worker per cell at most: --jobs 64 for one cell starts one interpreter
+    with open_backend(opts.backend, setup, jobs, opts.address, isolate=not opts.in_process) as backend:
         out.mkdir(parents=True, exist_ok=True)
         _remove_stale_temporaries(out)
         for n in notes:  # cells left out (also in run.json and the report)
@@ -423,6 +427,11 @@ def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[Fa
     for outcome in backend.fly(tasks):
         if isinstance(outcome, CellFlown):
             remove_failure(out, outcome.key)
+        elif outcome.kind == FailureKind.DISK_FULL:  # every cell after it would fail the same: stop, name the file
+            path = out / "episodes" / f"{outcome.key.stem}.npz"
+            raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} while saving an episode ({len(failed)} cells "
+                                        f"failed before it; `run --resume` flies the rest once there is room)",
+                          str(path))
         else:
             write_failure(out, outcome)
             failed.append(outcome)
@@ -497,7 +506,12 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
             log.warning("skipping unreadable episode file %s", exc)  # the message names the file
             unreadable.append(f.name)
             continue
-        rows.append(episode_metrics(saved))
+        try:
+            rows.append(episode_metrics(saved))
+        except ValueError as exc:  # its message names the episode; the file is named here too
+            log.warning("skipping episode file %s: %s", f, exc)
+            unreadable.append(f.name)
+    rows = label_vehicles(rows)  # by fingerprint: a vehicle file that keeps a preset's name is not the preset
     if not rows:
         raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")
     write_metrics_csv(rows, run_dir / "metrics.csv")

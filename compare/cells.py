@@ -88,10 +88,11 @@ class CellRunner:
         heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
         agent = self.agent(c.method, sc)
-        traj = run_episode(world, agent, task, wind, agent_seed)
+        traj = run_episode(world, agent, task, wind, agent_seed, pilot_name=c.method)
         report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
         key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
+                           vehicle_fingerprint=sc.vehicle.fingerprint(),
                            start_m=xyz(task.start_m), goal_m=xyz(task.goal_m), goal_radius_m=task.goal_radius_m,
                            timeout_s=task.timeout_s, collision_radius_m=p.collision_radius_m, n_rotors=p.n_rotors,
                            energy_J=float(traj.energy_J), outcome=traj.outcome,

@@ -10,11 +10,14 @@ import os
 import shlex
 import signal
 import sys
+import tempfile
 import threading
+import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
+from typing import TypeVar
 
 from compare.backends import BACKENDS
 from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_run, finalize, run_comparison
@@ -22,16 +25,17 @@ from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.metrics import read_metrics_csv
-from compare.results.outputs import check_output_dir, check_output_file
+from compare.results.outputs import check_not_replacing, check_output_dir, check_output_file
 from compare.results.run_info import read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
 from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lines
-from compare.scenario import Scenario, with_methods
+from compare.scenario import MAX_SEED, Scenario, with_methods
 from compare.sets import resolve_scenarios
 from compare.sweep import SWEEP_SETS, build_sweep
 from rl.sensing.observation import ObservedContext
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
+from uam_fdm.files.atomic import TEMP_MARK
 from uam_fdm.vehicle.params import preset_names
 
 AIR_FIELDS = 16
@@ -294,6 +298,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         group = select_group(groups, args.episode) if args.episode is not None else groups[0]
         out = args.out if args.out is not None else args.run_dir / VIDEOS_DIR / f"{group.stem}.{args.format}"
         check_output_file(out, "--out")
+        check_not_replacing(args.out, "--out", args.overwrite)
         results = [render_animation(group, out, opts, progress=not args.no_progress)]
     for r in results:
         print(f"{r.path}  ({r.format}, {r.frames} frames {r.width_px}x{r.height_px} at {r.fps:g} fps, "
@@ -305,6 +310,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from compare.viz.viewer import VIEWER_NAME, build_viewer  # plotly and matplotlib
 
     check_output_file(args.out if args.out is not None else args.run_dir / VIEWER_NAME, "--out")
+    check_not_replacing(args.out, "--out", args.overwrite)
     print(build_viewer(args.run_dir, args.out))
     return 0
 
@@ -321,14 +327,25 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from rl.task.vehicles import task_for
     from rl.training.config import Curriculum, TrainConfig
     from rl.training.loop import train
+    from rl.training.ppo import PRESETS
 
-    task = task_for(args.vehicle, envelope=args.envelope)
-    if args.city_pool is not None and args.city_pool < 1:
-        raise ValueError(f"--city-pool {args.city_pool}: must be >= 1")
+    # every option by its own name, before anything is built (TrainConfig would name its fields, not options)
+    _check_ranges({"--timesteps": (args.timesteps, 1, MAX_TIMESTEPS), "--envs": (args.envs, 1, MAX_ENVS),
+                   "--eval-every": (args.eval_every, 1, MAX_TIMESTEPS),
+                   "--eval-episodes": (args.eval_episodes, 1, MAX_EVAL_EPISODES),
+                   "--checkpoint-every": (args.checkpoint_every, 0, MAX_TIMESTEPS), "--seed": (args.seed, 0, MAX_SEED),
+                   **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
+    task = _option("--vehicle", lambda v: task_for(v, envelope=args.envelope), args.vehicle)
     air = task.air if args.turbulence is None else replace(task.air, turbulence=_turbulence_levels(args.turbulence))
     observe = task.observe if args.observe is None else _observed(args.observe)
+    check_output_dir(args.out, "--out")
+    if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
+        raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
+                         f"give another --out, --resume to continue its training, or --overwrite to replace it)")
     nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
     cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
+    if args.preset not in PRESETS:
+        raise ValueError(f"--preset {args.preset}: unknown; choose from {', '.join(sorted(PRESETS))}")
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                       checkpoint_every=args.checkpoint_every)
@@ -339,6 +356,30 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+MAX_TIMESTEPS = 10**12
+MAX_ENVS = 65_536  # vehicles stepped in one call: far beyond one machine's memory already
+MAX_EVAL_EPISODES = 1_000_000
+MAX_CITY_POOL = 1_000_000
+
+
+def _check_ranges(values: dict[str, tuple[int, int, int]]) -> None:
+    """Raise ValueError naming the first option whose value is outside [low, high] (option -> value, low, high)."""
+    for option, (value, low, high) in values.items():
+        if not low <= value <= high:
+            raise ValueError(f"{option} {value}: must be between {low} and {high}")
+
+
+T = TypeVar("T")
+
+
+def _option(option: str, check: Callable[[str], T], value: str) -> T:
+    """`check(value)`, its ValueError said as the option's: "--option value: reason"."""
+    try:
+        return check(value)
+    except ValueError as exc:
+        raise ValueError(f"{option} {value}: {exc}") from None
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from rl.env.world import NavWorld
     from rl.pilots.learned import load_policy
@@ -346,6 +387,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
+    _check_ranges({"--seed": (args.seed, 0, MAX_SEED)})
     _one_torch_thread()
     air = _air_from_options(args)  # before anything is loaded: a bad option is named at once
     policy = load_policy(args.policy)
@@ -562,6 +604,7 @@ def _add_animate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser
     anim.add_argument("--all", action="store_true", help="every cell of the run, one file each")
     anim.add_argument("--out", type=Path, default=None,
                       help="output file (.mp4 or .gif); with --all a folder (default: RUN_DIR/videos/)")
+    anim.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     anim.add_argument("--format", choices=("mp4", "gif"), default="mp4", help="format of default file names")
     anim.add_argument("--fps", type=float, default=20.0, help="frames per second (default 20)")
     anim.add_argument("--duration", type=float, default=None,
@@ -576,6 +619,7 @@ def _add_view_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     view = sub.add_parser("view", help="write a run folder's interactive 3D viewer (one self-contained HTML file)")
     view.add_argument("run_dir", type=Path, help="a folder written by `uam-compare run`")
     view.add_argument("--out", type=Path, default=None, help="HTML file to write (default: RUN_DIR/viewer.html)")
+    view.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     view.set_defaults(func=_cmd_view)
 
 
@@ -611,7 +655,10 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     tr.add_argument("--eval-episodes", type=int, default=500, help="validation episodes per evaluation (default 500)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
     tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
-    tr.add_argument("--out", type=Path, default=Path("runs/policy"), help="policy folder to write")
+    tr.add_argument("--out", type=Path, default=Path("runs/policy"),
+                    help="policy folder to write (default runs/policy); an existing non-empty one is refused "
+                         "unless --resume or --overwrite")
+    tr.add_argument("--overwrite", action="store_true", help="replace the policy in a non-empty --out")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_cmd_train)
 
@@ -671,18 +718,64 @@ def main(argv: list[str] | None = None) -> int:
         return INTERRUPTED_EXIT
     except ValueError as exc:   # bad user input (ConfigError is a ValueError): one clear line, non-zero exit
         print(f"uam-compare: error: {exc}", file=sys.stderr)
-        return 2
+        return BAD_INPUT_EXIT
     except OSError as exc:      # the file system said no (disk full, permissions): which file, and why
         print(f"uam-compare: error: {_os_error_message(exc)}", file=sys.stderr)
-        return 2
+        return BAD_INPUT_EXIT
+    except (Exception, SystemExit) as exc:  # the last resort: one line, the traceback in a file
+        if isinstance(exc, SystemExit) and exc.code in (None, 0):
+            return 0
+        print(f"uam-compare: error: {args.command}: internal error {_last_resort(exc, args.command)}",
+              file=sys.stderr)
+        return INTERNAL_ERROR_EXIT
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
 
 
+BAD_INPUT_EXIT = 2  # bad input (a file, a key, an option): the one error line says which and why
+INTERNAL_ERROR_EXIT = 1  # anything else: a bug or a broken installation; the traceback is in a log file
+LOG_DIR_ENV = "UAM_COMPARE_LOG_DIR"
+"""Where the last-resort handler writes tracebacks (default: <temporary folder>/uam-compare-logs)."""
+
+
+def _last_resort(exc: BaseException, command: str) -> str:
+    """Log `exc`'s full traceback to a new file in the log folder; returns the rest of the one error line: the
+    exception, and where its traceback is (or why it could not be written)."""
+    what = f"({type(exc).__name__}: {_one_line(str(exc))})"
+    folder = Path(os.environ.get(LOG_DIR_ENV) or Path(tempfile.gettempdir()) / "uam-compare-logs")
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f"{datetime.now().strftime('%Y%m%d-%H%M%S')}-{command}-",
+                                    suffix=".log", dir=folder)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(f"uam-compare {' '.join(sys.argv[1:])}\n{text}")
+    except OSError as log_exc:
+        return f"{what}; the traceback could not be logged in {folder} ({log_exc.strerror or log_exc})"
+    return f"{what}; full traceback in {name}"
+
+
+MAX_MESSAGE_CHARS = 300
+
+
+def _one_line(text: str) -> str:
+    """`text` on one line, at most `MAX_MESSAGE_CHARS` characters."""
+    flat = " ".join(text.split())
+    return flat if len(flat) <= MAX_MESSAGE_CHARS else flat[:MAX_MESSAGE_CHARS] + "..."
+
+
 def _os_error_message(exc: OSError) -> str:
-    """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept."""
-    text = f"{exc.filename}: {exc.strerror or exc}" if exc.filename is not None else str(exc)
+    """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept.
+
+    A temporary of an atomic write (".<name>.partial-...") is named by the file it was to become: the user never
+    made it and will not find it.
+    """
+    filename = exc.filename
+    if filename is not None and TEMP_MARK in Path(str(filename)).name:
+        temp = Path(str(filename))
+        filename = temp.with_name(temp.name[1:].split(TEMP_MARK)[0])
+    text = f"{filename}: {exc.strerror or exc}" if filename is not None else str(exc)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         text += ": the disk is full; the file was not written (no partial file is left)"
     return text

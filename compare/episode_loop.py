@@ -67,8 +67,13 @@ class Trajectory:
         return self.outcome == Outcome.SUCCESS
 
 
-def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int) -> Trajectory:
-    """Fly `agent` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period)."""
+def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int, *,
+                pilot_name: str | None = None) -> Trajectory:
+    """Fly `agent` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period).
+
+    Raises:
+        PilotError: the agent commanded what cannot be flown, naming it (`pilot_name`, default `agent.name`).
+    """
     p, dyn, city = world.vehicle, world.dynamics, world.city
     radius = p.collision_radius_m
     sim = Simulator(dyn, world.atmosphere, wind)
@@ -95,19 +100,16 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
             act = agent.act(obs)
             compute.append(time.perf_counter() - t0)
             decision_t.append(s.t_s)
-            held = int(getattr(act, "hold_periods", 1))
-            if held < 1:
-                raise ValueError(f"agent {agent.name!r} asked to hold its actuation for {held} periods")
+            command = _checked_command(pilot_name or agent.name, act, p.n_rotors, s.t_s)
+            held = act.hold_periods
         held -= 1
         # ground effect: the height above the surface below, from the clearance at the period's start
         height = float(height_above_surface(city, s.x[None, 0:3], clear[-1][-1:], p)[0])
         env = sim.env(s.x, s.t_s, height)  # built once: flown, and recorded (wind, power)
         if isinstance(act, RotorCommand):
-            r = sim.advance(np.asarray(act.rotor_speeds_rad_s, float), env=env)
-        elif isinstance(act, VelocityCommand):
-            r = sim.advance_velocity(act.as_vector(), env=env)
+            r = sim.advance(command, env=env)
         else:
-            raise TypeError(f"agent {agent.name!r} returned {type(act).__name__}, not an Actuation")
+            r = sim.advance_velocity(command, env=env)
         n_sub = r.states.shape[0]
         t_sub = s.t_s + dyn.dt_s * np.arange(1, n_sub + 1)
         times.append(t_sub)
@@ -130,6 +132,46 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         wind_enu_m_s=np.concatenate(winds), clearance_m=np.concatenate(clear),
         decision_t_s=np.array(decision_t), compute_s=np.array(compute), energy_J=sim.state.energy_J,
         outcome=outcome, plan_time_s=info.plan_time_s, detail=detail, shaft_power_W=np.concatenate(power))
+
+
+class PilotError(RuntimeError):
+    """A pilot gave a command that cannot be flown (not an actuation, not finite, the wrong shape, a bad hold):
+    its cell fails as a "pilot error" naming the pilot and the value, rather than flying idle rotors into the
+    ground and being scored as a collision."""
+
+
+def _checked_command(name: str, act: object, n_rotors: int, t_s: float) -> np.ndarray:
+    """The command vector of actuation `act` (rotor speeds [rad/s], or velocity ENU [m/s] and yaw [rad]).
+
+    Raises:
+        PilotError: naming the pilot, the time and the value.
+    """
+    where = f"pilot {name!r} at t = {t_s:.2f} s"
+    if not isinstance(act, (RotorCommand, VelocityCommand)):
+        raise PilotError(f"{where} returned {type(act).__name__}, not a RotorCommand or VelocityCommand")
+    hold = act.hold_periods
+    if isinstance(hold, bool) or not isinstance(hold, (int, np.integer)) or hold < 1:
+        raise PilotError(f"{where} asked to hold its command for {hold!r} periods; expected an integer >= 1")
+    raw = act.rotor_speeds_rad_s if isinstance(act, RotorCommand) else act.velocity_enu_m_s
+    what, size = (f"{n_rotors} rotor speeds [rad/s]", n_rotors) if isinstance(act, RotorCommand) else (
+        "a velocity [m/s] of 3 components", 3)
+    try:
+        vector = np.asarray(raw, dtype=float)
+        command = vector if isinstance(act, RotorCommand) else np.append(vector, float(act.yaw_rad))
+    except (TypeError, ValueError):
+        raise PilotError(f"{where} commanded {_shown(raw)}: expected {what}") from None
+    if vector.shape != (size,):
+        raise PilotError(f"{where} commanded {_shown(raw)} of shape {vector.shape}: expected {what}")
+    if not np.all(np.isfinite(command)):
+        raise PilotError(f"{where} commanded {_shown(command)}: not finite")
+    return command
+
+
+def _shown(value: object) -> str:
+    """A command as the error shows it (short)."""
+    text = np.array2string(value, precision=4, threshold=8) if isinstance(value, np.ndarray) else repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= 120 else text[:120] + "..."
 
 
 def _detail(code: int, states: np.ndarray, clearance: np.ndarray, t_sub: np.ndarray, t_start_s: float,

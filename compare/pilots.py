@@ -198,13 +198,14 @@ def pilot(name: str) -> PilotSpec:
                      f"named as module:Class")
 
 
-def find(name: str) -> PilotSpec | None:
-    """The pilot `name` when it resolves here, else None (readers of a run folder made elsewhere, where a
-    plug-in may not be installed: its episodes still read, without its report type)."""
-    try:
-        return pilot(name)
-    except ValueError:
-        return None
+def registered(name: str) -> PilotSpec | None:
+    """The registered pilot `name` (`PILOTS`), else None; never imports anything.
+
+    Readers of a run folder (metrics, report, viewer, animation) use this, never `pilot`: a method name read
+    from a data file may be `module:Class`, and resolving it would import (run) code the file names. What a
+    reader needs of a plug-in (label, colour) comes from the run's own run.json (`compare.results.run_info`).
+    """
+    return PILOTS.get(name)
 
 
 def _entry_point(name: str) -> metadata.EntryPoint | None:
@@ -220,6 +221,8 @@ def _plugin(reference: str) -> PilotSpec:
     except ImportError as exc:
         raise ValueError(f"method {reference!r}: cannot import module {module_name!r} ({exc}); install its "
                          f"package or put its folder on PYTHONPATH") from exc
+    except (Exception, SystemExit) as exc:  # its own code failed (a syntax error, an exception, sys.exit)
+        raise ValueError(f"method {reference!r}: importing module {module_name!r} failed: {_failure(exc)}") from None
     obj: object = module
     for part in attr.split("."):
         if not hasattr(obj, part):
@@ -237,9 +240,62 @@ def _plugin_from_entry_point(name: str, value: str) -> PilotSpec:
     assert entry is not None
     try:
         obj = entry.load()
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"method {name!r}: cannot load entry point {value!r} of {PLUGIN_GROUP} ({exc})") from exc
+    except (Exception, SystemExit) as exc:  # not installed, or its own code failed at import
+        raise ValueError(f"method {name!r}: cannot load entry point {value!r} of {PLUGIN_GROUP} "
+                         f"({_failure(exc)})") from None
     return _spec_of(name, value, obj)
+
+
+def _failure(exc: BaseException) -> str:
+    """What went wrong in a plug-in's own code, on one short line."""
+    if isinstance(exc, SystemExit):
+        return f"it called sys.exit({exc.code!r})"
+    if isinstance(exc, SyntaxError):
+        return f"syntax error in {exc.filename}, line {exc.lineno}: {exc.msg}"
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text[:200]}" + ("..." if len(text) > 200 else "")
+
+
+MAX_LABEL_CHARS = 80
+"""Longest label or colour name a plug-in may give (a label heads table columns and legends)."""
+MAX_DESCRIPTION_CHARS = 2000
+
+
+def _check_text(name: str, what: str, text: str, limit: int) -> str:
+    """`text` unless it is too long or holds `$` (matplotlib reads `$...$` as mathematics, and a stray one
+    fails the report after the flying); raises ValueError naming the plug-in and the attribute."""
+    if len(text) > limit:
+        raise ValueError(f"method {name!r}: its {what} is {len(text)} characters long ({text[:20]!r}...); at most "
+                         f"{limit}")
+    if "$" in text:
+        raise ValueError(f"method {name!r}: its {what} {text[:60]!r} holds '$', which the report's figures would "
+                         f"read as mathematics; leave it out")
+    return text
+
+
+def _check_color(name: str, color: str) -> str:
+    """`color` ("" included: a colour is then chosen) unless matplotlib cannot draw it (ValueError)."""
+    if not color:
+        return color
+    from matplotlib.colors import is_color_like  # matplotlib: only for a plug-in that gives a colour
+
+    if len(color) > MAX_LABEL_CHARS or not is_color_like(color):
+        raise ValueError(f"method {name!r}: color {color[:40]!r} is not a matplotlib colour (e.g. 'tab:green', "
+                         f"'#1f77b4')")
+    return color
+
+
+def _check_constructible(name: str, cls: type) -> None:
+    """A plug-in Agent class is made with no arguments: say so now if its constructor needs some."""
+    try:
+        signature = inspect.signature(cls)
+    except (TypeError, ValueError):  # a builtin or C class without a signature: made and checked at build
+        return
+    needed = [p.name for p in signature.parameters.values()
+              if p.default is p.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    if needed:
+        raise ValueError(f"method {name!r}: {cls.__qualname__}() needs the argument(s) {', '.join(needed)}; a "
+                         f"plug-in Agent class is made with no arguments (or name a PilotSpec instead)")
 
 
 class _PluginBuilder:
@@ -259,24 +315,29 @@ class _PluginBuilder:
 def _spec_of(name: str, source: str, obj: object) -> PilotSpec:
     """The `PilotSpec` of a plug-in object (a `PilotSpec`, or an `Agent` class) named `name`."""
     if isinstance(obj, PilotSpec):
-        return replace(obj, name=name, default=False)
+        _check_text(name, "label", obj.label, MAX_LABEL_CHARS)
+        _check_text(name, "description", obj.description, MAX_DESCRIPTION_CHARS)
+        return replace(obj, name=name, default=False, color=_check_color(name, obj.color))
     if not inspect.isclass(obj):
         raise ValueError(f"method {name!r}: {source} is a {type(obj).__name__}, not an Agent class or a PilotSpec")
     missing = [m for m in ("reset", "act", "episode_report") if not callable(getattr(obj, m, None))]
     if missing:
         raise ValueError(f"method {name!r}: {obj.__qualname__} is not a pilot: it lacks {', '.join(missing)} "
                          f"(uam_fdm.pilot.Agent)")
-    label = str(getattr(obj, "label", obj.__name__))
+    _check_constructible(name, obj)
+    label = _check_text(name, "label", str(getattr(obj, "label", obj.__name__)), MAX_LABEL_CHARS)
     doc = inspect.getdoc(obj) or ""
     description = str(getattr(obj, "description", "")) or doc.split("\n\n")[0].replace("\n", " ") or label
-    own = str(getattr(obj, "given", ""))
+    description = _check_text(name, "description", description, MAX_DESCRIPTION_CHARS)
+    own = _check_text(name, "given", str(getattr(obj, "given", "")), MAX_DESCRIPTION_CHARS)
     given = (f"The plug-in pilot {label} ({source}) decides at the scenario's control rate and is given what the "
              f"pilot interface carries: at take-off the vehicle's parameters and flight model, the building map, "
              f"the atmosphere and the forecast turbulence level, then the full vehicle state at each decision."
              + (f" {label}: {own}" if own else ""))
     report_type = getattr(obj, "report_type", None)
     return PilotSpec(
-        name=name, label=label, color=str(getattr(obj, "color", "")), description=f"{description} (plug-in {source})",
+        name=name, label=label, color=_check_color(name, str(getattr(obj, "color", ""))),
+        description=f"{description} (plug-in {source})",
         given=given, build=_PluginBuilder(name, obj), plans=bool(getattr(obj, "plans", False)),
         uses_torch=bool(getattr(obj, "uses_torch", False)),
         report_type=report_type if isinstance(report_type, type) else None,

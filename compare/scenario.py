@@ -252,9 +252,10 @@ def flight_atmosphere(conditions: AtmosphereConditions, city: BuildingMap) -> At
 # ---- sections ----------------------------------------------------------------------------------------
 def _name(value: Any, source: str) -> str:
     name = string(value, source, "name")
-    if not _NAME_RE.fullmatch(name) or name in (".", "..") or "__" in name:
-        raise ConfigError(source, "name", f"must match [A-Za-z0-9_.-]+, not be '.' or '..' and not contain "
-                                          f"'__' (it is used in file names), got {value!r}")
+    if not _NAME_RE.fullmatch(name) or name.startswith(".") or "__" in name:
+        raise ConfigError(source, "name", f"must match [A-Za-z0-9_.-]+, not start with '.' (a hidden file the "
+                                          f"readers skip) and not contain '__' (it is used in file names), "
+                                          f"got {value!r}")
     if len(name) > MAX_NAME_CHARS:
         raise ConfigError(source, "name", f"{len(name)} characters long, {name[:20]!r}...; at most {MAX_NAME_CHARS} "
                                           f"(it starts the run's file names)")

@@ -9,6 +9,7 @@ not an episode: it has no metrics row; the run goes on with the other cells and 
 """
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import signal
@@ -20,6 +21,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from compare.episode_loop import PilotError
 from compare.results.trajectory import EpisodeKey
 from uam_fdm.files.atomic import write_text_atomic
 
@@ -36,6 +38,8 @@ class FailureKind(str, Enum):
     ERROR = "error"  # a Python exception in the pilot or the runner
     CRASH = "crash"  # the worker process died
     HANG = "hang"  # no result within the cell's wall-time limit
+    PILOT_ERROR = "pilot error"  # the pilot commanded what cannot be flown (not finite, wrong shape)
+    DISK_FULL = "disk full"  # its episode file could not be saved: the disk is full (the run stops)
 
     def __str__(self) -> str:
         return self.value
@@ -74,6 +78,11 @@ def error_failure(key: EpisodeKey, exc: BaseException, elapsed_s: float, backend
                   limit_s: float | None = None) -> FailedCell:
     """The failed cell of an exception raised while flying `key`: its type, message and innermost frame
     (where it was raised) as the reason, the whole traceback as the detail."""
+    if isinstance(exc, PilotError):  # the message names the pilot, the time and the value
+        return FailedCell(key, FailureKind.PILOT_ERROR, str(exc), elapsed_s, backend, worker, limit_s)
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return FailedCell(key, FailureKind.DISK_FULL, f"{key.stem}.npz: {exc.strerror or exc}", elapsed_s, backend,
+                          worker, limit_s)
     frames = traceback.extract_tb(exc.__traceback__)
     where = f" (at {Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" if frames else ""
     message = str(exc).strip().splitlines()

@@ -12,8 +12,8 @@ import csv
 import io
 import math
 from collections import Counter
-from collections.abc import Iterable
-from dataclasses import astuple, dataclass, fields
+from collections.abc import Iterable, Sequence
+from dataclasses import astuple, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,8 @@ class EpisodeMetrics:
             curve over the decisions [m].
         planner_margin_m, mpc_margin_m: the clearance margins flown beyond the collision radius (the
             reference's, and the MPC's soft constraint) [m].
+        vehicle_fingerprint: the vehicle's fingerprint ("" where the episode file did not record it). Rows of
+            two vehicles that share a name but not a fingerprint are labelled apart (`label_vehicles`).
         The tracker columns (`TRACKER_METRICS`) are NaN for a pilot without a tracker (ppo) and, where an
         older episode file did not record them, for the classical pilot too (counts as floats for that).
     """
@@ -103,6 +105,7 @@ class EpisodeMetrics:
     tracking_max_m: float = math.nan
     planner_margin_m: float = math.nan
     mpc_margin_m: float = math.nan
+    vehicle_fingerprint: str = ""
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
@@ -110,6 +113,26 @@ COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
 
 # Field kinds as written in the annotations (strings under `from __future__ import annotations`).
 _KINDS = {f.name: str(f.type) for f in fields(EpisodeMetrics)}
+
+
+_OPTIONAL = (*TRACKER_METRICS, "vehicle_fingerprint")  # columns that older metrics.csv files lack
+VEHICLE_TAG_CHARS = 8
+"""Characters of the fingerprint that tell apart two vehicles sharing a name ("small_quad (1a2b3c4d)")."""
+
+
+def label_vehicles(rows: Sequence[EpisodeMetrics]) -> list[EpisodeMetrics]:
+    """`rows` with each vehicle named so that two vehicles never share a name: a vehicle whose name another
+    vehicle (another fingerprint) also has is named "name (first 8 characters of its fingerprint)".
+
+    A vehicle file that keeps a preset's name but changes its numbers is another vehicle; the summary and the
+    report key vehicles by these names, so they never pool the two. Idempotent.
+    """
+    prints: dict[str, set[str]] = {}
+    for r in rows:
+        prints.setdefault(r.vehicle, set()).add(r.vehicle_fingerprint)
+    shared = {name for name, fps in prints.items() if len(fps) > 1}
+    return [replace(r, vehicle=f"{r.vehicle} ({r.vehicle_fingerprint[:VEHICLE_TAG_CHARS] or 'unrecorded'})")
+            if r.vehicle in shared else r for r in rows]
 
 
 def below_field(threshold_m: float) -> str:
@@ -150,11 +173,13 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
     straight_m = float(np.linalg.norm(np.subtract(meta.goal_m, meta.start_m, dtype=float)))
     below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
     finite_clearance = clearance[~np.isnan(clearance)]
-    spec = pilots.find(key.method)
-    does_not_plan = spec is not None and not spec.plans and meta.plan_time_s == 0
+    # a method the registry does not hold (a plug-in) is not imported to ask whether it plans: the file names it.
+    spec = pilots.registered(key.method)
+    does_not_plan = (spec is None or not spec.plans) and meta.plan_time_s == 0
     return EpisodeMetrics(
         scenario=key.scenario, episode=int(key.episode), method=key.method, seed=int(key.seed),
-        map=meta.map_name, vehicle=meta.vehicle, outcome=meta.outcome.value,
+        map=meta.map_name, vehicle=meta.vehicle, vehicle_fingerprint=meta.vehicle_fingerprint,
+        outcome=meta.outcome.value,
         success=success, collision=meta.outcome == Outcome.COLLISION,
         failure_reason="" if success else (meta.failure_reason or meta.outcome).value,
         min_clearance_m=float(finite_clearance.min()) if finite_clearance.size else math.nan,
@@ -252,7 +277,7 @@ def read_metrics_csv(path: Path) -> list[EpisodeMetrics]:
         header = next(reader, None)
         if header is None:
             raise ValueError(f"{path}: empty file, expected a header with columns {', '.join(COLUMNS)}")
-        missing = [c for c in COLUMNS if c not in header and c not in TRACKER_METRICS]  # older files: NaN
+        missing = [c for c in COLUMNS if c not in header and c not in _OPTIONAL]  # older files: NaN, ""
         if missing:
             raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
         unknown = [c for c in header if c not in COLUMNS]

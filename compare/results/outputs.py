@@ -36,6 +36,13 @@ def check_output_file(path: Path, option: str) -> None:
     _check_writable_ancestor(path.parent, option, shown=path)
 
 
+def check_not_replacing(path: Path | None, option: str, overwrite: bool) -> None:
+    """Raise ValueError when the file `path` given with `option` exists and `overwrite` is not set: a file the
+    user named is never replaced without being asked (None: the command's default file, its own to replace)."""
+    if path is not None and not overwrite and Path(path).is_file():
+        raise ValueError(f"{option} {path}: the file exists; give another name, or --overwrite to replace it")
+
+
 def _check_writable_ancestor(folder: Path, option: str, shown: Path | None = None) -> None:
     """The nearest existing folder on the way to `folder` must be a folder we may write into."""
     shown = folder if shown is None else shown

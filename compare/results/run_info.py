@@ -130,11 +130,14 @@ class PolicyRecord:
 
 @dataclass(frozen=True)
 class MethodInfo:
-    """A pilot as the run describes it: display label, description, and (the learned pilot) its policies."""
+    """A pilot as the run describes it: display label, description, (the learned pilot) its policies, and its
+    own matplotlib colour ("" where not recorded: a registered pilot's is the registry's). Readers take a
+    plug-in's label and colour from here and never import the plug-in."""
 
     label: str
     description: str = ""
     policies: tuple[PolicyRecord, ...] = ()
+    color: str = ""
 
 
 @dataclass(frozen=True)
@@ -188,6 +191,10 @@ class RunInfo:
         m = self.methods.get(method)
         return m.label if m is not None else method
 
+    def colors(self) -> dict[str, str]:
+        """The colours the run recorded, by method (plug-ins that stated one)."""
+        return {name: m.color for name, m in self.methods.items() if m.color}
+
     def scenario(self, name: str) -> ScenarioInfo | None:
         """The scenario named `name`, or None."""
         return next((s for s in self.scenarios if s.name == name), None)
@@ -238,6 +245,8 @@ def _scenario_json(s: ScenarioInfo) -> dict[str, Any]:
 
 def _method_json(m: MethodInfo) -> dict[str, Any]:
     out: dict[str, Any] = {"label": m.label, "description": m.description}
+    if m.color:  # written only when set: an older file rewrites byte for byte
+        out["color"] = m.color
     if m.policies:
         out["policies"] = [_policy_json(p) for p in m.policies]
     return out
@@ -335,7 +344,7 @@ def _method_info(r: _Reader, value: Any, method: str, key: str) -> MethodInfo:
     else:
         policies = ()
     return MethodInfo(r.text(c, "label", f"{key}.label") or method, r.text(c, "description", f"{key}.description"),
-                      policies)
+                      policies, r.text(c, "color", f"{key}.color"))
 
 
 def _policy(r: _Reader, value: Any, key: str) -> PolicyRecord:

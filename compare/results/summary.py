@@ -34,6 +34,7 @@ from compare.results.metrics import (
     EpisodeMetrics,
     below_field,
     cell_order,
+    label_vehicles,
 )
 from compare.results.stats import (
     DESIGN_RATE,
@@ -295,7 +296,7 @@ def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confiden
     """
     settings = _settings(resamples, confidence, seed, alpha, power)
     rows = list(rows)
-    vehicles = tuple(sorted({r.vehicle for r in rows}))
+    vehicles = tuple(sorted({r.vehicle for r in label_vehicles(rows)}))
     if len(vehicles) > 1:
         raise ValueError(f"rows of {len(vehicles)} vehicles ({', '.join(vehicles)}): a summary never pools "
                          f"vehicles; summarize each vehicle's rows (summarize_run does)")
@@ -323,6 +324,7 @@ def summarize_run(rows: Sequence[EpisodeMetrics], *, resamples: int = 2000, conf
     """
     kw: dict[str, Any] = {"resamples": resamples, "confidence": confidence, "seed": seed, "alpha": alpha,
                           "power": power}
+    rows = label_vehicles(rows)  # two vehicles that share a name are two vehicles
     vehicles = tuple(sorted({r.vehicle for r in rows}))
     by_vehicle = {v: summarize([r for r in rows if r.vehicle == v], **kw) for v in vehicles}
     by_scenario = {name: summarize([r for r in rows if r.scenario == name], **kw)

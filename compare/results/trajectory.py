@@ -83,6 +83,8 @@ class EpisodeMeta:
         mean_decision_ms: the mean wall time per decision [ms] (None: no decision).
         failure_reason: a more specific reason for a failure than the outcome, from the pilot's report
             (e.g. `Outcome.SOLVER_FAILURE`), else None.
+        vehicle_fingerprint: the vehicle's parameters' fingerprint (`VehicleParams.fingerprint`; "" in files saved
+            before it was recorded): two vehicles that share a name are told apart by it.
         report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
             method's `compare.pilots.PilotSpec.report_type`), None when it gives none.
     """
@@ -104,6 +106,7 @@ class EpisodeMeta:
     agent_seed: int | None = None
     mean_decision_ms: float | None = None
     failure_reason: Outcome | None = None
+    vehicle_fingerprint: str = ""
     report: PilotReport | None = None
 
     def __post_init__(self) -> None:
@@ -152,6 +155,10 @@ def write_episode_bytes(path: Path, data: bytes) -> Path:
     return path
 
 
+MAX_EPISODE_BYTES = 2**30
+"""Largest episode in memory [bytes] (an hour at 500 Hz takes about 300 MB): a larger file is refused unread."""
+
+
 def load_episode(path: Path) -> SavedEpisode:
     """Read an episode written by `save_episode`.
 
@@ -160,7 +167,14 @@ def load_episode(path: Path) -> SavedEpisode:
             naming the file.
     """
     path = Path(path)
+    if not path.is_file():  # a FIFO or a device named like an episode would block or never end
+        raise ValueError(f"{path}: not a saved episode (not a regular file)")
     try:
+        with zipfile.ZipFile(path) as archive:  # sizes before anything is inflated: a zip bomb is refused here
+            inflated = sum(info.file_size for info in archive.infolist())
+        if inflated > MAX_EPISODE_BYTES:
+            raise ValueError(f"its arrays would take {inflated / 2**20:,.0f} MiB in memory; at most "
+                             f"{MAX_EPISODE_BYTES / 2**20:,.0f} MiB")
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["meta_json"]))
             arrays = {name: np.array(z[name]) for name in _ARRAYS}
@@ -176,6 +190,9 @@ def load_episode(path: Path) -> SavedEpisode:
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a saved episode (its metadata is incomplete: {exc})") from exc
     n = len(arrays["t_s"])
+    t_s = arrays["t_s"]
+    if t_s.ndim != 1 or t_s.dtype.kind not in "fiu" or not np.all(np.isfinite(t_s)):
+        raise ValueError(f"{path}: not a saved episode (its times t_s are not a list of finite numbers)")
     if arrays["states"].ndim != 2 or len(arrays["states"]) != n or len(arrays["clearance_m"]) != n:
         raise ValueError(f"{path}: not a saved episode (time, state and clearance rows disagree)")
     power = optional["shaft_power_W"]
@@ -198,6 +215,8 @@ def _meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
         extra[_REPORT_KEY] = meta.report.to_json()
     if meta.failure_reason is not None:
         extra["failure_reason"] = meta.failure_reason.value
+    if meta.vehicle_fingerprint:
+        extra["vehicle_fingerprint"] = meta.vehicle_fingerprint
     return {"key": asdict(meta.key), "map_name": meta.map_name, "vehicle": meta.vehicle,
             "start_m": list(meta.start_m), "goal_m": list(meta.goal_m), "goal_radius_m": meta.goal_radius_m,
             "timeout_s": meta.timeout_s, "collision_radius_m": meta.collision_radius_m, "n_rotors": meta.n_rotors,
@@ -215,7 +234,7 @@ def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
     extra = m.get("extra") or {}
     if not isinstance(extra, Mapping):
         raise TypeError(f"extra must be a mapping, got {type(extra).__name__}")
-    spec = pilots.find(key.method)
+    spec = pilots.registered(key.method)  # never a plug-in's import: the file names the method
     report_type = spec.report_type if spec is not None else None
     report = None
     if report_type is not None:
@@ -227,9 +246,12 @@ def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
         goal_m=xyz(m["goal_m"]), goal_radius_m=m["goal_radius_m"], timeout_s=m["timeout_s"],
         collision_radius_m=m["collision_radius_m"], n_rotors=m["n_rotors"], energy_J=m["energy_J"],
         outcome=m["outcome"], plan_time_s=m["plan_time_s"], detail=m.get("detail", ""), **context,
-        failure_reason=extra.get("failure_reason") or None, report=report)
+        failure_reason=extra.get("failure_reason") or None, report=report,
+        vehicle_fingerprint=str(extra.get("vehicle_fingerprint") or ""))
 
 
 def episode_files(run_dir: Path) -> list[Path]:
-    """Saved episodes of a run, sorted by name (temporary files are ignored)."""
-    return sorted(p for p in (Path(run_dir) / "episodes").glob("*.npz") if not p.name.startswith("."))
+    """Saved episodes of a run, sorted by name (temporary files, and anything not a regular file, e.g. a FIFO
+    that would block its reader, are ignored)."""
+    return sorted(p for p in (Path(run_dir) / "episodes").glob("*.npz") if not p.name.startswith(".")
+                  and p.is_file())

@@ -36,7 +36,7 @@ from PIL import GifImagePlugin, Image
 from tqdm import tqdm
 
 from compare.results.run_info import WindInfo
-from compare.viz.figures import GOAL_STYLE, START_STYLE, trace_from_episode
+from compare.viz.figures import GOAL_STYLE, START_STYLE, plain_text, trace_from_episode
 from compare.viz.flights import FlightGroup, Pilot, sample_flight
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
@@ -148,6 +148,7 @@ def ffmpeg_available() -> bool:
     return shutil.which(str(matplotlib.rcParams["animation.ffmpeg_path"])) is not None
 
 
+@plain_text
 def render_animation(group: FlightGroup, out: Path, opts: AnimationOptions = AnimationOptions(),
                      progress: bool = True) -> AnimationResult:
     """Render the pilots of `group` flying on one clock to `out` (".mp4" or ".gif").
@@ -506,6 +507,7 @@ def _changed_box(prev: np.ndarray, cur: np.ndarray) -> tuple[int, int, int, int]
 
 
 
+@plain_text
 def render_videos(groups: list[FlightGroup], out_dir: Path, which: str = "scenario",
                   opts: AnimationOptions = AnimationOptions(), progress: bool = True,
                   fmt: str = "mp4") -> list[AnimationResult]:

@@ -10,21 +10,23 @@ unknown methods) so a method looks the same on every page.
 """
 from __future__ import annotations
 
+import functools
 import math
 import textwrap
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
+import matplotlib
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.colors import is_color_like
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D
 
-from compare import pilots
 from compare.pilots import PILOTS
 from compare.results.trajectory import EpisodeMeta, SavedEpisode
 from uam_fdm.city.buildings import BuildingMap, Prism
@@ -43,15 +45,35 @@ GOAL_STYLE: dict[str, Any] = {"marker": "*", "color": "gold", "markeredgecolor":
                               "linestyle": "none"}
 
 
-def method_colors(methods: Iterable[str]) -> dict[str, str]:
-    """Colour of each method: `METHOD_COLORS` for known ones, then `FALLBACK_COLORS` in order."""
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def plain_text(func: Callable[P, R]) -> Callable[P, R]:
+    """`func` with matplotlib's mathtext off: every text we draw (labels, descriptions, names from files) is shown
+    as written. A '$' in a scenario description or a pilot's label would otherwise be read as mathematics and a
+    stray one fail the report after all the flying. The setting is restored on return (`rc_context`)."""
+    @functools.wraps(func)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        with matplotlib.rc_context({"text.parse_math": False}):
+            return func(*args, **kwargs)
+    return wrapper
+
+
+def method_colors(methods: Iterable[str], recorded: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Colour of each method: `METHOD_COLORS` for registered ones, then the colour the run recorded for it
+    (`recorded`, from run.json: a plug-in's own) when matplotlib knows it, then `FALLBACK_COLORS` in order.
+
+    Nothing is imported by name: a method read from a run folder may be `module:Class`, which a reader must not
+    run (the run recorded the plug-in's colour when it flew).
+    """
     out: dict[str, str] = {}
     spare = iter(c for c in FALLBACK_COLORS if c not in METHOD_COLORS.values())
     for m in methods:
         if m in out:
             continue
-        spec = METHOD_COLORS.get(m) or (plugin.color if (plugin := pilots.find(m)) is not None else "")
-        out[m] = spec or next(spare, "0.3")
+        own = (recorded or {}).get(m, "")
+        out[m] = METHOD_COLORS.get(m) or (own if own and is_color_like(own) else "") or next(spare, "0.3")
     return out
 
 

@@ -136,7 +136,7 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
         raise ValueError(f"{run_dir}: no readable saved episodes to show (unreadable: {', '.join(unreadable)})")
     all_methods = sorted({ep.meta.key.method for eps in by_cell.values() for ep in eps},
                          key=lambda m: (method_order.get(m, len(method_order)), m))
-    colors = method_colors(all_methods)
+    colors = method_colors(all_methods, info.colors())
     maps: dict[str, BuildingMap] = {}
     groups = []
     for (scenario, episode, seed) in sorted(by_cell, key=lambda c: (scen_order.get(c[0], len(scen_order)), c)):

@@ -96,7 +96,7 @@ class _Run:
         """A method run.json does not list (found in the episode files or metrics.csv): its label and own colour."""
         self.methods.append(method)
         self.labels.setdefault(method, _registry_label(method))
-        self.colors = F.method_colors(self.methods)
+        self.colors = F.method_colors(self.methods, self.info.colors())
 
     def style(self) -> MethodStyle:
         """The methods' order, labels and colours, for the metrics pages."""
@@ -142,6 +142,7 @@ def read_reward_curve(path: Path) -> F.RewardCurve | None:
     return F.RewardCurve(**{k: v[keep] for k, v in col.items()})
 
 
+@F.plain_text
 def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: bool = True) -> Path:
     """Write the run's PDF report (and its pages as PNGs under RUN_DIR/figures/).
 
@@ -213,13 +214,14 @@ def _make_run(run_dir: Path, info: RunInfo) -> _Run:
     for s in info.scenarios:
         methods += [m for m in s.methods if m not in methods]
     labels = {m: info.methods[m].label if m in info.methods else _registry_label(m) for m in methods}
-    return _Run(run_dir, info, methods, labels, F.method_colors(methods), [s.name for s in info.scenarios])
+    return _Run(run_dir, info, methods, labels, F.method_colors(methods, info.colors()),
+                [s.name for s in info.scenarios])
 
 
 def _registry_label(method: str) -> str:
-    """The label of a method run.json does not describe: the registry's or its plug-in's, else its name (a plug-in
-    that cannot be imported where the report is built)."""
-    spec = pilots.find(method)
+    """The label of a method run.json does not describe: the registry's, else its name (a plug-in is never
+    imported to ask: the name comes from a data file)."""
+    spec = pilots.registered(method)
     return spec.label if spec is not None else method
 
 
@@ -465,8 +467,8 @@ def _drawn_groups(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]], 
     """The tasks whose flights are drawn: of each vehicle the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios, of
     each the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks (run order); and, when that leaves some out, the text of
     a page saying so (else empty)."""
-    vehicle_of = {r.scenario: r.vehicle for r in rows or []}
-    vehicle_of.update({s.name: s.vehicle for s in run.info.scenarios if s.vehicle})
+    vehicle_of = {s.name: s.vehicle for s in run.info.scenarios if s.vehicle}
+    vehicle_of.update({r.scenario: r.vehicle for r in rows or []})  # the scored rows tell same-named vehicles apart
     scenarios: dict[str, list[str]] = {}  # per vehicle, the scenarios drawn
     count: dict[str, int] = {}
     drawn = {}

@@ -12,7 +12,6 @@ figures (`Plotly.react`) and moves the trail and vehicle traces (`Plotly.restyle
 """
 from __future__ import annotations
 
-import html
 import json
 import math
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from matplotlib import colormaps
 from matplotlib.colors import to_hex
 
 from compare.results.run_info import WindInfo, read_run_info
+from compare.viz.embed import code_for_script, json_for_script, text_for_html
 from compare.viz.flights import FlightGroup, flight_groups, sample_flight
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.files.atomic import write_text_atomic
@@ -118,18 +118,19 @@ def group_payload(group: FlightGroup, opts: ViewerOptions) -> dict:
         color = to_hex(p.color)
         last = int(np.searchsorted(t, p.end_t_s, side="right"))  # samples up to the flight's end
         last = max(last, 1)
-        hover = (f"<b>{html.escape(p.label)}</b><br>t %{{customdata[0]:.2f}} s<br>speed %{{customdata[1]:.2f}} m/s"
+        label = text_for_html(p.label)  # plotly renders names and hover texts as HTML
+        hover = (f"<b>{label}</b><br>t %{{customdata[0]:.2f}} s<br>speed %{{customdata[1]:.2f}} m/s"
                  "<br>clearance %{customdata[2]:.2f} m<br>(%{x:.1f}, %{y:.1f}, %{z:.1f}) m<extra></extra>")
         custom = np.column_stack([t[:last], s.speed_m_s[:last], s.clearance_m[:last]])
         fig.add_trace(go.Scatter3d(
-            x=s.pos_m[:last, 0], y=s.pos_m[:last, 1], z=s.pos_m[:last, 2], mode="lines", name=f"{p.label} path",
+            x=s.pos_m[:last, 0], y=s.pos_m[:last, 1], z=s.pos_m[:last, 2], mode="lines", name=f"{label} path",
             line={"color": color, "width": 4}, opacity=0.55, customdata=custom, hovertemplate=hover,
             legendgroup=p.method, showlegend=False))
         fig.add_trace(go.Scatter3d(
-            x=s.pos_m[:1, 0], y=s.pos_m[:1, 1], z=s.pos_m[:1, 2], mode="lines", name=p.label,
+            x=s.pos_m[:1, 0], y=s.pos_m[:1, 1], z=s.pos_m[:1, 2], mode="lines", name=label,
             line={"color": color, "width": 8}, customdata=custom[:1], hovertemplate=hover, legendgroup=p.method))
         fig.add_trace(go.Scatter3d(
-            x=s.pos_m[:1, 0], y=s.pos_m[:1, 1], z=s.pos_m[:1, 2], mode="markers", name=f"{p.label} vehicle",
+            x=s.pos_m[:1, 0], y=s.pos_m[:1, 1], z=s.pos_m[:1, 2], mode="markers", name=f"{label} vehicle",
             marker={"size": 7, "color": color, "line": {"color": "black", "width": 2}}, customdata=custom[:1],
             hovertemplate=hover, legendgroup=p.method, showlegend=False))
         pilots.append({
@@ -178,12 +179,12 @@ def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_un
     assets = resources.files("compare.viz") / "viewer_assets"
     page = (assets / "viewer.html").read_text(encoding="utf-8")
     parts = {
-        "TITLE": html.escape(f"uam-compare viewer: {run_dir.name}"),
+        "TITLE": text_for_html(f"uam-compare viewer: {run_dir.name}"),
         "STYLE": (assets / "viewer.css").read_text(encoding="utf-8"),
-        "PLOTLY_JS": _script_safe(plotly.offline.get_plotlyjs()),
-        "PLOTLY_VERSION": html.escape(plotly.__version__),
-        "DATA_JSON": _script_safe(json.dumps(payload, separators=(",", ":"), allow_nan=False)),
-        "VIEWER_JS": _script_safe((assets / "viewer.js").read_text(encoding="utf-8")),
+        "PLOTLY_JS": code_for_script(plotly.offline.get_plotlyjs()),
+        "PLOTLY_VERSION": text_for_html(plotly.__version__),
+        "DATA_JSON": json_for_script(payload),  # every text of the run folder and its scenarios goes in here
+        "VIEWER_JS": code_for_script((assets / "viewer.js").read_text(encoding="utf-8")),
     }
     for key, text in parts.items():  # one pass per placeholder; inserted texts are never rescanned
         head, sep, tail = page.partition("{{" + key + "}}")
@@ -191,11 +192,6 @@ def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_un
             raise RuntimeError(f"viewer template lacks {{{{{key}}}}}")
         page = head + text + tail
     return page
-
-
-def _script_safe(text: str) -> str:
-    """Text that cannot close the <script> element it is put in (the HTML parser ends one at `</script`)."""
-    return text.replace("</script", "<\\/script").replace("</SCRIPT", "<\\/SCRIPT")
 
 
 def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerOptions = ViewerOptions(), *,

@@ -396,13 +396,15 @@ def test_seeds_that_are_not_integers(tmp_path: Path, capsys: pytest.CaptureFixtu
 
 
 def test_jobs_below_one_rejected_and_above_cpus_warned(tmp_path: Path, capsys: pytest.CaptureFixture,
-                                                      no_flying: None) -> None:
+                                                      no_flying: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(compare.cli.LOG_DIR_ENV, str(tmp_path.parent / f"{tmp_path.name}-logs"))
     out = tmp_path / "run"
     _fails(["run", str(TINY), "--jobs", "0", "--out", str(out)], capsys, tmp_path, "--jobs 0: must be >= 1")
     many = (os.cpu_count() or 1) + 1
-    with pytest.raises(AssertionError, match="run_comparison was called"):  # a warning, not an error
-        main(["run", str(TINY), "--jobs", str(many), "--out", str(out), "--no-progress"])
+    # a warning, not an error: the run goes on to fly (the fixture's refusal ends in the last-resort handler)
+    assert main(["run", str(TINY), "--jobs", str(many), "--out", str(out), "--no-progress"]) == 1
     err = capsys.readouterr().err
+    assert "run_comparison was called" in err
     assert f"uam-compare: warning: --jobs {many} is more than the {os.cpu_count()} CPUs" in err
 
 

@@ -151,8 +151,8 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
 
 def test_a_metrics_csv_without_the_tracker_columns_still_reads(tmp_path):
     lines = write_metrics_csv([row("rrt_mpc")], tmp_path / "new.csv").read_text().splitlines()
-    n = len(COLUMNS) - len(M.TRACKER_METRICS)
-    assert COLUMNS[n:] == M.TRACKER_METRICS  # the tracker columns are last
+    n = len(COLUMNS) - len(M.TRACKER_METRICS) - 1
+    assert COLUMNS[n:] == (*M.TRACKER_METRICS, "vehicle_fingerprint")  # the columns older files lack are last
     old = tmp_path / "old.csv"
     old.write_text("\n".join(",".join(line.split(",")[:n]) for line in lines) + "\n")
     (r,) = read_metrics_csv(old)
@@ -279,7 +279,8 @@ def test_csv_columns_are_the_contract_order():
         "failure_reason", "min_clearance_m", "time_below_2m_s", "time_below_5m_s", "time_s",
         "path_length_m", "straight_line_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
         "plan_time_s", "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
-        "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m")
+        "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
+        "vehicle_fingerprint")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):

@@ -20,7 +20,6 @@ of one feature share the feature's index as id.
 from __future__ import annotations
 
 import bisect
-import json
 import math
 import re
 from collections.abc import Sequence
@@ -32,6 +31,7 @@ import shapely
 
 from uam_fdm.city.buildings import Building, Obstacle, Prism
 from uam_fdm.errors import ConfigError
+from uam_fdm.files.strict import strict_json_loads
 
 # WGS84 ellipsoid, for the local tangent-plane projection.
 _WGS84_A_M = 6378137.0
@@ -63,12 +63,12 @@ def load_footprints(path: Path, height_key: str, origin_lonlat: Sequence[float] 
     if Path(path).is_dir():
         raise ConfigError(src, "<file>", "is a folder, not a GeoJSON file")
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        doc = strict_json_loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(src, "<file>", f"cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
         raise ConfigError(src, "<file>", f"not a text file (byte {exc.start} is not UTF-8): expected GeoJSON") from None
-    except json.JSONDecodeError as exc:
+    except ValueError as exc:  # JSONDecodeError is one, as is an integer too long to be a number
         raise ConfigError(src, "<json>", f"not valid JSON: {exc}") from None
     except RecursionError:
         raise ConfigError(src, "<json>", "nested too deeply") from None

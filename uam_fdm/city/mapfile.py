@@ -108,6 +108,14 @@ def map_from_config(map_cfg: Any, bounds_cfg: Any, source: str, base_dir: Path) 
     raise AssertionError(f"unhandled map kind {kind!r}")  # _SOURCES lists the kinds handled above
 
 
+MAX_EXTENT_M = 20_000.0
+"""Largest flight volume per horizontal axis [m]."""
+MAX_COORDINATE_M = 1_000_000.0
+"""Largest |x| or |y| of a flight volume [m] (local ENU metres from the map's origin)."""
+MAX_CEILING_M = 5_000.0
+"""Highest ceiling of a flight volume above the ground [m]: the atmosphere and turbulence are tabulated up to it."""
+
+
 def parse_bounds(cfg: Any, source: str) -> tuple[list[float], list[float]]:
     """Parse `bounds: {min: [x, y, z], max: [x, y, z]}` (ENU metres): returns (min, max)."""
     mapping(cfg, source, "bounds", {"min", "max"}, ("min", "max"),
@@ -119,6 +127,18 @@ def parse_bounds(cfg: Any, source: str) -> tuple[list[float], list[float]]:
     if not all(h > lo_ for lo_, h in zip(lo, hi)):
         raise ConfigError(source, "bounds.max", f"must exceed bounds.min in x, y and z, got {cfg['max']!r} "
                                                 f"vs {cfg['min']!r}")
+    # before anything is sized by the volume (the atmosphere and wind tables up to the ceiling, the route grids
+    # over the ground): a typo of a few zeros must be an error here, not minutes of tabulating or a MemoryError
+    for axis, name in enumerate("xy"):
+        if max(abs(lo[axis]), abs(hi[axis])) > MAX_COORDINATE_M:
+            raise ConfigError(source, "bounds", f"{name} beyond +-{MAX_COORDINATE_M:g} m, got {cfg['min']!r} to "
+                                                f"{cfg['max']!r} (local metres, not longitude and latitude)")
+        if hi[axis] - lo[axis] > MAX_EXTENT_M:
+            raise ConfigError(source, "bounds", f"{hi[axis] - lo[axis]:g} m wide in {name}; at most "
+                                                f"{MAX_EXTENT_M:g} m (a city, not a country)")
+    if hi[2] > MAX_CEILING_M:
+        raise ConfigError(source, "bounds.max", f"ceiling z {hi[2]:g} m above the ground; at most {MAX_CEILING_M:g} m "
+                                                f"(urban air mobility flies low)")
     return lo, hi
 
 

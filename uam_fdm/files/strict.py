@@ -13,6 +13,7 @@ finite is asked for, not NaN or infinite.
 """
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Collection, Iterable, Mapping
 from typing import Any
@@ -76,15 +77,35 @@ def is_number(value: Any) -> bool:
 
 
 def is_finite_number(value: Any) -> bool:
-    """`is_number` and neither NaN nor infinite."""
-    return is_number(value) and math.isfinite(value)
+    """`is_number` and neither NaN nor infinite (an integer too large for a float is not finite either)."""
+    if not is_number(value):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int beyond a float's range
+        return False
+
+
+def strict_json_loads(text: str) -> Any:
+    """`json.loads`, refusing an integer longer than `MAX_JSON_INT_CHARS` digits (ValueError), which no file of ours
+    holds: as a float it would overflow, and converting it can take seconds."""
+    def parse_int(digits: str) -> int:
+        if len(digits.lstrip("-")) > MAX_JSON_INT_CHARS:
+            raise ValueError(f"an integer of {len(digits)} digits ({digits[:12]}...): too large, at most "
+                             f"{MAX_JSON_INT_CHARS}")
+        return int(digits)
+
+    return json.loads(text, parse_int=parse_int)
+
+
+MAX_JSON_INT_CHARS = 20  # 2**63 has 19 digits
 
 
 def number(value: Any, source: str, key: str) -> float:
     """A finite number as a float ("must be a number" / "must be finite" otherwise)."""
     if not is_number(value):
         raise ConfigError(source, key, f"must be a number, got {value!r}")
-    if not math.isfinite(value):
+    if not is_finite_number(value):
         raise ConfigError(source, key, f"must be finite, got {value!r}")
     return float(value)
 
@@ -114,6 +135,8 @@ def checked_number(name: str, value: Any, bounds: tuple[float, float], unit: str
         raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
     try:
         v = float(value)
+    except OverflowError:
+        raise ValueError(f"{name} must be finite ({unit}), got an integer of {len(str(value))} digits") from None
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a number ({unit}), got {value!r}") from None
     if not math.isfinite(v):

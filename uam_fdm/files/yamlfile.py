@@ -47,6 +47,24 @@ class StrictSafeLoader(_BaseLoader):  # type: ignore[misc, valid-type]
         return super().construct_mapping(node, deep=deep)
 
 
+MAX_INT_CHARS = 20
+"""Characters of the longest integer a file may hold (2**63 has 19 digits): a longer one is a mistake, and
+as a float it would overflow (OverflowError) or take seconds to convert."""
+
+
+def _construct_int(loader: StrictSafeLoader, node: yaml.ScalarNode) -> int:
+    """An integer scalar, refused (naming its line) when longer than `MAX_INT_CHARS`."""
+    text = str(node.value).replace("_", "").lstrip("+-")
+    if len(text) > MAX_INT_CHARS:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"an integer of {len(text)} digits ({text[:12]}...): too large, at most {MAX_INT_CHARS}",
+            node.start_mark)
+    return yaml.constructor.SafeConstructor.construct_yaml_int(loader, node)
+
+
+StrictSafeLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+
+
 def load_yaml_file(path: str | Path, source: str | None = None) -> Any:
     """Read and parse one YAML file strictly (see the module docstring).
 

@@ -149,6 +149,18 @@ _ROTOR_KEYS = {"position_m", "spin"}
 _SPINS = {"ccw": 1, "cw": -1}
 
 
+MAX_VEHICLE_NAME_CHARS = 100
+"""Longest vehicle name: it heads the report's pages, the summary's blocks and the viewer's read-outs."""
+
+
+def _vehicle_name(value: Any, source: str) -> str:
+    name = string(value, source, "name")
+    if not name.strip() or len(name) > MAX_VEHICLE_NAME_CHARS or not name.isprintable():
+        raise ConfigError(source, "name", f"must be 1 to {MAX_VEHICLE_NAME_CHARS} printable characters, got "
+                                          f"{len(name)}: {name[:20]!r}" + ("..." if len(name) > 20 else ""))
+    return name
+
+
 def preset_names() -> list[str]:
     """Names of the shipped vehicle presets."""
     return sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
@@ -192,7 +204,7 @@ def vehicle_from_dict(data: Any, source: str = "<inline>") -> VehicleParams:
         spins.append(_SPINS[spin])
 
     params = VehicleParams(
-        name=string(data["name"], source, "name"),
+        name=_vehicle_name(data["name"], source),
         description=string(data.get("description", ""), source, "description"),
         mass_kg=positive(data["mass_kg"], source, "mass_kg"),
         inertia_kg_m2=_matrix3(data["inertia_kg_m2"], source, "inertia_kg_m2"),
