@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from rl.task.config import NavConfig
+from uam_fdm.vehicle.params import preset_names
 
 MODEL = "model.zip"
 OBS_NORM = "obs_norm.npz"
@@ -65,6 +66,9 @@ def shipped_policy_dir(vehicle: str) -> Path | None:
     return folder if folder is not None and PolicyFolder(folder).config_file.is_file() else None
 
 
+MAX_LAYERS, MAX_UNITS = 8, 4096  # a network far beyond the paper's 2 x 128 is not a policy folder we wrote
+
+
 @dataclass(frozen=True)
 class NetworkSpec:
     """The policy network's shape: the paper's two dense layers of 128 units for the actor and for the
@@ -85,10 +89,14 @@ class NetworkSpec:
         Raises:
             KeyError, TypeError, ValueError: a setting missing or not a number (list) of the right kind.
         """
-        arch = ppo["net_arch"]
-        if not isinstance(arch, (list, tuple)) or not arch:
-            raise TypeError(f"'net_arch' must be a list of layer sizes, got {arch!r}")
-        return cls(tuple(int(u) for u in arch), float(ppo["log_std_init"]))
+        arch, log_std = ppo["net_arch"], ppo["log_std_init"]
+        if (not isinstance(arch, (list, tuple)) or not 1 <= len(arch) <= MAX_LAYERS
+                or not all(isinstance(u, int) and not isinstance(u, bool) and 1 <= u <= MAX_UNITS for u in arch)):
+            raise ValueError(f"ppo.net_arch must be 1 to {MAX_LAYERS} layer sizes of 1 to {MAX_UNITS} units, "
+                             f"got {str(arch)[:80]}")
+        if isinstance(log_std, bool) or not isinstance(log_std, (int, float)) or not -20.0 <= log_std <= 5.0:
+            raise ValueError(f"ppo.log_std_init must be a number in [-20, 5], got {str(log_std)[:80]}")
+        return cls(tuple(arch), float(log_std))
 
     def policy_kwargs(self) -> dict[str, Any]:
         """The network's arguments to an SB3 actor-critic policy (separate actor and critic layers)."""
@@ -227,6 +235,9 @@ class PolicyFolder:
             if not isinstance(ppo, dict):
                 raise TypeError(f"'ppo' must be an object, got {type(ppo).__name__}")
             network = NetworkSpec.from_settings(ppo)
+            if nav.vehicle not in preset_names():  # a policy names its preset, never a file elsewhere on the machine
+                raise ValueError(f"nav.vehicle {str(nav.vehicle)[:80]!r} is not a vehicle preset "
+                                 f"({', '.join(preset_names())})")
         except (ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{self.config_file}: not a policy configuration ({exc})") from None
         return PolicyConfig(nav, ppo, network, preset if isinstance(preset, str) else None)

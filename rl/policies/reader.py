@@ -134,6 +134,9 @@ def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> ActorCritic:
                          f"refused ({type(exc).__name__})") from None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ValueError(f"{path}: policy.pth is not a table of tensors")
+    bad = next((k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())), None)
+    if bad is not None:
+        raise ValueError(f"{path}: policy.pth's {str(bad)[:80]} holds non-finite weights")
     first = state.get("mlp_extractor.policy_net.0.weight")
     if first is not None and first.shape[1] != n_obs:
         raise ValueError(f"{path}: the network takes {first.shape[1]} observations; "

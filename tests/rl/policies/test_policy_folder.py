@@ -77,6 +77,57 @@ def test_a_bad_config_names_the_file(tmp_path: Path, text: str, why: str) -> Non
     assert why in str(exc.value)
 
 
+def _shipped_config() -> dict:
+    return json.loads((DEFAULT_POLICY_DIR / "config.json").read_text())
+
+
+@pytest.mark.parametrize(("edit", "why"), [
+    (lambda c: c["ppo"].pop("net_arch"), "'net_arch'"),
+    (lambda c: c["ppo"].update(net_arch=[]), "ppo.net_arch must be 1 to 8 layer sizes of 1 to 4096 units, got []"),
+    (lambda c: c["ppo"].update(net_arch=[128, 10**9]), "ppo.net_arch must be 1 to 8 layer sizes"),
+    (lambda c: c["ppo"].update(net_arch="128"), "ppo.net_arch must be"),
+    (lambda c: c["ppo"].update(net_arch=[128, 12.5]), "ppo.net_arch must be"),
+    (lambda c: c["ppo"].update(log_std_init=1e300), "ppo.log_std_init must be a number in [-20, 5], got 1e+300"),
+    (lambda c: c["ppo"].update(log_std_init="x"), "ppo.log_std_init must be a number"),
+    (lambda c: c["nav"].update(vehicle="/etc/passwd"), "nav.vehicle '/etc/passwd' is not a vehicle preset"),
+    (lambda c: c["nav"].update(vehicle="../../my.yaml"), "is not a vehicle preset (small_quad, uam_multicopter"),
+])
+def test_a_config_with_an_absurd_network_or_a_vehicle_file_is_refused(tmp_path: Path, edit, why: str) -> None:
+    """What config.json may say is bounded: the network's shape, its noise, and a vehicle preset by name (a
+    shared policy folder must not point the reader at any file on the machine)."""
+    for name in FLYING_FILES:
+        shutil.copy(DEFAULT_POLICY_DIR / name, tmp_path / name)
+    config = _shipped_config()
+    edit(config)
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ValueError) as exc:
+        load_policy(tmp_path)
+    assert str(exc.value).startswith(f"{tmp_path / 'config.json'}: not a policy configuration (")
+    assert why in str(exc.value)
+
+
+def test_non_finite_weights_are_refused_naming_the_tensor(tmp_path: Path) -> None:
+    import io
+    import zipfile
+
+    import torch
+
+    for name in FLYING_FILES:
+        shutil.copy(DEFAULT_POLICY_DIR / name, tmp_path / name)
+    with zipfile.ZipFile(DEFAULT_POLICY_DIR / "model.zip") as z:
+        entries = {n: z.read(n) for n in z.namelist()}
+    state = torch.load(io.BytesIO(entries["policy.pth"]), weights_only=True)
+    state["action_net.0.bias"][1] = float("nan")
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    entries["policy.pth"] = buf.getvalue()
+    with zipfile.ZipFile(tmp_path / "model.zip", "w") as z:
+        for n, data in entries.items():
+            z.writestr(n, data)
+    with pytest.raises(ValueError, match=r"model\.zip: policy\.pth's action_net\.0\.bias holds non-finite weights"):
+        load_policy(tmp_path)
+
+
 def test_provenance_absent_unreadable_and_loosely_typed(tmp_path: Path) -> None:
     pf = PolicyFolder(tmp_path)
     assert pf.provenance() is None  # an older folder, or a run still training
