@@ -37,7 +37,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from planners.margins import DEFAULT_TABLE_PATH, TrackingErrorRow, write_tracking_table  # noqa: E402
+from planners.margins import (  # noqa: E402
+    DEFAULT_TABLE_PATH,
+    MIN_BIN_SAMPLES,
+    SPEED_BIN_EDGES,
+    TrackingErrorRow,
+    bin_by_speed,
+    write_tracking_table,
+)
 from uam_fdm.air.wind import TurbulenceLevel  # noqa: E402
 from uam_fdm.episode import Outcome  # noqa: E402
 
@@ -117,6 +124,9 @@ def fly(job: Job) -> dict:
     rep = agent.episode_report()
     return {"job": dataclasses.asdict(job), "city_seed": city_seed, "outcome": traj.outcome,
             "deviations_m": np.asarray(agent.stats.deviations_m, float),
+            "reference_speeds_m_s": np.asarray(agent.stats.reference_speeds_m_s, float),
+            "max_speed_m_s": float(p.controller.max_speed_m_s),
+            "local_margin_ratio": getattr(rep, "clearance_over_margin_min", math.nan),
             "min_clearance_m": float(np.nanmin(traj.clearance_m)), "flight_s": float(traj.t_s[-1]),
             "wall_s": time.perf_counter() - t0, "planner_margin_m": rep.planner_margin_m,
             "mpc_margin_m": rep.mpc_margin_m, "replans": rep.replans, "mpc_failures": rep.mpc_failures}
@@ -134,13 +144,14 @@ def table_rows(results: list[dict]) -> list[TrackingErrorRow]:
         if not mine:
             continue
         dev = np.concatenate([r["deviations_m"] for r in mine])
+        speeds = np.concatenate([r["reference_speeds_m_s"] for r in mine])
         elevation, offset = AIRS[air]
         sigma = Atmosphere.from_jsbsim(AtmosphereConditions(elevation, offset), z_max_m=50.0,
                                        z_min_m=0.0).density_ratio(0.0)
         p50, p95, p99 = np.percentile(dev, [50, 95, 99])
         rows.append(TrackingErrorRow(vehicle, load_vehicle(vehicle).fingerprint(), TurbulenceLevel.parse(turbulence),
                                      float(sigma), len(mine), int(dev.size), float(p50), float(p95), float(p99),
-                                     float(dev.max())))
+                                     float(dev.max()), bin_by_speed(dev, speeds, mine[0]["max_speed_m_s"])))
     return rows
 
 
@@ -195,19 +206,31 @@ def main() -> None:
               f"{figures['conditions'][key]['replans']:7d} {sum(r['wall_s'] for r in mine):7.0f}", flush=True)
     if not args.check:
         provenance = {
-            "command": "OMP_NUM_THREADS=1 python " + " ".join([sys.argv[0].split("/work/wt15/")[-1], *sys.argv[1:]]),
+            "command": "OMP_NUM_THREADS=1 python " + " ".join(["benchmarks/tracking_error.py", *sys.argv[1:]]),
             "pool": "validation (rl.evaluation.eval_config(task_for(vehicle), n, pool='validation'): cities "
                     "1,050,000 on of rl.cities.EVAL_SEEDS), never the comparison's scenario sets",
             "seed": args.seed, "episodes": n, "uam_max_leg_m": UAM_MAX_LEG_M,
             "pilot": "planners.agent.ClassicalAgent(margin_rule=None, replan_error_m=None, replan_on_clearance=False): "
                      "fixed 1 m planner / 0.5 m MPC margins, no replanning",
             "statistic": "distance from the vehicle to its reference curve at each 50 Hz decision "
-                         "(planners.timing.Reference.deviation_m), pooled over the episodes' decisions",
+                         "(planners.timing.Reference.deviation_m), pooled over the episodes' decisions; "
+                         "speed_bins: the same per bin of the reference's speed at the decision "
+                         "(planners.margins.bin_by_speed: edges at shares "
+                         f"{list(SPEED_BIN_EDGES)} of the vehicle's speed cap, bins under "
+                         f"{MIN_BIN_SAMPLES} decisions merged into the next faster)",
             "airs": {k: {"elevation_m": v[0], "isa_offset_k": v[1]} for k, v in AIRS.items()},
             "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         }
-        path = write_tracking_table(table_rows(results), provenance, args.out)
+        rows = table_rows(results)
+        path = write_tracking_table(rows, provenance, args.out)
         print(f"wrote {path}")
+        print("by reference speed: vehicle turbulence sigma | speed range [m/s]: samples, p99 [m]")
+        for row in rows:
+            bins = "; ".join(f"{b.speed_lo_m_s:.1f}-{b.speed_hi_m_s:.1f}: {b.samples}, {b.p99_m:.3f}"
+                             for b in row.speed_bins)
+            print(f"{row.vehicle:16s} {row.turbulence.value:8s} {row.density_ratio:.3f} | {bins}")
+            key = f"{row.vehicle}/{row.turbulence.value}/{row.density_ratio:.4f}"
+            figures.setdefault("speed_bins", {})[key] = [dataclasses.asdict(b) for b in row.speed_bins]
     figures["total_s"] = time.perf_counter() - t0
     print(f"total {figures['total_s']:.0f} s, load average {os.getloadavg()[0]:.2f}")
     print(json.dumps(figures, default=float))
