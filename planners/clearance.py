@@ -165,7 +165,7 @@ class RequiredClearance:
         end), merged where consecutive pieces share R.
         """
         pa, pb = np.asarray(a, float), np.asarray(b, float)
-        if self.uniform or not self._near(pa, pb):
+        if self.uniform or not self.near(pa, pb):
             return [(pa, pb, self.R)]
         length = float(np.linalg.norm(pb - pa))
         n = max(1, math.ceil(length / self._piece_m))
@@ -188,13 +188,15 @@ class RequiredClearance:
                 start = j
         return out
 
-    def _near(self, pa: np.ndarray, pb: np.ndarray) -> bool:
-        """Whether the segment comes within reach of any start or goal that changes R."""
-        ab = pb - pa
-        den = float(ab @ ab)
-        for p, reach in self._reach:
-            q = np.asarray(p)
-            s = 0.0 if den == 0.0 else min(1.0, max(0.0, float((q - pa) @ ab) / den))
-            if float(np.linalg.norm(pa + s * ab - q)) <= reach:
+    def near(self, pa: Sequence[float] | np.ndarray, pb: Sequence[float] | np.ndarray) -> bool:
+        """Whether the segment comes within reach of any start or goal that changes R (pure Python floats:
+        the motion checker asks this for every edge the planner tries)."""
+        ax, ay, az = float(pa[0]), float(pa[1]), float(pa[2])
+        dx, dy, dz = float(pb[0]) - ax, float(pb[1]) - ay, float(pb[2]) - az
+        den = dx * dx + dy * dy + dz * dz
+        for (qx, qy, qz), reach in self._reach:
+            s = 0.0 if den == 0.0 else min(1.0, max(0.0, ((qx - ax) * dx + (qy - ay) * dy + (qz - az) * dz) / den))
+            ex, ey, ez = ax + s * dx - qx, ay + s * dy - qy, az + s * dz - qz
+            if ex * ex + ey * ey + ez * ez <= reach * reach:
                 return True
         return False

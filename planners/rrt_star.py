@@ -191,7 +191,7 @@ class FreeSpace:
 
     def edge_ok(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
         """Whether the straight motion a -> b (ENU metres) is valid (exact swept-sphere test)."""
-        if self.required.uniform:
+        if self.required.uniform or not self.required.near(a, b):
             return self.city.segment_free(a, b, self.R)
         return all(self.city.segment_free(p, q, big_r) for p, q, big_r in self.required.runs(a, b))
 
