@@ -9,8 +9,9 @@ Frames: world ENU, metres, seconds.
    The curve is C2, starts at the start and ends at the goal.
 2. Clearance: the curve is sampled every <= `check_spacing_m` and its clearance measured against
    the map (exact, `BuildingMap.clearance`).  Where a rounded corner comes closer than
-   R = radius + margin (relaxed near a start or goal that is itself inside the margin:
-   `endpoint_allowance`, the planner's rule), that corner's d is halved and the check repeated;
+   R(p) = radius + margin (narrowed towards a start or goal by its taper, relaxed near one that is
+   itself inside the margin: `planners.clearance`, the planner's rule), that corner's d is halved
+   and the check repeated;
    a corner that still fails after `max_refinements` halvings becomes a stop: the reference comes
    to rest on the corner vertex and turns there.  For a path from the planner (clear by R on every
    segment) this always succeeds; the whole curve is checked once more at the end.
@@ -19,6 +20,8 @@ Frames: world ENU, metres, seconds.
    curvature vector) may use `lateral_fraction` of the horizontal and vertical acceleration
    limits; the tangential acceleration a is bounded so that |a t_h + v^2 k_h| <= a_h and
    |a t_z + v^2 k_z| <= a_v for every admissible speed.  Start and end (and stops) are at rest.
+   With a `speed_limit` (the inverse of the margin's speed dependence), the speed at each sample
+   is also capped at the fastest whose margin fits the clearance there.
 4. The profile is sampled in time every `sample_dt_s`: position, velocity v t and acceleration
    a t + v^2 k.
 """
