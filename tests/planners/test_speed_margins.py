@@ -140,3 +140,24 @@ def test_required_clearance_narrows_towards_an_endpoint_and_its_runs_bound_it():
         assert np.all(req.at(inside) <= big_r + 1e-12)
     # far from the goal: one run at the cruise R
     assert req.runs((-10.0, -15.0, 10.0), (-10.0, 15.0, 30.0))[0][2] == pytest.approx(4.5)
+
+
+def test_the_reference_slows_where_it_passes_closer_than_the_cruise_margin():
+    """A straight 100 m flight whose middle 40 m pass 2.5 m from a wall: with margins 1 / 2 / 4 m up to 2 / 6 /
+    any m/s the reference may fly at most 6 m/s there (M = 2 m fits 2.5 m, 4 m does not), faster elsewhere."""
+    from planners.timing import TimingLimits, time_parameterize
+
+    wall = BuildingMap([Building(0, (50.0, 4.0), (40.0, 2.0), 30.0)], (-10.0, -20.0, 0.0), (110.0, 20.0, 40.0))
+    limits = TimingLimits(12.0, 3.0, 4.0, 3.0)
+    path = np.array([[0.0, 0.0, 10.0], [100.0, 0.0, 10.0]])
+    speeds = SpeedMargins((2.0, 6.0), (1.0, 2.0, 4.0))
+    capped = time_parameterize(path, limits, wall, 0.5, 1.0, speed_limit=speeds.speed_limit_m_s)
+    free = time_parameterize(path, limits, wall, 0.5, 1.0)
+    assert capped.ok and free.ok
+    along = np.abs(capped.pos_m[:, 0] - 50.0) < 20.0
+    v = np.linalg.norm(capped.vel_m_s, axis=1)
+    assert v[along].max() <= 6.0 + 1e-6 and v.max() > 9.0
+    assert np.linalg.norm(free.vel_m_s, axis=1).max() > 11.9 and capped.duration_s > free.duration_s
+    # the margin in force along the curve never exceeds the clearance there
+    clear = wall.clearance(capped.pos_m, 0.5).distance_m
+    assert np.all(speeds.margin_m(v) <= clear + 1e-6)
