@@ -168,6 +168,10 @@ def test_a_goal_inside_the_cruise_margin_but_reachable_is_reached(name, z, vehic
     # in the alley (3 m beyond the sphere) the reference keeps to the speed whose margin fits: 6 m/s
     in_alley = agent.reference.pos_m[:, 0] > 2.0
     assert np.linalg.norm(agent.reference.vel_m_s[in_alley], axis=1).max() <= 6.0 + 1e-6
+    # the MPC's margin per stage follows the stage's reference speed: at the last decision, slowing into the
+    # goal, half of 2 m (<= 6 m/s) on the first stages, then half the margin at rest
+    stages = agent._stage_mpc_margins
+    assert set(stages) <= {0.5, 1.0} and stages[-1] == 0.5 and np.all(np.diff(stages) <= 0)
 
 
 def test_a_walled_in_goal_is_a_planner_failure_with_its_reason(vehicles, compiled_dynamics, tmp_path):
