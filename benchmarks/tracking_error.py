@@ -19,6 +19,8 @@ draws up to 1.5 km; the comparison's UAM legs are 250-400 m) to keep the run sho
     OMP_NUM_THREADS=1 python benchmarks/tracking_error.py --jobs 1 --episodes-quad 24 --episodes-uam 12
     # the shipped margins flown on other validation legs: least clearance over the local margin, attempts:
     OMP_NUM_THREADS=1 python benchmarks/tracking_error.py --check --jobs 1 --episodes-quad 12 --episodes-uam 6
+    # only the plans at reset on those legs: which step of the planning ladder found each path
+    OMP_NUM_THREADS=1 python benchmarks/tracking_error.py --plans-only --episodes-quad 40 --episodes-uam 20
 
 Prints a table and, as its last line, one JSON object of the figures.
 """
@@ -158,6 +160,51 @@ def table_rows(results: list[dict]) -> list[TrackingErrorRow]:
     return rows
 
 
+def plan_only(job: Job) -> dict:
+    """Only the shipped pilot's plan at reset (margins by speed, the planning ladder) for one validation leg:
+    which step found the path (deterministic; the plan time is wall time)."""
+    from planners.agent import ClassicalAgent
+    from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+    from uam_fdm.air.wind import TurbulenceLevel
+    from uam_fdm.pilot import World
+    from uam_fdm.vehicle.dynamics import VehicleDynamics
+
+    p, city, city_seed, task, _ = _validation_task(job.vehicle, job.index, job.seed)
+    key = (job.vehicle, "plan")
+    if key not in _AGENTS:
+        _AGENTS[key] = (ClassicalAgent(), VehicleDynamics(p, 500.0, 50.0))
+    agent, dyn = _AGENTS[key]
+    elevation, offset = AIRS[job.air]
+    atm = Atmosphere.from_jsbsim(AtmosphereConditions(elevation, offset), z_max_m=float(city.bounds_max_m[2]) + 100.0,
+                                 z_min_m=-50.0)
+    info = agent.reset(World(p, dyn, city, atm, TurbulenceLevel.parse(job.turbulence)), task, job.seed + job.index)
+    rep = agent.episode_report()
+    return {"job": dataclasses.asdict(job), "city_seed": city_seed, "ok": info.ok, "status": info.status,
+            "detail": info.detail, "plan_time_s": info.plan_time_s, "attempts": rep.planner_attempts,
+            "step": rep.planner_step}
+
+
+def plans_main(jobs: list[Job]) -> None:
+    """`--plans-only`: the ladder's steps per condition, printed, and the last JSON line."""
+    results = [plan_only(j) for j in jobs]
+    figures: dict = {}
+    print(f"{'vehicle':16s} {'turb':8s} {'air':9s} {'legs':>4s} {'ok':>3s} attempts (1/2/3/4)  plan s median / max")
+    for vehicle, turbulence, air in CONDITIONS:
+        mine = [r for r in results if (r["job"]["vehicle"], r["job"]["turbulence"], r["job"]["air"])
+                == (vehicle, turbulence, air)]
+        if not mine:
+            continue
+        counts = [sum(r["attempts"] == k and r["ok"] for r in mine) for k in (1, 2, 3, 4)]
+        times = np.array([r["plan_time_s"] for r in mine])
+        figures[f"{vehicle}/{turbulence}/{air}"] = {
+            "legs": len(mine), "ok": sum(r["ok"] for r in mine), "found_by_step": counts,
+            "failures": [r["detail"] for r in mine if not r["ok"]],
+            "plan_time_s_median": float(np.median(times)), "plan_time_s_max": float(times.max())}
+        print(f"{vehicle:16s} {turbulence:8s} {air:9s} {len(mine):4d} {sum(r['ok'] for r in mine):3d} "
+              f"{'/'.join(map(str, counts)):18s} {np.median(times):6.2f} / {times.max():6.2f}", flush=True)
+    print(json.dumps(figures, default=float))
+
+
 def run(jobs: list[Job], workers: int) -> list[dict]:
     if workers <= 1:
         return [fly(j) for j in jobs]
@@ -172,6 +219,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", default=str(DEFAULT_TABLE_PATH), help="the table file to write")
+    ap.add_argument("--plans-only", action="store_true",
+                    help="only the shipped pilot's plans at reset on other validation legs (which ladder step)")
     ap.add_argument("--check", action="store_true",
                     help="fly the shipped margins (adaptive, replanning on) on other validation legs instead")
     args = ap.parse_args()
@@ -180,8 +229,11 @@ def main() -> None:
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}, "
           f"{'check of the shipped margins' if args.check else 'fixed margins, no replanning'}", flush=True)
     n = {"small_quad": args.episodes_quad, "uam_multicopter": args.episodes_uam}
-    first = CHECK_OFFSET if args.check else 0
+    first = CHECK_OFFSET if args.check or args.plans_only else 0
     jobs = [Job(v, t, a, first + i, args.seed, args.check) for v, t, a in CONDITIONS for i in range(n[v])]
+    if args.plans_only:
+        plans_main(jobs)
+        return
     results = run(jobs, args.jobs)
     print(f"{'vehicle':16s} {'turb':8s} {'air':9s} {'eps':>4s} {'ok':>3s} {'p50 m':>7s} {'p95 m':>7s} {'p99 m':>7s} "
           f"{'max m':>7s} {'margin m':>10s} {'min clr m':>9s} {'/local M':>8s} {'replans':>7s} {'wall s':>7s}")
