@@ -212,6 +212,12 @@ def run(jobs: list[Job], workers: int) -> list[dict]:
         return list(pool.map(fly, jobs, chunksize=1))
 
 
+def _mode(args: argparse.Namespace) -> str:
+    if args.plans_only:
+        return "plans of the shipped pilot"
+    return "check of the shipped margins" if args.check else "fixed margins, no replanning"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes-quad", type=int, default=16, help="validation episodes per small_quad condition")
@@ -227,7 +233,7 @@ def main() -> None:
     t0 = time.perf_counter()
     print(f"tracking error, classical pilot; {platform.processor() or platform.machine()}, "
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}, "
-          f"{'check of the shipped margins' if args.check else 'fixed margins, no replanning'}", flush=True)
+          f"{_mode(args)}", flush=True)
     n = {"small_quad": args.episodes_quad, "uam_multicopter": args.episodes_uam}
     first = CHECK_OFFSET if args.check or args.plans_only else 0
     jobs = [Job(v, t, a, first + i, args.seed, args.check) for v, t, a in CONDITIONS for i in range(n[v])]
