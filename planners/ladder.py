@@ -7,9 +7,12 @@ exact path:
 
 1. the configured planner (InformedRRT*) with the speed-dependent margins (the cruise margin,
    narrowing towards the start and goal: `planners.clearance.MarginTaper`);
-2. RRTConnect with the same margins: another OMPL planner of the family, bidirectional, so it grows
-   a tree out of the goal's narrow spot too; it stops at its first path (the simplifier then
-   shortens it), and is the cheapest step (tens of milliseconds);
+2. RRTConnect with the same margins and a small budget (`QUICK_ITERATIONS`): another OMPL planner of
+   the family, bidirectional, so it grows a tree out of the goal's narrow spot too; it stops at its
+   first path (the simplifier then shortens it). Where a path exists at these margins it finds one in
+   far fewer iterations; where none does, the small budget keeps the failure cheap (on validation
+   legs, hot and high, the quad's cruise margin left 11 of 40 plans to the ladder, and this step
+   found 1 of them: the floor margin found the rest);
 3. the configured planner at the floor margin everywhere (the margin at rest, `SpeedMargins.floor_m`):
    relaxed towards the floor; the reference is then slowed wherever the path passes closer than the
    cruise margin (`planners.timing.time_parameterize(..., speed_limit=...)`), so the margin in force
@@ -35,6 +38,7 @@ from uam_fdm.city.buildings import BuildingMap
 log = logging.getLogger(__name__)
 
 LAST_STEP_ITERATIONS = 4
+QUICK_ITERATIONS = 2000
 # a failure no other planner or margin can cure: stop climbing
 _FINAL_STATUSES = ("invalid_start", "invalid_goal", "invalid_path")
 
@@ -48,12 +52,14 @@ class PlanStep:
         algorithm: the OMPL planner (`planners.rrt_star.ALGORITHMS`); None: the configured one.
         iteration_factor: multiple of the algorithm's iteration budget [-].
         floor_margin: plan at the floor margin everywhere instead of the speed-dependent margins.
+        max_iterations: a fixed iteration budget instead (when the configuration counts iterations).
     """
 
     name: str
     algorithm: str | None = None
     iteration_factor: int = 1
     floor_margin: bool = False
+    max_iterations: int | None = None
 
     def __post_init__(self) -> None:
         if self.algorithm is not None and self.algorithm not in ALGORITHMS:
@@ -64,7 +70,7 @@ class PlanStep:
 
 LADDER: tuple[PlanStep, ...] = (
     PlanStep("configured planner, speed margins"),
-    PlanStep("rrtconnect, speed margins", "rrtconnect"),
+    PlanStep("rrtconnect, speed margins", "rrtconnect", max_iterations=QUICK_ITERATIONS),
     PlanStep("configured planner, floor margin", floor_margin=True),
     PlanStep(f"rrtconnect, floor margin, {LAST_STEP_ITERATIONS}x iterations", "rrtconnect",
              LAST_STEP_ITERATIONS, floor_margin=True),
@@ -133,7 +139,7 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         budget: int | None = None  # a pure time budget stays one (scaled below)
         if config.max_iterations is not None:
             per_step = PlannerConfig(algorithm=algorithm, max_iterations=config.max_iterations).iteration_budget
-            budget = step.iteration_factor * int(per_step or 0)
+            budget = step.max_iterations or step.iteration_factor * int(per_step or 0)
         margin = floor if step.floor_margin else config.safety_margin_m
         cfg = dataclasses.replace(config, algorithm=algorithm, max_iterations=budget, safety_margin_m=margin,
                                   time_budget_s=config.time_budget_s * step.iteration_factor)

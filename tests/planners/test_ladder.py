@@ -19,8 +19,8 @@ def _tapers(start, goal, accel=5.0):
 
 
 def test_the_ladder_order():
-    assert [(s.algorithm, s.iteration_factor, s.floor_margin) for s in LADDER] == [
-        (None, 1, False), ("rrtconnect", 1, False), (None, 1, True), ("rrtconnect", 4, True)]
+    assert [(s.algorithm, s.iteration_factor, s.max_iterations, s.floor_margin) for s in LADDER] == [
+        (None, 1, None, False), ("rrtconnect", 1, 2000, False), (None, 1, None, True), ("rrtconnect", 4, None, True)]
     with pytest.raises(ValueError, match="algorithm"):
         PlanStep("x", "astar")
 
@@ -38,6 +38,7 @@ def test_a_goal_inside_the_cruise_margin_is_found_at_the_floor_margin():
     # the cruise margin (4 m) does not fit the alley (3 m) with either planner: the floor margin does
     assert found.ok and found.step == 3 and found.step_name == LADDER[2].name
     assert not any(a.ok for a in found.attempts[:2])
+    assert found.attempts[1].algorithm == "rrtconnect" and found.attempts[1].iterations <= 2001  # the quick step
     assert found.margin_m == MARGINS.floor_m and found.tapers == ()
     assert found.plan.min_clearance_m >= MARGINS.floor_m - 1e-9
     assert found.plan_time_s == pytest.approx(sum(a.plan_time_s for a in found.attempts))
