@@ -16,6 +16,12 @@ tracking error, and the ratios to Ipopt.
 
     OMP_NUM_THREADS=1 flock /tmp/uam_cpu.lock python benchmarks/classical.py [--long-s 15] [--variants]
     OMP_NUM_THREADS=1 python benchmarks/classical.py --mpc-only [--mpc-extra fatrop,sqpmethod]
+    OMP_NUM_THREADS=1 python benchmarks/classical.py --pilot-plans-only   # plan time per plan, both vehicles
+
+The pilot's plans (`measure_pilot_plans`): `ClassicalAgent.reset` on the same kind of queries for
+both vehicles, at sea level in calm air and hot and high (2500 m, ISA+25 K) in moderate
+turbulence, i.e. with the margins by speed and the escalation ladder: `plan_time_s_median`,
+`plan_time_s_p95` (the worse vehicle's), per vehicle under `pilot_plans`.
 
 Prints a table and, as its last line, one JSON object of the figures.
 """
@@ -195,6 +201,57 @@ def measure_timing(queries: Sequence[Query], vehicle: str = "small_quad", config
     }
 
 
+# (name, field elevation [m], ISA offset [K], forecast turbulence) for the pilot's plans
+PILOT_AIRS = (("sea_level", 0.0, 0.0, "none"), ("hot_high", 2500.0, 25.0, "moderate"))
+
+
+def measure_pilot_plans(vehicle: str, per_map: int, seeds: Sequence[int]) -> dict:
+    """The classical pilot's planning as it flies: `ClassicalAgent.reset` (margins by speed from the
+    table, the escalation ladder of `planners.ladder`) per query, air and seed; its plan time per plan
+    (the ladder's attempts together), the step that found each path and the failures."""
+    from planners.agent import ClassicalAgent
+    from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+    from uam_fdm.pilot import Task, World
+    from uam_fdm.vehicle.dynamics import VehicleDynamics
+
+    params = load_vehicle(vehicle)
+    agent, dynamics = ClassicalAgent(), VehicleDynamics(params, 500.0, 50.0)
+    queries = make_queries(per_map, params.collision_radius_m, 1.0)
+    rows = []
+    for air, elevation, offset, turbulence in PILOT_AIRS:
+        for q in queries:
+            city = _map(q.map_name)
+            atm = Atmosphere.from_jsbsim(AtmosphereConditions(elevation, offset),
+                                         z_max_m=float(city.bounds_max_m[2]) + 100.0, z_min_m=-50.0)
+            world = World(params, dynamics, city, atm, turbulence)
+            task = Task(start_m=q.start_m, goal_m=q.goal_m)
+            for seed in seeds:
+                info = agent.reset(world, task, seed)
+                rep = agent.episode_report()
+                rows.append(dict(air=air, map=q.map_name, seed=seed, ok=info.ok, plan_time_s=info.plan_time_s,
+                                 attempts=rep.planner_attempts, step=rep.planner_step,
+                                 margin_m=rep.planner_margin_m, floor_m=rep.planner_margin_floor_m))
+    times = np.array([r["plan_time_s"] for r in rows])
+    return {"vehicle": vehicle, "plans": len(rows), "failures": sum(not r["ok"] for r in rows),
+            "plan_time_s_median": float(np.median(times)), "plan_time_s_p95": float(np.percentile(times, 95)),
+            "plan_time_s_max": float(times.max()),
+            "attempts": {str(k): sum(r["attempts"] == k for r in rows) for k in sorted({r["attempts"] for r in rows})},
+            "rows": rows}
+
+
+def pilot_plan_figures(per_map: int, seeds: int) -> dict:
+    """`measure_pilot_plans` for both vehicles, printed; the JSON keys: `plan_time_s_median` and
+    `plan_time_s_p95` of the worse vehicle (targets: <= 1 s and <= 3 s for both), `pilot_plans` per vehicle."""
+    pilot = {v: measure_pilot_plans(v, per_map, tuple(range(1, seeds + 1))) for v in ("small_quad", "uam_multicopter")}
+    for v, res in pilot.items():
+        print(f"pilot plans, {v}: {res['plans']} plans, {res['failures']} failures, plan time median "
+              f"{res['plan_time_s_median']:.2f} s, p95 {res['plan_time_s_p95']:.2f} s, max "
+              f"{res['plan_time_s_max']:.2f} s; attempts {res['attempts']}")
+    return {"plan_time_s_median": max(r["plan_time_s_median"] for r in pilot.values()),
+            "plan_time_s_p95": max(r["plan_time_s_p95"] for r in pilot.values()),
+            "pilot_plans": {v: {k: x for k, x in r.items() if k != "rows"} for v, r in pilot.items()}}
+
+
 @dataclass(frozen=True)
 class MPCEpisode:
     """A closed-loop MPC episode on the simulator: a reference (and optionally a wall) from hover at 30 m."""
@@ -369,6 +426,8 @@ def main() -> None:
     ap.add_argument("--variants", action="store_true", help="also measure the non-default variants")
     ap.add_argument("--vehicle", default="small_quad")
     ap.add_argument("--mpc-only", action="store_true", help="skip planning and timing; only the MPC closed loop")
+    ap.add_argument("--pilot-plans-only", action="store_true",
+                    help="only the pilot's plans (plan time per plan for both vehicles)")
     ap.add_argument("--mpc-solver", default="rti", help="the fast MPC solver whose figures the JSON line reports")
     ap.add_argument("--mpc-extra", default="", help="comma-separated further MPC solvers to measure (fatrop,sqpmethod)")
     args = ap.parse_args()
@@ -379,6 +438,9 @@ def main() -> None:
     figures: dict = {}
     print(f"classical pilot; {platform.processor() or platform.machine()}, "
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}")
+    if args.pilot_plans_only:
+        print(json.dumps(pilot_plan_figures(args.per_map, args.seeds)))
+        return
     if not args.mpc_only:
         queries = make_queries(args.per_map, params.collision_radius_m, default.safety_margin_m)
         configs = {a: PlannerConfig(algorithm=a) for a in ALGORITHMS}
@@ -406,7 +468,7 @@ def main() -> None:
             "default_algorithm": default.algorithm,
             "rrt_first_solution_ms_median": d["first_solution_ms_median"],
             "path_efficiency": d["path_efficiency"],
-            "plan_time_s_median": d["plan_time_s_median"],
+            "rrt_plan_time_s_median": d["plan_time_s_median"],
             "success_rate": d["success_rate"],
             "per_algorithm": {k: {kk: v[kk] for kk in ("first_solution_ms_median", "path_efficiency", "success_rate",
                                                        "plan_time_s_median")} for k, v in plan["per_config"].items()},
@@ -415,6 +477,8 @@ def main() -> None:
             "reference_mean_speed_m_s_median": timing["mean_speed_m_s_median"],
             "reference_min_clearance_m": timing["min_clearance_m"],
         })
+        # the pilot's plans as it flies them (margins by speed, escalation ladder): per plan, both vehicles
+        figures.update(pilot_plan_figures(args.per_map, args.seeds))
 
     solvers = list(dict.fromkeys(["ipopt", args.mpc_solver, *[s for s in args.mpc_extra.split(",") if s]]))
     rows = run_mpc_benchmark(["small_quad", "uam_multicopter"], solvers)

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from planners.clearance import MarginTaper, endpoint_allowance
+from planners.ladder import plan_with_escalation
 from planners.margins import (
     MarginRule,
     Margins,
@@ -27,8 +29,8 @@ from planners.margins import (
 )
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.report import ClassicalReport
-from planners.rrt_star import PlannerConfig, PlanResult, plan_path
-from planners.timing import Reference, TimingLimits, endpoint_allowance, time_parameterize
+from planners.rrt_star import PlannerConfig, PlanResult
+from planners.timing import Reference, TimingLimits, time_parameterize
 from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
 
 log = logging.getLogger(__name__)
@@ -86,6 +88,12 @@ class ClassicalStats:
     mpc_iterations: list[int] = field(default_factory=list)
     mpc_statuses: dict[str, int] = field(default_factory=dict)
     deviations_m: list[float] = field(default_factory=list)
+    # the reference's speed at each decision, paired with `deviations_m` (the margin table bins by it)
+    reference_speeds_m_s: list[float] = field(default_factory=list)
+    # the vehicle's clearance over the margin in force at its reference point, per decision (the promise)
+    clearance_over_margin: list[float] = field(default_factory=list)
+    planner_attempts: int = 0
+    planner_step: str = ""
 
 
 class ClassicalAgent:
@@ -145,6 +153,9 @@ class ClassicalAgent:
         self._gust_m_s = forecast_gust_m_s(world.turbulence, float(task.start_m[2]))
         self.margins = self.margins_for(world, task)
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
+        self._stage_mpc_margins = np.full(self._tracker.horizon_steps, self.margins.mpc_m)
+        self._relaxed_ends: list[tuple[np.ndarray, float]] = []
+        self._promise_ends: list[tuple[np.ndarray, float, float]] = []
         log.debug("margins: planner %.2f m, MPC %.2f m (%s)", self.margins.planner_m, self.margins.mpc_m,
                   self.margins.source)
         ok, status, detail = self._plan(np.asarray(task.start_m, float), t_start=0.0)
@@ -155,30 +166,45 @@ class ClassicalAgent:
         world, margins = self._flying()
         task, cfg = self._task, self.config
         radius = world.vehicle.collision_radius_m
-        plan = plan_path(world.city, start, task.goal_m, radius, self._planner_cfg,
-                         seed=self._seed + sum(self.stats.replans_by_cause.values()))
-        self.stats.plan_time_s += plan.plan_time_s
-        if not plan.ok:
-            return False, "planner_failure", f"{plan.status}: {plan.message}"
         # the reference asks only for what the rotors can give in this air (thrust scales with density)
         limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
                                            self._gust_m_s)
+        by_speed = margins.by_speed
+        moving = 0.0 if velocity_m_s is None else float(np.linalg.norm(velocity_m_s))
+        # the reference changes speed by at most the horizontal and vertical limits together
+        accel = math.hypot(limits.max_accel_m_s2, limits.max_vertical_accel_m_s2)
+        tapers = tuple(MarginTaper((float(p[0]), float(p[1]), float(p[2])), *by_speed.taper(accel, v0))
+                       for p, v0 in ((start, moving), (np.asarray(task.goal_m, float), 0.0)))
+        found = plan_with_escalation(world.city, start, task.goal_m, radius, self._planner_cfg,
+                                     seed=self._seed + sum(self.stats.replans_by_cause.values()),
+                                     floor_margin_m=by_speed.floor_m, tapers=tapers)
+        plan = found.plan
+        self.stats.plan_time_s += found.plan_time_s
+        if velocity_m_s is None:  # the plan at reset: which step of the ladder found it
+            self.stats.planner_attempts, self.stats.planner_step = len(found.attempts), found.step_name
+        if not plan.ok:
+            return False, "planner_failure", f"{plan.status}: {plan.message}"
         # a replan from a moving vehicle starts at its speed along the new path (not at rest: no hard brake)
         start_speed = 0.0
         if velocity_m_s is not None and len(plan.path_m) > 1:
             tangent = plan.path_m[1] - plan.path_m[0]
             start_speed = max(0.0, float(velocity_m_s @ tangent) / max(float(np.linalg.norm(tangent)), 1e-9))
-        reference = time_parameterize(plan.path_m, limits, world.city, radius, self._planner_cfg.safety_margin_m,
-                                      start_speed_m_s=start_speed)
+        reference = time_parameterize(plan.path_m, limits, world.city, radius, found.margin_m,
+                                      start_speed_m_s=start_speed, tapers=found.tapers,
+                                      speed_limit=by_speed.speed_limit_m_s)
         if not reference.ok:
             return False, "planner_failure", f"time-parameterisation: {reference.status}"
         self.plan, self.reference, self._t_ref0 = plan, reference, t_start
-        # near a start or goal closer than the margin the requirement is relaxed (as in the planner)
-        self._relaxed_ends = []
+        # near a start or goal closer than the margin at rest the requirement is relaxed (as in the planner)
+        self._relaxed_ends, self._promise_ends = [], []
         for end in (np.asarray(plan.path_m[0], float), np.asarray(plan.path_m[-1], float)):
-            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, margins.mpc_m)
+            mpc_floor = by_speed.mpc_fraction * by_speed.floor_m
+            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, mpc_floor)
             if zone > 0.0:
                 self._relaxed_ends.append((end, zone))
+            r_e, zone = endpoint_allowance(world.city.planning_map(), end, radius, by_speed.floor_m)
+            if zone > 0.0:
+                self._promise_ends.append((end, zone, r_e - radius))
         return True, "ok", ""
 
     def episode_report(self) -> ClassicalReport:
@@ -196,7 +222,9 @@ class ClassicalAgent:
             tracking_rms_m=float(np.sqrt(np.mean(dev ** 2))) if dev.size else math.nan,
             tracking_max_m=float(dev.max()) if dev.size else math.nan,
             planner_margin_m=m.planner_m if m else math.nan, mpc_margin_m=m.mpc_m if m else math.nan,
-            margin_source=m.source if m else "")
+            margin_source=m.source if m else "", planner_margin_floor_m=m.floor_m if m else math.nan,
+            planner_attempts=s.planner_attempts, planner_step=s.planner_step,
+            clearance_over_margin_min=min(s.clearance_over_margin, default=math.nan))
 
     # -- flying ---------------------------------------------------------------------------------
     def act(self, obs: Observation) -> RotorCommand:
@@ -211,6 +239,10 @@ class ClassicalAgent:
         self._maybe_replan(obs, self.reference)
         n_stages, h = mpc.horizon_steps, mpc.step_s
         ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
+        # the MPC's margin at each stage follows the reference's speed there
+        by_speed = self._flying()[1].by_speed
+        self._stage_mpc_margins = by_speed.mpc_fraction * by_speed.margin_m(np.linalg.norm(ref_vel[1:], axis=1))
+        self._record_promise(obs, ref_pos[0], float(np.linalg.norm(ref_vel[0])))
         normals, offsets = self._halfspaces(obs, ref_pos)
         elapsed = 0.0 if self._last_t is None else obs.t_s - self._last_t
         # the map is known to this pilot: its MPC predicts the ground effect of the surface below it now
@@ -221,20 +253,34 @@ class ClassicalAgent:
         self._record(sol)
         return RotorCommand(sol.rotor_speeds_rad_s)
 
+    def _record_promise(self, obs: Observation, ref_pos: np.ndarray, ref_speed_m_s: float) -> None:
+        """Record the vehicle's sphere clearance (planning map) over the margin in force at its reference
+        point: M(reference speed), or a close start's or goal's own allowance inside its zone."""
+        world, margins = self._flying()
+        local = float(margins.by_speed.margin_m(ref_speed_m_s))
+        for end, zone, allowed in self._promise_ends:
+            if float(np.linalg.norm(ref_pos - end)) <= zone:
+                local = min(local, allowed)
+        clearance = world.city.planning_map().clearance_one(float(obs.x[0]), float(obs.x[1]), float(obs.x[2]),
+                                                            world.vehicle.collision_radius_m)
+        self.stats.clearance_over_margin.append(clearance / max(local, 0.05))
+
     def _maybe_replan(self, obs: Observation, reference: Reference) -> None:
         """Replan if `_replan_cause` says so; `reference` is the one flown now (`self.reference`)."""
-        self.stats.deviations_m.append(reference.deviation_m(obs.x[0:3], obs.t_s - self._t_ref0))
+        t_ref = obs.t_s - self._t_ref0
+        self.stats.deviations_m.append(reference.deviation_m(obs.x[0:3], t_ref))
+        self.stats.reference_speeds_m_s.append(float(np.linalg.norm(reference.sample(t_ref)[1])))
         cause = self._replan_cause(obs, reference)
         if cause is None:
             return
         self.stats.replans_by_cause[cause] += 1
         self._last_replan_t = obs.t_s
-        previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends)
+        previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends)
         before = self.stats.plan_time_s
         ok, _, _ = self._plan(obs.x[0:3].copy(), t_start=obs.t_s, velocity_m_s=obs.x[3:6].copy())
         self.stats.replan_time_s += self.stats.plan_time_s - before
         if not ok:   # keep tracking the old reference rather than give up
-            self.plan, self.reference, self._t_ref0, self._relaxed_ends = previous
+            self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends = previous
         else:
             self._tracker.reset()
             self._last_t = None
@@ -254,27 +300,36 @@ class ClassicalAgent:
         if (cfg.replan_on_clearance and self.last_solution is not None
                 and s.replans_by_cause["clearance"] < cfg.max_clearance_replans
                 and obs.t_s - self._last_replan_t >= cfg.replan_cooldown_s):
-            clearance = self.predicted_clearance_m(self.last_solution.predicted_states[1:, 0:3])
-            _, margins = self._flying()
-            if clearance < margins.mpc_m:
+            points = self.last_solution.predicted_states[1:, 0:3]
+            clearances = self.predicted_clearances_m(points)
+            # each predicted stage against the MPC margin at its reference speed when it was solved
+            required = self._stage_mpc_margins[:len(points)]
+            short = clearances - required
+            if np.any(short < 0.0):
+                i = int(np.argmin(short))
                 log.info("predicted clearance %.2f m below the MPC margin %.2f m at t = %.2f s: replanning",
-                         clearance, margins.mpc_m, obs.t_s)
+                         clearances[i], required[i], obs.t_s)
                 return "clearance"
         return None
 
     def predicted_clearance_m(self, points_m: np.ndarray) -> float:
-        """Least sphere clearance [m] of predicted positions (M, 3) to the planning map (buildings, no-fly
-        volumes, ground), leaving out points inside a start's or goal's relaxed zone (closer than the
-        margin by the task itself); +inf when every point is left out."""
+        """Least sphere clearance [m] of predicted positions (M, 3) (`predicted_clearances_m`); +inf
+        when every point is left out."""
+        return float(np.min(self.predicted_clearances_m(points_m), initial=math.inf))
+
+    def predicted_clearances_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Sphere clearance [m] of each predicted position (M, 3) to the planning map (buildings, no-fly
+        volumes, ground); +inf for points inside a start's or goal's relaxed zone (closer than the
+        margin by the task itself)."""
         keep = np.ones(len(points_m), dtype=bool)
         for end, zone in self._relaxed_ends:
             keep &= np.linalg.norm(points_m - end, axis=1) > zone
-        if not np.any(keep):
-            return math.inf
-        world, _ = self._flying()
-        obstacles = world.city.planning_map()
-        d = obstacles.clearance(points_m[keep], world.vehicle.collision_radius_m).distance_m
-        return float(np.min(d))
+        out = np.full(len(points_m), math.inf)
+        if np.any(keep):
+            world, _ = self._flying()
+            obstacles = world.city.planning_map()
+            out[keep] = obstacles.clearance(points_m[keep], world.vehicle.collision_radius_m).distance_m
+        return out
 
     def _halfspaces(self, obs: Observation, ref_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clearance half-spaces (N, K, 3), (N, K) around the last prediction (or the reference).
@@ -282,13 +337,13 @@ class ClassicalAgent:
         Rows: the K−1 nearest buildings or no-fly volumes, facing the vehicle through their nearest
         points, and the ground; each offset by the collision radius plus the MPC's clearance margin.
         """
-        (world, margins), mpc = self._flying(), self._tracker
+        (world, _), mpc = self._flying(), self._tracker
         obstacles = world.city.planning_map()  # the no-fly volumes are kept at the same margin
         n_stages, k = mpc.horizon_steps, mpc.config.n_halfspaces
         if k == 0:
             return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
         pred = self.last_solution.predicted_states[1:, 0:3] if self.last_solution is not None else ref_pos[1:]
-        required = world.vehicle.collision_radius_m + margins.mpc_m
+        required = world.vehicle.collision_radius_m + self._stage_mpc_margins  # (N,): by the stage's speed
         normals = np.zeros((n_stages, k, 3))
         offsets = np.full((n_stages, k), -1.0)
         normals[:, k - 1] = (0.0, 0.0, 1.0)
@@ -305,7 +360,7 @@ class ClassicalAgent:
                         continue
                     normal = away / norm * (1.0 if dist[stage, j] >= 0 else -1.0)
                     normals[stage, j] = normal
-                    offsets[stage, j] = normal @ pts[stage, j] + required
+                    offsets[stage, j] = normal @ pts[stage, j] + required[stage]
         return normals, offsets
 
     def _flying(self) -> tuple[World, Margins]:

@@ -30,7 +30,15 @@ class ClassicalReport:
         mpc_statuses: solver return statuses and their counts.
         tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
             curve over the decisions (`Reference.deviation_m`) [m] (NaN: none).
-        planner_margin_m, mpc_margin_m: the margins flown [m]; margin_source: where they came from.
+        planner_margin_m, mpc_margin_m: the margins flown at cruise speed (the largest) [m];
+            margin_source: where they came from.
+        planner_margin_floor_m: the planner margin at rest (the least outside a close start's or
+            goal's zone) [m].
+        planner_attempts: planning attempts at reset (`planners.ladder`; 1 = the first step found the
+            path); planner_step: the step that found it ("" when none did).
+        clearance_over_margin_min: least, over the decisions, of the vehicle's sphere clearance (to
+            buildings, no-fly volumes and the ground) over the margin in force at its reference point
+            (the promise: >= 0.5) [-].
 
     Read from an episode file saved before a field existed, that field is NaN (a count too: the
     counts' `float`), {} or "".
@@ -50,6 +58,10 @@ class ClassicalReport:
     planner_margin_m: float
     mpc_margin_m: float
     margin_source: str
+    planner_margin_floor_m: float = math.nan
+    planner_attempts: int | float = math.nan
+    planner_step: str = ""
+    clearance_over_margin_min: float = math.nan
 
     @property
     def replans(self) -> int | float:
@@ -89,4 +101,6 @@ class ClassicalReport:
             mpc_statuses={str(k): int(v) for k, v in statuses.items()} if isinstance(statuses, Mapping) else {},
             tracking_rms_m=num("tracking_rms_m"), tracking_max_m=num("tracking_max_m"),
             planner_margin_m=num("planner_margin_m"), mpc_margin_m=num("mpc_margin_m"),
-            margin_source=str(data.get("margin_source") or ""))
+            margin_source=str(data.get("margin_source") or ""), planner_margin_floor_m=num("planner_margin_floor_m"),
+            planner_attempts=num("planner_attempts"), planner_step=str(data.get("planner_step") or ""),
+            clearance_over_margin_min=num("clearance_over_margin_min"))

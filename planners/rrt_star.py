@@ -31,7 +31,7 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from planners.timing import endpoint_allowance
+from planners.clearance import MarginTaper, RequiredClearance
 from uam_fdm.city.buildings import BuildingMap
 
 logger = logging.getLogger(__name__)
@@ -172,46 +172,28 @@ class PlanResult:
 class FreeSpace:
     """Validity of positions and straight motions for a sphere of radius r with margin m.
 
-    A position is valid when its point clearance exceeds R = r + m; a motion when the capsule of
-    radius R around the segment is free (exact, `BuildingMap.segment_free`).
-
-    Endpoint relaxation (`planners.timing.endpoint_allowance`): a start or goal that is
-    collision-free but inside the margin gets its own radius r_e for the first `escape` metres of
-    the edges that leave it; beyond that the full R holds again.
+    A position p is valid when its point clearance exceeds R(p) = r + m, narrowed near a start or
+    goal by its `MarginTaper` and relaxed inside the zone of a start or goal that is itself inside
+    the margin (`planners.clearance.RequiredClearance`); a motion when every run of it
+    (`RequiredClearance.runs`) is free for a capsule of that run's R (exact, `BuildingMap.segment_free`).
     """
 
     def __init__(self, city: BuildingMap, radius_m: float, margin_m: float,
-                 endpoints: Sequence[Sequence[float]] = ()) -> None:
+                 endpoints: Sequence[Sequence[float]] = (), tapers: Sequence[MarginTaper] = ()) -> None:
         self.city = city
-        self.r = float(radius_m)
-        self.R = float(radius_m) + float(margin_m)
-        self._relaxed: dict[tuple[float, float, float], tuple[float, float]] = {}
-        for e in endpoints:
-            key = (float(e[0]), float(e[1]), float(e[2]))
-            r_e, escape = endpoint_allowance(city, np.array(key), radius_m, margin_m)
-            if escape > 0.0:
-                self._relaxed[key] = (r_e, escape)
+        self.required = RequiredClearance(city, radius_m, margin_m, endpoints, tapers)
+        self.r = self.required.r
+        self.R = self.required.R
 
     def state_ok(self, x: float, y: float, z: float) -> bool:
         """Whether a sphere centred at (x, y, z) (ENU metres) is valid."""
-        rel = self._relaxed.get((x, y, z))
-        return self.city.clearance_one(x, y, z, self.R if rel is None else rel[0]) > 0.0
+        return self.city.clearance_one(x, y, z, self.required.at_one(x, y, z)) > 0.0
 
     def edge_ok(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
         """Whether the straight motion a -> b (ENU metres) is valid (exact swept-sphere test)."""
-        ra, ea = self._relaxed.get(a, (self.R, 0.0))
-        rb, eb = self._relaxed.get(b, (self.R, 0.0))
-        seg = self.city.segment_free
-        if ea == 0.0 and eb == 0.0:
-            return seg(a, b, self.R)
-        pa, pb = np.asarray(a), np.asarray(b)
-        length = float(np.linalg.norm(pb - pa))
-        if ea + eb >= length:
-            return seg(a, b, min(ra, rb)) and (eb > 0.0 or self.city.clearance_one(*b, self.R) > 0.0) \
-                and (ea > 0.0 or self.city.clearance_one(*a, self.R) > 0.0)
-        m1 = pa + (pb - pa) * (ea / length)
-        m2 = pb + (pa - pb) * (eb / length)
-        return seg(pa, m1, ra) and seg(m1, m2, self.R) and seg(m2, pb, rb)
+        if self.required.uniform or not self.required.near(a, b):
+            return self.city.segment_free(a, b, self.R)
+        return all(self.city.segment_free(p, q, big_r) for p, q, big_r in self.required.runs(a, b))
 
     def path_ok(self, path_m: np.ndarray) -> bool:
         """Whether every edge of a polyline (K, 3) is valid."""
@@ -423,7 +405,8 @@ def _simplify(ss: og.SimpleSetup, si: ob.SpaceInformation, path: og.PathGeometri
 
 # ---- the public entry point ----------------------------------------------------------------------------
 def plan_path(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: Sequence[float] | np.ndarray,
-              radius_m: float, config: PlannerConfig = PlannerConfig(), seed: int = 0) -> PlanResult:
+              radius_m: float, config: PlannerConfig = PlannerConfig(), seed: int = 0,
+              tapers: Sequence[MarginTaper] = ()) -> PlanResult:
     """Plan a collision-free path for a sphere from start to goal.
 
     Args:
@@ -434,9 +417,12 @@ def plan_path(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: 
         radius_m: vehicle collision radius [m]; the path keeps `config.safety_margin_m` beyond it.
         config: planner settings.
         seed: seed of OMPL's random generators (same seed and iteration budget -> same path).
+        tapers: margins that narrow towards the start or goal (`planners.clearance.MarginTaper`: the
+            reference is slow there, so it needs less clearance); none: `config.safety_margin_m`
+            everywhere.
 
-    A start or goal that is collision-free but inside the safety margin is accepted: near it the
-    required clearance is relaxed to its own (`planners.timing.endpoint_allowance`).
+    A start or goal that is collision-free but inside the margin in force there is accepted: near it
+    the required clearance is relaxed to its own (`planners.clearance.endpoint_allowance`).
 
     Returns:
         A PlanResult; an invalid start or goal, or no path within the budget, is a status, not an
@@ -455,7 +441,7 @@ def plan_path(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: 
         problem = _endpoint_problem(city, p, r)
         if problem:
             return _failed(f"invalid_{name}", f"{name} {list(p)}: {problem}", t_start, common)
-    free = FreeSpace(city, r, config.safety_margin_m, (start, goal))
+    free = FreeSpace(city, r, config.safety_margin_m, (start, goal), tapers)
     # The sampling box: bounds shrunk by R, stretched to hold a (relaxed) start and goal.
     lo = np.minimum(lo, np.minimum(start, goal))
     hi = np.maximum(hi, np.maximum(start, goal))

@@ -9,8 +9,9 @@ Frames: world ENU, metres, seconds.
    The curve is C2, starts at the start and ends at the goal.
 2. Clearance: the curve is sampled every <= `check_spacing_m` and its clearance measured against
    the map (exact, `BuildingMap.clearance`).  Where a rounded corner comes closer than
-   R = radius + margin (relaxed near a start or goal that is itself inside the margin:
-   `endpoint_allowance`, the planner's rule), that corner's d is halved and the check repeated;
+   R(p) = radius + margin (narrowed towards a start or goal by its taper, relaxed near one that is
+   itself inside the margin: `planners.clearance`, the planner's rule), that corner's d is halved
+   and the check repeated;
    a corner that still fails after `max_refinements` halvings becomes a stop: the reference comes
    to rest on the corner vertex and turns there.  For a path from the planner (clear by R on every
    segment) this always succeeds; the whole curve is checked once more at the end.
@@ -19,6 +20,8 @@ Frames: world ENU, metres, seconds.
    curvature vector) may use `lateral_fraction` of the horizontal and vertical acceleration
    limits; the tangential acceleration a is bounded so that |a t_h + v^2 k_h| <= a_h and
    |a t_z + v^2 k_z| <= a_v for every admissible speed.  Start and end (and stops) are at rest.
+   With a `speed_limit` (the inverse of the margin's speed dependence), the speed at each sample
+   is also capped at the fastest whose margin fits the clearance there.
 4. The profile is sampled in time every `sample_dt_s`: position, velocity v t and acceleration
    a t + v^2 k.
 """
@@ -27,10 +30,12 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from planners.clearance import MarginTaper, RequiredClearance
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams
 
@@ -244,45 +249,6 @@ class Reference:
         return float(np.sqrt(np.min(np.sum((a + s[:, None] * ab - p) ** 2, axis=1))))
 
 
-# ---- the clearance contract (shared with planners.rrt_star) ------------------------------------------
-def endpoint_allowance(city: BuildingMap, point_m: np.ndarray, radius_m: float, margin_m: float
-                       ) -> tuple[float, float]:
-    """The clearance radius required near a start or goal, and how far from it that applies.
-
-    Everywhere the vehicle's point clearance must exceed R = radius + margin.  A start or goal that
-    is collision-free (clearance c > radius) but inside the margin would make every plan from it
-    fail, so near it the requirement is relaxed to r_e = max(radius, c - 0.05 m) within
-    2 (R - r_e) of it: enough to regain R when leaving at 30 degrees or more.  The vehicle is thus
-    never asked to come closer to a building than it already is, and the full margin holds beyond.
-    The planner and the time-parameterisation apply this same rule.
-
-    Args:
-        city: the map.
-        point_m: (3,) the start or goal, ENU metres.
-        radius_m: vehicle collision radius [m].
-        margin_m: safety margin [m].
-
-    Returns:
-        (required point clearance [m], radius of the relaxed zone [m]); (R, 0) when not relaxed.
-    """
-    big_r = float(radius_m) + float(margin_m)
-    c = city.clearance_one(float(point_m[0]), float(point_m[1]), float(point_m[2]), 0.0)
-    if float(radius_m) < c <= big_r:
-        r_e = max(float(radius_m), c - 0.05)
-        return r_e, 2.0 * (big_r - r_e)
-    return big_r, 0.0
-
-
-def _required_clearance(points: np.ndarray, ends: list[tuple[np.ndarray, float, float]], big_r: float) -> np.ndarray:
-    """Point clearance each sample must keep (N,) [m]: R, relaxed near a close start or goal."""
-    req = np.full(len(points), big_r)
-    for e, r_e, escape in ends:
-        if escape > 0.0:
-            near = np.linalg.norm(points - e, axis=1) <= escape
-            req[near] = np.minimum(req[near], r_e)
-    return req
-
-
 # ---- the curve ---------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Curve:
@@ -342,13 +308,13 @@ def _bspline_piece(path: np.ndarray, first: int, d: np.ndarray, spacing: float) 
 
 
 # ---- clearance check and refinement ---------------------------------------------------------------
-def _offending_corners(curve: _Curve, city: BuildingMap, ends: list, big_r: float) -> set[int]:
+def _offending_corners(curve: _Curve, city: BuildingMap, required: RequiredClearance) -> set[int]:
     """Corners whose rounded samples come closer than required."""
     idx = np.flatnonzero(curve.corner >= 0)
     if len(idx) == 0:
         return set()
     pts = curve.pts[idx]
-    bad = city.clearance(pts, 0.0).distance_m <= _required_clearance(pts, ends, big_r)
+    bad = city.clearance(pts, 0.0).distance_m <= required.at(pts)
     return {int(c) for c in np.unique(curve.corner[idx][bad])}
 
 
@@ -381,7 +347,7 @@ def _turn_angles(path: np.ndarray) -> np.ndarray:
     return ang
 
 
-def _smooth(path: np.ndarray, city: BuildingMap, ends: list, big_r: float, config: TimingConfig
+def _smooth(path: np.ndarray, city: BuildingMap, required: RequiredClearance, config: TimingConfig
             ) -> tuple[list[_Curve], int, int]:
     """Round the corners, halving those that come too close: (pieces, refinements, stops)."""
     seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
@@ -392,7 +358,7 @@ def _smooth(path: np.ndarray, city: BuildingMap, ends: list, big_r: float, confi
     refinements = 0
     while True:
         curves = _pieces(path, d, config.check_spacing_m)
-        bad = set().union(*(_offending_corners(c, city, ends, big_r) for c in curves))
+        bad = set().union(*(_offending_corners(c, city, required) for c in curves))
         if not bad:
             break
         if refinements >= config.max_refinements:
@@ -428,9 +394,11 @@ def _interval_abs_le(h: np.ndarray, g: np.ndarray, limit: float) -> tuple[np.nda
 
 
 def _speed_profile(curve: _Curve, limits: TimingLimits, config: TimingConfig,
-                   start_speed_m_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                   start_speed_m_s: float = 0.0, speed_cap_m_s: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Squared speed w (N,) at the samples and tangential acceleration a (N-1,) on each interval; the piece
-    starts at `start_speed_m_s` if its limits and the stop at its end allow, else as fast as they do."""
+    starts at `start_speed_m_s` if its limits and the stop at its end allow, else as fast as they do;
+    `speed_cap_m_s` (N,) is a further cap per sample (the speed the clearance there allows)."""
     t, k = curve.tan, curve.kappa
     th, tz = np.linalg.norm(t[:, :2], axis=1), np.abs(t[:, 2])
     kh, kz = np.linalg.norm(k[:, :2], axis=1), np.abs(k[:, 2])
@@ -441,6 +409,8 @@ def _speed_profile(curve: _Curve, limits: TimingLimits, config: TimingConfig,
             np.where(tz > 0, (limits.max_vertical_speed_m_s / tz) ** 2, np.inf),
             np.where(kh > 0, f * limits.max_accel_m_s2 / kh, np.inf),
             np.where(kz > 0, f * limits.max_vertical_accel_m_s2 / kz, np.inf)])
+    if speed_cap_m_s is not None:
+        w_max = np.minimum(w_max, np.asarray(speed_cap_m_s, float) ** 2)
     # Between grid points the geometry is interpolated: hold each sample to its neighbours' limits too.
     w_max[1:-1] = np.minimum.reduce([w_max[:-2], w_max[1:-1], w_max[2:]])
     # Tangential bounds valid for every speed up to the limit (the constraint set is convex in (a, v^2)).
@@ -498,8 +468,9 @@ def _sample_piece(curve: _Curve, w: np.ndarray, a: np.ndarray, t_piece: np.ndarr
 
 # ---- the public entry point ----------------------------------------------------------------------------
 def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMap, radius_m: float,
-                      margin_m: float, config: TimingConfig = TimingConfig(), start_speed_m_s: float = 0.0
-                      ) -> Reference:
+                      margin_m: float, config: TimingConfig = TimingConfig(), start_speed_m_s: float = 0.0,
+                      tapers: Sequence[MarginTaper] = (),
+                      speed_limit: Callable[[np.ndarray], np.ndarray] | None = None) -> Reference:
     """Smooth a collision-free path and time it within the limits, keeping the clearance.
 
     Args:
@@ -512,6 +483,12 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
         config: smoothing and sampling settings.
         start_speed_m_s: speed along the path at its start [m/s] (a replan from a moving vehicle): the
             reference starts at it where the limits and the first stop allow, else as fast as they do.
+        tapers: the margin narrowing towards the start or goal, as given to the planner
+            (`planners.clearance.MarginTaper`).
+        speed_limit: the fastest speed [m/s] at which the reference may pass a point whose clearance
+            beyond the collision radius is x [m], vectorised over x
+            (`planners.margins.SpeedMargins.speed_limit_m_s`): the margin in force follows the speed,
+            so the reference slows where it passes closer than the cruise margin. None: no such cap.
 
     Returns:
         A Reference from the path's start (at rest unless `start_speed_m_s`) to its end, at rest.  Its status is
@@ -527,15 +504,17 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
         raise ValueError(f"start_speed_m_s must be finite and >= 0, got {start_speed_m_s}")
     city = city.planning_map()
     path = _clean(path_m)
-    r_req = float(radius_m) + float(margin_m)
     if len(path) == 1:
         return _at_rest(path[0], city, radius_m, margin_m)
-    ends = [(path[i], *endpoint_allowance(city, path[i], radius_m, margin_m)) for i in (0, -1)]
-    curves, refinements, stops = _smooth(path, city, ends, r_req, config)
+    required = RequiredClearance(city, radius_m, margin_m, (path[0], path[-1]), tapers)
+    curves, refinements, stops = _smooth(path, city, required, config)
+    # clearance of every sample of the final curve: the speed cap and the final check both use it
+    clear = [city.clearance(c.pts, 0.0).distance_m for c in curves]
     t_all, pos_all, vel_all, acc_all = [], [], [], []
     t_offset = 0.0
     for k, curve in enumerate(curves):
-        w, a = _speed_profile(curve, limits, config, start_speed_m_s if k == 0 else 0.0)
+        cap = None if speed_limit is None else speed_limit(clear[k] - float(radius_m))
+        w, a = _speed_profile(curve, limits, config, start_speed_m_s if k == 0 else 0.0, cap)
         t_piece = _timed(curve, w, a)
         n = max(1, math.ceil(t_piece[-1] / config.sample_dt_s))
         t = np.minimum(np.arange(n) * config.sample_dt_s, t_piece[-1])
@@ -551,8 +530,8 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     vel_all.append(np.zeros((1, 3)))
     acc_all.append(np.zeros((1, 3)))
     dense = np.vstack([c.pts for c in curves])
-    d_dense = city.clearance(dense, 0.0).distance_m
-    ok = bool(np.all(d_dense > _required_clearance(dense, ends, r_req) - 1e-9))
+    d_dense = np.concatenate(clear)
+    ok = bool(np.all(d_dense > required.at(dense) - 1e-9))
     min_clear = float(np.min(d_dense)) - float(radius_m)
     length = float(sum(c.s[-1] for c in curves))
     ref = Reference(

@@ -30,7 +30,8 @@ CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 """Clearances [m] below which the time spent is counted (`time_below_2m_s`, `time_below_5m_s`)."""
 
 TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
-                   "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m")
+                   "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
+                   "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min")
 """The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
 method like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
@@ -68,7 +69,13 @@ class EpisodeMetrics:
         tracking_rms_m, tracking_max_m: RMS and largest distance from the vehicle to its reference
             curve over the decisions [m].
         planner_margin_m, mpc_margin_m: the clearance margins flown beyond the collision radius (the
-            reference's, and the MPC's soft constraint) [m].
+            reference's, and the MPC's soft constraint) at cruise speed, the largest [m].
+        planner_margin_floor_m: the reference's margin at rest (the margin follows the reference's
+            speed, narrowing towards the start and goal) [m].
+        planner_attempts: planning attempts at reset until a path was found (1: the first planner;
+            more: the escalation ladder of `planners.ladder` climbed) [count].
+        clearance_over_margin_min: least, over the decisions, of the vehicle's clearance over the margin
+            in force at its reference point (the promise: >= 0.5) [-].
         vehicle_fingerprint: the vehicle's fingerprint ("" where the episode file did not record it). Rows of
             two vehicles that share a name but not a fingerprint are labelled apart (`label_vehicles`).
         The tracker columns (`TRACKER_METRICS`) are NaN for a pilot without a tracker (ppo) and, where an
@@ -105,6 +112,9 @@ class EpisodeMetrics:
     tracking_max_m: float = math.nan
     planner_margin_m: float = math.nan
     mpc_margin_m: float = math.nan
+    planner_margin_floor_m: float = math.nan
+    planner_attempts: float = math.nan
+    clearance_over_margin_min: float = math.nan
     vehicle_fingerprint: str = ""
 
 
@@ -207,7 +217,9 @@ def _tracker_fields(report: PilotReport | None) -> dict[str, float]:
             "mpc_failures": float(r.mpc_failures), "replans_tracking": float(r.replans_tracking),
             "replans_clearance": float(r.replans_clearance), "tracking_rms_m": float(r.tracking_rms_m),
             "tracking_max_m": float(r.tracking_max_m), "planner_margin_m": float(r.planner_margin_m),
-            "mpc_margin_m": float(r.mpc_margin_m)}
+            "mpc_margin_m": float(r.mpc_margin_m), "planner_margin_floor_m": float(r.planner_margin_floor_m),
+            "planner_attempts": float(r.planner_attempts),
+            "clearance_over_margin_min": float(r.clearance_over_margin_min)}
 
 
 def _path_length_m(positions_m: np.ndarray) -> float:

@@ -608,6 +608,9 @@ _TABLE_COLUMNS: dict[str, tuple[str, Callable[[float], str]]] = {
     "tracking_max_m": ("tracking max [m]", _fixed(3)),
     "planner_margin_m": ("planner margin [m]", _fixed(2)),
     "mpc_margin_m": ("MPC margin [m]", _fixed(2)),
+    "planner_margin_floor_m": ("planner margin at rest [m]", _fixed(2)),
+    "planner_attempts": ("planning attempts", _fixed(2)),
+    "clearance_over_margin_min": ("min clearance / local margin", _fixed(2)),
 }
 
 

@@ -48,6 +48,9 @@ SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
     ("tracking_max_m", "tracking max (distance to the reference) [m]", 1.0, 3),
     ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
     ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
+    ("planner_margin_floor_m", "planner clearance margin at rest [m]", 1.0, 2),
+    ("planner_attempts", "planning attempts at reset", 1.0, 2),
+    ("clearance_over_margin_min", "min clearance / margin in force", 1.0, 2),
 )
 
 # the summary figure's metrics: (summary key, panel title, scale, decimals)

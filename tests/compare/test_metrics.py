@@ -109,7 +109,9 @@ def test_metrics_of_a_known_polyline():
 
 TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures": 1, "replans_tracking": 0,
            "replans_clearance": 2, "tracking_rms_m": 0.125, "tracking_max_m": 0.75, "planner_margin_m": 1.5,
-           "mpc_margin_m": 0.75, "mpc_statuses": {"ok": 3}, "margin_source": "table", "replans": 2}
+           "mpc_margin_m": 0.75, "mpc_statuses": {"ok": 3}, "margin_source": "table", "replans": 2,
+           "planner_margin_floor_m": 1.0, "planner_attempts": 2, "planner_step": "rrtconnect, speed margins",
+           "clearance_over_margin_min": 0.625}
 
 
 def _save_with_extra(tmp_path, extra: dict, method: str = "rrt_mpc") -> SavedEpisode:
@@ -143,6 +145,7 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
     old = episode_metrics(_save_with_extra(tmp_path, {"replans": 1, "mpc_failures": 0, "mpc_solve_ms_median": 1.5}))
     assert (old.replans_tracking, old.mpc_failures, old.mpc_solve_ms_median) == (1.0, 0.0, 1.5)
     assert math.isnan(old.replans_clearance) and math.isnan(old.planner_margin_m)
+    assert math.isnan(old.planner_attempts) and math.isnan(old.clearance_over_margin_min)
     # through metrics.csv and back, exactly
     path = write_metrics_csv([m, ppo], tmp_path / "metrics.csv")
     back = read_metrics_csv(path)
@@ -280,6 +283,7 @@ def test_csv_columns_are_the_contract_order():
         "path_length_m", "straight_line_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
         "plan_time_s", "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
         "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
+        "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min",
         "vehicle_fingerprint")
 
 

@@ -1,12 +1,18 @@
 """The plan-and-track pilot flies a small three-building map to the goal without collision."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from alley import alley_city
 from compare.episode_loop import run_episode
 from planners.agent import ClassicalAgent, ClassicalConfig
+from planners.ladder import LADDER
+from planners.margins import SpeedBin, TrackingErrorRow, write_tracking_table
 from planners.mpc import MPCSolution
+from planners.rrt_star import PlannerConfig, plan_path
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField
 from uam_fdm.city.buildings import Building, BuildingMap
@@ -127,3 +133,54 @@ def test_margins_follow_the_forecast_turbulence_and_density(vehicles, compiled_d
             got = ClassicalAgent().margins_for(world, task)
             want = margins_for(table, rule, p, level, atm.density_ratio(0.0), 1.0, 0.5)
             assert (got.planner_m, got.mpc_m) == (want.planner_m, want.mpc_m) and got.planner_m >= rule.floor_m
+
+
+def _speed_table(tmp_path, p) -> Path:
+    """A tracking-error table for `p` in calm sea-level air: the margin is 1 m up to 2 m/s, 2 m up to
+    6 m/s and 4 m faster (p99 0.3 / 1.0 / 2.0 m, k = 2)."""
+    bins = tuple(SpeedBin(lo, hi, 600, e / 3, e / 2, e, 1.2 * e)
+                 for lo, hi, e in ((0.0, 2.0, 0.3), (2.05, 6.0, 1.0), (6.05, 30.0, 2.0)))
+    row = TrackingErrorRow(p.name, p.fingerprint(), TurbulenceLevel.NONE, 1.0, 3, 1800, 0.3, 1.0, 2.0, 2.4, bins)
+    return write_tracking_table([row], {"pool": "test"}, tmp_path / "speed_table.json")
+
+
+@pytest.mark.parametrize("name, z", [("small_quad", 10.0), ("uam_multicopter", 20.0)])
+def test_a_goal_inside_the_cruise_margin_but_reachable_is_reached(name, z, vehicles, compiled_dynamics, tmp_path):
+    """The goal lies deep in an alley 3 m narrower than the cruise margin asks: the old single margin could
+    not plan there; the ladder plans at the floor margin and the reference slows to what the clearance allows."""
+    p = vehicles[name]
+    city, start, goal = alley_city(p.collision_radius_m, z_m=z)
+    world = World(p, compiled_dynamics[name], city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0),
+                  "none")
+    task = Task(start_m=start, goal_m=goal, goal_radius_m=1.0 + 0.2 * p.collision_radius_m, timeout_s=90.0)
+    agent = ClassicalAgent(ClassicalConfig(tracking_table=_speed_table(tmp_path, p)))
+    margins = agent.margins_for(world, task)
+    assert (margins.floor_m, margins.planner_m) == (1.0, 4.0)
+    # the old rule, one margin everywhere: no path into the alley
+    old = plan_path(city, start, goal, p.collision_radius_m, PlannerConfig(safety_margin_m=margins.planner_m))
+    assert not old.ok
+    traj = run_episode(world, agent, task, WindField.calm(), seed=4)
+    report = agent.episode_report()
+    assert traj.outcome == "success", traj.detail
+    assert report.planner_attempts == 3 and report.planner_step == LADDER[2].name
+    assert report.planner_margin_floor_m == 1.0 and report.planner_margin_m == 4.0
+    assert traj.clearance_m.min() >= 0.5 and report.clearance_over_margin_min >= 0.5
+    # in the alley (3 m beyond the sphere) the reference keeps to the speed whose margin fits: 6 m/s
+    in_alley = agent.reference.pos_m[:, 0] > 2.0
+    assert np.linalg.norm(agent.reference.vel_m_s[in_alley], axis=1).max() <= 6.0 + 1e-6
+    # the MPC's margin per stage follows the stage's reference speed: at the last decision, slowing into the
+    # goal, half of 2 m (<= 6 m/s) on the first stages, then half the margin at rest
+    stages = agent._stage_mpc_margins
+    assert set(stages) <= {0.5, 1.0} and stages[-1] == 0.5 and np.all(np.diff(stages) <= 0)
+
+
+def test_a_walled_in_goal_is_a_planner_failure_with_its_reason(vehicles, compiled_dynamics, tmp_path):
+    p = vehicles["small_quad"]
+    city, start, goal = alley_city(p.collision_radius_m, closed=True)
+    world = World(p, compiled_dynamics["small_quad"], city,
+                  Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none")
+    cfg = ClassicalConfig(tracking_table=_speed_table(tmp_path, p), planner=PlannerConfig(max_iterations=2000))
+    agent = ClassicalAgent(cfg)
+    traj = run_episode(world, agent, Task(start_m=start, goal_m=goal, timeout_s=10.0), WindField.calm(), seed=1)
+    assert traj.outcome == "planner_failure" and "no path at the floor margin 1.00 m in 4 attempts" in traj.detail
+    assert len(traj.t_s) == 1 and agent.episode_report().planner_attempts == 4

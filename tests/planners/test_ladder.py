@@ -1,0 +1,63 @@
+"""The planning ladder: the order of its steps, which step found the path, and a failure only when none did."""
+from __future__ import annotations
+
+import pytest
+
+from alley import alley_city
+from planners.clearance import MarginTaper
+from planners.ladder import LADDER, PlanStep, plan_with_escalation
+from planners.margins import SpeedMargins
+from planners.rrt_star import PlannerConfig
+
+R_QUAD = 0.42
+MARGINS = SpeedMargins((2.0, 6.0), (1.0, 2.0, 4.0))   # 1 m at rest, 4 m at cruise
+CONFIG = PlannerConfig(safety_margin_m=MARGINS.cruise_m, max_iterations=3000)
+
+
+def _tapers(start, goal, accel=5.0):
+    return tuple(MarginTaper(p, *MARGINS.taper(accel)) for p in (start, goal))
+
+
+def test_the_ladder_order():
+    assert [(s.algorithm, s.iteration_factor, s.max_iterations, s.floor_margin) for s in LADDER] == [
+        (None, 1, None, False), ("rrtconnect", 1, 2000, False), (None, 1, None, True), ("rrtconnect", 4, None, True)]
+    with pytest.raises(ValueError, match="algorithm"):
+        PlanStep("x", "astar")
+
+
+def test_an_open_goal_is_found_by_the_first_step():
+    city, start, _ = alley_city(R_QUAD)
+    goal = (-5.0, 25.0, 10.0)          # in the open, far from the alley
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert found.ok and found.step == 1 and len(found.attempts) == 1 and found.margin_m == MARGINS.cruise_m
+
+
+def test_a_goal_inside_the_cruise_margin_is_found_at_the_floor_margin():
+    city, start, goal = alley_city(R_QUAD)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    # the cruise margin (4 m) does not fit the alley (3 m) with either planner: the floor margin does
+    assert found.ok and found.step == 3 and found.step_name == LADDER[2].name
+    assert not any(a.ok for a in found.attempts[:2])
+    assert found.attempts[1].algorithm == "rrtconnect" and found.attempts[1].iterations <= 2001  # the quick step
+    assert found.margin_m == MARGINS.floor_m and found.tapers == ()
+    assert found.plan.min_clearance_m >= MARGINS.floor_m - 1e-9
+    assert found.plan_time_s == pytest.approx(sum(a.plan_time_s for a in found.attempts))
+    # deterministic: the same seed, the same path
+    again = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert (again.plan.path_m == found.plan.path_m).all()
+
+
+def test_a_walled_in_goal_is_a_planner_failure_that_says_so():
+    city, start, goal = alley_city(R_QUAD, closed=True)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert not found.ok and found.step == 0 and len(found.attempts) == len(LADDER)
+    assert found.plan.status in ("approximate", "no_solution")
+    assert "no path at the floor margin 1.00 m in 4 attempts" in found.plan.message
+
+
+def test_a_step_that_repeats_an_earlier_query_is_skipped():
+    city, start, goal = alley_city(R_QUAD, closed=True)
+    flat = PlannerConfig(safety_margin_m=1.0, max_iterations=1000)
+    found = plan_with_escalation(city, start, goal, R_QUAD, flat, 0, floor_margin_m=1.0)
+    # floor = cruise: step 3 would be step 1 again; step 4 (more iterations) is a new query
+    assert len(found.attempts) == 3 and "in 3 attempts" in found.plan.message
