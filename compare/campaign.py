@@ -387,7 +387,11 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
                                                     if f.envelope is not None})
     fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
-        fingerprints = check_resume(out, fingerprints)
+        # the seeds and methods of each scenario as run.json records them (`scenario_info`)
+        asked = {sc.name: (tuple(sorted({c.seed for c in cells if c.scenario == i})),
+                           tuple(pilots.ordered(c.method for c in cells if c.scenario == i)))
+                 for i, sc in enumerate(scenarios)}
+        fingerprints = check_resume(out, fingerprints, asked)
     setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used})
     t0 = time.perf_counter()
     # the backend starts before anything is written: a Ray cluster that cannot be reached leaves no folder

@@ -119,8 +119,11 @@ def _code_words(code: Mapping) -> str:
     return f"uam-compare {code.get('uam-compare')}" + (f" commit {commit[:12]}" if commit else " (no commit)")
 
 
-def check_resume(out: Path, now: dict) -> dict:
-    """Refuse to resume into `out` unless it is a run of this tool saved from the inputs in `now`.
+def check_resume(out: Path, now: dict, flown: Mapping[str, tuple[tuple[int, ...], tuple[str, ...]]] | None = None
+                 ) -> dict:
+    """Refuse to resume into `out` unless it is a run of this tool saved from the inputs in `now`, flying the
+    same seeds and methods per scenario as the saved run (`flown`: scenario name -> (seeds, methods); run.json
+    describes one command's cells, so a resume may not mix in another's).
 
     Reads only: a refused folder is left byte for byte as it was. A missing or empty folder is a fresh start.
 
@@ -155,6 +158,14 @@ def check_resume(out: Path, now: dict) -> dict:
                          f"its scenarios, vehicle, policy and code cannot be compared with these; nothing was "
                          f"written (fly into a new folder; `uam-compare report` still reports this one)")
     diffs = fingerprint_differences(fps, now)
+    asked = flown or {}
+    for info in saved.scenarios if asked else ():
+        seeds, methods = asked.get(info.name, (info.seeds, info.methods))
+        if tuple(seeds) != tuple(info.seeds):
+            diffs.append(f"scenario {info.name}: seeds saved {list(info.seeds)}, now {list(seeds)} (--seeds)")
+        if tuple(methods) != tuple(info.methods):
+            diffs.append(f"scenario {info.name}: methods saved {', '.join(info.methods)}, now {', '.join(methods)} "
+                         f"(--methods, --method)")
     if diffs:
         raise ValueError(f"{out}: cannot resume: the inputs differ from the saved run's: {'; '.join(diffs)}; "
                          f"nothing was written (fly into a new folder)")

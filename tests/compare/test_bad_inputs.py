@@ -504,6 +504,19 @@ def test_resume_refuses_a_changed_scenario(tmp_path: Path, capsys: pytest.Captur
            f"scenario tiny: {part} changed", "nothing was written")
 
 
+@pytest.mark.parametrize(("methods", "seeds", "why"), [
+    ("rrt_mpc", "0,1", "scenario tiny: seeds saved [0], now [0, 1] (--seeds)"),
+    ("ppo,rrt_mpc", None, "scenario tiny: methods saved rrt_mpc, now ppo, rrt_mpc (--methods, --method)"),
+])
+def test_resume_refuses_other_seeds_or_methods(tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,
+                                               methods: str, seeds: str | None, why: str) -> None:
+    """run.json describes one command's cells: a resume that would mix in another's is refused, folder untouched."""
+    _, argv = _tiny_run(tmp_path)
+    argv = [methods if a == "rrt_mpc" else a for a in argv] + (["--seeds", seeds] if seeds else [])
+    _fails([*argv, "--resume"], capsys, tmp_path, f"{tmp_path / 'run'}: cannot resume: the inputs differ", why,
+           "nothing was written")
+
+
 def test_resume_lists_every_difference(tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,
                                        monkeypatch: pytest.MonkeyPatch) -> None:
     scen, argv = _tiny_run(tmp_path)
