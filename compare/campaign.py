@@ -71,6 +71,7 @@ from compare.trained_air import air_envelope, outside_trained_air
 from rl.policies.folder import shipped_policy_dir
 from uam_fdm.city.generator import map_yaml_text
 from uam_fdm.files.atomic import remove_stale_temporaries, write_text_atomic
+from uam_fdm.files.lock import LOCK_NAME, folder_lock
 from uam_fdm.vehicle.params import load_vehicle
 
 log = logging.getLogger(__name__)
@@ -396,8 +397,10 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     t0 = time.perf_counter()
     # the backend starts before anything is written: a Ray cluster that cannot be reached leaves no folder
     jobs = min(opts.jobs, len(cells))  # a worker per cell at most: --jobs 64 for one cell starts one interpreter
-    with open_backend(opts.backend, setup, jobs, opts.address, isolate=not opts.in_process) as backend:
-        out.mkdir(parents=True, exist_ok=True)
+    with (open_backend(opts.backend, setup, jobs, opts.address, isolate=not opts.in_process) as backend,
+          folder_lock(out, opts.command or "uam-compare run")):
+        if not opts.resume:  # checked again under the lock: two runs started together into one --out
+            check_empty_run_folder(out)
         _remove_stale_temporaries(out)
         for n in notes:  # cells left out (also in run.json and the report)
             log.warning("%s", n)
@@ -413,14 +416,22 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
             raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
         finally:
             bar.close()
-    log.info("flew %d cells (%d failed) in %.1f s", len(todo), len(failed), time.perf_counter() - t0)
-    finalize(out, report=opts.report)
-    if opts.videos != "none":  # matplotlib, and ffmpeg's writer, only for a run that animates
-        from compare.viz.animate import render_videos
-        from compare.viz.flights import flight_groups
-        groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
-        render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress)
+        log.info("flew %d cells (%d failed) in %.1f s", len(todo), len(failed), time.perf_counter() - t0)
+        _finalize(out, report=opts.report)  # still under the lock: a `report` started now waits for none of it
+        if opts.videos != "none":  # matplotlib, and ffmpeg's writer, only for a run that animates
+            from compare.viz.animate import render_videos
+            from compare.viz.flights import flight_groups
+            groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
+            render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress)
     return out
+
+
+def check_empty_run_folder(out: Path) -> None:
+    """Refuse a new run's --out `out` if it holds anything but the lock (a run never writes into other files)."""
+    if not out.exists():
+        return
+    if any(p.name != LOCK_NAME for p in out.iterdir()):
+        raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
 
 
 def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[FailedCell]:
@@ -490,10 +501,21 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
 
 
 def finalize(run_dir: Path, report: bool = True) -> Path:
-    """Score the saved episodes (metrics.csv, summary.json), build the report and the viewer; never simulates."""
+    """Score the saved episodes (metrics.csv, summary.json), build the report and the viewer; never simulates.
+
+    Raises:
+        ValueError: not a run folder, nothing readable to report, or (`FolderBusy`) a run or report is
+            writing the folder now.
+    """
     run_dir = Path(run_dir)
     if not (run_dir / RUN_INFO_NAME).is_file():
         raise ValueError(f"{run_dir}: not a run folder ({RUN_INFO_NAME} is missing)")
+    with folder_lock(run_dir, "uam-compare report"):
+        return _finalize(run_dir, report)
+
+
+def _finalize(run_dir: Path, report: bool) -> Path:
+    """`finalize` for a caller that holds the folder's lock."""
     _remove_stale_temporaries(run_dir)
     files = episode_files(run_dir)
     failed = read_failures(run_dir)  # cells without an episode: no metrics row, listed in failed/

@@ -20,7 +20,15 @@ from pathlib import Path
 from typing import TypeVar
 
 from compare.backends import BACKENDS
-from compare.campaign import VIDEOS_DIR, RunInterrupted, RunOptions, estimate_run, finalize, run_comparison
+from compare.campaign import (
+    VIDEOS_DIR,
+    RunInterrupted,
+    RunOptions,
+    check_empty_run_folder,
+    estimate_run,
+    finalize,
+    run_comparison,
+)
 from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
@@ -121,8 +129,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
               f"processes only compete for them", file=sys.stderr)
     check_output_dir(out, "--out")
-    if out.exists() and any(out.iterdir()) and not args.resume:
-        raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
+    if not args.resume:
+        check_empty_run_folder(out)
     # validates every file before anything flies
     if args.command == "sweep":
         only = tuple(args.vehicle) if args.vehicle else None

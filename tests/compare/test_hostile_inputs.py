@@ -426,3 +426,59 @@ def test_jobs_far_above_the_cells_start_one_worker_per_cell(tmp_path: Path, monk
     assert main(["run", str(TINY), "--methods", "apf", "--method", "apf", "--jobs", "64",
                  "--out", str(tmp_path / "run"), "--videos", "none"]) == 2
     assert seen == [1]
+
+
+# ---- a run folder is written by one command at a time -------------------------------------------------------
+FLY_APF = ["run", str(TINY), "--methods", "apf", "--method", "apf", "--videos", "none", "--no-progress"]
+
+def test_report_refuses_a_folder_a_run_is_writing(run_copy: Path, capsys: pytest.CaptureFixture) -> None:
+    from uam_fdm.files.lock import folder_lock
+
+    with folder_lock(run_copy, "uam-compare run tiny.yaml"):  # as a run flying into it holds it
+        line = _fails(["report", str(run_copy)], capsys, run_copy, str(run_copy), "another uam-compare process",
+                      "uam-compare run tiny.yaml")
+    assert str(__import__("os").getpid()) in line
+    assert main(["report", str(run_copy)]) == 0  # once the writer has finished
+    assert not any(p.name.endswith(".lock") for p in run_copy.iterdir())
+
+
+def test_a_run_into_a_folder_another_run_holds_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Two runs started together into one --out: the second stops under the lock, writing nothing."""
+    from uam_fdm.files.lock import folder_lock
+
+    out = tmp_path / "run"
+    with folder_lock(out, "uam-compare run other.yaml"):
+        _fails([*FLY_APF, "--out", str(out)], capsys, tmp_path, "another uam-compare process", "other.yaml")
+
+
+def test_a_run_finding_files_under_the_lock_refuses_them(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture) -> None:
+    """The folder was empty when the command started and is not when it takes the lock: nothing is replaced."""
+    import compare.campaign
+    from uam_fdm.files.lock import folder_lock
+
+    out = tmp_path / "run"
+    real = folder_lock
+
+    def late(folder: Path, command: str):  # another run wrote its run.json between our check and our lock
+        (Path(folder) / "run.json").parent.mkdir(parents=True, exist_ok=True)
+        (Path(folder) / "run.json").write_text("{}")
+        return real(folder, command)
+
+    monkeypatch.setattr(compare.campaign, "folder_lock", late)
+    assert main([*FLY_APF, "--out", str(out)]) == 2
+    assert "folder exists and is not empty" in _error_line(capsys.readouterr().err)
+    assert [p.name for p in out.iterdir()] == ["run.json"] and (out / "run.json").read_text() == "{}"
+
+
+def test_a_killed_holder_leaves_no_lock_behind(tmp_path: Path) -> None:
+    import subprocess
+
+    from uam_fdm.files.lock import LOCK_NAME, folder_lock
+
+    code = ("import os, sys; from uam_fdm.files.lock import folder_lock\n"
+            "with folder_lock(sys.argv[1], 'x'):\n    os._exit(9)\n")  # dies holding it, no cleanup
+    assert subprocess.run([sys.executable, "-c", code, str(tmp_path)]).returncode == 9
+    assert (tmp_path / LOCK_NAME).exists()  # the file stays, the lock died with its process
+    with folder_lock(tmp_path, "uam-compare report"):
+        pass
