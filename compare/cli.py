@@ -351,7 +351,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
                          f"give another --out, --resume to continue its training, or --overwrite to replace it)")
     nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
-    cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
+    _check_ranges({"--curriculum-level-steps": (args.curriculum_level_steps, 0, MAX_TIMESTEPS)})
+    cur = Curriculum(level_steps=args.curriculum_level_steps) if args.curriculum else Curriculum(start=1.0)
     if args.preset not in PRESETS:
         raise ValueError(f"--preset {args.preset}: unknown; choose from {', '.join(sorted(PRESETS))}")
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
@@ -659,6 +660,9 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
                          "decisions), or none")
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
+    tr.add_argument("--curriculum-level-steps", type=int, default=0, metavar="N",
+                    help="a curriculum level lasts at most N timesteps, then the legs lengthen even if training "
+                         "success is under the gate (default 0: until the gate is met)")
     tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")
     tr.add_argument("--eval-episodes", type=int, default=500, help="validation episodes per evaluation (default 500)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")

@@ -15,17 +15,23 @@ class Curriculum:
 
     Starts at `start`; whenever the success rate of the last `window` training episodes reaches
     `gate`, the difficulty rises by `step` (to 1 at most; the window then starts afresh).
-    `start` = 1 turns the curriculum off.
+    `level_steps` > 0 also raises it once a level has lasted that many timesteps: across the air,
+    exploration noise in thin air and gusts can hold training success under the gate long after
+    the deterministic policy flies full-length legs (issue 28), and the gate alone then spends most
+    of a run on short legs. `start` = 1 turns the curriculum off.
     """
 
     start: float = 0.25
     step: float = 0.25
     gate: float = 0.8
     window: int = 512
+    level_steps: int = 0  # timesteps a level lasts at most (0: until the gate is met)
 
     def __post_init__(self) -> None:
-        if not (0 < self.start <= 1 and 0 < self.step <= 1 and 0 < self.gate <= 1 and self.window >= 1):
-            raise ValueError(f"curriculum needs 0 < start, step, gate <= 1 and window >= 1; got {self}")
+        if not (0 < self.start <= 1 and 0 < self.step <= 1 and 0 < self.gate <= 1 and self.window >= 1
+                and self.level_steps >= 0):
+            raise ValueError(f"curriculum needs 0 < start, step, gate <= 1, window >= 1 and level_steps >= 0; "
+                             f"got {self}")
 
 
 @dataclass(frozen=True)

@@ -95,12 +95,15 @@ class _TrainingRun:
             self.venv = restore_vec_normalize(src.vec_normalize, self.base)
             self.model = load_model_for_resume(src.model, self.venv, preset, self.out.tensorboard)
             state_file = src.curriculum
-            difficulty = json.loads(state_file.read_text())["difficulty"] if state_file.is_file() else 1.0
+            state = json.loads(state_file.read_text()) if state_file.is_file() else {"difficulty": 1.0}
+            difficulty = state["difficulty"]
+            self.level_since = int(state.get("level_since", self.model.num_timesteps))
             log(f"resumed from {resume} at {self.model.num_timesteps} timesteps (difficulty {difficulty:g})")
         else:
             self.venv = normalized_env(self.base, preset, cfg.nav.decision_hz)
             self.model = make_model(preset, self.venv, cfg.seed, cfg.nav.decision_hz, self.out.tensorboard)
             difficulty = cfg.curriculum.start
+            self.level_since = 0  # the timestep the current curriculum level began
         self.base.batch.difficulty = difficulty
         if resume is None or not self.out.reward_curve.exists():
             with open(self.out.reward_curve, "w", newline="") as f:
@@ -123,7 +126,7 @@ class _TrainingRun:
         folder.mkdir(parents=True, exist_ok=True)
         pf = PolicyFolder(folder)
         _write_json(pf.config_file, self.cfg.to_dict())
-        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty})
+        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty, "level_since": self.level_since})
         with atomic_path(pf.model, suffix=".zip") as tmp:
             self.model.save(str(tmp))
         save_vec_normalize(pf.vec_normalize, self.venv)
@@ -171,11 +174,16 @@ class _TrainingRun:
                 self.returns.append(info["episode"]["r"])
                 self.recent.append(info["outcome"])
         cur, batch, recent = self.cfg.curriculum, self.base.batch, self.recent
-        if (batch.difficulty < 1.0 and len(recent) == recent.maxlen
-                and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate):
+        if batch.difficulty >= 1.0:
+            return
+        gated = len(recent) == recent.maxlen and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate
+        timed = cur.level_steps > 0 and num_timesteps - self.level_since >= cur.level_steps
+        if gated or timed:
             batch.difficulty = min(1.0, batch.difficulty + cur.step)
             recent.clear()
-            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {batch.difficulty:.2f}")
+            self.level_since = num_timesteps
+            why = "" if gated else f" (the level's {cur.level_steps:,d} timesteps are over)"
+            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {batch.difficulty:.2f}{why}")
 
     def update_ended(self, num_timesteps: int) -> None:
         """After each rollout: the reward curve's row, an evaluation and a checkpoint when due."""
