@@ -40,6 +40,7 @@ from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lin
 from compare.scenario import MAX_SEED, Scenario, with_methods
 from compare.sets import resolve_scenarios
 from compare.sweep import SWEEP_SETS, build_sweep
+from rl.policies.flights import TrainingFlights
 from rl.sensing.observation import ObservedContext
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
@@ -323,6 +324,19 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view_training(args: argparse.Namespace) -> int:
+    from compare.viz.training_view import build_training_view, default_out  # plotly and matplotlib
+
+    if not args.policy_dir.is_dir():
+        raise ValueError(f"{args.policy_dir}: not a policy folder (no such folder)")
+    TrainingFlights.open(args.policy_dir)  # no flights: one line naming the folder and how to record them
+    out = args.out if args.out is not None else default_out(args.policy_dir)
+    check_output_file(out, "--out")
+    check_not_replacing(out, "--out", args.overwrite)  # the default file too: it is in the user's folder
+    print(build_training_view(args.policy_dir, out))
+    return 0
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     for sc in resolve_scenarios(args.scenario):
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
@@ -518,6 +532,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report_command(sub)
     _add_animate_command(sub)
     _add_view_command(sub)
+    _add_view_training_command(sub)
     _add_validate_command(sub)
     _add_train_command(sub)
     _add_evaluate_command(sub)
@@ -630,6 +645,16 @@ def _add_view_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     view.add_argument("--out", type=Path, default=None, help="HTML file to write (default: RUN_DIR/viewer.html)")
     view.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     view.set_defaults(func=_cmd_view)
+
+
+def _add_view_training_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    vt = sub.add_parser("view-training", help="write one offline HTML page of a policy's training: the curves, and "
+                        "the recorded flights of every checkpoint in 3D, scrubbable")
+    vt.add_argument("policy_dir", type=Path, help="a policy folder trained with recorded flights (uam-compare train)")
+    vt.add_argument("--out", type=Path, default=None,
+                    help="HTML file to write (default: <policy folder name>-training.html here)")
+    vt.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    vt.set_defaults(func=_cmd_view_training)
 
 
 def _add_validate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
