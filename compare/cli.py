@@ -34,13 +34,14 @@ from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.metrics import read_metrics_csv
 from compare.results.outputs import check_not_replacing, check_output_dir, check_output_file
-from compare.results.run_info import read_run_info
+from compare.results.run_info import RUN_INFO_NAME, read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
 from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lines
 from compare.scenario import MAX_SEED, Scenario, with_methods
 from compare.sets import resolve_scenarios
 from compare.sweep import SWEEP_SETS, build_sweep
 from rl.policies.flights import TrainingFlights
+from rl.policies.folder import CONFIG
 from rl.sensing.observation import ObservedContext
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
@@ -337,6 +338,31 @@ def _cmd_view_training(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    if not args.rerun:
+        raise ValueError("export: give --rerun (a Rerun .rrd recording is the one export format)")
+    from compare.viz.rerun_export import require_rerun, run_recording, training_recording  # matplotlib
+
+    require_rerun()  # a missing extra is said before anything is read
+    folder = args.folder
+    write: Callable[[Path, Path], Path]
+    if (folder / RUN_INFO_NAME).is_file():
+        out = args.out if args.out is not None else folder / "flights.rrd"  # the run folder's own file
+        write = run_recording
+    elif folder.is_dir() and (folder / CONFIG).is_file():
+        TrainingFlights.open(folder)  # no flights: one line naming the folder and how to record them
+        out = args.out if args.out is not None else Path(f"{folder.resolve().name}-training.rrd")
+        write = training_recording
+    else:
+        raise ValueError(f"{folder}: neither a run folder ({RUN_INFO_NAME}) nor a policy folder ({CONFIG})")
+    check_output_file(out, "--out")
+    # a file the user named, or the policy's default file in their folder, is never replaced unasked
+    check_not_replacing(out if args.out is not None or write is training_recording else None, "--out",
+                        args.overwrite)
+    print(write(folder, out))
+    return 0
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     for sc in resolve_scenarios(args.scenario):
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
@@ -533,6 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_animate_command(sub)
     _add_view_command(sub)
     _add_view_training_command(sub)
+    _add_export_command(sub)
     _add_validate_command(sub)
     _add_train_command(sub)
     _add_evaluate_command(sub)
@@ -655,6 +682,17 @@ def _add_view_training_command(sub: argparse._SubParsersAction[argparse.Argument
                     help="HTML file to write (default: <policy folder name>-training.html here)")
     vt.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     vt.set_defaults(func=_cmd_view_training)
+
+
+def _add_export_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    ex = sub.add_parser("export", help="write a run's flights, or a policy's recorded training flights, as a Rerun "
+                        "recording (.rrd; needs the rerun extra)")
+    ex.add_argument("folder", type=Path, help="a run folder (uam-compare run) or a policy folder with training flights")
+    ex.add_argument("--rerun", action="store_true", help="write a Rerun .rrd recording (the one format)")
+    ex.add_argument("--out", type=Path, default=None,
+                    help="file to write (default: RUN_DIR/flights.rrd, or <policy folder name>-training.rrd here)")
+    ex.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    ex.set_defaults(func=_cmd_export)
 
 
 def _add_validate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
