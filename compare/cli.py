@@ -373,7 +373,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from rl.task.vehicles import task_for
-    from rl.training.config import Curriculum, TrainConfig
+    from rl.training.config import MAX_RECORDED_FLIGHTS, Curriculum, TrainConfig
     from rl.training.loop import train
     from rl.training.ppo import PRESETS
 
@@ -382,6 +382,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
                    "--eval-every": (args.eval_every, 1, MAX_TIMESTEPS),
                    "--eval-episodes": (args.eval_episodes, 1, MAX_EVAL_EPISODES),
                    "--checkpoint-every": (args.checkpoint_every, 0, MAX_TIMESTEPS), "--seed": (args.seed, 0, MAX_SEED),
+                   "--record-flights": (args.record_flights, 0, MAX_RECORDED_FLIGHTS),
                    **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
     task = _option("--vehicle", lambda v: task_for(v, envelope=args.envelope), args.vehicle)
     air = task.air if args.turbulence is None else replace(task.air, turbulence=_turbulence_levels(args.turbulence))
@@ -397,7 +398,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--preset {args.preset}: unknown; choose from {', '.join(sorted(PRESETS))}")
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
-                      checkpoint_every=args.checkpoint_every)
+                      checkpoint_every=args.checkpoint_every, record_flights=args.record_flights)
     res = train(cfg, args.out, resume=args.resume, progress=not args.no_progress,
                 command="uam-compare " + " ".join(args.argv))
     print(f"policy written to {args.out}: validation success {res.success_rate:.1%}, collisions "
@@ -729,6 +730,9 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")
     tr.add_argument("--eval-episodes", type=int, default=500, help="validation episodes per evaluation (default 500)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
+    tr.add_argument("--record-flights", type=int, default=8, metavar="N",
+                    help="fixed validation tasks flown and recorded at step 0 and every evaluation, for "
+                         "view-training, the report and export (default 8; 0: none)")
     tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
     tr.add_argument("--out", type=Path, default=Path("runs/policy"),
                     help="policy folder to write (default runs/policy); an existing non-empty one is refused "
