@@ -172,10 +172,14 @@ def checkpoint_file(policy_dir: Path | str, timesteps: int) -> Path:
     return flights_dir(policy_dir) / f"step_{int(timesteps):011d}.npz"
 
 
+def tasks_text(tasks: FlightTasks) -> str:
+    """tasks.json's text (the same tasks give the same text)."""
+    return json.dumps(tasks.to_dict(), indent=1, sort_keys=True) + "\n"
+
+
 def write_tasks(policy_dir: Path | str, tasks: FlightTasks) -> Path:
     """Write tasks.json (atomic); returns its path."""
-    return write_text_atomic(flights_dir(policy_dir) / TASKS_FILE,
-                             json.dumps(tasks.to_dict(), indent=1, sort_keys=True) + "\n")
+    return write_text_atomic(flights_dir(policy_dir) / TASKS_FILE, tasks_text(tasks))
 
 
 def write_checkpoint(policy_dir: Path | str, ckpt: CheckpointFlights) -> Path:

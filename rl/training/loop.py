@@ -28,7 +28,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
-from rl.policies.folder import CHECKPOINT_FILES, CURVE_COLUMNS, PolicyFolder
+from rl.policies.folder import CHECKPOINT_FILES, CHECKPOINTS, CURVE_COLUMNS, PolicyFolder
 from rl.policies.reader import ObsNorm
 from rl.training.checkpoints import load_model_for_resume, restore_vec_normalize, save_vec_normalize
 from rl.training.config import TrainConfig
@@ -93,9 +93,6 @@ class _TrainingRun:
         self.eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
                                    dynamics=self.base.world.dynamics, atmosphere=self.base.world.atmospheres,
                                    wind_from=self.base.world)
-        # the checkpoints' flights of fixed validation tasks, in a world of their own (rl.training.recording)
-        self.recorder = (FlightRecorder(cfg.nav, cfg.record_flights, cfg.seed, out_dir, self.eval_world)
-                         if cfg.record_flights else None)
         if resume is not None:
             src = PolicyFolder(resume)
             self.venv = restore_vec_normalize(src.vec_normalize, self.base)
@@ -111,6 +108,11 @@ class _TrainingRun:
             difficulty = cfg.curriculum.start
             self.level_since = 0  # the timestep the current curriculum level began
         self.base.batch.difficulty = difficulty
+        # the checkpoints' flights of fixed validation tasks, in a world of their own (rl.training.recording);
+        # a resumed run continues the record of the folder it resumes from (a checkpoint's: its policy folder's)
+        history = None if resume is None else resume.parent.parent if resume.parent.name == CHECKPOINTS else resume
+        self.recorder = (FlightRecorder(cfg.nav, cfg.record_flights, cfg.seed, out_dir, self.eval_world, history,
+                                        int(self.model.num_timesteps)) if cfg.record_flights else None)
         if resume is None or not self.out.reward_curve.exists():
             with open(self.out.reward_curve, "w", newline="") as f:
                 csv.writer(f).writerow(CURVE_COLUMNS)

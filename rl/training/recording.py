@@ -19,6 +19,7 @@ of turbulence levels; task k flies level k mod L and atmosphere field (k div 2L)
 from __future__ import annotations
 
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,12 +27,16 @@ import numpy as np
 
 from rl.env.world import NavBatch, NavWorld, SlotAir
 from rl.policies.flights import (
+    TASKS_FILE,
     CheckpointFlights,
     CityBoxes,
     Flight,
     FlightTasks,
     RecordedTask,
+    TrainingFlights,
     checkpoint_file,
+    flights_dir,
+    tasks_text,
     write_checkpoint,
     write_tasks,
 )
@@ -107,16 +112,42 @@ class FlightRecorder:
     Args:
         nav: the task; n_tasks: how many fixed tasks; seed: the run's seed; folder: the policy folder.
         dynamics_from: a world whose compiled dynamics, atmospheres and turbulence stacks are shared (built once).
+        history: a policy folder whose recorded checkpoints up to `up_to` timesteps this run continues (a resumed
+            run): kept (or copied into `folder`) when they flew the same tasks. Anything else already in `folder`'s
+            training flights belongs to a policy being replaced and is removed.
+        up_to: the timesteps the run resumes from.
     """
 
-    def __init__(self, nav: NavConfig, n_tasks: int, seed: int, folder: Path, dynamics_from: NavWorld) -> None:
+    def __init__(self, nav: NavConfig, n_tasks: int, seed: int, folder: Path, dynamics_from: NavWorld,
+                 history: Path | None = None, up_to: int = 0) -> None:
         self.folder = Path(folder)
         self.world = NavWorld(eval_config(nav, n_tasks, pool="validation"), dynamics=dynamics_from.dynamics,
                               atmosphere=dynamics_from.atmospheres, wind_from=dynamics_from)
         self.batch = NavBatch(self.world, n_tasks)
         self.episodes = fixed_tasks(self.batch, n_tasks, seed)
         self.tasks = self._describe(seed)
+        earlier = self._history(history, up_to)
+        for old in (flights_dir(self.folder).glob("step_*.npz") if flights_dir(self.folder).is_dir() else ()):
+            if old not in earlier.values():
+                old.unlink()
         write_tasks(self.folder, self.tasks)
+        for step, src in sorted(earlier.items()):
+            dst = checkpoint_file(self.folder, step)
+            if src != dst:
+                shutil.copyfile(src, dst)
+
+    def _history(self, history: Path | None, up_to: int) -> dict[int, Path]:
+        """The checkpoint files of `history` up to `up_to` timesteps that flew these same tasks, by timesteps."""
+        if history is None:
+            return {}
+        try:
+            past = TrainingFlights.open(history)
+            same = (flights_dir(history) / TASKS_FILE).read_text(encoding="utf-8") == tasks_text(self.tasks)
+        except (ValueError, OSError):
+            return {}  # nothing recorded there (an older run): the record starts at the resume
+        if not same:
+            return {}
+        return {s: checkpoint_file(history, s) for s in past.steps if s <= up_to}
 
     def _describe(self, seed: int) -> FlightTasks:
         w = self.world

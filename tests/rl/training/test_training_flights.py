@@ -105,3 +105,19 @@ def test_a_bad_checkpoint_file_is_named(runs, tmp_path):
         read_checkpoint(bad, 8)
     with pytest.raises(ValueError, match=r"no training flights recorded .*uam-compare train"):
         TrainingFlights.open(runs["off"])
+
+
+def test_a_resumed_run_continues_the_record_and_a_replaced_policy_loses_its_own(runs, tmp_path):
+    first = tmp_path / "first"
+    cfg = replace(CFG, checkpoint_every=8 * 64)
+    train(cfg, first, progress=False, command="test", log=lambda *_: None)
+    resumed = tmp_path / "resumed"
+    train(replace(cfg, total_timesteps=3 * 8 * 64), resumed, resume=first / "checkpoints" / "step_00000000512",
+          progress=False, log=lambda *_: None)
+    assert TrainingFlights.open(resumed).steps == (0, 512, 1024, 1536)
+    for name in ("step_00000000000.npz", "step_00000000512.npz", "tasks.json"):  # the history, as it was
+        assert (resumed / FLIGHTS_DIR / name).read_bytes() == (first / FLIGHTS_DIR / name).read_bytes()
+    # the same folder trained afresh (as `train --overwrite` does), shorter and with another seed: only its own
+    train(replace(CFG, total_timesteps=8 * 64, seed=6), first, progress=False, log=lambda *_: None)
+    assert TrainingFlights.open(first).steps == (0, 512)
+    assert TrainingFlights.open(first).tasks.seed == 6
