@@ -28,12 +28,13 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
-from rl.policies.folder import CHECKPOINT_FILES, CURVE_COLUMNS, PolicyFolder
+from rl.policies.folder import CHECKPOINT_FILES, CHECKPOINTS, CURVE_COLUMNS, PolicyFolder
 from rl.policies.reader import ObsNorm
 from rl.training.checkpoints import load_model_for_resume, restore_vec_normalize, save_vec_normalize
 from rl.training.config import TrainConfig
 from rl.training.evaluation import EvalResult, eval_config, evaluate
 from rl.training.ppo import PRESETS, make_model, normalized_env
+from rl.training.recording import FlightRecorder
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path, write_text_atomic
 from uam_fdm.files.version import code_version
@@ -59,6 +60,8 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
     """
     torch.set_num_threads(cfg.torch_threads)
     run = _TrainingRun(cfg, Path(out_dir), Path(resume) if resume is not None else None, log, world)
+    if resume is None:
+        run.record_flights()  # step 0: the untrained policy
     remaining = cfg.total_timesteps - run.model.num_timesteps
     if remaining > 0:
         run.model.learn(total_timesteps=remaining, callback=_Periodic(run), progress_bar=progress,
@@ -105,6 +108,11 @@ class _TrainingRun:
             difficulty = cfg.curriculum.start
             self.level_since = 0  # the timestep the current curriculum level began
         self.base.batch.difficulty = difficulty
+        # the checkpoints' flights of fixed validation tasks, in a world of their own (rl.training.recording);
+        # a resumed run continues the record of the folder it resumes from (a checkpoint's: its policy folder's)
+        history = None if resume is None else resume.parent.parent if resume.parent.name == CHECKPOINTS else resume
+        self.recorder = (FlightRecorder(cfg.nav, cfg.record_flights, cfg.seed, out_dir, self.eval_world, history,
+                                        int(self.model.num_timesteps)) if cfg.record_flights else None)
         if resume is None or not self.out.reward_curve.exists():
             with open(self.out.reward_curve, "w", newline="") as f:
                 csv.writer(f).writerow(CURVE_COLUMNS)
@@ -145,9 +153,20 @@ class _TrainingRun:
             csv.writer(f).writerow(row)
         self.outcomes, self.returns = [], []
 
+    def record_flights(self) -> None:
+        """Fly the recorder's fixed tasks with the current model and write them (once per timestep count)."""
+        rec, steps = self.recorder, int(self.model.num_timesteps)
+        if rec is None or rec.has(steps):
+            return
+        actor = {k: v.detach().cpu().numpy().copy() for k, v in self.model.policy.state_dict().items()
+                 if k == "log_std" or k.startswith(("mlp_extractor.policy_net.", "action_net."))}
+        rec.record(steps, self.pilot, actor, ObsNorm.of(self.venv))
+
     def evaluate(self) -> EvalResult:
-        """Evaluate the current model on the validation pool; keep it (as `best/`) when it is the best so far."""
+        """Evaluate the current model on the validation pool; keep it (as `best/`) when it is the best so far.
+        The recorder's fixed tasks are flown too."""
         cfg, model = self.cfg, self.model
+        self.record_flights()
         res = evaluate(self.pilot, cfg.nav, cfg.eval_episodes, seed=cfg.seed + 10_000, pool="validation",
                        world=self.eval_world)
         if getattr(model, "_logger", None) is not None:  # no logger before the first learn() call
