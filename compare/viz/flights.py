@@ -1,7 +1,8 @@
 """The flights of a run folder grouped for playback: every pilot that flew one (scenario, episode, seed).
 
 The animation (`compare.viz.animate`) and the HTML viewer (`compare.viz.viewer`) both show the pilots of
-one comparison cell together, on one clock. This module loads a run folder's saved episodes into
+one comparison cell together, on one clock. This module loads a run folder's saved episodes
+(`compare.results.episodes`: the run store, or an older folder's `.npz` files) into
 `FlightGroup`s, picks one from a user's `SCENARIO:EPISODE[:SEED]` spec, and samples each pilot's
 flight on a shared time grid (`sample_flight`), holding a pilot that has already ended where it ended.
 """
@@ -14,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from compare.results.episodes import open_episodes
 from compare.results.run_info import WindInfo, read_run_info
-from compare.results.trajectory import SavedEpisode, episode_files, load_episode
+from compare.results.trajectory import SavedEpisode
 from compare.viz.figures import crop_map, flight_region, method_colors, trace_from_episode
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
@@ -115,20 +117,23 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
     """
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
-    files = episode_files(run_dir)
-    if not files:
-        raise ValueError(f"{run_dir}: no saved episodes (episodes/*.npz) to show")
+    episodes = open_episodes(run_dir)
+    if not episodes.entries and not episodes.unreadable:
+        raise ValueError(f"{run_dir}: no saved episodes (store/ or episodes/*.npz) to show")
     scen_order = {s.name: i for i, s in enumerate(info.scenarios)}
     method_order = {m: i for i, m in enumerate(info.methods)}
     by_cell: dict[tuple[str, int, int], list[SavedEpisode]] = {}
+    level = logging.WARNING if warn_unreadable else logging.INFO
     unreadable = []
-    for f in files:
+    for bad in episodes.unreadable:
+        logger.log(level, "skipping unreadable episode file %s", bad.reason)  # the reason names the file
+        unreadable.append(bad.path.name)
+    for entry in episodes.entries:
         try:
-            ep = load_episode(f)
+            ep = episodes.load(entry)
         except ValueError as exc:  # one bad file must not cost the flights of the rest
-            logger.log(logging.WARNING if warn_unreadable else logging.INFO,
-                       "skipping unreadable episode file %s", exc)  # the message names the file
-            unreadable.append(f.name)
+            logger.log(level, "skipping unreadable episode file %s", exc)  # the message names the file
+            unreadable.append(entry.name)
             continue
         k = ep.meta.key
         by_cell.setdefault((k.scenario, k.episode, k.seed), []).append(ep)
@@ -195,7 +200,7 @@ class SampledFlight:
 
 
 def sample_flight(ep: SavedEpisode, t_s: np.ndarray) -> SampledFlight:
-    """Sample a saved flight at times `t_s` [s] by linear interpolation of its physics-rate rows.
+    """Sample a saved flight at times `t_s` [s] by linear interpolation of its saved rows (control or physics rate).
 
     Rows with a non-finite position (a diverged flight) are dropped first, so the vehicle stops
     where it was last known.
