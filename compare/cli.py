@@ -143,7 +143,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     est = estimate_run(scenarios, opts)
     if est.large:
         print(f"uam-compare: warning: {est.cells} episodes may take up to {est.wall_h:.1f} h with --jobs {opts.jobs} "
-              f"and {est.disk_gb:.1f} GB of episodes in {out} (every episode flown to its timeout)",
+              f"and {est.disk_gb:.1f} GB of episode files in {out} (every episode flown to its timeout)",
               file=sys.stderr)
     try:
         run_dir = run_comparison(scenarios, opts)

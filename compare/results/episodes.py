@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 from compare.results.metrics import EpisodeMetrics, episode_metrics
 from compare.results.store import (
     Unreadable,
+    check_inflated,
     key_of,
     open_samples,
     part_files,
@@ -86,6 +87,7 @@ class _RowGroupCache:
 
     def _group(self, path: Path, f: pq.ParquetFile, g: int) -> pa.Table:
         if (path, g) not in self.groups:
+            check_inflated(path, [f.metadata.row_group(g)])
             try:
                 self.groups[(path, g)] = f.read_row_group(g)
             except (OSError, ValueError, pa.ArrowException) as exc:

@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from compare.results.tables import EPISODE_SCHEMA, KEY_COLUMNS, SAMPLE_SCHEMA
-from compare.results.trajectory import EpisodeKey
+from compare.results.trajectory import MAX_EPISODE_BYTES, EpisodeKey
 from uam_fdm.files.atomic import atomic_open, atomic_path
 
 log = logging.getLogger(__name__)
@@ -138,10 +138,20 @@ def read_part(path: Path) -> tuple[dict[str, Any], pa.Table]:
     """
     row = part_row(path)
     try:
-        table = pq.read_table(path)
+        f = pq.ParquetFile(path)
+        check_inflated(path, [f.metadata.row_group(g) for g in range(f.metadata.num_row_groups)])
+        table = f.read()
     except (OSError, ValueError, pa.ArrowException) as exc:
         raise ValueError(f"{path}: not a stored episode, or truncated or corrupt ({_why(exc)})") from exc
     return row, _checked_samples(table.replace_schema_metadata(None), row, path)
+
+
+def check_inflated(path: Path, groups: Sequence[Any]) -> None:
+    """Refuse, unread, row groups that would inflate past `MAX_EPISODE_BYTES` (a hostile file's sizes)."""
+    inflated = sum(g.total_byte_size for g in groups)
+    if inflated > MAX_EPISODE_BYTES:
+        raise ValueError(f"{path}: its samples would take {inflated / 2**20:,.0f} MiB in memory; at most "
+                         f"{MAX_EPISODE_BYTES / 2**20:,.0f} MiB")
 
 
 def _why(exc: BaseException) -> str:
