@@ -9,7 +9,9 @@ from dataclasses import astuple, replace
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from pypdf import PdfReader
 
+from compare.cli import main
 from compare.results.episodes import kept_keys, open_episodes
 from compare.results.metrics import episode_metrics
 from compare.results.store import (
@@ -34,7 +36,7 @@ from compare.results.tables import (
     samples_table,
 )
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode
-from synthetic_run import GOAL, START, trajectory
+from synthetic_run import GOAL, START, to_store, trajectory, write_run
 
 CONDITIONS = EpisodeConditions(1.0581, 1000.0, "light", (3.0, 4.0, 0.0), 0.25)
 PERIOD = 10  # physics steps per control period (500 Hz / 50 Hz)
@@ -198,3 +200,30 @@ def test_pandas_and_duckdb_read_the_store(tmp_path):
     climbs = duckdb.sql(f"SELECT method, max(z_m) FROM '{store}/samples-*.parquet' GROUP BY method "
                         f"ORDER BY method").fetchall()
     assert [m for m, _ in climbs] == ["ppo", "rrt_mpc"] and all(z > 9.0 for _, z in climbs)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "corrupt"])
+def test_report_and_view_skip_an_unreadable_part_naming_it(tmp_path, capsys, caplog, damage):
+    run = tmp_path / "run"
+    write_run(run, None)
+    to_store(run, compacted=False)  # an interrupted run: its cells' parts, not compacted yet
+    bad = part_path(run, EpisodeKey("toy-quad", 1, "ppo", 0))
+    data = bad.read_bytes()
+    data = {"truncated": data[:len(data) // 2], "corrupt": data[:200] + bytes(3000) + data[3200:]}[damage]
+    bad.write_bytes(data)
+    with caplog.at_level("WARNING"):
+        assert main(["report", str(run)]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    assert any(r.levelname == "WARNING" and str(bad) in r.getMessage() for r in caplog.records), caplog.text
+    rows = (run / "metrics.csv").read_text().splitlines()
+    assert len(rows) == 1 + 3 and not any(",1,ppo," in r for r in rows)  # scored from the other three
+    failures = [p.extract_text() for p in PdfReader(str(run / "report.pdf")).pages]
+    failures = " ".join(t for t in failures if t.lstrip().startswith("Failures"))
+    assert "Unreadable episode files skipped" in failures and bad.name in failures.replace("\n", "")
+    assert (run / "viewer.html").is_file() and bad.read_bytes() == data  # the bad part is kept as it was
+    assert part_files(run) == [bad] and len(open_episodes(run).entries) >= 3  # the rest compacted
+    assert kept_keys(run) == {EpisodeKey("toy-quad", e, m, 0) for e, m in ((0, "ppo"), (0, "rrt_mpc"), (1, "rrt_mpc"))}
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        assert main(["view", str(run), "--out", str(tmp_path / "v.html")]) == 0
+    assert (tmp_path / "v.html").is_file() and str(bad) in caplog.text
