@@ -111,6 +111,23 @@ class RunEpisodes:
     entries: tuple[EpisodeEntry, ...]
     unreadable: tuple[Unreadable, ...] = ()
     _cache: _RowGroupCache = field(default_factory=_RowGroupCache, repr=False, compare=False)
+    _recent: OrderedDict[EpisodeKey, SavedEpisode] = field(default_factory=OrderedDict, repr=False, compare=False)
+
+    def load_recent(self, entry: EpisodeEntry, keep: int = 8) -> SavedEpisode:
+        """`load`, keeping the last `keep` episodes read (a cell's pilots are asked for again and again while it
+        is drawn; a run's episodes are never all held).
+
+        Raises:
+            ValueError: it does not read, naming the file.
+        """
+        if entry.key in self._recent:
+            self._recent.move_to_end(entry.key)
+            return self._recent[entry.key]
+        saved = self.load(entry)
+        self._recent[entry.key] = saved
+        while len(self._recent) > keep:
+            self._recent.popitem(last=False)
+        return saved
 
     def load(self, entry: EpisodeEntry) -> SavedEpisode:
         """Read one episode (its samples as stored: thinned to the control rate unless the run kept all).

@@ -190,10 +190,13 @@ def test_pandas_and_duckdb_read_the_store(tmp_path):
                 for e in range(2) for m in ("ppo", "rrt_mpc")]
     _compacted(tmp_path, episodes)
     store = store_dir(tmp_path)
-    # the README's query, as written there
-    ep = pd.read_parquet(store / "episodes.parquet")
-    rates = ep.groupby(["method", "density_altitude_m"]).success.mean()
-    assert rates.to_dict() == {("ppo", 1000.0): 0.5, ("rrt_mpc", 1000.0): 1.0}
+    # the README's queries, as written there
+    episodes = pd.read_parquet(store / "episodes.parquet")
+    rates = episodes.groupby(["vehicle", "method", "density_altitude_m"]).success.mean()
+    assert rates.to_dict() == {("small_quad", "ppo", 1000.0): 0.5, ("small_quad", "rrt_mpc", 1000.0): 1.0}
+    by_air = duckdb.sql(f"SELECT method, density_altitude_m, avg(success::INT) FROM '{store}/episodes.parquet' "
+                        f"GROUP BY ALL ORDER BY ALL").fetchall()
+    assert by_air == [("ppo", 1000.0, 0.5), ("rrt_mpc", 1000.0, 1.0)]
     table = duckdb.sql(f"SELECT method, avg(success::INT) AS success, count(*) AS n "
                        f"FROM '{store}/episodes.parquet' GROUP BY method ORDER BY method").fetchall()
     assert table == [("ppo", 0.5, 2), ("rrt_mpc", 1.0, 2)]
