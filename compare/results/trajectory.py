@@ -1,9 +1,12 @@
-"""Saved episodes: one `.npz` per (scenario, episode, method, seed), written atomically.
+"""Saved episodes: an episode's key, its metadata and the `.npz` file of a run saved before the run store.
 
-A saved episode holds the runner's `Trajectory` arrays plus what the metrics and the report need
-to read it without the world that produced it (task, vehicle, map name, outcome, the pilot's
-end-of-episode report). Files are written under a temporary name in the same folder and renamed, so
-an interrupted run never leaves a half-written episode: a file either exists complete or not at all.
+A run now keeps its episodes in the store (`compare.results.store`, `compare.results.tables`), whose
+episode table holds this module's metadata JSON; a run folder of the store's predecessors holds one `.npz`
+per (scenario, episode, method, seed) at the physics rate, which `load_episode` reads (and `save_episode`
+still writes, for tests and the storage benchmark). A saved episode holds the runner's `Trajectory` arrays
+plus what the metrics and the report need to read it without the world that produced it (task, vehicle,
+map name, outcome, the pilot's end-of-episode report). Files are written under a temporary name in the same
+folder and renamed, so an interrupted run never leaves a half-written episode.
 
 The metadata is JSON inside the file; `meta_to_json` writes it and `meta_from_json` reads it, and
 nothing else touches it. The run's context and the pilot's report sit under "extra" (the report as
