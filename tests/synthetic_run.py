@@ -255,8 +255,8 @@ def write_benchmark_run(run_dir: Path, *, scenarios_per_vehicle: int, episodes: 
 
 def to_store(run_dir: Path, compacted: bool = True) -> None:
     """Move a synthetic run folder's `.npz` episodes into the run store, as a run of today writes it: each
-    episode scored and written as its cell's part (at the control rate of a 50 Hz controller over these
-    flights' samples), then compacted unless `compacted` is False (an interrupted run's parts)."""
+    episode scored and written as its cell's part (a control period of 10 samples: these flights decide every
+    10 samples), then compacted unless `compacted` is False (an interrupted run's parts)."""
     from compare.results.metrics import episode_metrics
     from compare.results.store import compact, part_bytes, part_path, write_part
     from compare.results.tables import EpisodeConditions, episode_row, kept_rows, samples_table
@@ -266,7 +266,7 @@ def to_store(run_dir: Path, compacted: bool = True) -> None:
     for path in episode_files(run_dir):
         saved = load_episode(path)
         traj, key = saved.trajectory, saved.meta.key
-        period = max(1, round(0.02 / float(np.median(np.diff(traj.t_s)))))
+        period = 10
         row = episode_row(saved.meta, episode_metrics(saved), conditions, "control",
                           len(kept_rows(traj, "control", period)))
         write_part(part_path(run_dir, key),

@@ -174,8 +174,12 @@ def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_un
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
     groups = flight_groups(run_dir, warn_unreadable=warn_unreadable)
-    payload = {"run": {"folder": run_dir.name, "command": info.command, "created_utc": info.created_utc},
-               "groups": [group_payload(g, opts) for g in groups]}
+    run = {"folder": run_dir.name, "command": info.command, "created_utc": info.created_utc}
+    # each cell's data turned into text at once: a run's cells are never all held as objects (a benchmark run's
+    # hundreds would take gigabytes); the same text as json_for_script({"run": run, "groups": [...]})
+    cells = ",".join(json_for_script(group_payload(g, opts)) for g in groups)
+    data = '{"run":' + json_for_script(run) + ',"groups":[' + cells + "]}"
+    del cells
     assets = resources.files("compare.viz") / "viewer_assets"
     page = (assets / "viewer.html").read_text(encoding="utf-8")
     parts = {
@@ -183,7 +187,7 @@ def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_un
         "STYLE": (assets / "viewer.css").read_text(encoding="utf-8"),
         "PLOTLY_JS": code_for_script(plotly.offline.get_plotlyjs()),
         "PLOTLY_VERSION": text_for_html(plotly.__version__),
-        "DATA_JSON": json_for_script(payload),  # every text of the run folder and its scenarios goes in here
+        "DATA_JSON": data,  # every text of the run folder and its scenarios goes in here, as json_for_script
         "VIEWER_JS": code_for_script((assets / "viewer.js").read_text(encoding="utf-8")),
     }
     for key, text in parts.items():  # one pass per placeholder; inserted texts are never rescanned
