@@ -230,3 +230,15 @@ def test_report_and_view_skip_an_unreadable_part_naming_it(tmp_path, capsys, cap
     with caplog.at_level("WARNING"):
         assert main(["view", str(run), "--out", str(tmp_path / "v.html")]) == 0
     assert (tmp_path / "v.html").is_file() and str(bad) in caplog.text
+
+
+def test_a_corrupt_episode_table_is_one_line_naming_it(tmp_path, capsys):
+    run = tmp_path / "run"
+    write_run(run, None)
+    to_store(run)
+    table = store_dir(run) / EPISODE_TABLE
+    table.write_bytes(table.read_bytes()[:100])
+    assert main(["report", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("uam-compare: error: ") and str(table) in err[0], err
+    assert "truncated or corrupt" in err[0] and table.stat().st_size == 100  # left as it was
