@@ -46,8 +46,9 @@ def report(run_dir: Path, code: Path) -> tuple[float, float]:
     """Wall time [s] and peak RSS [MB] of `uam-compare report run_dir` with the code at `code`."""
     env = {**os.environ, "PYTHONPATH": str(code), "OMP_NUM_THREADS": "1"}
     t0 = time.perf_counter()
+    # cwd: `python -c` puts the working folder first on sys.path, before PYTHONPATH
     done = subprocess.run([sys.executable, "-c", _CHILD, "report", str(run_dir)], env=env, capture_output=True,
-                          text=True)
+                          text=True, cwd=code)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"report of {run_dir} with {code} failed:\n{done.stderr[-2000:]}")
