@@ -66,7 +66,8 @@ def test_run_writes_every_output(tiny_run):
         ep = episodes.load(entry)
         t, power = ep.trajectory.t_s, ep.trajectory.shaft_power_W
         assert power.shape == t.shape and np.all(power > 0.0)
-        assert np.all(np.diff(t)[:-2] == pytest.approx(0.02))  # the control rate (the least clearance row aside)
+        # the control rate: every step 20 ms but the two around the physics step of least clearance
+        assert np.sum(~np.isclose(np.diff(t), 0.02, rtol=0, atol=1e-9)) <= 2 and np.all(np.diff(t) < 0.02 + 1e-9)
         assert np.trapezoid(power, t) == pytest.approx(ep.meta.energy_J, rel=1e-2)  # 50 Hz samples of it
     assert list(tiny_run.rglob(".*tmp*")) == []  # no temporary files left behind
     rows = _rows(tiny_run / "metrics.csv")
