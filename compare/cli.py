@@ -34,12 +34,14 @@ from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.metrics import read_metrics_csv
 from compare.results.outputs import check_not_replacing, check_output_dir, check_output_file
-from compare.results.run_info import read_run_info
+from compare.results.run_info import RUN_INFO_NAME, read_run_info
 from compare.results.summary import PairedSummary, PowerSettings, Stat, Summary, methods_table, read_summary_json
 from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lines
 from compare.scenario import MAX_SEED, Scenario, with_methods
 from compare.sets import resolve_scenarios
 from compare.sweep import SWEEP_SETS, build_sweep
+from rl.policies.flights import TrainingFlights
+from rl.policies.folder import CONFIG
 from rl.sensing.observation import ObservedContext
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
@@ -323,6 +325,44 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view_training(args: argparse.Namespace) -> int:
+    from compare.viz.training_view import build_training_view, default_out  # plotly and matplotlib
+
+    if not args.policy_dir.is_dir():
+        raise ValueError(f"{args.policy_dir}: not a policy folder (no such folder)")
+    TrainingFlights.open(args.policy_dir)  # no flights: one line naming the folder and how to record them
+    out = args.out if args.out is not None else default_out(args.policy_dir)
+    check_output_file(out, "--out")
+    check_not_replacing(out, "--out", args.overwrite)  # the default file too: it is in the user's folder
+    print(build_training_view(args.policy_dir, out))
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    if not args.rerun:
+        raise ValueError("export: give --rerun (a Rerun .rrd recording is the one export format)")
+    from compare.viz.rerun_export import require_rerun, run_recording, training_recording  # matplotlib
+
+    require_rerun()  # a missing extra is said before anything is read
+    folder = args.folder
+    write: Callable[[Path, Path], Path]
+    if (folder / RUN_INFO_NAME).is_file():
+        out = args.out if args.out is not None else folder / "flights.rrd"  # the run folder's own file
+        write = run_recording
+    elif folder.is_dir() and (folder / CONFIG).is_file():
+        TrainingFlights.open(folder)  # no flights: one line naming the folder and how to record them
+        out = args.out if args.out is not None else Path(f"{folder.resolve().name}-training.rrd")
+        write = training_recording
+    else:
+        raise ValueError(f"{folder}: neither a run folder ({RUN_INFO_NAME}) nor a policy folder ({CONFIG})")
+    check_output_file(out, "--out")
+    # a file the user named, or the policy's default file in their folder, is never replaced unasked
+    check_not_replacing(out if args.out is not None or write is training_recording else None, "--out",
+                        args.overwrite)
+    print(write(folder, out))
+    return 0
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     for sc in resolve_scenarios(args.scenario):
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
@@ -333,7 +373,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from rl.task.vehicles import task_for
-    from rl.training.config import Curriculum, TrainConfig
+    from rl.training.config import MAX_RECORDED_FLIGHTS, Curriculum, TrainConfig
     from rl.training.loop import train
     from rl.training.ppo import PRESETS
 
@@ -342,6 +382,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
                    "--eval-every": (args.eval_every, 1, MAX_TIMESTEPS),
                    "--eval-episodes": (args.eval_episodes, 1, MAX_EVAL_EPISODES),
                    "--checkpoint-every": (args.checkpoint_every, 0, MAX_TIMESTEPS), "--seed": (args.seed, 0, MAX_SEED),
+                   "--record-flights": (args.record_flights, 0, MAX_RECORDED_FLIGHTS),
                    **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
     task = _option("--vehicle", lambda v: task_for(v, envelope=args.envelope), args.vehicle)
     air = task.air if args.turbulence is None else replace(task.air, turbulence=_turbulence_levels(args.turbulence))
@@ -351,12 +392,13 @@ def _cmd_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
                          f"give another --out, --resume to continue its training, or --overwrite to replace it)")
     nav = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
-    cur = Curriculum() if args.curriculum else Curriculum(start=1.0)
+    _check_ranges({"--curriculum-level-steps": (args.curriculum_level_steps, 0, MAX_TIMESTEPS)})
+    cur = Curriculum(level_steps=args.curriculum_level_steps) if args.curriculum else Curriculum(start=1.0)
     if args.preset not in PRESETS:
         raise ValueError(f"--preset {args.preset}: unknown; choose from {', '.join(sorted(PRESETS))}")
     cfg = TrainConfig(preset=args.preset, total_timesteps=args.timesteps, n_envs=args.envs, seed=args.seed, nav=nav,
                       curriculum=cur, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
-                      checkpoint_every=args.checkpoint_every)
+                      checkpoint_every=args.checkpoint_every, record_flights=args.record_flights)
     res = train(cfg, args.out, resume=args.resume, progress=not args.no_progress,
                 command="uam-compare " + " ".join(args.argv))
     print(f"policy written to {args.out}: validation success {res.success_rate:.1%}, collisions "
@@ -517,6 +559,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report_command(sub)
     _add_animate_command(sub)
     _add_view_command(sub)
+    _add_view_training_command(sub)
+    _add_export_command(sub)
     _add_validate_command(sub)
     _add_train_command(sub)
     _add_evaluate_command(sub)
@@ -634,6 +678,27 @@ def _add_view_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     view.set_defaults(func=_cmd_view)
 
 
+def _add_view_training_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    vt = sub.add_parser("view-training", help="write one offline HTML page of a policy's training: the curves, and "
+                        "the recorded flights of every checkpoint in 3D, scrubbable")
+    vt.add_argument("policy_dir", type=Path, help="a policy folder trained with recorded flights (uam-compare train)")
+    vt.add_argument("--out", type=Path, default=None,
+                    help="HTML file to write (default: <policy folder name>-training.html here)")
+    vt.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    vt.set_defaults(func=_cmd_view_training)
+
+
+def _add_export_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    ex = sub.add_parser("export", help="write a run's flights, or a policy's recorded training flights, as a Rerun "
+                        "recording (.rrd; needs the rerun extra)")
+    ex.add_argument("folder", type=Path, help="a run folder (uam-compare run) or a policy folder with training flights")
+    ex.add_argument("--rerun", action="store_true", help="write a Rerun .rrd recording (the one format)")
+    ex.add_argument("--out", type=Path, default=None,
+                    help="file to write (default: RUN_DIR/flights.rrd, or <policy folder name>-training.rrd here)")
+    ex.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    ex.set_defaults(func=_cmd_export)
+
+
 def _add_validate_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     val = sub.add_parser("validate", help="check scenario files strictly without flying anything")
     val.add_argument("scenario", help="a built-in set, a scenario YAML or a folder of them")
@@ -662,9 +727,15 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
                          "decisions), or none")
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
+    tr.add_argument("--curriculum-level-steps", type=int, default=0, metavar="N",
+                    help="a curriculum level lasts at most N timesteps, then the legs lengthen even if training "
+                         "success is under the gate (default 0: until the gate is met)")
     tr.add_argument("--eval-every", type=int, default=1_000_000, help="timesteps between validation evaluations")
     tr.add_argument("--eval-episodes", type=int, default=500, help="validation episodes per evaluation (default 500)")
     tr.add_argument("--checkpoint-every", type=int, default=2_000_000, help="timesteps between checkpoints (0: none)")
+    tr.add_argument("--record-flights", type=int, default=8, metavar="N",
+                    help="fixed validation tasks flown and recorded at step 0 and every evaluation, for "
+                         "view-training, the report and export (default 8; 0: none)")
     tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
     tr.add_argument("--out", type=Path, default=Path("runs/policy"),
                     help="policy folder to write (default runs/policy); an existing non-empty one is refused "

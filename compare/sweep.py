@@ -160,7 +160,7 @@ def build_sweep(name: str, design: SweepDesign = DESIGN, vehicles: tuple[str, ..
     known = [sv.tasks.vehicle for sv in design.vehicles]
     for v in vehicles or ():
         if v not in known:
-            raise ValueError(f"no sweep for vehicle {v!r} (known: {', '.join(known)})")
+            raise ValueError(f"--vehicle {v}: no sweep for this vehicle (known: {', '.join(known)})")
     if vehicles is not None:
         design = dataclasses.replace(design, vehicles=tuple(sv for sv in design.vehicles
                                                             if sv.tasks.vehicle in vehicles))

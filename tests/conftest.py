@@ -24,3 +24,19 @@ def compiled_dynamics(vehicles) -> dict[str, VehicleDynamics]:
 def vm_dynamics(vehicles) -> dict[str, VehicleDynamics]:
     return {name: VehicleDynamics(p, physics_hz=500.0, control_hz=50.0, compiled=False)
             for name, p in vehicles.items()}
+
+
+@pytest.fixture(scope="session")
+def tiny_flights_policy(tmp_path_factory):
+    """A policy folder from the tiny training configuration, with its recorded training flights
+    (checkpoints at 0, 512 and 1024 timesteps; seconds)."""
+    from rl.task.config import NavConfig
+    from rl.training.config import TrainConfig
+    from rl.training.loop import train
+
+    out = tmp_path_factory.mktemp("flights") / "pol"
+    cfg = TrainConfig(total_timesteps=2 * 8 * 64, n_envs=8, nav=NavConfig(city_pool_size=2, wind_pool_size=1,
+                                                                           wind_series_s=150.0),
+                      eval_every=8 * 64, eval_episodes=2, checkpoint_every=0, seed=5, record_flights=4)
+    train(cfg, out, progress=False, command="test", log=lambda *_: None)
+    return out

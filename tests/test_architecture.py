@@ -16,10 +16,10 @@ PACKAGES = ("uam_fdm", "planners", "rl", "compare")
 MAY_IMPORT = {"uam_fdm": {"uam_fdm"}, "planners": {"uam_fdm", "planners"}, "rl": {"uam_fdm", "rl"},
               "compare": set(PACKAGES)}
 # What `compare` may import inside a function or a TYPE_CHECKING block: PyTorch, Ray, matplotlib and plotly
-# (the figures, the viewer, the map plots) and the pilots' own packages (PyTorch, OMPL), so that printing help,
-# checking a scenario or reading a run folder needs none of them.
+# (the figures, the viewer, the map plots), rerun-sdk (an optional extra) and the pilots' own packages (PyTorch,
+# OMPL), so that printing help, checking a scenario or reading a run folder needs none of them.
 DEFERRED_IMPORTS = ("torch", "ray", "compare.backends.ray", "compare.viz", "uam_fdm.city.plot", "rl", "planners",
-                    "matplotlib")
+                    "matplotlib", "rerun")
 # What `rl` may import inside a function or for the type checker only: PyTorch (the network's module included,
 # so reading a policy folder's settings needs none) and matplotlib (the env's rgb_array frames).
 RL_DEFERRED_IMPORTS = ("torch", "rl.policies.network", "matplotlib", "uam_fdm.city.plot")

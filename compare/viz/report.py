@@ -14,7 +14,9 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes
 3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
    3D snapshots over time, for the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios of each vehicle and
    the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks of each (a benchmark run has hundreds: a page says which);
-4. "PPO training: reward convergence" from the policy folder's `reward_curve.csv`;
+4. "PPO training: reward convergence" from the policy folder's `reward_curve.csv`, and beside it "Learning in
+   pictures" when the folder has recorded training flights (`compare.viz.learning_pages`: fixed tasks by
+   checkpoints, top-down);
 5. "Failures": the cells that produced no episode (RUN_DIR/failed/: a pilot's exception, a crashed or hung
    worker), the unsuccessful episodes (the first `MAX_FAILURE_ROWS`), top-down views of up to six.
 
@@ -48,6 +50,7 @@ from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
 from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
 from compare.results.summary import Summary, read_summary_json, summarize_run
 from compare.viz import figures as F
+from compare.viz.learning_pages import learning_figures
 from compare.viz.metrics_pages import SUMMARY_ROWS, MethodStyle, episode_table_pages, format_ci, vehicle_pages
 from compare.viz.sweep_pages import sweep_pages
 from rl.policies.folder import PolicyFolder, Provenance
@@ -188,6 +191,9 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
             for k, pol in enumerate(policies or [None]):  # one convergence page per policy flown
                 suffix = "" if k == 0 or pol is None else f"_{pol.vehicle or k}"
                 pages.add(_training_figure(pol, len(policies) > 1), f"training_reward_curve{suffix}")
+                if pol is not None and pol.policy_dir:  # beside it, its recorded flights (none: no page)
+                    title = "Learning in pictures" + (f" ({pol.vehicle})" if len(policies) > 1 and pol.vehicle else "")
+                    pages.add_all(learning_figures(Path(pol.policy_dir), title), f"learning_in_pictures{suffix}")
             _failure_pages(run, failures, rows, pages)
     logger.info("report %s: %d pages", out, pages.count)
     return out

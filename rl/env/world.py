@@ -20,7 +20,8 @@ once per decision, for the observation and the reward.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -56,6 +57,25 @@ from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.ground_effect import range_m as ground_effect_range_m
 from uam_fdm.vehicle.model import hover_state
 from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle
+
+
+@dataclass(frozen=True)
+class SlotAir:
+    """The air of one episode in a slot (indices into its world's pools).
+
+    Attributes:
+        wind_m_s: steady wind (east, north, up) [m/s].
+        series: the turbulence series, an index of `NavWorld.gust_stacks` (0 when the world has no turbulence).
+        start: the series' first sample for this episode.
+        level: the turbulence level, an index of `NavWorld.levels`.
+        field: the atmosphere, an index of `NavWorld.atmospheres`.
+    """
+
+    wind_m_s: tuple[float, float, float]
+    series: int
+    start: int
+    level: int
+    field: int
 
 
 class NavWorld:
@@ -176,6 +196,8 @@ class NavBatch:
         self._period = 1.0 / world.dynamics.control_hz
         self.city_of_slot: np.ndarray | None = None  # evaluation: slot i always flies in city city_of_slot[i]
         self.difficulty = 1.0  # the training curriculum's task difficulty (see TaskDistribution.sample)
+        # called after every control period with the slots that flew it (a recorder of flights at control rate)
+        self.on_period: Callable[[np.ndarray], None] | None = None
 
     # -- episodes ----------------------------------------------------------------------------------
     def seed(self, seeds: Sequence[int]) -> None:
@@ -198,37 +220,69 @@ class NavBatch:
                 task = cfg.tasks.sample(w.cities[ci], rng, p.collision_radius_m, p.controller.max_speed_m_s,
                                         difficulty=self.difficulty,
                                         max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s)
-            speed = rng.uniform(0.0, cfg.air.steady_wind_max_m_s)
-            heading = rng.uniform(-np.pi, np.pi)
-            # draws only where there is a choice, so a task of one field and one level draws as it always did
-            level = int(rng.integers(len(w.levels))) if len(w.levels) > 1 else 0
-            stacks = w.level_stacks[level] if w.turbulent else []
-            series = stacks[int(rng.integers(len(stacks)))] if stacks else int(rng.integers(1))
-            start = 0
-            if w.turbulent:
-                span = self.winds.samples - 2 - int(np.ceil((task.timeout_s + 1.0) / self.winds.dt_s))
-                if span < 1:
-                    raise ValueError(f"wind_series_s {cfg.wind_series_s} s is too short for a "
-                                     f"{task.timeout_s} s episode")
-                start = int(rng.integers(span))
-            air = int(rng.integers(len(w.atmospheres))) if len(w.atmospheres) > 1 else 0
-            self.winds.assign(i, (speed * np.cos(heading), speed * np.sin(heading), 0.0), series, start)
-            self.air[i], self.level[i] = air, level
-            if isinstance(self.atmospheres, AtmosphereBank):
-                self.atmospheres.assign(i, air)
-            self.city[i] = ci
-            self.lo[i], self.hi[i] = w.lo[ci], w.hi[ci]
-            self.start[i], self.goal[i] = task.start_m, task.goal_m
-            self.goal_radius[i], self.timeout[i], self.yaw[i] = task.goal_radius_m, task.timeout_s, task.start_yaw_rad
-            self.x[i] = hover_state(p, task.start_m, task.start_yaw_rad,
-                                    density_ratio=w.atmospheres[air].density_ratio(task.start_m[2]))
-            self.xi[i] = 0.0
-            self.t[i] = 0.0
-            self.routes.set(i, route_for(w.cities[ci], task, p.collision_radius_m, cfg.route))
-            self.episode_return[i] = 0.0
-            self.episode_len[i] = 0
-            self.episode_count[i] += 1
-        idx = np.asarray(idx, dtype=np.int64)
+            self._place(int(i), ci, task, self._draw_air(rng, task))
+        self._begin(np.asarray(idx, dtype=np.int64))
+
+    def place(self, episodes: Sequence[tuple[int, int, Task, SlotAir]]) -> None:
+        """Start the given episodes: (slot, city index, task, its air) each, drawing nothing from any
+        generator (e.g. a fixed set of tasks flown again and again, `rl.training.recording`)."""
+        for i, ci, task, air in episodes:
+            self._place(int(i), int(ci), task, air)
+        self._begin(np.array([e[0] for e in episodes], dtype=np.int64))
+
+    def _draw_air(self, rng: np.random.Generator, task: Task) -> SlotAir:
+        """A slot's air for `task` drawn from its generator: steady wind, turbulence level and series, field.
+
+        Draws only where there is a choice, so a task of one field and one level draws as it always did."""
+        w, cfg = self.world, self.world.config
+        speed = rng.uniform(0.0, cfg.air.steady_wind_max_m_s)
+        heading = rng.uniform(-np.pi, np.pi)
+        level = int(rng.integers(len(w.levels))) if len(w.levels) > 1 else 0
+        stacks = w.level_stacks[level] if w.turbulent else []
+        series = stacks[int(rng.integers(len(stacks)))] if stacks else int(rng.integers(1))
+        start = 0
+        if w.turbulent:
+            start = int(rng.integers(self.wind_start_span(task)))
+        field = int(rng.integers(len(w.atmospheres))) if len(w.atmospheres) > 1 else 0
+        return SlotAir((float(speed * np.cos(heading)), float(speed * np.sin(heading)), 0.0), series, start, level,
+                       field)
+
+    def wind_start_span(self, task: Task) -> int:
+        """How many starting samples of a turbulence series leave room for `task`'s whole episode.
+
+        Raises:
+            ValueError: the series is too short for the task's time limit.
+        """
+        span = self.winds.samples - 2 - int(np.ceil((task.timeout_s + 1.0) / self.winds.dt_s))
+        if span < 1:
+            raise ValueError(f"wind_series_s {self.world.config.wind_series_s} s is too short for a "
+                             f"{task.timeout_s} s episode")
+        return span
+
+    def _place(self, i: int, ci: int, task: Task, air: SlotAir) -> None:
+        """Slot i's state at the start of `task` in city `ci` and air `air` (`_begin` completes it)."""
+        w, cfg = self.world, self.world.config
+        p = w.vehicle
+        self.winds.assign(i, air.wind_m_s, air.series, air.start)
+        self.air[i], self.level[i] = air.field, air.level
+        if isinstance(self.atmospheres, AtmosphereBank):
+            self.atmospheres.assign(i, air.field)
+        self.city[i] = ci
+        self.lo[i], self.hi[i] = w.lo[ci], w.hi[ci]
+        self.start[i], self.goal[i] = task.start_m, task.goal_m
+        self.goal_radius[i], self.timeout[i], self.yaw[i] = task.goal_radius_m, task.timeout_s, task.start_yaw_rad
+        self.x[i] = hover_state(p, task.start_m, task.start_yaw_rad,
+                                density_ratio=w.atmospheres[air.field].density_ratio(task.start_m[2]))
+        self.xi[i] = 0.0
+        self.t[i] = 0.0
+        self.routes.set(i, route_for(w.cities[ci], task, p.collision_radius_m, cfg.route))
+        self.episode_return[i] = 0.0
+        self.episode_len[i] = 0
+        self.episode_count[i] += 1
+
+    def _begin(self, idx: np.ndarray) -> None:
+        """The first sensing and observation of slots idx, just placed."""
+        w = self.world
         if len(idx):
             pos = self.x[idx, 0:3]
             self.route_m[idx] = self.routes.potential(pos, idx)
@@ -357,6 +411,8 @@ class NavBatch:
                 self.x[ok], self.xi[ok] = r.final_state[finite], r.ctrl_state[finite]
             c[(c == episode.RUNNING) & episode.timed_out(self.t[sel], self.timeout[sel])] = episode.TIMEOUT
             code[sel] = c
+            if self.on_period is not None:
+                self.on_period(idx)
         everyone = np.arange(self.n)
         pos = self.x[:, 0:3]
         self.clear, self.nearest = nearest_surface(w.clearance_sensor, pos, self.city)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rl.policies.flights import TrainingFlights, checkpoint_file
 from rl.policies.folder import PolicyFolder
 from rl.policies.reader import ObsNorm, load_network
 from rl.sensing.observation import (
@@ -82,6 +83,39 @@ def load_policy(folder: Path | str | None = None, vehicle: VehicleParams | None 
         raise ValueError(f"{pf.obs_norm}: statistics for {stats.mean.size} observations; "
                          f"config.json's task gives {n_obs}")
     return Policy(pf.path, load_network(pf.model, n_obs, cfg.network), stats, nav)
+
+
+def load_checkpoint_policy(folder: Path | str, timesteps: int) -> Policy:
+    """The policy that flew the training flights recorded at `timesteps` (`rl.policies.flights`): its actor's
+    weights and statistics from the checkpoint file, its task from the folder's config.json; plain data only.
+
+    Raises:
+        ValueError: no such recorded checkpoint, or it stores no weights or weights that do not fit the
+            network of config.json (naming the file).
+    """
+    import torch  # PyTorch only with a network
+
+    from rl.policies.network import ActorCritic
+
+    pf = PolicyFolder.open(folder)
+    cfg = pf.config()
+    ckpt = TrainingFlights.open(pf.path).checkpoint(timesteps)
+    path = checkpoint_file(pf.path, timesteps)
+    n_obs = obs_size(cfg.nav.perception, cfg.nav.observe)
+    if not ckpt.actor or ckpt.obs_norm is None:
+        raise ValueError(f"{path}: stores no weights to fly")
+    if ckpt.obs_norm.mean.shape != (n_obs,):
+        raise ValueError(f"{path}: statistics for {ckpt.obs_norm.mean.size} observations; config.json gives {n_obs}")
+    net = ActorCritic(n_obs, cfg.network)
+    try:  # the actor only: the critic is not stored (flying never evaluates it)
+        missing, unexpected = net.load_state_dict({k: torch.from_numpy(v) for k, v in ckpt.actor.items()},
+                                                  strict=False)
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: weights do not fit the network of config.json ({exc})") from None
+    if unexpected or any(not k.startswith(("value_net.", "mlp_extractor.value_net.")) for k in missing):
+        raise ValueError(f"{path}: weights do not fit the network of config.json "
+                         f"(missing {missing[:3]}, unexpected {unexpected[:3]})")
+    return Policy(pf.path, net.eval(), ckpt.obs_norm, cfg.nav)
 
 
 def check_vehicle(folder: Path, nav: NavConfig, vehicle: VehicleParams) -> None:

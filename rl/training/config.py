@@ -8,6 +8,8 @@ import numpy as np
 from rl.task.config import NavConfig
 from rl.training.ppo import PRESETS
 
+MAX_RECORDED_FLIGHTS = 64  # the recorded tasks are meant to be looked at, one by one
+
 
 @dataclass(frozen=True)
 class Curriculum:
@@ -15,17 +17,23 @@ class Curriculum:
 
     Starts at `start`; whenever the success rate of the last `window` training episodes reaches
     `gate`, the difficulty rises by `step` (to 1 at most; the window then starts afresh).
-    `start` = 1 turns the curriculum off.
+    `level_steps` > 0 also raises it once a level has lasted that many timesteps: across the air,
+    exploration noise in thin air and gusts can hold training success under the gate long after
+    the deterministic policy flies full-length legs (issue 28), and the gate alone then spends most
+    of a run on short legs. `start` = 1 turns the curriculum off.
     """
 
     start: float = 0.25
     step: float = 0.25
     gate: float = 0.8
     window: int = 512
+    level_steps: int = 0  # timesteps a level lasts at most (0: until the gate is met)
 
     def __post_init__(self) -> None:
-        if not (0 < self.start <= 1 and 0 < self.step <= 1 and 0 < self.gate <= 1 and self.window >= 1):
-            raise ValueError(f"curriculum needs 0 < start, step, gate <= 1 and window >= 1; got {self}")
+        if not (0 < self.start <= 1 and 0 < self.step <= 1 and 0 < self.gate <= 1 and self.window >= 1
+                and self.level_steps >= 0):
+            raise ValueError(f"curriculum needs 0 < start, step, gate <= 1, window >= 1 and level_steps >= 0; "
+                             f"got {self}")
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,8 @@ class TrainConfig:
             collision rate (a crash costs more than a time-out: it is the failure a user cannot accept).
         checkpoint_every: save a checkpoint every this many timesteps (0 = never).
         torch_threads: torch intra-op threads (1: small-tensor work is fastest single-threaded here).
+        record_flights: fixed validation tasks flown and recorded at step 0 and at every evaluation
+            (`rl.training.recording`; 0 = none).
     """
 
     preset: str = "paper"
@@ -57,6 +67,7 @@ class TrainConfig:
     collision_weight: float = 2.0
     checkpoint_every: int = 2_000_000
     torch_threads: int = 1
+    record_flights: int = 8
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
@@ -64,6 +75,8 @@ class TrainConfig:
         for k in ("total_timesteps", "n_envs", "eval_every", "eval_episodes"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+        if not 0 <= self.record_flights <= MAX_RECORDED_FLIGHTS:
+            raise ValueError(f"record_flights must be 0 to {MAX_RECORDED_FLIGHTS}, got {self.record_flights}")
         if not (np.isfinite(self.collision_weight) and self.collision_weight >= 0):
             raise ValueError(f"collision_weight must be a finite number >= 0, got {self.collision_weight!r}")
 

@@ -28,12 +28,13 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
-from rl.policies.folder import CHECKPOINT_FILES, CURVE_COLUMNS, PolicyFolder
+from rl.policies.folder import CHECKPOINT_FILES, CHECKPOINTS, CURVE_COLUMNS, PolicyFolder
 from rl.policies.reader import ObsNorm
 from rl.training.checkpoints import load_model_for_resume, restore_vec_normalize, save_vec_normalize
 from rl.training.config import TrainConfig
 from rl.training.evaluation import EvalResult, eval_config, evaluate
 from rl.training.ppo import PRESETS, make_model, normalized_env
+from rl.training.recording import FlightRecorder
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path, write_text_atomic
 from uam_fdm.files.version import code_version
@@ -59,6 +60,8 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
     """
     torch.set_num_threads(cfg.torch_threads)
     run = _TrainingRun(cfg, Path(out_dir), Path(resume) if resume is not None else None, log, world)
+    if resume is None:
+        run.record_flights()  # step 0: the untrained policy
     remaining = cfg.total_timesteps - run.model.num_timesteps
     if remaining > 0:
         run.model.learn(total_timesteps=remaining, callback=_Periodic(run), progress_bar=progress,
@@ -95,13 +98,21 @@ class _TrainingRun:
             self.venv = restore_vec_normalize(src.vec_normalize, self.base)
             self.model = load_model_for_resume(src.model, self.venv, preset, self.out.tensorboard)
             state_file = src.curriculum
-            difficulty = json.loads(state_file.read_text())["difficulty"] if state_file.is_file() else 1.0
+            state = json.loads(state_file.read_text()) if state_file.is_file() else {"difficulty": 1.0}
+            difficulty = state["difficulty"]
+            self.level_since = int(state.get("level_since", self.model.num_timesteps))
             log(f"resumed from {resume} at {self.model.num_timesteps} timesteps (difficulty {difficulty:g})")
         else:
             self.venv = normalized_env(self.base, preset, cfg.nav.decision_hz)
             self.model = make_model(preset, self.venv, cfg.seed, cfg.nav.decision_hz, self.out.tensorboard)
             difficulty = cfg.curriculum.start
+            self.level_since = 0  # the timestep the current curriculum level began
         self.base.batch.difficulty = difficulty
+        # the checkpoints' flights of fixed validation tasks, in a world of their own (rl.training.recording);
+        # a resumed run continues the record of the folder it resumes from (a checkpoint's: its policy folder's)
+        history = None if resume is None else resume.parent.parent if resume.parent.name == CHECKPOINTS else resume
+        self.recorder = (FlightRecorder(cfg.nav, cfg.record_flights, cfg.seed, out_dir, self.eval_world, history,
+                                        int(self.model.num_timesteps)) if cfg.record_flights else None)
         if resume is None or not self.out.reward_curve.exists():
             with open(self.out.reward_curve, "w", newline="") as f:
                 csv.writer(f).writerow(CURVE_COLUMNS)
@@ -123,7 +134,7 @@ class _TrainingRun:
         folder.mkdir(parents=True, exist_ok=True)
         pf = PolicyFolder(folder)
         _write_json(pf.config_file, self.cfg.to_dict())
-        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty})
+        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty, "level_since": self.level_since})
         with atomic_path(pf.model, suffix=".zip") as tmp:
             self.model.save(str(tmp))
         save_vec_normalize(pf.vec_normalize, self.venv)
@@ -142,9 +153,20 @@ class _TrainingRun:
             csv.writer(f).writerow(row)
         self.outcomes, self.returns = [], []
 
+    def record_flights(self) -> None:
+        """Fly the recorder's fixed tasks with the current model and write them (once per timestep count)."""
+        rec, steps = self.recorder, int(self.model.num_timesteps)
+        if rec is None or rec.has(steps):
+            return
+        actor = {k: v.detach().cpu().numpy().copy() for k, v in self.model.policy.state_dict().items()
+                 if k == "log_std" or k.startswith(("mlp_extractor.policy_net.", "action_net."))}
+        rec.record(steps, self.pilot, actor, ObsNorm.of(self.venv))
+
     def evaluate(self) -> EvalResult:
-        """Evaluate the current model on the validation pool; keep it (as `best/`) when it is the best so far."""
+        """Evaluate the current model on the validation pool; keep it (as `best/`) when it is the best so far.
+        The recorder's fixed tasks are flown too."""
         cfg, model = self.cfg, self.model
+        self.record_flights()
         res = evaluate(self.pilot, cfg.nav, cfg.eval_episodes, seed=cfg.seed + 10_000, pool="validation",
                        world=self.eval_world)
         if getattr(model, "_logger", None) is not None:  # no logger before the first learn() call
@@ -171,11 +193,16 @@ class _TrainingRun:
                 self.returns.append(info["episode"]["r"])
                 self.recent.append(info["outcome"])
         cur, batch, recent = self.cfg.curriculum, self.base.batch, self.recent
-        if (batch.difficulty < 1.0 and len(recent) == recent.maxlen
-                and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate):
+        if batch.difficulty >= 1.0:
+            return
+        gated = len(recent) == recent.maxlen and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate
+        timed = cur.level_steps > 0 and num_timesteps - self.level_since >= cur.level_steps
+        if gated or timed:
             batch.difficulty = min(1.0, batch.difficulty + cur.step)
             recent.clear()
-            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {batch.difficulty:.2f}")
+            self.level_since = num_timesteps
+            why = "" if gated else f" (the level's {cur.level_steps:,d} timesteps are over)"
+            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {batch.difficulty:.2f}{why}")
 
     def update_ended(self, num_timesteps: int) -> None:
         """After each rollout: the reward curve's row, an evaluation and a checkpoint when due."""

@@ -91,7 +91,7 @@ def test_version_is_repeatable_and_quick_is_a_subset(quick) -> None:
         assert small.name == big.name and small.raw["episodes"] == big.raw["episodes"][:2]
     only = build_sweep("sweep-quick", vehicles=("small_quad",))
     assert [s.name for s in only.scenarios] == [s.name for s in quick.scenarios if s.vehicle_name == "small_quad"]
-    with pytest.raises(ValueError, match="no sweep for vehicle"):
+    with pytest.raises(ValueError, match="--vehicle .*: no sweep for this vehicle"):
         build_sweep("sweep-quick", vehicles=("zeppelin",))
 
 

@@ -39,6 +39,8 @@ _WGS84_F = 1.0 / 298.257223563
 # Vertices of one footprint ring (a detailed real building outline has tens to hundreds); the
 # decomposition is near-linear, but every part it yields is checked at every physics step.
 MAX_FOOTPRINT_VERTICES = 10_000
+# no building is under 10 cm across; lon/lat footprints read as metres are (a city block is ~0.001 degrees)
+MIN_FOOTPRINT_M = 0.1
 
 
 def load_footprints(path: Path, height_key: str, origin_lonlat: Sequence[float] | None,
@@ -104,7 +106,12 @@ def load_footprints(path: Path, height_key: str, origin_lonlat: Sequence[float] 
                 raise ConfigError(src, pkey, "polygons with holes (interior rings) are not supported")
             ring = _ring(rings[0], src, f"{pkey}[0]")
             if origin_lonlat is not None:
+                if (np.abs(ring[:, 0]) > 180.0).any() or (np.abs(ring[:, 1]) > 90.0).any():
+                    raise ConfigError(src, f"{pkey}[0]", "positions must be [lon, lat] degrees (map.origin_lonlat is "
+                                                         f"given), got {ring[np.argmax(np.abs(ring).max(axis=1))]}")
                 ring = lonlat_to_enu(ring, origin_lonlat)
+            else:
+                _check_metres(ring, src, f"{pkey}[0]")
             if (ring < np.asarray(bounds_min_xy)).any() or (ring > np.asarray(bounds_max_xy)).any():
                 raise ConfigError(src, key, "footprint leaves the bounds in x/y")
             try:
@@ -112,6 +119,15 @@ def load_footprints(path: Path, height_key: str, origin_lonlat: Sequence[float] 
             except ValueError as exc:
                 raise ConfigError(src, pkey, str(exc)) from None
     return parts
+
+
+def _check_metres(ring: np.ndarray, src: str, key: str) -> None:
+    """Refuse a footprint read as metres that can only be degrees: lon/lat in range and smaller than any building."""
+    extent = ring.max(axis=0) - ring.min(axis=0)
+    degrees = (np.abs(ring[:, 0]) <= 180.0).all() and (np.abs(ring[:, 1]) <= 90.0).all()
+    if degrees and extent.max() < MIN_FOOTPRINT_M:
+        raise ConfigError(src, key, f"a footprint {extent[0]:.3g} x {extent[1]:.3g} m: these look like lon/lat "
+                                    "degrees; give map.origin_lonlat [lon, lat] to project them onto local metres")
 
 
 def _ring(ring: Any, src: str, key: str) -> np.ndarray:

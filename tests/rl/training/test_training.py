@@ -89,6 +89,22 @@ def test_tiny_training_run_increases_the_return(tmp_path):
     assert last > first + 20.0, (first, last, ret)
 
 
+def test_a_curriculum_level_ends_after_its_timesteps(tmp_path):
+    """With a gate no training can meet, the legs still lengthen every `level_steps`, and a resume keeps the clock."""
+    cfg = TrainConfig(total_timesteps=4 * 8 * 64, n_envs=8, nav=TINY_NAV, eval_every=10**9, eval_episodes=2,
+                      checkpoint_every=2 * 8 * 64,
+                      curriculum=Curriculum(start=0.25, step=0.25, gate=1.0, window=10**6, level_steps=8 * 64))
+    lines: list[str] = []
+    train(cfg, tmp_path / "pol", progress=False, log=lines.append)
+    levels = [float(r["difficulty"]) for r in _rows(tmp_path / "pol" / "reward_curve.csv")]
+    assert levels[:4] == [0.5, 0.75, 1.0, 1.0], levels  # raised at the end of each 512-step update
+    assert sum("timesteps are over" in ln for ln in lines) == 3
+    state = json.loads((tmp_path / "pol" / "checkpoints" / "step_00000001024" / "curriculum.json").read_text())
+    assert state == {"difficulty": 0.75, "level_since": 1024}
+    with pytest.raises(ValueError, match="level_steps"):
+        Curriculum(level_steps=-1)
+
+
 def test_presets_keep_the_paper_network():
     assert set(PRESETS) == {"paper"}
     assert PRESETS["paper"].net_arch == (128, 128) and PRESETS["paper"].clip_range == 0.2

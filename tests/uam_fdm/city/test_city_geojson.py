@@ -195,3 +195,17 @@ def test_nearest_obstacles_counts_a_decomposed_footprint_once() -> None:
         np.testing.assert_allclose(np.where(ids[:, 0] == gid, dist[:, 0], dist[:, 1]), ref, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(near[:, :2] - pts[:, None], axis=2), np.abs(dist[:, :2] + 0.5),
                                atol=1e-9)
+
+
+def test_lonlat_without_an_origin_is_refused() -> None:
+    """Degrees read as metres would make a building millimetres wide: the file and the position are named."""
+    with pytest.raises(ConfigError) as exc:
+        _load("lonlat.geojson")
+    assert exc.value.source.endswith("lonlat.geojson") and exc.value.key == "features[0].geometry.coordinates[0]"
+    assert "origin_lonlat" in exc.value.reason
+
+
+def test_metres_with_an_origin_are_refused() -> None:
+    with pytest.raises(ConfigError) as exc:
+        _load("l_shape.geojson", origin_lonlat=[8.5, 47.4])
+    assert "lon, lat" in exc.value.reason and exc.value.key.startswith("features[0]")

@@ -1,0 +1,306 @@
+"""Training flights: what a policy flew at each checkpoint of its training, and the one reader of them.
+
+Training (`rl.training.recording`) flies a fixed set of validation tasks with the current deterministic
+policy at step 0 and at every validation evaluation, and writes them into the policy folder:
+
+```
+folder/training_flights/tasks.json               the fixed tasks, how they were chosen, their cities as boxes
+folder/training_flights/step_<timesteps:011d>.npz one checkpoint: its flights and the policy that flew them
+```
+
+A checkpoint file holds (all plain arrays, read without unpickling): `timesteps` (); per flight, in task
+order, `task` (F,) int, `outcome` (F,) str, `time_s` (F,), `min_clearance_m` (F,); the samples of every
+flight one after the other, at the control rate from the start (t = k / control_hz), flight f being rows
+`offsets[f]:offsets[f + 1]`: `pos_m` (T, 3) float32 (ENU metres), `vel_m_s` (T, 3) float32 and
+`clearance_m` (T,) float32 (the collision sphere's distance to the nearest building or the ground, capped at
+the clearance sensor's range); the actor's weights as `actor/<SB3 parameter name>` float32 and the
+normalisation statistics as `obs_norm/<mean|var|count|epsilon|clip_obs>`, so the checkpoint can be flown again
+(`rl.pilots.learned.load_checkpoint_policy`). A flight's clearance is measured at the control rate, not at
+the physics rate the comparison's metrics use.
+"""
+from __future__ import annotations
+
+import json
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rl.policies.reader import OBS_NORM_KEYS, ObsNorm
+from uam_fdm.episode import OUTCOMES
+from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.npz import write_npz
+
+FLIGHTS_DIR = "training_flights"
+TASKS_FILE = "tasks.json"
+FORMAT = "uam-compare training flights"
+VERSION = 1
+_STEP_RE = re.compile(r"^step_(\d{11})\.npz$")
+HOW_TO_RECORD = ("train it with `uam-compare train` of this version (it records the flights of every checkpoint "
+                 "into training_flights/)")
+
+
+@dataclass(frozen=True, eq=False)
+class CityBoxes:
+    """A city drawn as boxes.
+
+    Attributes:
+        name: the city's name.
+        bounds_min_m, bounds_max_m: the flight volume's corners (ENU metres).
+        boxes: (B, 6) per building: centre x, y [m], size along its own x, y [m], roof height [m], yaw [rad].
+    """
+
+    name: str
+    bounds_min_m: tuple[float, float, float]
+    bounds_max_m: tuple[float, float, float]
+    boxes: np.ndarray
+
+
+@dataclass(frozen=True)
+class RecordedTask:
+    """One of the fixed tasks every checkpoint flies.
+
+    Attributes:
+        city: index into `FlightTasks.cities`; leg: "short" or "long".
+        start_m, goal_m: ENU metres; goal_radius_m [m]; timeout_s [s]; start_yaw_rad [rad].
+        turbulence: the turbulence level's name; elevation_m, isa_offset_k: the field's atmosphere.
+        wind_m_s: steady wind (east, north, up) [m/s].
+    """
+
+    city: int
+    leg: str
+    start_m: tuple[float, float, float]
+    goal_m: tuple[float, float, float]
+    goal_radius_m: float
+    timeout_s: float
+    start_yaw_rad: float
+    turbulence: str
+    elevation_m: float
+    isa_offset_k: float
+    wind_m_s: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class FlightTasks:
+    """tasks.json: the fixed tasks, the rule that chose them and the cities they are flown in.
+
+    Attributes:
+        rule: how the tasks were chosen (words, for the reader of the page).
+        seed: the training run's seed they were drawn from.
+        control_hz: the samples' rate [Hz]; vehicle: its preset name; collision_radius_m [m].
+    """
+
+    rule: str
+    seed: int
+    control_hz: float
+    vehicle: str
+    collision_radius_m: float
+    tasks: tuple[RecordedTask, ...]
+    cities: tuple[CityBoxes, ...] = field(default_factory=tuple)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": FORMAT, "version": VERSION, "rule": self.rule, "seed": self.seed,
+                "control_hz": self.control_hz, "vehicle": self.vehicle, "collision_radius_m": self.collision_radius_m,
+                "tasks": [vars(t) | {"start_m": list(t.start_m), "goal_m": list(t.goal_m),
+                                     "wind_m_s": list(t.wind_m_s)} for t in self.tasks],
+                "cities": [{"name": c.name, "bounds_min_m": list(c.bounds_min_m), "bounds_max_m": list(c.bounds_max_m),
+                            "boxes": np.round(c.boxes, 3).tolist()} for c in self.cities]}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> FlightTasks:
+        """From tasks.json's object (KeyError, TypeError, ValueError when it is not one)."""
+        if d.get("format") != FORMAT or d.get("version") != VERSION:
+            raise ValueError(f"not version {VERSION} of the {FORMAT!r} format")
+        cities = tuple(CityBoxes(str(c["name"]), _triple(c["bounds_min_m"]), _triple(c["bounds_max_m"]),
+                                 _boxes(c["boxes"])) for c in d["cities"])
+        tasks = tuple(RecordedTask(int(t["city"]), str(t["leg"]), _triple(t["start_m"]), _triple(t["goal_m"]),
+                                   float(t["goal_radius_m"]), float(t["timeout_s"]), float(t["start_yaw_rad"]),
+                                   str(t["turbulence"]), float(t["elevation_m"]), float(t["isa_offset_k"]),
+                                   _triple(t["wind_m_s"])) for t in d["tasks"])
+        if not tasks or any(not 0 <= t.city < len(cities) for t in tasks):
+            raise ValueError("no tasks, or a task names a city that is not listed")
+        return cls(str(d["rule"]), int(d["seed"]), float(d["control_hz"]), str(d["vehicle"]),
+                   float(d["collision_radius_m"]), tasks, cities)
+
+
+@dataclass(frozen=True, eq=False)
+class Flight:
+    """One task flown by one checkpoint (samples at the control rate from t = 0).
+
+    Attributes:
+        task: index into `FlightTasks.tasks`; outcome: how it ended (`uam_fdm.episode.Outcome` values).
+        time_s: when it ended [s]; min_clearance_m: the least clearance of its samples [m].
+        pos_m, vel_m_s: (T, 3) float32 position [m] and velocity [m/s], ENU; clearance_m: (T,) float32 [m].
+    """
+
+    task: int
+    outcome: str
+    time_s: float
+    min_clearance_m: float
+    pos_m: np.ndarray
+    vel_m_s: np.ndarray
+    clearance_m: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class CheckpointFlights:
+    """One checkpoint's flights of the fixed tasks, and the policy that flew them.
+
+    Attributes:
+        timesteps: decisions trained when the checkpoint flew.
+        flights: one per task, in task order.
+        actor: the actor's weights by SB3 parameter name (float32), empty when not stored.
+        obs_norm: the observation statistics it flew with (None when not stored).
+    """
+
+    timesteps: int
+    flights: tuple[Flight, ...]
+    actor: dict[str, np.ndarray] = field(default_factory=dict)
+    obs_norm: ObsNorm | None = None
+
+
+def flights_dir(policy_dir: Path | str) -> Path:
+    """A policy folder's training flights folder."""
+    return Path(policy_dir) / FLIGHTS_DIR
+
+
+def checkpoint_file(policy_dir: Path | str, timesteps: int) -> Path:
+    """The file of the checkpoint recorded after `timesteps` decisions."""
+    return flights_dir(policy_dir) / f"step_{int(timesteps):011d}.npz"
+
+
+def tasks_text(tasks: FlightTasks) -> str:
+    """tasks.json's text (the same tasks give the same text)."""
+    return json.dumps(tasks.to_dict(), indent=1, sort_keys=True) + "\n"
+
+
+def write_tasks(policy_dir: Path | str, tasks: FlightTasks) -> Path:
+    """Write tasks.json (atomic); returns its path."""
+    return write_text_atomic(flights_dir(policy_dir) / TASKS_FILE, tasks_text(tasks))
+
+
+def write_checkpoint(policy_dir: Path | str, ckpt: CheckpointFlights) -> Path:
+    """Write one checkpoint's file (reproducibly: the same flights give the same bytes); returns its path."""
+    fl = ckpt.flights
+    lengths = [len(f.pos_m) for f in fl]
+    arrays: dict[str, np.ndarray] = {
+        "timesteps": np.array(ckpt.timesteps, dtype=np.int64),
+        "task": np.array([f.task for f in fl], dtype=np.int64),
+        "outcome": np.array([str(f.outcome) for f in fl], dtype="<U16"),
+        "time_s": np.array([f.time_s for f in fl], dtype=np.float64),
+        "min_clearance_m": np.array([f.min_clearance_m for f in fl], dtype=np.float64),
+        "offsets": np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
+        "pos_m": np.concatenate([f.pos_m for f in fl]).astype(np.float32).reshape(-1, 3),
+        "vel_m_s": np.concatenate([f.vel_m_s for f in fl]).astype(np.float32).reshape(-1, 3),
+        "clearance_m": np.concatenate([f.clearance_m for f in fl]).astype(np.float32).reshape(-1),
+    }
+    for name in sorted(ckpt.actor):
+        arrays[f"actor/{name}"] = np.asarray(ckpt.actor[name], dtype=np.float32)
+    if ckpt.obs_norm is not None:
+        for k in OBS_NORM_KEYS:
+            arrays[f"obs_norm/{k}"] = np.asarray(getattr(ckpt.obs_norm, k), dtype=np.float64)
+    return write_npz(checkpoint_file(policy_dir, ckpt.timesteps), arrays)
+
+
+@dataclass(frozen=True)
+class TrainingFlights:
+    """A policy folder's recorded training flights: the fixed tasks and the checkpoints that flew them.
+
+    Attributes:
+        folder: the policy folder; tasks: tasks.json; steps: the recorded checkpoints' timesteps, ascending.
+    """
+
+    folder: Path
+    tasks: FlightTasks
+    steps: tuple[int, ...]
+
+    @classmethod
+    def open(cls, policy_dir: Path | str) -> TrainingFlights:
+        """The training flights of `policy_dir`.
+
+        Raises:
+            ValueError: one line naming the folder when it has no recorded flights (and how to get them), or
+                naming tasks.json when it cannot be read.
+        """
+        folder = Path(policy_dir)
+        d = flights_dir(folder)
+        steps = sorted(int(m.group(1)) for p in (d.iterdir() if d.is_dir() else ())
+                       if (m := _STEP_RE.match(p.name)))
+        if not (d / TASKS_FILE).is_file() or not steps:
+            raise ValueError(f"{folder}: no training flights recorded ({FLIGHTS_DIR}/ is missing or empty); "
+                             f"{HOW_TO_RECORD}")
+        path = d / TASKS_FILE
+        try:
+            tasks = FlightTasks.from_dict(json.loads(path.read_text(encoding="utf-8")))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"{path}: not a training-flights task list ({exc})") from None
+        return cls(folder, tasks, tuple(steps))
+
+    def checkpoint(self, timesteps: int) -> CheckpointFlights:
+        """The flights of the checkpoint at `timesteps` (read without unpickling, checked).
+
+        Raises:
+            ValueError: the file is missing or malformed, naming it and what is wrong.
+        """
+        return read_checkpoint(checkpoint_file(self.folder, timesteps), len(self.tasks.tasks))
+
+
+def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
+    """One checkpoint file of a folder whose tasks.json lists `n_tasks` tasks.
+
+    Raises:
+        ValueError: the file is missing, unreadable, holds objects, or its arrays do not fit together.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: np.array(z[k]) for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{path}: unreadable ({exc})") from None
+
+    def need(k: str) -> np.ndarray:
+        if k not in a:
+            raise ValueError(f"{path}: array {k!r} is missing")
+        return a[k]
+
+    task, offsets = need("task").astype(np.int64), need("offsets").astype(np.int64)
+    outcome, time_s, min_c = need("outcome"), need("time_s").astype(float), need("min_clearance_m").astype(float)
+    pos, vel, clear = need("pos_m"), need("vel_m_s"), need("clearance_m")
+    f = len(task)
+    if (outcome.shape != (f,) or time_s.shape != (f,) or min_c.shape != (f,) or offsets.shape != (f + 1,)
+            or offsets[0] != 0 or np.any(np.diff(offsets) < 1) or pos.ndim != 2 or pos.shape[1] != 3
+            or vel.shape != pos.shape or clear.shape != (len(pos),) or offsets[-1] != len(pos)):
+        raise ValueError(f"{path}: its arrays do not fit together (flights, offsets and samples)")
+    if np.any(task < 0) or np.any(task >= n_tasks):
+        raise ValueError(f"{path}: a flight names a task that tasks.json does not list")
+    if not (np.isfinite(pos).all() and np.isfinite(vel).all() and np.isfinite(time_s).all()):
+        raise ValueError(f"{path}: non-finite positions, velocities or times")
+    known = {str(o) for o in OUTCOMES}
+    bad = next((str(o) for o in outcome if str(o) not in known), None)
+    if bad is not None:
+        raise ValueError(f"{path}: unknown outcome {bad[:40]!r}")
+    flights = tuple(Flight(int(task[i]), str(outcome[i]), float(time_s[i]), float(min_c[i]),
+                           pos[offsets[i]:offsets[i + 1]].astype(np.float32),
+                           vel[offsets[i]:offsets[i + 1]].astype(np.float32),
+                           clear[offsets[i]:offsets[i + 1]].astype(np.float32)) for i in range(f))
+    actor = {k[len("actor/"):]: v.astype(np.float32) for k, v in a.items() if k.startswith("actor/")}
+    norm = None
+    if all(f"obs_norm/{k}" in a for k in OBS_NORM_KEYS):
+        n = {k: a[f"obs_norm/{k}"].astype(np.float64) for k in OBS_NORM_KEYS}
+        norm = ObsNorm(n["mean"], n["var"], float(n["count"]), float(n["epsilon"]), float(n["clip_obs"]))
+    return CheckpointFlights(int(need("timesteps")), flights, actor, norm)
+
+
+def _triple(v: Any) -> tuple[float, float, float]:
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        raise ValueError(f"expected three numbers, got {str(v)[:60]}")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _boxes(v: Any) -> np.ndarray:
+    a = np.asarray(v, dtype=float).reshape(-1, 6) if len(v) else np.zeros((0, 6))
+    if not np.isfinite(a).all():
+        raise ValueError("non-finite building boxes")
+    return a
