@@ -5,7 +5,8 @@
 ```
 RUN_DIR/run.json        provenance: scenarios, methods, software versions, fairness statement, command
 RUN_DIR/maps/*.yaml     the city of each scenario (reports never need the scenario files again)
-RUN_DIR/episodes/*.npz  one per cell (`compare.results.trajectory`), written atomically as each finishes
+RUN_DIR/store/          the episodes (`compare.results.store`): each cell's part written atomically as it
+                        finishes, compacted into an episode table and samples files when the run is scored
 RUN_DIR/failed/*.json   one per cell that produced no episode, and why (`compare.results.failures`)
 RUN_DIR/metrics.csv     one row per cell (`compare.results.metrics`)
 RUN_DIR/summary.json    per vehicle and scenario: means with 95 % intervals, paired differences, their MDDs
@@ -16,10 +17,11 @@ Cells are independent and seeded from the cell alone (`compare.seeding`), so the
 in any number of processes (`jobs`) or on Ray (`compare.backends`) with the same results. One cell's
 failure (its pilot raised; its worker process died; it gave no result within its wall-time limit,
 `cell_limit_s`) is recorded as a failed cell and the run goes on. An interrupted run keeps every episode
-finished so far; `finalize(RUN_DIR)` (the `report` command) rescores and reports them (an unreadable
-episode file is skipped with a warning and listed in the report), and `resume=True` flies only the
-cells without an episode (failed ones included), after checking that the folder is a run saved from the
-same inputs (`compare.fingerprint`).
+finished so far; `finalize(RUN_DIR)` (the `report` command) compacts the store, gathers the metrics the cells
+computed and reports them (an unreadable part is skipped with a warning and listed in the report), and
+`resume=True` flies only the cells without an episode (failed and unreadable ones included), after checking
+that the folder is a run saved from the same inputs (`compare.fingerprint`). A run folder saved before the
+store (one `.npz` per episode) reads and rescores as it did.
 """
 from __future__ import annotations
 
@@ -42,6 +44,7 @@ from compare.backends import check_backend, open_backend
 from compare.backends.base import Backend, CellFlown, CellTask, WorkerSetup
 from compare.cells import Cell, cell_key
 from compare.fingerprint import check_resume, run_fingerprints
+from compare.results.episodes import kept_keys, open_episodes
 from compare.results.failures import (
     FAILED_DIR,
     FailedCell,
@@ -51,7 +54,7 @@ from compare.results.failures import (
     remove_failure,
     write_failure,
 )
-from compare.results.metrics import episode_metrics, label_vehicles, read_metrics_csv, write_metrics_csv
+from compare.results.metrics import label_vehicles, read_metrics_csv, write_metrics_csv
 from compare.results.run_info import (
     RUN_INFO_NAME,
     AirEnvelope,
@@ -64,8 +67,9 @@ from compare.results.run_info import (
     WindInfo,
     write_run_info,
 )
+from compare.results.store import compact, part_path
 from compare.results.summary import summarize_run, write_summary_json
-from compare.results.trajectory import episode_files, load_episode
+from compare.results.tables import STORE_MODES
 from compare.scenario import Scenario, seeds_problem
 from compare.trained_air import air_envelope, outside_trained_air
 from rl.policies.folder import shipped_policy_dir
@@ -119,6 +123,8 @@ class RunOptions:
         cell_timeout_s: every cell's wall-time limit [s] (None: `cell_limit_s`'s default per cell). A cell over
             it is a failed cell ("hang") and its worker is replaced; in this process (one job, no limit given)
             cells have no limit.
+        store: the samples each episode keeps: "control" (the control rate, rounded) or "full" (every physics
+            step); the metrics are the same either way (`compare.results.tables`).
     """
 
     out_dir: Path
@@ -134,6 +140,7 @@ class RunOptions:
     backend: str = "local"
     address: str | None = None
     cell_timeout_s: float | None = None
+    store: str = "control"
 
     @property
     def in_process(self) -> bool:
@@ -161,6 +168,8 @@ class RunOptions:
         check_backend(self.backend, self.address)
         if self.videos not in VIDEO_CHOICES:  # checked before flying, not when the videos are due
             raise ValueError(f"--videos {self.videos!r}: choose from {', '.join(VIDEO_CHOICES)}")
+        if self.store not in STORE_MODES:
+            raise ValueError(f"--store {self.store!r}: choose from {', '.join(STORE_MODES)}")
 
 
 @dataclass(frozen=True)
@@ -227,8 +236,8 @@ class RunEstimate:
         cells: episodes to fly (scenario x episode x seed x method).
         flight_s: simulated flight time of all cells [s].
         wall_h: wall time with `jobs` processes [h] (each pilot's `wall_s_per_flight_s` per simulated second).
-        disk_gb: episode files, uncompressed [GB] (float64 time, state, commands, wind, clearance and shaft
-            power per physics step).
+        disk_gb: the run store, uncompressed [GB] (float64 time and position, float32 rest of the state, rotor
+            commands, wind, clearance and shaft power, per control period or, `--store full`, per physics step).
     """
 
     cells: int
@@ -252,7 +261,8 @@ def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate
         flight_s += t
         wall_s += t * pilots.pilot(c.method).wall_s_per_flight_s
         n = sc.vehicle.n_rotors
-        n_bytes += t * sc.physics_hz * 8 * (1 + (13 + n) + n + 3 + 1 + 1)  # t, state, commands, wind, clearance, power
+        rate_hz = sc.physics_hz if opts.store == "full" else sc.control_hz
+        n_bytes += t * rate_hz * (8 * 4 + 4 * ((10 + n) + n + 3 + 1 + 1))  # t and position, state, commands, ...
     workers = max(1, min(opts.jobs, os.cpu_count() or 1))
     return RunEstimate(len(cells), flight_s, wall_s / workers / 3600.0, n_bytes / 1e9)
 
@@ -281,18 +291,6 @@ class RunInterrupted(Exception):
     def __init__(self, out_dir: Path, kept: int, cells: int) -> None:
         super().__init__(f"{out_dir}: interrupted with {kept} of {cells} episodes kept")
         self.out_dir, self.kept, self.cells = out_dir, kept, cells
-
-
-def _episode_kept(path: Path) -> bool:
-    """On resume: the cell's episode file exists and reads; an unreadable one is flown again (and replaced)."""
-    if not path.exists():
-        return False
-    try:
-        load_episode(path)
-    except ValueError as exc:
-        log.warning("flying again: %s", exc)  # the message names the file
-        return False
-    return True
 
 
 def _remove_stale_temporaries(run_dir: Path) -> None:
@@ -393,7 +391,7 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
                            tuple(pilots.ordered(c.method for c in cells if c.scenario == i)))
                  for i, sc in enumerate(scenarios)}
         fingerprints = check_resume(out, fingerprints, asked)
-    setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used})
+    setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used}, opts.store)
     t0 = time.perf_counter()
     # the backend starts before anything is written: a Ray cluster that cannot be reached leaves no folder
     jobs = min(opts.jobs, len(cells))  # a worker per cell at most: --jobs 64 for one cell starts one interpreter
@@ -405,15 +403,15 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
         for n in notes:  # cells left out (also in run.json and the report)
             log.warning("%s", n)
         write_run_files(scenarios, opts, cells, notes, fingerprints, used)
-        todo = [c for c in cells
-                if not (opts.resume and _episode_kept(out / "episodes" / f"{cell_key(scenarios, c).stem}.npz"))]
+        kept = kept_keys(out) if opts.resume else set()  # an unreadable episode is flown again (and replaced)
+        todo = [c for c in cells if cell_key(scenarios, c) not in kept]
         tasks = [CellTask(c, cell_key(scenarios, c), cell_limit_s(scenarios, c, opts)) for c in todo]
         bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
         try:
             failed = _fly(backend, tasks, out, bar)
         except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the CLI: every finished episode is on disk
             backend.close()  # first: a worker must not write another episode after they are counted
-            raise RunInterrupted(out, len(episode_files(out)), len(cells)) from None
+            raise RunInterrupted(out, len(open_episodes(out).entries), len(cells)) from None
         finally:
             bar.close()
         log.info("flew %d cells (%d failed) in %.1f s", len(todo), len(failed), time.perf_counter() - t0)
@@ -443,7 +441,7 @@ def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[Fa
         if isinstance(outcome, CellFlown):
             remove_failure(out, outcome.key)
         elif outcome.kind == FailureKind.DISK_FULL:  # every cell after it would fail the same: stop, name the file
-            path = out / "episodes" / f"{outcome.key.stem}.npz"
+            path = part_path(out, outcome.key)
             raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} while saving an episode ({len(failed)} cells "
                                         f"failed before it; `run --resume` flies the rest once there is room)",
                           str(path))
@@ -501,7 +499,8 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str
 
 
 def finalize(run_dir: Path, report: bool = True) -> Path:
-    """Score the saved episodes (metrics.csv, summary.json), build the report and the viewer; never simulates.
+    """Compact the store, gather the episodes' metrics (metrics.csv, summary.json), build the report and the
+    viewer; never simulates.
 
     Raises:
         ValueError: not a run folder, nothing readable to report, or (`FolderBusy`) a run or report is
@@ -517,26 +516,26 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
 def _finalize(run_dir: Path, report: bool) -> Path:
     """`finalize` for a caller that holds the folder's lock."""
     _remove_stale_temporaries(run_dir)
-    files = episode_files(run_dir)
+    # an unreadable part stays where it is, is warned about by `compact`, left out here and flown again by --resume
+    bad_parts = {b.path for b in compact(run_dir)}
+    episodes = open_episodes(run_dir)
     failed = read_failures(run_dir)  # cells without an episode: no metrics row, listed in failed/
     listed = f"{describe_failures(failed)}, listed in {run_dir / FAILED_DIR}" if failed else ""
-    if not files:
+    if not episodes.entries and not episodes.unreadable:
         raise ValueError(f"{run_dir}: no saved episodes to report" + (f" ({listed})" if failed else ""))
     if failed:
         log.warning("%s; `run --resume` flies them again", listed)
-    rows, unreadable = [], []
-    for f in files:
-        try:
-            saved = load_episode(f)
+    unreadable = sorted({b.path.name for b in episodes.unreadable} | {p.name for p in bad_parts})
+    for b in episodes.unreadable:
+        if b.path not in bad_parts:
+            log.warning("skipping unreadable episode file %s", b.reason)  # the reason names the file
+    rows = []
+    for e in (e for e in episodes.entries if e.path not in bad_parts):
+        try:  # an .npz is read and scored here; a stored episode's row holds what its cell computed
+            rows.append(episodes.metrics(e))
         except ValueError as exc:  # one corrupt or truncated file must not cost the report of the rest
             log.warning("skipping unreadable episode file %s", exc)  # the message names the file
-            unreadable.append(f.name)
-            continue
-        try:
-            rows.append(episode_metrics(saved))
-        except ValueError as exc:  # its message names the episode; the file is named here too
-            log.warning("skipping episode file %s: %s", f, exc)
-            unreadable.append(f.name)
+            unreadable.append(e.path.name)
     rows = label_vehicles(rows)  # by fingerprint: a vehicle file that keeps a preset's name is not the preset
     if not rows:
         raise ValueError(f"{run_dir}: no readable saved episodes to report (unreadable: {', '.join(unreadable)})")

@@ -1,9 +1,11 @@
 """A run's cells and how one is flown: the part of a run every backend's worker shares.
 
 A `Cell` is one episode to fly (scenario, episode, seed, method); `CellRunner` flies cells in one process
-and writes (or returns) each one's episode file, seeded from the cell alone (`compare.seeding`), so a cell
-flies the same wherever it flies. The campaign (`compare.campaign`) plans the cells and the backends
-(`compare.backends`) carry them to their workers; both import this module, which imports neither.
+and writes (or returns) each one's part of the run store (`compare.results.store`), seeded from the cell alone
+(`compare.seeding`), so a cell flies the same wherever it flies. The cell scores its episode from the
+physics-rate flight before the store thins it to the control rate: the metrics never depend on what is kept.
+The campaign (`compare.campaign`) plans the cells and the backends (`compare.backends`) carry them to their
+workers; both import this module, which imports neither.
 """
 from __future__ import annotations
 
@@ -15,9 +17,14 @@ import numpy as np
 
 from compare import pilots
 from compare.episode_loop import Trajectory, run_episode
-from compare.results.trajectory import EpisodeKey, EpisodeMeta, save_episode, xyz
+from compare.results.difficulty import building_coverage
+from compare.results.metrics import episode_metrics
+from compare.results.store import part_bytes, part_path, write_part
+from compare.results.tables import EpisodeConditions, episode_row, kept_rows, samples_table
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, xyz
 from compare.scenario import Scenario
 from compare.seeding import cell_seed
+from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.air.wind import WindField, probe_heights_up_to, turbulence_airspeed_m_s
 from uam_fdm.pilot import Agent, World
 from uam_fdm.vehicle.dynamics import VehicleDynamics
@@ -42,9 +49,13 @@ class CellRunner:
     """Flies cells; holds per-process caches (worlds per scenario, one agent per method, or per method and
     vehicle for a pilot that flies a policy)."""
 
-    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path]) -> None:
-        """`policies`: the policy folder of the pilots that need one, by vehicle fingerprint."""
+    def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path],
+                 store: str = "control") -> None:
+        """`policies`: the policy folder of the pilots that need one, by vehicle fingerprint; `store`: the samples
+        kept, "control" or "full" (`compare.results.tables.kept_rows`)."""
         self.scenarios, self.out_dir, self.policies = list(scenarios), Path(out_dir), dict(policies)
+        self.store = store
+        self._conditions: dict[int, EpisodeConditions] = {}
         self._worlds: dict[int, World] = {}
         self._dynamics: dict[tuple, VehicleDynamics] = {}
         self._agents: dict[tuple[str, str], Agent] = {}
@@ -68,10 +79,35 @@ class CellRunner:
             self._agents[method, fp] = pilots.build(method, request)
         return self._agents[method, fp]
 
+    def conditions(self, si: int) -> EpisodeConditions:
+        """The air and city of scenario `si` (the episode table's condition columns; the density rounded as
+        run.json records it, so a query bins as the report does)."""
+        if si not in self._conditions:
+            sc = self.scenarios[si]
+            rho = round(float(sc.air.density_kg_m3(0.0)), 4)
+            self._conditions[si] = EpisodeConditions(rho, density_altitude_m(rho), sc.wind.turbulence.value,
+                                                     xyz(sc.wind.steady_enu_m_s), building_coverage(sc.city))
+        return self._conditions[si]
+
     def run(self, c: Cell) -> Path:
-        """Fly cell `c` and save its episode file in the run folder; returns the file."""
+        """Fly cell `c` and write its part of the run store; returns the file."""
+        key, data = self.part(c)
+        return write_part(part_path(self.out_dir, key), data)
+
+    def part(self, c: Cell) -> tuple[EpisodeKey, bytes]:
+        """Fly cell `c`: its key and its part's content (`compare.results.store.part_bytes`), scored first."""
         meta, traj = self.fly(c)
-        return save_episode(self.out_dir / "episodes" / f"{meta.key.stem}.npz", meta, traj)
+        return meta.key, self.stored(c, meta, traj)
+
+    def stored(self, c: Cell, meta: EpisodeMeta, traj: Trajectory) -> bytes:
+        """The part of a flown cell: its metrics from the physics-rate flight, then its samples as kept."""
+        sc = self.scenarios[c.scenario]
+        metrics = episode_metrics(SavedEpisode(meta, traj))
+        period_rows = max(1, round(sc.physics_hz / sc.control_hz))
+        samples = samples_table(meta.key, traj, meta.n_rotors, self.store, period_rows)
+        row = episode_row(meta, metrics, self.conditions(c.scenario), self.store,
+                          len(kept_rows(traj, self.store, period_rows)))
+        return part_bytes(row, samples)
 
     def fly(self, c: Cell) -> tuple[EpisodeMeta, Trajectory]:
         """Fly cell `c`: what its episode file holds (nothing is written)."""

@@ -125,7 +125,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     opts = RunOptions(out_dir=out, methods=args.methods, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
                       resume=args.resume, progress=not args.no_progress, videos=args.videos or "scenario",
                       command="uam-compare " + " ".join(args.argv), backend=args.backend, address=args.address,
-                      cell_timeout_s=args.cell_timeout)
+                      cell_timeout_s=args.cell_timeout, store=args.store)
     opts.validate()  # e.g. Ray missing: before anything is read or flown
     if args.jobs > (os.cpu_count() or 1):
         print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
@@ -638,6 +638,9 @@ def _add_run_options(run: argparse.ArgumentParser) -> None:
     run.add_argument("--videos", choices=("scenario", "all", "none"), default=None,
                      help="cells to animate into RUN_DIR/videos/: the first of each scenario (the default, but none "
                           "for a benchmark set: its product is numbers; `animate` draws any cell later), all, none")
+    run.add_argument("--store", choices=("control", "full"), default="control",
+                     help="samples kept per episode in RUN_DIR/store/: the control rate (default: everything the "
+                          "report, viewer and animation draw) or every physics step; the metrics are the same")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

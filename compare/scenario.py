@@ -115,7 +115,7 @@ TIMEOUT_FLIGHT_TIME_FACTOR = 2.5
 MAX_TIMEOUT_S = 3600.0
 MAX_PHYSICS_HZ = 10000.0
 MAX_SEED = 2**32 - 1  # OMPL and most RNG seeding APIs take unsigned 32-bit seeds
-# The name starts every output file name ("<name>__ep000__rrt_mpc__s4294967295.npz"); file systems
+# The name starts every output file name ("<name>__ep000__rrt_mpc__s4294967295.parquet"); file systems
 # allow 255 bytes per name, so this leaves room for the rest.
 MAX_NAME_CHARS = 100
 

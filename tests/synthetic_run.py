@@ -251,3 +251,27 @@ def write_benchmark_run(run_dir: Path, *, scenarios_per_vehicle: int, episodes: 
            "versions": {"uam-compare": "0.1.0"}, "fairness": "Synthetic."}
     (run_dir / "run.json").write_text(json.dumps(run), encoding="utf-8")
     return rows
+
+
+def to_store(run_dir: Path, compacted: bool = True) -> None:
+    """Move a synthetic run folder's `.npz` episodes into the run store, as a run of today writes it: each
+    episode scored and written as its cell's part (a control period of 10 samples: these flights decide every
+    10 samples), then compacted unless `compacted` is False (an interrupted run's parts)."""
+    from compare.results.metrics import episode_metrics
+    from compare.results.store import compact, part_bytes, part_path, write_part
+    from compare.results.tables import EpisodeConditions, episode_row, kept_rows, samples_table
+    from compare.results.trajectory import episode_files, load_episode
+
+    conditions = EpisodeConditions(0.999, 1800.0, "light", (2.0, 1.0, 0.0), 0.1)
+    for path in episode_files(run_dir):
+        saved = load_episode(path)
+        traj, key = saved.trajectory, saved.meta.key
+        period = 10
+        row = episode_row(saved.meta, episode_metrics(saved), conditions, "control",
+                          len(kept_rows(traj, "control", period)))
+        write_part(part_path(run_dir, key),
+                   part_bytes(row, samples_table(key, traj, saved.meta.n_rotors, "control", period)))
+        path.unlink()
+    (run_dir / "episodes").rmdir()
+    if compacted:
+        compact(run_dir)

@@ -2,16 +2,17 @@
 
 `open_backend(kind, setup, jobs, address, isolate)` gives a `Backend` (the interface and the types it trades
 in: `compare.backends.base`, which the backends import; this module imports them); its `fly(tasks)` yields one
-`CellOutcome` per task as each ends (in the order they end): `CellFlown` once the cell's episode file is
+`CellOutcome` per task as each ends (in the order they end): `CellFlown` once the cell's part of the run store is
 in the run folder, or a `compare.results.failures.FailedCell` saying why there is none. A backend never
 raises for one cell's failure; it raises only for an interrupt (KeyboardInterrupt) or when it cannot
 start at all.
 
 - "local" (`compare.backends.local`): in this process (one job, no isolation: a pilot's exception is a
   failed cell, a crash or hang stops the run), or a pool of worker processes (pebble's ProcessPool: each
-  cell within its wall-time limit, a dead or killed worker replaced). Workers write the episode files.
+  cell within its wall-time limit, a dead or killed worker replaced). Workers write the cells' parts of the
+  run store.
 - "ray" (`compare.backends.ray`): Ray tasks on a local Ray instance of `jobs` CPUs, or on the cluster at
-  `address`. Workers send each episode file's content back and this process writes it, so the run folder
+  `address`. Workers send each cell's part back and this process writes it, so the run folder
   need only be on this machine's disk. Ray is imported only here, and only when asked for.
 
 Every backend flies a cell with the same `CellRunner` and seeds from the cell alone (`compare.seeding`),

@@ -23,13 +23,15 @@ class WorkerSetup:
 
     Attributes:
         scenarios: the run's scenarios (a `Cell` indexes them).
-        out_dir: the run folder (local workers write episode files into it).
+        out_dir: the run folder (local workers write their parts of the run store into it).
         policies: the policy folder of the pilots that need one, by vehicle fingerprint.
+        store: the samples each episode keeps: "control" or "full" (`compare.results.tables.kept_rows`).
     """
 
     scenarios: tuple[Scenario, ...]
     out_dir: Path
     policies: Mapping[str, Path]
+    store: str = "control"
 
 
 @dataclass(frozen=True)
@@ -49,7 +51,7 @@ class CellFlown:
         key: the cell.
         elapsed_s: wall time of the cell in its worker [s].
         worker: which process flew it ("in-process", "pid 1234", a Ray node and pid).
-        data: the episode file's content for the driver to write (Ray workers); None once it is written.
+        data: the cell's part of the run store for the driver to write (Ray workers); None once it is written.
     """
 
     key: EpisodeKey
@@ -71,5 +73,5 @@ class Backend(Protocol):
         ...
 
     def close(self) -> None:
-        """End the workers at once (a cell in flight is lost: its episode file is not written); idempotent."""
+        """End the workers at once (a cell in flight is lost: its part is not written); idempotent."""
         ...

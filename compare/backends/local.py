@@ -34,7 +34,7 @@ class InProcessBackend:
         self.setup = setup
 
     def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
-        """Fly `tasks` in order (each episode file written as it ends)."""
+        """Fly `tasks` in order (each cell's part written as it ends)."""
         runner = new_runner(self.setup)
         for task in tasks:
             yield fly_cell(runner, task, NAME, "in-process", to_bytes=False)

@@ -1,8 +1,8 @@
 """The Ray backend: each cell a Ray task, on a local Ray instance or a cluster.
 
 Imported only for `--backend ray` (it imports Ray). A task flies one cell with a `CellRunner` kept per
-worker process (built once, on the process's first cell of the run) and returns the episode file's
-content, which this process (the driver) writes into the run folder: workers need no access to it. A
+worker process (built once, on the process's first cell of the run) and returns the content of the cell's part
+of the run store, which this process (the driver) writes into the run folder: workers need no access to it. A
 task that raises outside the pilot, whose worker dies (WorkerCrashedError, a lost node, Ray's
 out-of-memory killer) or that gives no result within its wall-time limit (cancelled with
 `ray.cancel(force=True)`, which kills its worker; Ray starts another) is a failed cell. Tasks are never
@@ -35,7 +35,7 @@ from compare.backends.base import CellFlown, CellOutcome, CellTask, WorkerSetup
 from compare.backends.worker import fly_cell, new_runner, prepare_process
 from compare.cells import CellRunner
 from compare.results.failures import FailedCell, FailureKind, error_failure
-from compare.results.trajectory import write_episode_bytes
+from compare.results.store import part_path, write_part
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +90,7 @@ class RayBackend:
         self._connected = True
 
     def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
-        """Fly `tasks`, yielding each outcome as it ends (each episode file written here first)."""
+        """Fly `tasks`, yielding each outcome as it ends (each cell's part written here first)."""
         pending = deque(tasks)
         running = self._running
         while pending or running:
@@ -123,7 +123,7 @@ class RayBackend:
             reason = f"Ray: {type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
             return FailedCell(task.key, FailureKind.CRASH, reason, elapsed_s, NAME, "", task.limit_s)
         if isinstance(outcome, CellFlown) and outcome.data is not None:
-            write_episode_bytes(self.setup.out_dir / "episodes" / f"{task.key.stem}.npz", outcome.data)
+            write_part(part_path(self.setup.out_dir, task.key), outcome.data)
             return CellFlown(outcome.key, outcome.elapsed_s, outcome.worker)
         return outcome
 
@@ -193,7 +193,7 @@ _RUNNERS: dict[str, CellRunner] = {}  # a Ray worker process's runner per run (b
 
 @ray.remote(num_cpus=1, max_retries=0)
 def _fly_remote(setup_box: list[ray.ObjectRef], task: CellTask) -> CellOutcome:
-    """A Ray task: fly one cell, return its episode file's content or its failure. The setup arrives boxed in a
+    """A Ray task: fly one cell, return its part's content or its failure. The setup arrives boxed in a
     list, so Ray passes the reference rather than the scenarios on every call; it is fetched once per process."""
     ref = setup_box[0]
     key = ref.hex()

@@ -11,11 +11,10 @@ from compare import pilots
 from compare.backends.base import CellFlown, CellOutcome, CellTask, WorkerSetup
 from compare.cells import CellRunner
 from compare.results.failures import error_failure
-from compare.results.trajectory import episode_bytes
 
 
 def fly_cell(runner: CellRunner, task: CellTask, backend: str, worker: str, to_bytes: bool) -> CellOutcome:
-    """Fly `task` with `runner`: the episode file written into the run folder (or its content, `to_bytes`),
+    """Fly `task` with `runner`: its part of the run store written into the run folder (or its content, `to_bytes`),
     or the failed cell of an exception raised by the pilot or the runner (its type, message and frame).
 
     Args:
@@ -23,13 +22,13 @@ def fly_cell(runner: CellRunner, task: CellTask, backend: str, worker: str, to_b
         task: the cell and its limit.
         backend: the backend's name, for a failure record.
         worker: which process this is, for the records.
-        to_bytes: return the episode file's content rather than writing it (the driver writes it).
+        to_bytes: return the part's content rather than writing it (the driver writes it).
     """
     t0 = time.perf_counter()
     data = None
     try:
         if to_bytes:
-            data = episode_bytes(*runner.fly(task.cell))
+            _, data = runner.part(task.cell)
         else:
             runner.run(task.cell)
     # one cell's failure, whatever the pilot raised (SystemExit included: a pilot does not end the run);
@@ -51,7 +50,7 @@ def prepare_process(setup: WorkerSetup) -> None:
 
 def new_runner(setup: WorkerSetup) -> CellRunner:
     """A cell runner for `setup` (its caches are filled as cells fly)."""
-    return CellRunner(setup.scenarios, setup.out_dir, setup.policies)
+    return CellRunner(setup.scenarios, setup.out_dir, setup.policies, setup.store)
 
 
 _POOL_RUNNER: CellRunner | None = None  # a local pool worker's, made once by its initializer
@@ -65,6 +64,6 @@ def init_pool_worker(setup: WorkerSetup) -> None:
 
 
 def fly_in_pool_worker(task: CellTask) -> CellOutcome:
-    """Fly `task` in a local worker process (the episode file written by the worker)."""
+    """Fly `task` in a local worker process (its part written by the worker)."""
     assert _POOL_RUNNER is not None, "init_pool_worker was not called"
     return fly_cell(_POOL_RUNNER, task, "local", f"pid {os.getpid()}", to_bytes=False)

@@ -50,7 +50,7 @@ class FailedCell:
     """One cell that produced no episode.
 
     Attributes:
-        key: the cell (its episode file would be `episodes/<key.stem>.npz`).
+        key: the cell (its part of the run store would be `store/parts/<key.stem>.parquet`).
         kind: error, crash or hang.
         reason: one line: the exception's type, message and innermost frame; the worker's exit code or
             signal; or the time limit that passed.
@@ -81,7 +81,7 @@ def error_failure(key: EpisodeKey, exc: BaseException, elapsed_s: float, backend
     if isinstance(exc, PilotError):  # the message names the pilot, the time and the value
         return FailedCell(key, FailureKind.PILOT_ERROR, str(exc), elapsed_s, backend, worker, limit_s)
     if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        return FailedCell(key, FailureKind.DISK_FULL, f"{key.stem}.npz: {exc.strerror or exc}", elapsed_s, backend,
+        return FailedCell(key, FailureKind.DISK_FULL, f"{key.stem}.parquet: {exc.strerror or exc}", elapsed_s, backend,
                           worker, limit_s)
     frames = traceback.extract_tb(exc.__traceback__)
     where = f" (at {Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" if frames else ""

@@ -1,11 +1,14 @@
-"""Saved episodes: one `.npz` per (scenario, episode, method, seed), written atomically.
+"""Saved episodes: an episode's key, its metadata and the `.npz` file of a run saved before the run store.
 
-A saved episode holds the runner's `Trajectory` arrays plus what the metrics and the report need
-to read it without the world that produced it (task, vehicle, map name, outcome, the pilot's
-end-of-episode report). Files are written under a temporary name in the same folder and renamed, so
-an interrupted run never leaves a half-written episode: a file either exists complete or not at all.
+A run now keeps its episodes in the store (`compare.results.store`, `compare.results.tables`), whose
+episode table holds this module's metadata JSON; a run folder of the store's predecessors holds one `.npz`
+per (scenario, episode, method, seed) at the physics rate, which `load_episode` reads (and `save_episode`
+still writes, for tests and the storage benchmark). A saved episode holds the runner's `Trajectory` arrays
+plus what the metrics and the report need to read it without the world that produced it (task, vehicle,
+map name, outcome, the pilot's end-of-episode report). Files are written under a temporary name in the same
+folder and renamed, so an interrupted run never leaves a half-written episode.
 
-The metadata is JSON inside the file; `_meta_to_json` writes it and `_meta_from_json` reads it, and
+The metadata is JSON inside the file; `meta_to_json` writes it and `meta_from_json` reads it, and
 nothing else touches it. The run's context and the pilot's report sit under "extra" (the report as
 "tracker", the name the classical pilot's report was first saved under); a file saved before the
 report existed keeps the classical pilot's few counters at the top of "extra", read into its report.
@@ -140,7 +143,7 @@ def episode_bytes(meta: EpisodeMeta, traj: Trajectory) -> bytes:
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
     arrays.update({name: np.asarray(getattr(traj, name)) for name in _OPTIONAL_ARRAYS
                    if getattr(traj, name) is not None})
-    header = {"format_version": FORMAT_VERSION, "meta": _meta_to_json(meta)}
+    header = {"format_version": FORMAT_VERSION, "meta": meta_to_json(meta)}
     buffer = io.BytesIO()
     # numpy's stub lets ** fill its allow_pickle: bool; the keys here are the array names only
     np.savez_compressed(buffer, meta_json=np.array(json.dumps(header)), **arrays)  # type: ignore[arg-type]
@@ -186,7 +189,7 @@ def load_episode(path: Path) -> SavedEpisode:
         version = header.get("format_version") if isinstance(header, dict) else None
         raise ValueError(f"{path}: episode format {version!r}, expected {FORMAT_VERSION}")
     try:
-        meta = _meta_from_json(header["meta"])
+        meta = meta_from_json(header["meta"])
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a saved episode (its metadata is incomplete: {exc})") from exc
     n = len(arrays["t_s"])
@@ -208,8 +211,8 @@ _CONTEXT = ("wind_seed", "agent_seed", "mean_decision_ms")
 _REPORT_KEY = "tracker"
 
 
-def _meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
-    """The metadata as JSON-ready data (the one writer; `_meta_from_json` reads it back)."""
+def meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
+    """The metadata as JSON-ready data (the one writer; `meta_from_json` reads it back)."""
     extra: dict[str, Any] = {name: getattr(meta, name) for name in _CONTEXT}
     if meta.report is not None:
         extra[_REPORT_KEY] = meta.report.to_json()
@@ -224,8 +227,8 @@ def _meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
             "detail": meta.detail, "extra": extra}
 
 
-def _meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
-    """The metadata `_meta_to_json` wrote, or an older file's (the one reader).
+def meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
+    """The metadata `meta_to_json` wrote, or an older file's (the one reader).
 
     Raises:
         KeyError, TypeError, ValueError: incomplete or malformed metadata.

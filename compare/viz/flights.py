@@ -1,7 +1,8 @@
 """The flights of a run folder grouped for playback: every pilot that flew one (scenario, episode, seed).
 
 The animation (`compare.viz.animate`) and the HTML viewer (`compare.viz.viewer`) both show the pilots of
-one comparison cell together, on one clock. This module loads a run folder's saved episodes into
+one comparison cell together, on one clock. This module loads a run folder's saved episodes
+(`compare.results.episodes`: the run store, or an older folder's `.npz` files) into
 `FlightGroup`s, picks one from a user's `SCENARIO:EPISODE[:SEED]` spec, and samples each pilot's
 flight on a shared time grid (`sample_flight`), holding a pilot that has already ended where it ended.
 """
@@ -9,13 +10,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from compare.results.episodes import EpisodeEntry, RunEpisodes, open_episodes
 from compare.results.run_info import WindInfo, read_run_info
-from compare.results.trajectory import SavedEpisode, episode_files, load_episode
+from compare.results.trajectory import SavedEpisode
 from compare.viz.figures import crop_map, flight_region, method_colors, trace_from_episode
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
@@ -33,25 +35,35 @@ OUTCOME_WORDS: dict[Outcome, str] = {
 
 @dataclass(frozen=True)
 class Pilot:
-    """One pilot's flight in a group, with how to show it: `label` (e.g. "PPO policy") and `color` (matplotlib)."""
+    """One pilot's flight in a group, with how to show it: `label` (e.g. "PPO policy") and `color` (matplotlib).
 
-    episode: SavedEpisode
+    The flight itself is read when asked for (`episode`, a few kept at a time by `RunEpisodes.load_recent`), so
+    the groups of a whole run hold no trajectory: the viewer and the animation take one cell at a time.
+
+    Attributes:
+        entry: where the episode is; source: the run's episodes that read it.
+        end_t_s: time the flight ended [s] (0 for a flight that never started). outcome: how it ended.
+    """
+
+    entry: EpisodeEntry
+    source: RunEpisodes
     label: str
     color: str
+    end_t_s: float
+    outcome: Outcome
+
+    @property
+    def episode(self) -> SavedEpisode:
+        """The saved flight (read again if it is not among the last few read)."""
+        return self.source.load_recent(self.entry)
 
     @property
     def method(self) -> str:
-        return self.episode.meta.key.method
-
-    @property
-    def end_t_s(self) -> float:
-        """Time the flight ended [s] (0 for a flight that never started)."""
-        t = np.asarray(self.episode.trajectory.t_s, float)
-        return float(t[-1]) if len(t) else 0.0
+        return self.entry.key.method
 
     @property
     def outcome_words(self) -> str:
-        return OUTCOME_WORDS[self.episode.meta.outcome]
+        return OUTCOME_WORDS[self.outcome]
 
 
 @dataclass(frozen=True)
@@ -115,26 +127,31 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
     """
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
-    files = episode_files(run_dir)
-    if not files:
-        raise ValueError(f"{run_dir}: no saved episodes (episodes/*.npz) to show")
+    episodes = open_episodes(run_dir)
+    if not episodes.entries and not episodes.unreadable:
+        raise ValueError(f"{run_dir}: no saved episodes (store/ or episodes/*.npz) to show")
     scen_order = {s.name: i for i, s in enumerate(info.scenarios)}
     method_order = {m: i for i, m in enumerate(info.methods)}
-    by_cell: dict[tuple[str, int, int], list[SavedEpisode]] = {}
+    by_cell: dict[tuple[str, int, int], list[Pilot]] = {}
+    level = logging.WARNING if warn_unreadable else logging.INFO
     unreadable = []
-    for f in files:
-        try:
-            ep = load_episode(f)
+    for bad in episodes.unreadable:
+        logger.log(level, "skipping unreadable episode file %s", bad.reason)  # the reason names the file
+        unreadable.append(bad.path.name)
+    for entry in episodes.entries:
+        try:  # read once here (then let go): an unreadable one is left out before anything is drawn
+            ep = episodes.load(entry)
         except ValueError as exc:  # one bad file must not cost the flights of the rest
-            logger.log(logging.WARNING if warn_unreadable else logging.INFO,
-                       "skipping unreadable episode file %s", exc)  # the message names the file
-            unreadable.append(f.name)
+            logger.log(level, "skipping unreadable episode file %s", exc)  # the message names the file
+            unreadable.append(entry.name)
             continue
         k = ep.meta.key
-        by_cell.setdefault((k.scenario, k.episode, k.seed), []).append(ep)
+        t = np.asarray(ep.trajectory.t_s, float)
+        by_cell.setdefault((k.scenario, k.episode, k.seed), []).append(
+            Pilot(entry, episodes, "", "", float(t[-1]) if len(t) else 0.0, ep.meta.outcome))
     if not by_cell:
         raise ValueError(f"{run_dir}: no readable saved episodes to show (unreadable: {', '.join(unreadable)})")
-    all_methods = sorted({ep.meta.key.method for eps in by_cell.values() for ep in eps},
+    all_methods = sorted({p.method for found in by_cell.values() for p in found},
                          key=lambda m: (method_order.get(m, len(method_order)), m))
     colors = method_colors(all_methods, info.colors())
     maps: dict[str, BuildingMap] = {}
@@ -142,9 +159,9 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
     for (scenario, episode, seed) in sorted(by_cell, key=lambda c: (scen_order.get(c[0], len(scen_order)), c)):
         if scenario not in maps:
             maps[scenario] = load_map_file(run_dir / "maps" / f"{scenario}.yaml")
-        eps = sorted(by_cell[(scenario, episode, seed)],
-                     key=lambda e: (method_order.get(e.meta.key.method, len(method_order)), e.meta.key.method))
-        pilots = tuple(Pilot(e, info.label(e.meta.key.method), colors[e.meta.key.method]) for e in eps)
+        found = sorted(by_cell[(scenario, episode, seed)],
+                       key=lambda p: (method_order.get(p.method, len(method_order)), p.method))
+        pilots = tuple(replace(p, label=info.label(p.method), color=colors[p.method]) for p in found)
         sc = info.scenario(scenario)
         groups.append(FlightGroup(scenario, episode, seed, pilots, maps[scenario],
                                   description=sc.description if sc else "", wind=sc.wind if sc else None))
@@ -195,7 +212,7 @@ class SampledFlight:
 
 
 def sample_flight(ep: SavedEpisode, t_s: np.ndarray) -> SampledFlight:
-    """Sample a saved flight at times `t_s` [s] by linear interpolation of its physics-rate rows.
+    """Sample a saved flight at times `t_s` [s] by linear interpolation of its saved rows (control or physics rate).
 
     Rows with a non-finite position (a diverged flight) are dropped first, so the vehicle stops
     where it was last known.

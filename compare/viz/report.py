@@ -1,7 +1,8 @@
 """The PDF report of a comparison run, built from the run folder's saved files only (never simulating).
 
-A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, `episodes/*.npz`,
-`metrics.csv` and `summary.json`.  `build_report` writes, in order:
+A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes (`store/`, or
+`episodes/*.npz` in a folder saved before the store: `compare.results.episodes`), `metrics.csv` and
+`summary.json`.  `build_report` writes, in order:
 
 1. title page(s) "uam-compare report": task set and version (a benchmark run), scenarios, methods, software
    versions, command, date, fairness;
@@ -43,11 +44,11 @@ from matplotlib.figure import Figure
 
 from compare import pilots
 from compare.results.difficulty import scenario_conditions
+from compare.results.episodes import EpisodeEntry, RunEpisodes, open_episodes
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
 from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
 from compare.results.summary import Summary, read_summary_json, summarize_run
-from compare.results.trajectory import EpisodeKey, episode_files, load_episode
 from compare.viz import figures as F
 from compare.viz.learning_pages import learning_figures
 from compare.viz.metrics_pages import SUMMARY_ROWS, MethodStyle, episode_table_pages, format_ci, vehicle_pages
@@ -83,14 +84,15 @@ class _Run:
     scenarios: list[str]
     maps: dict[str, BuildingMap | None] = field(default_factory=dict)
     unreadable: list[str] = field(default_factory=list)  # episode files skipped, for the failures page
-    files: dict[tuple[str, int, str, int], Path] = field(default_factory=dict)  # episode file by cell (`cell_order`)
+    files: dict[tuple[str, int, str, int], EpisodeEntry] = field(default_factory=dict)  # episode by cell (`cell_order`)
+    episodes: RunEpisodes | None = None  # the run's episodes, listed once
     skip_log_level: int = logging.WARNING  # INFO when the caller has already warned about them
 
-    def skip(self, path: Path, exc: Exception) -> None:
-        """Leave out an unreadable episode file: log why (the message names it) and list it."""
+    def skip(self, name: str, exc: Exception) -> None:
+        """Leave out an unreadable episode (`name`: its file): log why (the message names it) and list it."""
         logger.log(self.skip_log_level, "skipping unreadable episode file %s", exc)
-        if path.name not in self.unreadable:
-            self.unreadable.append(path.name)
+        if name not in self.unreadable:
+            self.unreadable.append(name)
 
     def label(self, method: str) -> str:
         return self.labels.get(method, method)
@@ -231,21 +233,18 @@ def _registry_label(method: str) -> str:
     return spec.label if spec is not None else method
 
 
-def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[Path]]:
-    """Episode files grouped by (scenario, episode, seed), in run.json scenario order."""
-    groups: dict[tuple[str, int, int], list[Path]] = {}
-    for path in episode_files(run.run_dir):
-        k = EpisodeKey.from_stem(path.stem)
-        if k is None:  # not named by EpisodeKey.stem: ask the file
-            try:
-                k = load_episode(path).meta.key
-            except ValueError as exc:
-                run.skip(path, exc)
-                continue
+def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[EpisodeEntry]]:
+    """Episodes grouped by (scenario, episode, seed), in run.json scenario order."""
+    groups: dict[tuple[str, int, int], list[EpisodeEntry]] = {}
+    run.episodes = open_episodes(run.run_dir)
+    for bad in run.episodes.unreadable:
+        run.skip(bad.path.name, ValueError(bad.reason))
+    for entry in run.episodes.entries:
+        k = entry.key
         if k.method not in run.methods:  # a method run.json does not list still gets its own colour
             run.add_method(k.method)
-        groups.setdefault((k.scenario, k.episode, k.seed), []).append(path)
-        run.files[(k.scenario, k.episode, k.method, k.seed)] = path
+        groups.setdefault((k.scenario, k.episode, k.seed), []).append(entry)
+        run.files[(k.scenario, k.episode, k.method, k.seed)] = entry
     for s in sorted({k[0] for k in groups}):
         if s not in run.scenarios:
             run.scenarios.append(s)
@@ -479,8 +478,9 @@ def _tracker_row(scenario: str, rs: list[EpisodeMetrics]) -> list[str]:
 
 
 # ---- 3. episodes ----------------------------------------------------------------------------------------
-def _drawn_groups(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]], rows: list[EpisodeMetrics] | None
-                  ) -> tuple[dict[tuple[str, int, int], list[Path]], list[tuple[str, str]]]:
+def _drawn_groups(run: _Run, groups: Mapping[tuple[str, int, int], list[EpisodeEntry]],
+                  rows: list[EpisodeMetrics] | None) -> tuple[dict[tuple[str, int, int], list[EpisodeEntry]],
+                                                             list[tuple[str, str]]]:
     """The tasks whose flights are drawn: of each vehicle the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios, of
     each the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks (run order); and, when that leaves some out, the text of
     a page saying so (else empty)."""
@@ -515,7 +515,7 @@ def _drawn_groups(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]], 
     return drawn, blocks
 
 
-def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Path]],
+def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[EpisodeEntry]],
                    pages: _PageWriter) -> list[F.FlightTrace]:
     """Three pages per (scenario, episode, seed); returns the failed flights' traces (unreadable files: `run.skip`)."""
     failures: list[F.FlightTrace] = []
@@ -680,12 +680,13 @@ def _cell_rank(run: _Run, cell: tuple[str, int, str, int]) -> tuple:
     return (k, scenario, episode, seed, _method_rank(run, method), method)
 
 
-def _trace(run: _Run, path: Path) -> F.FlightTrace | None:
-    """The flight of one episode file reduced for drawing (None: unreadable, `run.skip`)."""
+def _trace(run: _Run, entry: EpisodeEntry) -> F.FlightTrace | None:
+    """The flight of one episode reduced for drawing (None: unreadable, `run.skip`)."""
+    assert run.episodes is not None, "_episode_groups lists the episodes first"
     try:
-        saved = load_episode(path)
+        saved = run.episodes.load(entry)
     except ValueError as exc:
-        run.skip(path, exc)
+        run.skip(entry.name, exc)
         return None
     m = saved.meta.key.method
     return F.trace_from_episode(saved, run.label(m), run.colors.get(m, "0.3"))

@@ -12,11 +12,14 @@ figures (`Plotly.react`) and moves the trail and vehicle traces (`Plotly.restyle
 """
 from __future__ import annotations
 
+import io
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import plotly
@@ -29,7 +32,7 @@ from compare.results.run_info import WindInfo, read_run_info
 from compare.viz.embed import code_for_script, json_for_script, text_for_html
 from compare.viz.flights import FlightGroup, flight_groups, sample_flight
 from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.atomic import atomic_open
 
 VIEWER_NAME = "viewer.html"
 START_COLOR, GOAL_COLOR = "#2ca02c", "#ffd700"
@@ -171,27 +174,56 @@ def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_un
 
     Unreadable episode files are left out (see `compare.viz.flights.flight_groups`, `warn_unreadable`).
     """
+    page = io.StringIO()
+    write_viewer_page(run_dir, page, opts, warn_unreadable=warn_unreadable)
+    return page.getvalue()
+
+
+def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerOptions = ViewerOptions(), *,
+                      warn_unreadable: bool = True) -> None:
+    """Write the viewer page of a run folder to `out`, piece by piece: each cell's data is written as it is
+    made, so a run's cells are never held together (a benchmark run's page is hundreds of MB; held as one
+    string, with the copies that assembling it makes, it took gigabytes).
+
+    The template's placeholders are found in the template alone; inserted texts are never scanned.
+    """
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
     groups = flight_groups(run_dir, warn_unreadable=warn_unreadable)
-    payload = {"run": {"folder": run_dir.name, "command": info.command, "created_utc": info.created_utc},
-               "groups": [group_payload(g, opts) for g in groups]}
+    run = {"folder": run_dir.name, "command": info.command, "created_utc": info.created_utc}
+
+    def data() -> None:  # the same text as json_for_script({"run": run, "groups": [...]})
+        out.write('{"run":' + json_for_script(run) + ',"groups":[')
+        for k, g in enumerate(groups):
+            out.write(("," if k else "") + json_for_script(group_payload(g, opts)))
+        out.write("]}")
+
     assets = resources.files("compare.viz") / "viewer_assets"
-    page = (assets / "viewer.html").read_text(encoding="utf-8")
-    parts = {
+    template = (assets / "viewer.html").read_text(encoding="utf-8")
+    parts: dict[str, str | Callable[[], None]] = {
         "TITLE": text_for_html(f"uam-compare viewer: {run_dir.name}"),
         "STYLE": (assets / "viewer.css").read_text(encoding="utf-8"),
         "PLOTLY_JS": code_for_script(plotly.offline.get_plotlyjs()),
         "PLOTLY_VERSION": text_for_html(plotly.__version__),
-        "DATA_JSON": json_for_script(payload),  # every text of the run folder and its scenarios goes in here
+        "DATA_JSON": data,  # every text of the run folder and its scenarios goes in here, as json_for_script
         "VIEWER_JS": code_for_script((assets / "viewer.js").read_text(encoding="utf-8")),
     }
-    for key, text in parts.items():  # one pass per placeholder; inserted texts are never rescanned
-        head, sep, tail = page.partition("{{" + key + "}}")
-        if not sep:
+    at = {}
+    for key in parts:
+        i = template.find("{{" + key + "}}")
+        if i < 0:
             raise RuntimeError(f"viewer template lacks {{{{{key}}}}}")
-        page = head + text + tail
-    return page
+        at[key] = i
+    pos = 0
+    for key in sorted(parts, key=at.__getitem__):
+        out.write(template[pos:at[key]])
+        part = parts[key]
+        if callable(part):
+            part()
+        else:
+            out.write(part)
+        pos = at[key] + len(key) + 4
+    out.write(template[pos:])
 
 
 def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerOptions = ViewerOptions(), *,
@@ -204,4 +236,6 @@ def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerOptions = V
         ValueError: not a run folder, no readable saved episodes, or an unreadable map, naming the file.
     """
     out = Path(out) if out is not None else Path(run_dir) / VIEWER_NAME
-    return write_text_atomic(out, viewer_html(run_dir, opts, warn_unreadable=warn_unreadable))
+    with atomic_open(out, "w", encoding="utf-8", newline="") as f:
+        write_viewer_page(run_dir, f, opts, warn_unreadable=warn_unreadable)
+    return out

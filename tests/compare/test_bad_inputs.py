@@ -29,7 +29,9 @@ import compare.cells
 import compare.cli
 import compare.fingerprint
 from compare.cli import main
-from compare.results.trajectory import EpisodeMeta, load_episode, save_episode
+from compare.results.episodes import open_episodes
+from compare.results.store import part_path, write_part
+from compare.results.trajectory import EpisodeMeta
 from compare.scenario import MAX_NAME_CHARS, MAX_SEED
 from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
 from synthetic_run import trajectory, write_run
@@ -466,8 +468,8 @@ def synthetic_flying(monkeypatch: pytest.MonkeyPatch) -> None:
         meta = EpisodeMeta(key, sc.city.name or sc.name, sc.vehicle_name, tuple(task.start_m), tuple(task.goal_m),
                            task.goal_radius_m, task.timeout_s, sc.vehicle.collision_radius_m, sc.vehicle.n_rotors,
                            1e4, "success", 0.0, "synthetic")
-        return save_episode(self.out_dir / "episodes" / f"{key.stem}.npz", meta,
-                            trajectory(200, 10.0, 0.0, 1.0, "success", 0))
+        return write_part(part_path(self.out_dir, key),
+                          self.stored(c, meta, trajectory(200, 10.0, 0.0, 1.0, "success", 0)))
     finalize = compare.campaign.finalize
     monkeypatch.setattr(compare.cells.CellRunner, "run", fly)
     monkeypatch.setattr(compare.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))
@@ -586,14 +588,27 @@ def test_report_and_view_skip_an_unreadable_episode(tmp_path: Path, capsys: pyte
 
 
 def test_resume_flies_an_unreadable_episode_again(tmp_path: Path, capsys: pytest.CaptureFixture,
-                                                  caplog: pytest.LogCaptureFixture, synthetic_flying: None) -> None:
-    """A truncated episode file is not a finished cell: `--resume` flies it again and replaces the file."""
-    _, argv = _tiny_run(tmp_path)
-    bad = tmp_path / "run" / "episodes" / "tiny__ep000__rrt_mpc__s0.npz"
+                                                  caplog: pytest.LogCaptureFixture, synthetic_flying: None,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A truncated part is not a finished cell: `--resume` flies it again and replaces the file."""
+    def interrupted(run_dir: Path, report: bool) -> Path:  # every cell flown, killed before the compaction
+        raise KeyboardInterrupt
+
+    finalize = compare.campaign._finalize
+    monkeypatch.setattr(compare.campaign, "_finalize", interrupted)
+    scen = tmp_path / "tiny.yaml"
+    scen.write_text(TINY.read_text())
+    argv = ["run", str(scen), "--methods", "rrt_mpc", "--out", str(tmp_path / "run"), "--no-progress",
+            "--videos", "none"]
+    assert main(argv) == 130
+    monkeypatch.setattr(compare.campaign, "_finalize", finalize)
+    bad = tmp_path / "run" / "store" / "parts" / "tiny__ep000__rrt_mpc__s0.parquet"
     good = bad.read_bytes()
     bad.write_bytes(good[:len(good) // 2])
     with caplog.at_level("WARNING"):
         assert main([*argv, "--resume"]) == 0
     assert "Traceback" not in capsys.readouterr().err
     assert any(r.getMessage().startswith("flying again: ") and str(bad) in r.getMessage() for r in caplog.records)
-    assert load_episode(bad).meta.outcome == "success"  # flown again: a whole file that reads
+    episodes = open_episodes(tmp_path / "run")  # flown again, then compacted: an episode that reads
+    assert [e.key.stem for e in episodes.entries] == ["tiny__ep000__rrt_mpc__s0"] and not episodes.unreadable
+    assert episodes.load(episodes.entries[0]).meta.outcome == "success" and not bad.exists()

@@ -14,8 +14,9 @@ import pytest
 from pypdf import PdfReader
 
 from compare.cli import main
+from compare.results.episodes import open_episodes
 from compare.results.metrics import COLUMNS, TRACKER_METRICS
-from compare.results.trajectory import load_episode
+from compare.results.store import EPISODE_TABLE, read_episode_table, store_dir, write_episode_table
 from rl.policies.folder import DEFAULT_POLICY_DIR
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -52,16 +53,22 @@ def test_run_writes_every_output(tiny_run):
                                 "stream=nb_read_frames,width,height", "-of", "json", str(videos[0])],
                                capture_output=True, text=True, check=True)
         stream = json.loads(probe.stdout)["streams"][0]
-        duration = max(float(np.load(p)["t_s"][-1]) for p in (tiny_run / "episodes").glob("*.npz"))
+        duration = max(float(r["time_s"]) for r in read_episode_table(tiny_run))
         assert (stream["width"], stream["height"]) == (1280, 720)
         assert int(stream["nb_read_frames"]) == round(min(duration, 30.0) * 20)
-    episodes = sorted(p.name for p in (tiny_run / "episodes").glob("*.npz"))
-    assert episodes == ["tiny__ep000__ppo__s0.npz", "tiny__ep000__rrt_mpc__s0.npz"]
-    for name in episodes:  # the model's shaft power per step, saved: its integral is the flight's energy
-        ep = load_episode(tiny_run / "episodes" / name)
+    # one store: the episode table and one samples file, the cells' parts compacted into them
+    assert sorted(p.name for p in store_dir(tiny_run).rglob("*") if p.is_file()) == [
+        EPISODE_TABLE, "samples-0001-000.parquet"]
+    assert not (tiny_run / "episodes").exists()
+    episodes = open_episodes(tiny_run)
+    assert [e.key.stem for e in episodes.entries] == ["tiny__ep000__ppo__s0", "tiny__ep000__rrt_mpc__s0"]
+    for entry in episodes.entries:  # the model's shaft power per step, saved: its integral is the flight's energy
+        ep = episodes.load(entry)
         t, power = ep.trajectory.t_s, ep.trajectory.shaft_power_W
         assert power.shape == t.shape and np.all(power > 0.0)
-        assert np.trapezoid(power, t) == pytest.approx(ep.meta.energy_J, rel=1e-3)
+        # the control rate: every step 20 ms but the two around the physics step of least clearance
+        assert np.sum(~np.isclose(np.diff(t), 0.02, rtol=0, atol=1e-9)) <= 2 and np.all(np.diff(t) < 0.02 + 1e-9)
+        assert np.trapezoid(power, t) == pytest.approx(ep.meta.energy_J, rel=1e-2)  # 50 Hz samples of it
     assert list(tiny_run.rglob(".*tmp*")) == []  # no temporary files left behind
     rows = _rows(tiny_run / "metrics.csv")
     assert list(rows[0].keys()) == list(COLUMNS)
@@ -105,7 +112,8 @@ def test_report_pdf_has_the_expected_pages(tiny_run):
 
 def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path, capsys):
     out2 = tmp_path / "tiny-jobs2"
-    assert main(["run", str(TINY), "--out", str(out2), "--jobs", "2", "--no-progress", "--videos", "none"]) == 0
+    assert main(["run", str(TINY), "--out", str(out2), "--jobs", "2", "--no-progress", "--videos", "none",
+                 "--store", "full"]) == 0
     # the last line: the headline figures as one JSON object, per vehicle and method, rates with Wilson intervals
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert last["run_dir"] == str(out2) and last["suite"] is None and last["failed_cells"] == 0
@@ -113,11 +121,19 @@ def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path, cap
     assert set(last["vehicles"]["small_quad"]) == {"ppo", "rrt_mpc"} and ppo["episodes"] == 1
     assert ppo["success"]["rate"] == 1.0 and ppo["success"]["ci95"] == pytest.approx([0.2065, 1.0], abs=1e-4)
     a, b = _rows(tiny_run / "metrics.csv"), _rows(out2 / "metrics.csv")
-    assert _deterministic(a) == _deterministic(b)
+    assert _deterministic(a) == _deterministic(b)  # every physics step kept (--store full): the same metrics
+    episodes = open_episodes(out2)
+    for entry in episodes.entries:
+        ep = episodes.load(entry)
+        assert entry.row is not None and entry.row["store"] == "full"
+        assert len(ep.trajectory.t_s) == round(ep.trajectory.t_s[-1] * 500) + 1  # 500 Hz
+        assert np.trapezoid(ep.trajectory.shaft_power_W, ep.trajectory.t_s) == pytest.approx(ep.meta.energy_J,
+                                                                                               rel=1e-3)
     # an interrupted run: one episode missing, no metrics or report yet -> `report` scores what exists
     for name in ("metrics.csv", "summary.json", "report.pdf"):
         (out2 / name).unlink()
-    (out2 / "episodes" / "tiny__ep000__ppo__s0.npz").unlink()
+    table = read_episode_table(out2)
+    write_episode_table(store_dir(out2) / EPISODE_TABLE, [r for r in table if r["method"] != "ppo"])
     assert main(["report", str(out2)]) == 0
     rows = _rows(out2 / "metrics.csv")
     assert [r["method"] for r in rows] == ["rrt_mpc"]

@@ -15,6 +15,7 @@ import compare.cells
 from compare.campaign import RunOptions, cell_limit_s
 from compare.cells import Cell
 from compare.cli import main
+from compare.results.episodes import open_episodes
 from compare.results.failures import (
     FAILED_DIR,
     FailedCell,
@@ -26,7 +27,8 @@ from compare.results.failures import (
     read_failures,
     write_failure,
 )
-from compare.results.trajectory import EpisodeKey, episode_files
+from compare.results.store import read_episode_table, samples_files
+from compare.results.trajectory import EpisodeKey
 from compare.scenario import load_scenario
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml"
@@ -75,7 +77,7 @@ def test_a_pilot_that_raises_is_a_failed_cell_in_process(tmp_path: Path, faults:
     assert "Traceback" in failed.detail and "episode_loop.py" in failed.detail and failed.elapsed_s > 0.0
     assert failure_path(out, failed.key) == out / FAILED_DIR / f"{stem}.json"
     # not an episode: no file, no metrics row; the rest of the run is scored and reported
-    assert [p.stem for p in episode_files(out)] == ["tiny__ep000__apf__s0"]
+    assert [e.key.stem for e in open_episodes(out).entries] == ["tiny__ep000__apf__s0"]
     assert _methods_in_metrics(out) == ["apf"]
     assert list(json.loads((out / "summary.json").read_text())["methods"]) == ["apf"]
     assert (f"{out / FAILED_DIR}{os.sep}  1 cell failed (error 1; {FAULTS['raise']} 1)" in captured.out), captured.out
@@ -102,7 +104,7 @@ def test_errors_crashes_and_hangs_in_worker_processes_are_failed_cells(tmp_path:
     assert hung.kind is FailureKind.HANG and "no result within 20 s" in hung.reason and hung.elapsed_s >= 20.0
     # the run went on: every other cell flew and is scored
     assert _methods_in_metrics(out) == sorted(["apf", "apf", *FAULTS.values()])
-    assert len(episode_files(out)) == 6 and not any(faults.iterdir())  # every fault went off
+    assert len(open_episodes(out).entries) == 6 and not any(faults.iterdir())  # every fault went off
     assert "4 cells failed (error 1, crash 2, hang 1; " in capsys.readouterr().out
 
 
@@ -113,8 +115,10 @@ def test_resume_flies_only_the_missing_cells_and_keeps_the_saved_episodes(
     argv = _argv(out, [FAULTS["raise"]], "--seeds", "0,1")
     assert main(argv) == 0
     [failed] = read_failures(out)
-    saved = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns, p.read_bytes()) for p in episode_files(out)}
-    assert len(saved) == 3 and f"{failed.key.stem}.npz" not in saved
+    [first] = samples_files(out)
+    samples = (first.stat().st_ino, first.stat().st_mtime_ns, first.read_bytes())
+    saved = {f"{r['scenario']}__ep{r['episode']:03d}__{r['method']}__s{r['seed']}": r for r in read_episode_table(out)}
+    assert len(saved) == 3 and failed.key.stem not in saved
     fly = compare.cells.CellRunner.run
     flown: list[Cell] = []
 
@@ -129,9 +133,11 @@ def test_resume_flies_only_the_missing_cells_and_keeps_the_saved_episodes(
     assert "failed (" not in printed and json.loads(printed.splitlines()[-1])["failed_cells"] == 0
     assert [(c.method, c.seed) for c in flown] == [(failed.key.method, failed.key.seed)]
     assert read_failures(out) == [] and not failure_path(out, failed.key).exists()  # its record went with it
-    after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns, p.read_bytes()) for p in episode_files(out)}
-    assert {k: v for k, v in after.items() if k in saved} == saved  # not rewritten
-    assert set(after) - set(saved) == {f"{failed.key.stem}.npz"}
+    after = {f"{r['scenario']}__ep{r['episode']:03d}__{r['method']}__s{r['seed']}": r for r in read_episode_table(out)}
+    assert repr({k: v for k, v in after.items() if k in saved}) == repr(saved)  # rows (NaN and all) and samples:
+    assert (first.stat().st_ino, first.stat().st_mtime_ns, first.read_bytes()) == samples  # the file not rewritten
+    assert set(after) - set(saved) == {failed.key.stem}
+    assert after[failed.key.stem]["samples_file"] == "samples-0002-000.parquet"  # its samples appended apart
     assert _methods_in_metrics(out) == sorted(["apf", "apf", FAULTS["raise"], FAULTS["raise"]])
     flown.clear()
     assert main([*argv, "--resume"]) == 0  # nothing left to fly

@@ -15,7 +15,8 @@ from test_bad_inputs import TINY, synthetic_flying  # noqa: F401  (a fixture)
 
 import compare.cells
 from compare.cli import INTERRUPTED_EXIT, main
-from compare.results.trajectory import episode_files
+from compare.results.episodes import open_episodes
+from compare.results.store import part_files
 from uam_fdm.files.atomic import TEMP_MARK, atomic_open, remove_stale_temporaries
 
 SEEDS = "0,1,2,3,4,5,6,7"
@@ -44,10 +45,10 @@ def test_ctrl_c_keeps_the_finished_episodes_and_says_how_to_resume(
     assert lines == [f"uam-compare: interrupted: 2 of 8 episodes kept in {out}; to fly the rest: uam-compare "
                      f"run {TINY} --methods rrt_mpc --seeds {SEEDS} --out {out} --no-progress --videos none "
                      f"--resume"], err
-    assert len(episode_files(out)) == 2 and not (out / "metrics.csv").exists()
+    assert len(part_files(out)) == 2 and not (out / "metrics.csv").exists()  # each cell's part, as it ended
     monkeypatch.setattr(compare.cells.CellRunner, "run", fly)  # the synthetic flight: resume flies the other 6
     assert main([*argv, "--resume"]) == 0
-    assert len(episode_files(out)) == 8
+    assert len(open_episodes(out).entries) == 8 and part_files(out) == []  # compacted
 
 
 def test_a_killed_writer_leaves_a_temporary_that_the_next_report_removes(tmp_path: Path) -> None:
@@ -70,7 +71,7 @@ def test_report_removes_stale_temporaries(tmp_path: Path, capsys: pytest.Capture
     out = tmp_path / "run"
     assert main(["run", str(TINY), "--methods", "rrt_mpc", "--out", str(out), "--no-progress",
                  "--videos", "none"]) == 0
-    stale = out / "episodes" / f".tiny__ep000__rrt_mpc__s1.npz{TEMP_MARK}abcdefgh.tmp"
+    stale = out / "store" / "parts" / f".tiny__ep000__rrt_mpc__s1.parquet{TEMP_MARK}abcdefgh.tmp"
     stale.write_bytes(b"\x00" * 100)
     assert main(["report", str(out)]) == 0
     assert not stale.exists()
@@ -92,10 +93,10 @@ def test_a_parallel_run_stops_promptly_with_its_workers(tmp_path: Path, how: str
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 120.0
-        while not episode_files(out) and proc.poll() is None and time.monotonic() < deadline:
+        while not part_files(out) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
         assert proc.poll() is None, proc.communicate()
-        assert episode_files(out), "no episode was saved within 120 s"
+        assert part_files(out), "no episode was saved within 120 s"
         if how == "ctrl-c":
             os.killpg(proc.pid, signal.SIGINT)
         else:
@@ -110,7 +111,7 @@ def test_a_parallel_run_stops_promptly_with_its_workers(tmp_path: Path, how: str
     assert stopped_s < 10.0
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     lines = [ln for ln in err.splitlines() if ln.startswith("uam-compare: interrupted")]
-    kept = len(episode_files(out))
+    kept = len(open_episodes(out).entries)
     assert len(lines) == 1 and f": {kept} of 8 episodes kept in {out}; " in lines[0] and lines[0].endswith("--resume")
     assert 1 <= kept < 8
     deadline = time.monotonic() + 5.0  # workers terminated: none left running in the command's process group

@@ -18,7 +18,7 @@ from compare import pilots
 from compare.campaign import fairness
 from compare.cells import Cell, CellRunner
 from compare.cli import main
-from compare.results.trajectory import load_episode
+from compare.results.trajectory import SavedEpisode
 from compare.scenario import load_scenario, scenario_from_dict
 from compare.viz.figures import METHOD_COLORS
 from planners.report import ClassicalReport
@@ -65,8 +65,7 @@ def test_apf_flies_the_tiny_scenario_deterministically(tmp_path):
     sc = load_scenario(_tiny_with(tmp_path, ["apf"]))
     saved = []
     for run in ("a", "b"):  # two runners: nothing carried over
-        path = CellRunner([sc], tmp_path / run, {}).run(Cell(0, 0, 0, "apf"))
-        saved.append(load_episode(path))
+        saved.append(SavedEpisode(*CellRunner([sc], tmp_path / run, {}).fly(Cell(0, 0, 0, "apf"))))  # physics rate
     a, b = saved
     for name in ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m", "decision_t_s"):
         np.testing.assert_array_equal(getattr(a.trajectory, name), getattr(b.trajectory, name), err_msg=name)

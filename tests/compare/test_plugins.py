@@ -11,7 +11,7 @@ from pypdf import PdfReader
 
 from compare import pilots
 from compare.cli import main
-from compare.results.trajectory import load_episode
+from compare.results.episodes import open_episodes
 from compare.scenario import load_scenario, with_methods
 from uam_fdm.errors import ConfigError
 
@@ -106,7 +106,9 @@ def test_cli_flies_a_plugin_beside_ours_in_worker_processes(on_path, tmp_path):
     assert climb["success"] == "1" and climb["collision"] == "0", climb
     assert float(climb["min_clearance_m"]) > 1.0 and climb["plan_time_s"] == "nan"  # it does not plan
     # it climbed over the buildings: higher than the tallest building near its line (30 m), lower than the ceiling
-    z = load_episode(out / "episodes" / f"tiny__ep000__{CLIMB}__s0.npz").trajectory.states[:, 2]
+    episodes = open_episodes(out)
+    [climbed] = [e for e in episodes.entries if e.key.method == CLIMB]
+    z = episodes.load(climbed).trajectory.states[:, 2]
     assert 30.0 < z.max() < 60.0
     info = json.loads((out / "run.json").read_text())
     assert info["methods"][CLIMB]["label"] == "Straight climb"

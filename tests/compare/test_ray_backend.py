@@ -16,8 +16,8 @@ from test_compare_run import WALL_CLOCK_COLUMNS
 import compare.campaign
 from compare.backends import RAY_FIX
 from compare.cli import main
+from compare.results.episodes import open_episodes
 from compare.results.failures import FailureKind, read_failures
-from compare.results.trajectory import episode_files
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml"
 RAISING, EXITING = "fault_pilots:RaisingPilot", "fault_pilots:ExitingPilot"
@@ -46,8 +46,7 @@ def test_ray_gives_the_local_metrics_and_records_faults(tmp_path: Path, monkeypa
                  "--out", str(out), *common]) == 0
     # the same episodes: metrics.csv identical apart from the measured wall-clock columns
     assert [r for r in _rows(out) if r["method"] in ("ppo", "rrt_mpc")] == _rows(local)
-    assert sorted(p.name for p in episode_files(out)) == sorted(
-        ["tiny__ep000__ppo__s0.npz", "tiny__ep000__rrt_mpc__s0.npz"])
+    assert [e.key.stem for e in open_episodes(out).entries] == ["tiny__ep000__ppo__s0", "tiny__ep000__rrt_mpc__s0"]
     failed = {f.key.method: f for f in read_failures(out)}
     assert sorted(failed) == [EXITING, RAISING] and all(f.backend == "ray" for f in failed.values())
     assert failed[RAISING].kind is FailureKind.ERROR and failed[RAISING].worker.startswith("node ")

@@ -13,6 +13,7 @@ import pytest
 from compare import sweep
 from compare.benchmark import LEARNED_PILOT_POOLS, city_seed_ranges
 from compare.campaign import RunOptions, plan_cells, policy_facts
+from compare.results.episodes import open_episodes
 from compare.results.run_info import AirEnvelope
 from compare.sets import builtin_sets, resolve_scenarios
 from compare.sweep import DA_TOLERANCE_M, DENSITY_ALTITUDES_M, DESIGN, build_sweep, sweep_seed_ranges
@@ -144,4 +145,4 @@ def test_a_run_warns_and_still_flies_outside_the_envelope(quick, tmp_path: Path,
     assert any("density altitude 4497 m" in n for n in info.notes)
     (pol,) = info.policies("ppo")
     assert pol.envelope is not None and pol.envelope.steady_wind_max_m_s == 3.0
-    assert len(list((tmp_path / "run" / "episodes").glob("*.npz"))) == 1  # flown all the same
+    assert len(open_episodes(tmp_path / "run").entries) == 1  # flown all the same

@@ -1,0 +1,267 @@
+"""An episode as rows of the run store's two tables: its row of the episode table and its samples.
+
+The episode table has one row per episode: the cell (scenario, episode, method, seed), every column of
+`metrics.csv` (computed in the cell from the physics-rate flight, before anything is thinned), the conditions
+it flew in (`EpisodeConditions`), the episode's metadata as JSON (`meta_json`, the same JSON an `.npz` episode
+file holds, read back by the one reader in `compare.results.trajectory`), and where its samples are.
+
+The samples table has one row per kept sample of the flight: the cell again (so a query can join or filter
+without the episode table), time, state, rotor commands, wind, clearance, shaft power, and at the rows where
+the pilot decided, the decision's time and its compute time. Which rows are kept (`kept_rows`):
+
+* "control" (the default): the control rate (row 0, then the end of every control period: 50 Hz in the
+  shipped scenarios, everything the report, viewer and animation draw) plus the physics-rate row of least
+  clearance (so a drawn minimum is the flight's), with each number rounded to a stated power-of-two quantum
+  (`QUANTA`: the low mantissa bits become zeros, which the compression then removes);
+* "full": every physics-rate row, numbers unrounded.
+
+Types: time, position and the decision times float64 (a float32 time would drift by 0.2 ms after an hour,
+and a float32 position holds only ~6 cm ±1,000 km from the origin a flight volume may sit at); every other
+sample float32 (velocity, quaternion, body rates, rotor speeds and commands, wind, clearance, power, compute
+time: at least 6 significant digits, far below what the pages show).
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import astuple, dataclass, fields
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from compare.episode_loop import Trajectory
+from compare.results.metrics import EpisodeMetrics
+from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, meta_from_json, meta_to_json
+
+STORE_MODES = ("control", "full")
+"""Sample rates a run can store: the control rate (default) or the physics rate (`--store full`)."""
+
+QUANTA: dict[str, int] = {
+    "position": 10, "velocity": 10, "quaternion": 16, "body_rates": 12, "rotors": 6, "wind": 10, "power": 4}
+"""Sample quantum as a power of two, 2**-k, per group of columns in "control" mode: position and velocity
+2^-10 m, m/s (~1 mm, mm/s), quaternion 2^-16 (1.5e-5), body rates 2^-12 rad/s, rotor speeds and commands
+2^-6 rad/s (0.016 rad/s of hundreds), wind 2^-10 m/s, shaft power 2^-4 W. Clearance is kept at float32 (the
+viewer states the least clearance to the millimetre). Times are never rounded."""
+
+KEY_COLUMNS = ("scenario", "episode", "method", "seed")
+POSITION = ("x_m", "y_m", "z_m")
+VELOCITY = ("vx_m_s", "vy_m_s", "vz_m_s")
+QUATERNION = ("qw", "qx", "qy", "qz")
+BODY_RATES = ("wx_rad_s", "wy_rad_s", "wz_rad_s")
+WIND = ("wind_e_m_s", "wind_n_m_s", "wind_u_m_s")
+ROTOR_SPEED, ROTOR_COMMAND = "rotor_speed_rad_s", "rotor_command_rad_s"
+
+_KEY_FIELDS = [pa.field("scenario", pa.string(), False), pa.field("episode", pa.int32(), False),
+               pa.field("method", pa.string(), False), pa.field("seed", pa.int64(), False)]
+_F32 = pa.float32()
+
+SAMPLE_SCHEMA = pa.schema(
+    _KEY_FIELDS
+    + [pa.field("t_s", pa.float64(), False)]
+    + [pa.field(n, pa.float64(), False) for n in POSITION]
+    + [pa.field(n, _F32, False) for n in (*VELOCITY, *QUATERNION, *BODY_RATES)]
+    + [pa.field(ROTOR_SPEED, pa.list_(_F32), False), pa.field(ROTOR_COMMAND, pa.list_(_F32), False)]
+    + [pa.field(n, _F32, False) for n in WIND]
+    + [pa.field("clearance_m", _F32, False), pa.field("shaft_power_w", _F32),
+       pa.field("decision_t_s", pa.float64()), pa.field("compute_s", _F32)])
+"""One row per kept sample (see the module docstring); world ENU [m, m/s], body FLU [rad/s], quaternion
+body -> world [w, x, y, z]. shaft_power_w is null in an episode saved before it was recorded; decision_t_s and
+compute_s are null except at the row where the pilot decided (the start of that control period)."""
+
+
+@dataclass(frozen=True)
+class EpisodeConditions:
+    """The air and city an episode flew in (the episode table's condition columns).
+
+    Attributes:
+        field_density_kg_m3: air density at the field [kg/m³] (run.json's, rounded to 4 decimals).
+        density_altitude_m: the ISA altitude of that density [m].
+        turbulence: the turbulence level's name.
+        steady_wind_enu_m_s: the steady wind at its reference height, world ENU [m/s].
+        building_coverage: share of the map's ground area under building footprints, in [0, 1].
+    """
+
+    field_density_kg_m3: float
+    density_altitude_m: float
+    turbulence: str
+    steady_wind_enu_m_s: tuple[float, float, float]
+    building_coverage: float
+
+
+_METRIC_TYPES = {"str": pa.string(), "int": pa.int64(), "float": pa.float64(), "bool": pa.bool_()}
+METRIC_COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
+CONDITION_COLUMNS = ("field_density_kg_m3", "density_altitude_m", "turbulence", "steady_wind_m_s",
+                     "steady_wind_e_m_s", "steady_wind_n_m_s", "steady_wind_u_m_s", "building_coverage")
+
+EPISODE_SCHEMA = pa.schema(
+    [pa.field(f.name, _METRIC_TYPES[str(f.type)], False) for f in fields(EpisodeMetrics)]
+    + [pa.field("turbulence", pa.string())]
+    + [pa.field(n, pa.float64()) for n in CONDITION_COLUMNS if n != "turbulence"]
+    + [pa.field("store", pa.string(), False), pa.field("samples", pa.int64(), False),
+       pa.field("samples_file", pa.string(), False), pa.field("row_start", pa.int64(), False),
+       pa.field("meta_json", pa.string(), False)])
+"""One row per episode: the metrics.csv columns (same names and order), the conditions (null where not
+recorded), how its samples were kept ("control" or "full") and how many, the file of the run store holding them
+(relative to the store folder) and the first of them there, and the episode's metadata as JSON."""
+
+
+def kept_rows(traj: Trajectory, mode: str, period_rows: int) -> np.ndarray:
+    """Indices of the trajectory rows a store keeps (sorted, unique).
+
+    Args:
+        traj: the physics-rate flight.
+        mode: "control" (row 0, every `period_rows`-th row, the last row and the least-clearance row) or "full".
+        period_rows: physics steps per control period.
+    """
+    n = len(traj.t_s)
+    if mode == "full" or n == 0:
+        return np.arange(n)
+    if mode != "control":
+        raise ValueError(f"store {mode!r}: choose from {', '.join(STORE_MODES)}")
+    clear = np.asarray(traj.clearance_m, float)
+    least = [int(np.nanargmin(clear))] if np.any(np.isfinite(clear)) else []
+    return np.unique(np.concatenate([np.arange(0, n, max(1, int(period_rows))), [n - 1], least])).astype(np.int64)
+
+
+def _quantized(values: np.ndarray, group: str, mode: str) -> np.ndarray:
+    """`values` rounded to the group's quantum in "control" mode (non-finite values kept as they are)."""
+    if mode != "control":
+        return values
+    scale = 2.0 ** QUANTA[group]
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.where(np.isfinite(values), np.round(values * scale) / scale, values)
+
+
+def samples_table(key: EpisodeKey, traj: Trajectory, n_rotors: int, mode: str, period_rows: int) -> pa.Table:
+    """The samples of one flight (`SAMPLE_SCHEMA`), thinned and rounded as `mode` says."""
+    rows = kept_rows(traj, mode, period_rows)
+    t = np.asarray(traj.t_s, float)[rows]
+    x = np.asarray(traj.states, float)[rows]
+    m = len(rows)
+
+    def f32(values: np.ndarray, group: str | None) -> pa.Array:
+        return pa.array((values if group is None else _quantized(values, group, mode)).astype(np.float32))
+
+    def rotor_lists(values: np.ndarray) -> pa.Array:
+        flat = f32(np.ascontiguousarray(values, dtype=float).reshape(-1), "rotors")
+        return pa.ListArray.from_arrays(pa.array(np.arange(0, m * n_rotors + 1, n_rotors, dtype=np.int32)), flat)
+
+    cols: dict[str, Any] = {
+        "scenario": pa.array([key.scenario] * m, pa.string()), "episode": pa.array(np.full(m, key.episode, np.int32)),
+        "method": pa.array([key.method] * m, pa.string()), "seed": pa.array(np.full(m, key.seed, np.int64)),
+        "t_s": pa.array(t)}
+    for i, name in enumerate(POSITION):
+        cols[name] = pa.array(_quantized(x[:, i], "position", mode))
+    for names, first, group in ((VELOCITY, 3, "velocity"), (QUATERNION, 6, "quaternion"),
+                                (BODY_RATES, 10, "body_rates")):
+        for i, name in enumerate(names):
+            cols[name] = f32(x[:, first + i], group)
+    cols[ROTOR_SPEED] = rotor_lists(x[:, 13:13 + n_rotors])
+    cols[ROTOR_COMMAND] = rotor_lists(np.asarray(traj.rotor_commands, float)[rows])
+    wind = np.asarray(traj.wind_enu_m_s, float)[rows]
+    for i, name in enumerate(WIND):
+        cols[name] = f32(wind[:, i], "wind")
+    cols["clearance_m"] = f32(np.asarray(traj.clearance_m, float)[rows], None)
+    power = traj.shaft_power_W
+    cols["shaft_power_w"] = pa.nulls(m, _F32) if power is None else f32(np.asarray(power, float)[rows], "power")
+    decided_t, compute = _decisions_on_rows(t, np.asarray(traj.decision_t_s, float), np.asarray(traj.compute_s, float))
+    cols["decision_t_s"] = pa.array(decided_t, pa.float64(), from_pandas=True)
+    cols["compute_s"] = pa.array(compute.astype(np.float32), _F32, from_pandas=True)
+    return pa.table(cols, schema=SAMPLE_SCHEMA)
+
+
+def _decisions_on_rows(t_s: np.ndarray, decision_t_s: np.ndarray,
+                       compute_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Decision times and compute times spread onto the kept rows (NaN: no decision at that row).
+
+    A decision is made at the start of a control period, which is a kept row in either mode (row 0 or the end of
+    the period before); it goes to the row nearest its time (the runner's clocks may differ in the last bit).
+
+    Raises:
+        ValueError: a decision with no row of its own (two on one row), which the runner never makes.
+    """
+    at = np.full(len(t_s), np.nan)
+    cost = np.full(len(t_s), np.nan)
+    if len(decision_t_s) == 0:
+        return at, cost
+    right = np.clip(np.searchsorted(t_s, decision_t_s), 1, len(t_s) - 1) if len(t_s) > 1 else np.zeros(
+        len(decision_t_s), int)
+    left = np.maximum(right - 1, 0)
+    nearest = np.where(np.abs(t_s[left] - decision_t_s) <= np.abs(t_s[right] - decision_t_s), left, right)
+    if len(np.unique(nearest)) != len(nearest):
+        raise ValueError("two decisions fall on one stored row")
+    at[nearest], cost[nearest] = decision_t_s, compute_s
+    return at, cost
+
+
+def episode_row(meta: EpisodeMeta, metrics: EpisodeMetrics, conditions: EpisodeConditions | None, mode: str,
+                samples: int) -> dict[str, Any]:
+    """The episode table's row of an episode (`EPISODE_SCHEMA`), before its samples have a place in a file
+    (`samples_file` "", `row_start` 0: the compaction fills them)."""
+    row: dict[str, Any] = dict(zip(METRIC_COLUMNS, astuple(metrics)))
+    if conditions is None:
+        row.update(dict.fromkeys(CONDITION_COLUMNS))
+    else:
+        wind = conditions.steady_wind_enu_m_s
+        row.update(field_density_kg_m3=conditions.field_density_kg_m3, density_altitude_m=conditions.density_altitude_m,
+                   turbulence=conditions.turbulence, steady_wind_m_s=math.hypot(*wind), steady_wind_e_m_s=wind[0],
+                   steady_wind_n_m_s=wind[1], steady_wind_u_m_s=wind[2], building_coverage=conditions.building_coverage)
+    row.update(store=mode, samples=int(samples), samples_file="", row_start=0,
+               meta_json=json.dumps(meta_to_json(meta), sort_keys=True, allow_nan=True))
+    return row
+
+
+def metrics_from_row(row: Mapping[str, Any]) -> EpisodeMetrics:
+    """The metrics.csv row an episode table's row holds (values exactly as computed in the cell)."""
+    return EpisodeMetrics(**{name: row[name] for name in METRIC_COLUMNS})
+
+
+def meta_from_row(row: Mapping[str, Any]) -> EpisodeMeta:
+    """The episode's metadata from its row.
+
+    Raises:
+        ValueError: its meta_json is not an episode's metadata.
+    """
+    try:
+        return meta_from_json(json.loads(row["meta_json"]))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ValueError(f"its metadata is not readable ({exc})") from exc
+
+
+def episode_from_tables(meta: EpisodeMeta, samples: pa.Table) -> SavedEpisode:
+    """An episode from its metadata and its samples (as stored: thinned in "control" mode), as float64 arrays.
+
+    Raises:
+        ValueError: samples that are not a flight (no rows, times not finite and increasing, rotor lists of
+            another length than the vehicle's rotors).
+    """
+    n = samples.num_rows
+    if n == 0:
+        raise ValueError("it has no samples")
+
+    def col(name: str) -> np.ndarray:
+        return samples.column(name).to_numpy(zero_copy_only=False).astype(float)
+
+    def rotors(name: str) -> np.ndarray:
+        values = samples.column(name).combine_chunks()
+        flat = values.flatten().to_numpy(zero_copy_only=False).astype(float)
+        if len(flat) != n * meta.n_rotors:
+            raise ValueError(f"{name} holds {len(flat)} values for {n} samples of {meta.n_rotors} rotors")
+        return flat.reshape(n, meta.n_rotors)
+
+    t = col("t_s")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ValueError("its times t_s are not finite and increasing")
+    states = np.column_stack([col(c) for c in (*POSITION, *VELOCITY, *QUATERNION, *BODY_RATES)]
+                             + [rotors(ROTOR_SPEED)])
+    decided = col("decision_t_s")
+    has = ~np.isnan(decided)
+    power = col("shaft_power_w")
+    traj = Trajectory(t_s=t, states=states, rotor_commands=rotors(ROTOR_COMMAND),
+                      wind_enu_m_s=np.column_stack([col(c) for c in WIND]), clearance_m=col("clearance_m"),
+                      decision_t_s=decided[has], compute_s=col("compute_s")[has], energy_J=meta.energy_J,
+                      outcome=meta.outcome, plan_time_s=meta.plan_time_s, detail=meta.detail,
+                      shaft_power_W=None if samples.column("shaft_power_w").null_count == n else power)
+    return SavedEpisode(meta, traj)
