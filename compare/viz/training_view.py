@@ -26,7 +26,7 @@ import plotly.io as pio
 
 from compare.viz.embed import code_for_script, json_for_script, text_for_html
 from compare.viz.report import read_reward_curve
-from compare.viz.viewer import GOAL_COLOR, START_COLOR, building_mesh
+from compare.viz.viewer import GOAL_COLOR, START_COLOR, building_mesh, city_scene, rounded
 from rl.policies.flights import CityBoxes, TrainingFlights
 from rl.policies.folder import PolicyFolder
 from uam_fdm.city.buildings import Building, BuildingMap
@@ -58,12 +58,6 @@ def default_out(policy_dir: Path) -> Path:
     return Path(f"{Path(policy_dir).resolve().name}-training.html")
 
 
-def _r(values, step: float) -> list:
-    a = np.round(np.asarray(values, float) / step) * step
-    digits = max(0, -math.floor(math.log10(step)))
-    return [None if not math.isfinite(v) else round(float(v), digits) for v in a.ravel()]
-
-
 def _task_scene(flights: TrainingFlights, k: int) -> dict:
     """Task k's figure (plotly JSON): trace 0 its city, 1 start, 2 goal; the script adds the flight's traces."""
     task = flights.tasks.tasks[k]
@@ -78,15 +72,8 @@ def _task_scene(flights: TrainingFlights, k: int) -> dict:
             hovertemplate=f"{name}<br>(%{{x:.1f}}, %{{y:.1f}}, %{{z:.1f}}) m<extra></extra>"))
     lo, hi = np.array(city.bounds_min_m), np.array(city.bounds_max_m)
     top = max([float(hi[2])] + [float(b[4]) for b in city.boxes])
-    extent = np.maximum(hi - lo, 1.0)
-    fig.update_layout(
-        margin={"l": 0, "r": 0, "t": 0, "b": 0}, paper_bgcolor="white", showlegend=False, uirevision=f"task{k}",
-        scene={"xaxis": {"title": {"text": "x east [m]"}, "range": [float(lo[0]), float(hi[0])]},
-               "yaxis": {"title": {"text": "y north [m]"}, "range": [float(lo[1]), float(hi[1])]},
-               "zaxis": {"title": {"text": "z up [m]"}, "range": [0.0, top]},
-               "aspectmode": "manual",
-               "aspectratio": {"x": 1.0, "y": float(extent[1] / extent[0]), "z": float(top / extent[0])},
-               "camera": {"eye": {"x": -0.9, "y": -1.3, "z": 0.9}}})
+    fig.update_layout(margin={"l": 0, "r": 0, "t": 0, "b": 0}, paper_bgcolor="white", showlegend=False,
+                      uirevision=f"task{k}", scene=city_scene(lo, hi, top))
     return json.loads(pio.to_json(fig, validate=True, remove_uids=True))
 
 
@@ -104,8 +91,8 @@ def _curve(folder: PolicyFolder) -> dict:
                  "kept": prov.kept_timesteps if prov is not None else None}
     if curve is not None:
         out["timesteps"] = [int(v) for v in curve.timesteps]
-        out["train_return"] = _r(curve.mean_episode_reward, 0.001)
-        out["val_success"] = _r(curve.success_rate, 0.0001)
+        out["train_return"] = rounded(curve.mean_episode_reward, 0.001)
+        out["val_success"] = rounded(curve.success_rate, 0.0001)
     return out
 
 
@@ -130,13 +117,15 @@ def training_payload(policy_dir: Path, opts: TrainingViewOptions = TrainingViewO
             rows.append({"task": f.task, "outcome": f.outcome, "words": OUTCOME_WORDS.get(f.outcome, f.outcome),
                          "color": OUTCOME_COLORS.get(f.outcome, "#333333"), "time_s": round(f.time_s, 3),
                          "min_clearance_m": round(f.min_clearance_m, 3),
-                         "x": _r(p[:, 0], opts.round_m), "y": _r(p[:, 1], opts.round_m), "z": _r(p[:, 2], opts.round_m),
-                         "speed": _r(np.linalg.norm(v, axis=1), 0.01), "clearance": _r(f.clearance_m[keep], 0.01)})
+                         "x": rounded(p[:, 0], opts.round_m), "y": rounded(p[:, 1], opts.round_m),
+                         "z": rounded(p[:, 2], opts.round_m),
+                         "speed": rounded(np.linalg.norm(v, axis=1), 0.01),
+                         "clearance": rounded(f.clearance_m[keep], 0.01)})
         n_ok = sum(f.outcome == "success" for f in ckpt.flights)
         checkpoints.append({"timesteps": step, "flights": rows, "successes": n_ok})
     task_rows = [{"leg": t.leg, "turbulence": t.turbulence, "city": tasks.cities[t.city].name,
                   "distance_m": round(math.dist(t.start_m, t.goal_m), 1), "timeout_s": t.timeout_s,
-                  "wind_m_s": _r(t.wind_m_s, 0.01),
+                  "wind_m_s": rounded(t.wind_m_s, 0.01),
                   "elevation_m": t.elevation_m if math.isfinite(t.elevation_m) else None,
                   "isa_offset_k": t.isa_offset_k if math.isfinite(t.isa_offset_k) else None,
                   "figure": _task_scene(flights, k)} for k, t in enumerate(tasks.tasks)]

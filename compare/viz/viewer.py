@@ -77,7 +77,8 @@ def building_mesh(bmap: BuildingMap) -> go.Mesh3d:
             kk += [base + n + w, base + n + v]
     top = max(heights, default=1.0)
     return go.Mesh3d(
-        x=_r(xs, 0.01), y=_r(ys, 0.01), z=_r(zs, 0.01), i=ii, j=jj, k=kk, intensity=_r(heights, 0.01),
+        x=rounded(xs, 0.01), y=rounded(ys, 0.01), z=rounded(zs, 0.01), i=ii, j=jj, k=kk,
+        intensity=rounded(heights, 0.01),
         intensitymode="vertex", colorscale=_BUILDING_SCALE, cmin=0.0, cmax=top, showscale=False, flatshading=True,
         lighting={"ambient": 0.55, "diffuse": 0.75, "specular": 0.05, "roughness": 0.9},
         lightposition={"x": -4000, "y": -6000, "z": 7000},
@@ -86,7 +87,18 @@ def building_mesh(bmap: BuildingMap) -> go.Mesh3d:
         name="buildings", showlegend=False)
 
 
-def _r(values, step: float) -> list:
+def city_scene(lo: np.ndarray, hi: np.ndarray, top_m: float) -> dict:
+    """A plotly 3D scene over the region lo..hi (ENU metres), up to `top_m`, to scale, seen from the south-west."""
+    extent = np.maximum(hi - lo, 1.0)
+    return {"xaxis": {"title": {"text": "x east [m]"}, "range": [float(lo[0]), float(hi[0])]},
+            "yaxis": {"title": {"text": "y north [m]"}, "range": [float(lo[1]), float(hi[1])]},
+            "zaxis": {"title": {"text": "z up [m]"}, "range": [0.0, top_m]},
+            "aspectmode": "manual",
+            "aspectratio": {"x": 1.0, "y": float(extent[1] / extent[0]), "z": float(top_m / extent[0])},
+            "camera": {"eye": {"x": -0.9, "y": -1.3, "z": 0.9}}}
+
+
+def rounded(values, step: float) -> list:
     """Values rounded to a multiple of `step` (JSON stays short); NaN becomes None (JSON null)."""
     a = np.round(np.asarray(values, float) / step) * step
     digits = max(0, -math.floor(math.log10(step)))
@@ -139,26 +151,20 @@ def group_payload(group: FlightGroup, opts: ViewerOptions) -> dict:
         pilots.append({
             "method": p.method, "label": p.label, "color": color, "end_t_s": round(p.end_t_s, 3),
             "outcome": p.episode.meta.outcome, "outcome_words": p.outcome_words, "last": last,
-            "x": _r(s.pos_m[:, 0], opts.round_m), "y": _r(s.pos_m[:, 1], opts.round_m),
-            "z": _r(s.pos_m[:, 2], opts.round_m), "speed": _r(s.speed_m_s, 0.001),
-            "clearance": _r(s.clearance_m, 0.001), "min_clearance_m": _finite_min(p.episode.trajectory.clearance_m)})
-    extent = np.maximum(hi - lo, 1.0)
+            "x": rounded(s.pos_m[:, 0], opts.round_m), "y": rounded(s.pos_m[:, 1], opts.round_m),
+            "z": rounded(s.pos_m[:, 2], opts.round_m), "speed": rounded(s.speed_m_s, 0.001),
+            "clearance": rounded(s.clearance_m, 0.001),
+            "min_clearance_m": _finite_min(p.episode.trajectory.clearance_m)})
     top = max([float(hi[2])] + [b.height_m for b in city.buildings])
     fig.update_layout(
         margin={"l": 0, "r": 0, "t": 0, "b": 0}, paper_bgcolor="white", uirevision=group.spec,
-        legend={"x": 0.01, "y": 0.99, "bgcolor": "rgba(255,255,255,0.7)"},
-        scene={"xaxis": {"title": {"text": "x east [m]"}, "range": [float(lo[0]), float(hi[0])]},
-               "yaxis": {"title": {"text": "y north [m]"}, "range": [float(lo[1]), float(hi[1])]},
-               "zaxis": {"title": {"text": "z up [m]"}, "range": [0.0, top]},
-               "aspectmode": "manual",
-               "aspectratio": {"x": 1.0, "y": float(extent[1] / extent[0]), "z": float(top / extent[0])},
-               "camera": {"eye": {"x": -0.9, "y": -1.3, "z": 0.9}}})
+        legend={"x": 0.01, "y": 0.99, "bgcolor": "rgba(255,255,255,0.7)"}, scene=city_scene(lo, hi, top))
     wind = group.wind or WindInfo()
     return {
         "spec": group.spec, "scenario": group.scenario, "episode": group.episode, "seed": group.seed,
         "description": group.description, "vehicle": meta.vehicle, "map": meta.map_name,
         "wind": {"steady_enu_m_s": wind.steady_enu_m_s and list(wind.steady_enu_m_s), "turbulence": wind.turbulence},
-        "t": _r(t, opts.round_s), "duration_s": round(float(t[-1]), 3), "pilots": pilots,
+        "t": rounded(t, opts.round_s), "duration_s": round(float(t[-1]), 3), "pilots": pilots,
         "figure": json.loads(pio.to_json(fig, validate=True, remove_uids=True)),
     }
 
