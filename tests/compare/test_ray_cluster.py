@@ -90,10 +90,10 @@ def _stored(out: Path) -> tuple[list[dict], list[list]]:
     return rows, samples
 
 
-# Known flaky (2026-11-26): passed alone every time, failed once of two in the full suite with one cell lost to
-# RayTaskError(OwnerDiedError) on the second node while a training ran on the other core. Until the cause is
-# found it may fail without failing the suite; it still runs, and an XFAIL in the output is that failure.
-@pytest.mark.xfail(strict=False, reason="flaky in the full suite: OwnerDiedError on the second node (open)")
+# Known failure (2026-11-26): passes alone every time, failed 2 of 2 in the full suite (one cell lost to
+# RayTaskError(OwnerDiedError) on the second node), so an earlier test's state is the likely cause (open).
+# Until it is found it may fail without failing the suite; it still runs, and an XFAIL in the output is that.
+@pytest.mark.xfail(strict=False, reason="fails in the full suite, passes alone (open)")
 def test_a_two_node_cluster_flies_what_a_local_run_flies(tmp_path: Path) -> None:
     root = Path(__file__).resolve().parents[2]
     # Ray >= 2.5x turns token authentication on for `ray start`; this private test cluster opts out, so the run
