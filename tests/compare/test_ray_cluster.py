@@ -90,10 +90,6 @@ def _stored(out: Path) -> tuple[list[dict], list[list]]:
     return rows, samples
 
 
-# Known failure (2026-11-26): passes alone every time, failed 2 of 2 in the full suite (one cell lost to
-# RayTaskError(OwnerDiedError) on the second node), so an earlier test's state is the likely cause (open).
-# Until it is found it may fail without failing the suite; it still runs, and an XFAIL in the output is that.
-@pytest.mark.xfail(strict=False, reason="fails in the full suite, passes alone (open)")
 def test_a_two_node_cluster_flies_what_a_local_run_flies(tmp_path: Path) -> None:
     root = Path(__file__).resolve().parents[2]
     # Ray >= 2.5x turns token authentication on for `ray start`; this private test cluster opts out, so the run
@@ -117,8 +113,15 @@ def test_a_two_node_cluster_flies_what_a_local_run_flies(tmp_path: Path) -> None
             time.sleep(1.0)
         common = ["--no-progress", "--videos", "none"]
         cluster = tmp_path / "cluster"
-        assert main(["run", str(TINY), "--backend", "ray", "--address", address, "--jobs", "2", "--out",
-                     str(cluster), *common]) == 0
+        # the run is a command of its own, as docs/scale_out.md gives it: in this test process, after the local
+        # Ray sessions of earlier tests (test_ray_backend's, with a worker that exits), a cell on the second
+        # node was lost to OwnerDiedError 2 of 2 times; a fresh process never was (not reproduced by a
+        # minimal script either, so it is kept out of the test's way and named in docs/scale_out.md)
+        with (tmp_path / "cluster.log").open("w") as log:  # a file, not a pipe (see _nodes_alive)
+            done = subprocess.run([sys.executable, "-m", "compare", "run", str(TINY), "--backend", "ray",
+                                   "--address", address, "--jobs", "2", "--out", str(cluster), *common],
+                                  env=env, stdout=log, stderr=subprocess.STDOUT, timeout=600)
+        assert done.returncode == 0, (tmp_path / "cluster.log").read_text()[-3000:]
     finally:
         for node in reversed(nodes):
             _stop(node)
