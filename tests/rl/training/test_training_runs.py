@@ -1,8 +1,10 @@
-"""Training records its checkpoints' flights (issue 30): what it records, that it is reproducible to the byte,
-and that it does not change what is learned."""
+"""One tiny training run (seconds), shared by the tests of what a run writes: the policy folder, its
+determinism from the seed, resuming from a checkpoint, and the checkpoints' recorded flights (issue 30: what is
+recorded, the same bytes twice, and that recording does not change what is learned)."""
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -11,28 +13,72 @@ import pytest
 from rl.env.world import NavBatch, NavWorld
 from rl.pilots.learned import load_checkpoint_policy, load_policy
 from rl.policies.flights import FLIGHTS_DIR, TrainingFlights, read_checkpoint
+from rl.policies.folder import CURVE_COLUMNS
+from rl.sensing.observation import obs_size
 from rl.task.air import AirDistribution
-from rl.task.config import NavConfig
 from rl.training.config import TrainConfig
 from rl.training.evaluation import eval_config
 from rl.training.loop import train
 from rl.training.recording import fixed_tasks
+from test_training import TINY_NAV, _rows
 from uam_fdm.episode import OUTCOMES
 
-TINY_NAV = NavConfig(city_pool_size=2, wind_pool_size=1, wind_series_s=150.0)
 CFG = TrainConfig(total_timesteps=2 * 8 * 64, n_envs=8, nav=TINY_NAV, eval_every=8 * 64, eval_episodes=3,
-                  checkpoint_every=0, seed=5)
+                  checkpoint_every=8 * 64, seed=5)
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """The same tiny run twice with recording (8 tasks) and once without."""
+    """The same tiny run twice with recording (8 tasks, "a" and "b") and once without ("off"), "a" resumed
+    from its first checkpoint for one more update ("resumed"), and what training "a" returned ("a_result")."""
     root = tmp_path_factory.mktemp("rec")
-    out = {"a": root / "a", "b": root / "b", "off": root / "off"}
-    for key, folder in out.items():
+    out = {"a": root / "a", "b": root / "b", "off": root / "off", "resumed": root / "resumed"}
+    results = {}
+    for key in ("a", "b", "off"):
         cfg = replace(CFG, record_flights=0) if key == "off" else CFG
-        train(cfg, folder, progress=False, command="test", log=lambda *_: None)
-    return out
+        results[key] = train(cfg, out[key], progress=False, command="test", log=lambda *_: None)
+    train(replace(CFG, total_timesteps=3 * 8 * 64), out["resumed"], resume=out["a"] / "checkpoints" /
+          "step_00000000512", progress=False, log=lambda *_: None)
+    return {**out, "a_result": results["a"]}
+
+
+def test_train_writes_a_loadable_policy_and_resumes(runs):
+    out = runs["a"]
+    for name in ("model.zip", "obs_norm.npz", "vecnormalize.npz", "config.json", "reward_curve.csv",
+                 "provenance.json", "curriculum.json"):
+        assert (out / name).is_file(), name
+    assert not (out / "best").exists()
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["step_00000000512", "step_00000001024"]
+    rows = _rows(out / "reward_curve.csv")
+    assert tuple(rows[0]) == CURVE_COLUMNS
+    # one row per PPO update (512 decisions each), validation filled where it ran, and the final evaluation
+    assert [int(r["timesteps"]) for r in rows] == [512, 1024, 1024]
+    assert all(r["eval_episodes"] == "3" for r in rows) and float(rows[0]["difficulty"]) == 0.25
+    prov = json.loads((out / "provenance.json").read_text())
+    assert prov["command"] == "test" and prov["seed"] == 5 and prov["validation_of_kept_model"]["episodes"] == 3
+    assert prov["method"] == "PPO from scratch" and "validation" in prov["pools"]["selection"]
+    res = runs["a_result"]
+    assert 0.0 <= res.success_rate <= 1.0 and res.pool == "validation"
+    assert TrainConfig.from_dict(json.loads((out / "config.json").read_text())) == CFG
+    policy = load_policy(out)
+    assert policy.act_batch(np.zeros((2, obs_size(TINY_NAV.perception)), dtype=np.float32)).shape == (2, 3)
+    resumed = json.loads((runs["resumed"] / "provenance.json").read_text())
+    assert resumed["timesteps"] == 3 * 8 * 64 and resumed["resumed_from"].endswith("step_00000000512")
+
+
+def test_training_is_deterministic_from_its_seed(runs):
+    """The same configuration and seed twice: the same weights, normalisation statistics, reward curve
+    (all but the wall-clock column) and kept model's validation (one thread, as `uam-compare train`)."""
+    a, b = (load_policy(runs[k]) for k in "ab")
+    for (name, wa), (_, wb) in zip(a.network.state_dict().items(), b.network.state_dict().items()):
+        assert np.array_equal(wa.numpy(), wb.numpy()), name
+    for key in ("mean", "var", "count", "epsilon", "clip_obs"):
+        assert np.array_equal(getattr(a.obs_norm, key), getattr(b.obs_norm, key)), key
+    rows_a, rows_b = (_rows(runs[k] / "reward_curve.csv") for k in "ab")
+    assert [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_a] == \
+           [{k: v for k, v in r.items() if k != "wall_s"} for r in rows_b]
+    prov_a, prov_b = (json.loads((runs[k] / "provenance.json").read_text()) for k in "ab")
+    assert prov_a["validation_of_kept_model"] == prov_b["validation_of_kept_model"]
 
 
 def test_recording_does_not_change_what_is_learned(runs):
@@ -108,16 +154,14 @@ def test_a_bad_checkpoint_file_is_named(runs, tmp_path):
 
 
 def test_a_resumed_run_continues_the_record_and_a_replaced_policy_loses_its_own(runs, tmp_path):
-    first = tmp_path / "first"
-    cfg = replace(CFG, checkpoint_every=8 * 64)
-    train(cfg, first, progress=False, command="test", log=lambda *_: None)
-    resumed = tmp_path / "resumed"
-    train(replace(cfg, total_timesteps=3 * 8 * 64), resumed, resume=first / "checkpoints" / "step_00000000512",
-          progress=False, log=lambda *_: None)
+    first, resumed = runs["a"], runs["resumed"]
     assert TrainingFlights.open(resumed).steps == (0, 512, 1024, 1536)
     for name in ("step_00000000000.npz", "step_00000000512.npz", "tasks.json"):  # the history, as it was
         assert (resumed / FLIGHTS_DIR / name).read_bytes() == (first / FLIGHTS_DIR / name).read_bytes()
     # the same folder trained afresh (as `train --overwrite` does), shorter and with another seed: only its own
-    train(replace(CFG, total_timesteps=8 * 64, seed=6), first, progress=False, log=lambda *_: None)
-    assert TrainingFlights.open(first).steps == (0, 512)
-    assert TrainingFlights.open(first).tasks.seed == 6
+    again = tmp_path / "again"
+    shutil.copytree(first, again)
+    train(replace(CFG, total_timesteps=8 * 64, seed=6, checkpoint_every=0), again, progress=False,
+          log=lambda *_: None)
+    assert TrainingFlights.open(again).steps == (0, 512)
+    assert TrainingFlights.open(again).tasks.seed == 6
