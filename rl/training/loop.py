@@ -88,6 +88,7 @@ class _TrainingRun:
         self.out.checkpoints.mkdir(exist_ok=True)
         preset = PRESETS[cfg.preset]
         self.t_start = time.perf_counter()
+        self.code = code_version()  # at the start: the code this run imported (HEAD may move while it trains)
         log(f"building {cfg.nav.city_pool_size} training cities and the batched environment ({cfg.n_envs} vehicles)")
         self.base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
         self.eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
@@ -247,7 +248,7 @@ class _TrainingRun:
             "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                         "cpus": os.cpu_count(), "torch_threads": cfg.torch_threads},
             "versions": _versions(), "validation_of_kept_model": kept.as_dict(),
-            "code": code_version(),  # which physics the policy learned on (the flight model changes with the code)
+            "code": self.code,  # which physics the policy learned on (the flight model changes with the code)
         }
 
 
