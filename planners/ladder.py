@@ -20,7 +20,10 @@ exact path:
 4. RRTConnect at the floor margin with `LAST_STEP_ITERATIONS` times its budget (more time).
 
 A goal none of them reaches is a planner failure whose message says so: no path at the floor
-margin within these attempts. Every step is seeded from the same seed (deterministic).
+margin within these attempts, and whether a path at the floor margin exists at all
+(`planners.reachability`: proved reachable, proved unreachable, or undetermined at the finest grid), so
+that a failure on a reachable goal is told from one on a walled-in goal. Every step is seeded from the
+same seed (deterministic).
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planners.clearance import MarginTaper
+from planners.reachability import Reachability, check_reachable
 from planners.rrt_star import ALGORITHMS, PlannerConfig, PlanResult, plan_path
 from uam_fdm.city.buildings import BuildingMap
 
@@ -90,6 +94,8 @@ class LadderResult:
         attempts: every attempt's result, in order.
         margin_m: the cruise margin the path keeps away from the start and goal [m].
         tapers: the margin tapers the path keeps (none for a floor-margin step).
+        reachability: for a failure after every step, whether a path at the floor margin exists (None
+            when a step found the path or the failure is final: an invalid start, goal or path).
     """
 
     plan: PlanResult
@@ -98,6 +104,7 @@ class LadderResult:
     attempts: tuple[PlanResult, ...]
     margin_m: float
     tapers: tuple[MarginTaper, ...]
+    reachability: Reachability | None = None
 
     @property
     def ok(self) -> bool:
@@ -160,7 +167,10 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
             break
     summary = "; ".join(f"{n}: {a.status}" for n, a in zip(names, attempts, strict=True))
     last = attempts[-1]
+    reach = None
     if last.status not in _FINAL_STATUSES:
+        reach = check_reachable(city, start_m, goal_m, radius_m, floor)
         last = dataclasses.replace(last, message=f"no path at the floor margin {floor:.2f} m in {len(attempts)} "
-                                                 f"attempts ({summary}); last: {last.message}")
-    return LadderResult(last, 0, "", tuple(attempts), float(config.safety_margin_m), tuple(tapers))
+                                                 f"attempts ({summary}); {reach.verdict}: {reach.reason}; "
+                                                 f"last: {last.message}")
+    return LadderResult(last, 0, "", tuple(attempts), float(config.safety_margin_m), tuple(tapers), reach)

@@ -53,6 +53,8 @@ def test_a_walled_in_goal_is_a_planner_failure_that_says_so():
     assert not found.ok and found.step == 0 and len(found.attempts) == len(LADDER)
     assert found.plan.status in ("approximate", "no_solution")
     assert "no path at the floor margin 1.00 m in 4 attempts" in found.plan.message
+    assert found.reachability is not None and found.reachability.verdict == "unreachable"
+    assert "unreachable: no connected free space joins start and goal" in found.plan.message
 
 
 def test_a_step_that_repeats_an_earlier_query_is_skipped():

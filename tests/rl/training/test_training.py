@@ -12,7 +12,6 @@ from rl.env.gym_env import UAMNavEnv
 from rl.env.world import NavWorld
 from rl.pilots.learned import load_policy
 from rl.pilots.potential_field import PotentialFieldPilot
-from rl.policies.folder import CURVE_COLUMNS
 from rl.sensing.observation import obs_size
 from rl.task.air import AirDistribution
 from rl.task.config import FixedEpisodes, NavConfig

@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_training import TINY_NAV, _rows
 
 from rl.env.world import NavBatch, NavWorld
 from rl.pilots.learned import load_checkpoint_policy, load_policy
@@ -20,7 +21,6 @@ from rl.training.config import TrainConfig
 from rl.training.evaluation import eval_config
 from rl.training.loop import train
 from rl.training.recording import fixed_tasks
-from test_training import TINY_NAV, _rows
 from uam_fdm.episode import OUTCOMES
 
 CFG = TrainConfig(total_timesteps=2 * 8 * 64, n_envs=8, nav=TINY_NAV, eval_every=8 * 64, eval_episodes=3,
