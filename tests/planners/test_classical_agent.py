@@ -183,4 +183,5 @@ def test_a_walled_in_goal_is_a_planner_failure_with_its_reason(vehicles, compile
     agent = ClassicalAgent(cfg)
     traj = run_episode(world, agent, Task(start_m=start, goal_m=goal, timeout_s=10.0), WindField.calm(), seed=1)
     assert traj.outcome == "planner_failure" and "no path at the floor margin 1.00 m in 4 attempts" in traj.detail
+    assert "unreachable: no connected free space joins start and goal at margin 1.00 m" in traj.detail
     assert len(traj.t_s) == 1 and agent.episode_report().planner_attempts == 4
