@@ -42,6 +42,19 @@ stopping distance and its slow loops:
   mostly into walls at 15-27 m/s with 20-30 m of clearance left, a third of the distance needed to
   stop. With it, collisions on 1,000 validation tasks went from 3.3 % to 2.8 %: inside the
   intervals (docs/learned_pilot.md has the figures and the next lever).
+
+**The envelope** (`task_for(vehicle, envelope=True)`, `uam-compare train --envelope`, issue 28): the air a pilot
+will meet (`ENVELOPE_AIR`) and, for the UAM, the space of the `full` set too, which it failed in (0 of 6 in
+canyon-uam, 0 of 6 in downtown-uam). Those scenarios fly the shipped maps, 700-1000 m across with 16-24 m
+streets (the canyon's gaps at 30-40 m of height are 18.5-24.5 m, for a 12 m wide vehicle), with starts and
+goals 16.8 m from the flight volume's side (canyon: its legs run in the 35 m border between buildings and side),
+9.1 m clear of buildings beyond the sphere and 265-339 m apart. So half the envelope's cities are the UAM's
+districts and half are at the shipped maps' scale (`SHIPPED_SCALE_CITIES`, a `CityMixture` drawing the component
+per city seed); starts and goals lie down to 15 m from the side (a margin is a minimum: drawn uniformly in 15-80 m
+it would put 1 % of them within 30 m of the side instead of 9 %), which the policy observes
+(`ObservedContext(geofence=True)`); legs from 250 m, 8 m of clearance. The small quad's envelope keeps its shipped
+task's space: a policy is being trained on it (its legs, distances to the side and street widths hold the full
+set's; its cities are smaller than the shipped maps, a size the policy does not observe).
 """
 from __future__ import annotations
 
@@ -107,7 +120,8 @@ SHIPPED_SCALE_CITIES = CityDistribution(
 ENVELOPE_TASKS: dict[str, NavConfig] = {
     # the small quad's space stays its shipped task's (a policy is being trained on it)
     "small_quad": replace(NavConfig(), air=ENVELOPE_AIR["small_quad"]),
-    # half the cities the UAM's own districts, half at the shipped maps' scale (the UAM in 15-30 m streets);
+    # half the cities the UAM's own districts, half at the shipped maps' scale (the UAM in 15-30 m streets): the
+    # benchmark flies the first, the full set the second, and neither is favoured before validation says so;
     # start and goal down to 15 m from the flight volume's side (the full set's 16.8 m), which it observes
     # (a geofence every operation has); legs from 250 m (the full set's 265 m) and 8 m of clearance beyond the
     # 6 m sphere (the full set's 9.1 m)
