@@ -47,7 +47,7 @@ from compare.results.difficulty import building_coverage
 from compare.results.run_info import SuiteInfo
 from compare.scenario import Scenario, scenario_from_dict
 from rl.task.air import AIR_LEVELS as LEVELS_OF_AIR
-from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, CityMixture, TaskDistribution
 from rl.task.vehicles import task_for
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
 from uam_fdm.city.buildings import BuildingMap
@@ -266,10 +266,11 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
     }
 
 
-def city_params(cities: CityDistribution, seed: int, density_level: int) -> CityGenParams:
+def city_params(cities: CityDistribution | CityMixture, seed: int, density_level: int) -> CityGenParams:
     """City `seed` of the learned pilot's distribution with its lot occupancy and footprint fill set to the
     density level's (0: the lowest of the distribution's ranges, 1: the middle, 2: the highest); the fill's
-    spread is the city's own."""
+    spread is the city's own (from a mixture: the ranges of the component the city comes from)."""
+    cities = cities.distribution(seed)
     p = cities.params(seed)
     t = density_level / (len(DENSITY_LEVELS) - 1)
     density = cities.density[0] + t * (cities.density[1] - cities.density[0])

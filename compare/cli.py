@@ -719,12 +719,15 @@ def _add_train_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
                     help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
                          "(default: the vehicle's task's)")
     tr.add_argument("--envelope", action="store_true",
-                    help="train in the air the vehicle will meet: fields from density altitude -0.6 to 4.0 km, no to "
-                         "moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn per episode")
+                    help="train in the air and space the vehicle will meet: fields from density altitude -0.6 to "
+                         "4.0 km, no to moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn "
+                         "per episode; the UAM also in cities at the shipped maps' scale (15-30 m streets), with goals "
+                         "down to 15 m from the flight volume's side, observing that side (geofence)")
     tr.add_argument("--observe", default=None, metavar="WHAT",
-                    help="what the policy observes beyond its task's observation, comma-separated: air (density "
+                    help="what the policy observes beyond the base observation, comma-separated: air (density "
                          "ratio and forecast turbulence), geofence (the flight volume's edge), history=N (N past "
-                         "decisions), or none")
+                         "decisions), or none; replaces the task's own (default: the task's; the UAM's --envelope "
+                         "task observes geofence)")
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
     tr.add_argument("--curriculum-level-steps", type=int, default=0, metavar="N",

@@ -7,11 +7,16 @@ cities): `TRAIN_SEEDS` and `EVAL_SEEDS`.
 
 The parameter ranges span the shipped maps' styles (suburb: low, sparse; downtown: a tall core;
 canyon: long narrow blocks), at a smaller extent so that an episode crosses a few blocks.
+
+A task's cities come from one `CityDistribution`, or from a `CityMixture` of several (a vehicle trained in
+its own districts and in smaller, narrower-street ones): each city seed names its component too.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -21,6 +26,24 @@ from uam_fdm.pilot import Task
 
 TRAIN_SEEDS = range(100_000)
 EVAL_SEEDS = range(1_000_000, 1_100_000)
+# Draws of a start/goal pair before a city is declared to have none. A tall dense city at the shipped maps' scale
+# needs ~800 on average (the canyon: free start and goal only in its building-free border); a city whose every
+# pair is taken from the first few draws is drawn the same whatever this is.
+MAX_TASK_DRAWS = 20_000
+_MIXTURE_STREAM = 0xC17E5  # PCG64 stream tag of a city's component draw (apart from its parameters' 0x5EED)
+_BOUNDS = {  # CityDistribution's numbers: (smallest, largest, whether the smallest itself is allowed)
+    "extent_m": (0.0, math.inf, False), "ceiling_m": (0.0, math.inf, False), "margin_m": (0.0, math.inf, True),
+    "block_size_m": (0.0, math.inf, False), "street_width_m": (0.0, math.inf, False), "density": (0.0, 1.0, True),
+    "fill_low": (0.0, 0.9, False), "height_median_m": (0.0, math.inf, False), "height_sigma": (0.0, math.inf, True),
+    "height_range_m": (0.0, math.inf, False), "core_probability": (0.0, 1.0, True),
+    "core_height_factor": (0.0, math.inf, False), "merge_prob": (0.0, 1.0, True),
+    "grid_yaw_deg": (-math.inf, math.inf, True), "yaw_jitter_deg": (0.0, math.inf, True)}
+_SCALARS = ("ceiling_m", "margin_m", "core_probability")
+
+
+def _number(v: Any) -> bool:
+    """Whether `v` is a finite real number (not a bool)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 @dataclass(frozen=True)
@@ -28,6 +51,9 @@ class CityDistribution:
     """Ranges of the generator parameters of training/evaluation cities (metres, degrees).
 
     Each city draws every parameter uniformly within its range from its own seed.
+
+    Raises:
+        ValueError: a range that is not [low, high] with low <= high inside its field's bounds, naming the field.
     """
 
     extent_m: tuple[float, float] = (260.0, 420.0)
@@ -46,6 +72,26 @@ class CityDistribution:
     merge_prob: tuple[float, float] = (0.0, 0.2)
     grid_yaw_deg: tuple[float, float] = (0.0, 90.0)
     yaw_jitter_deg: tuple[float, float] = (0.0, 8.0)
+
+    def __post_init__(self) -> None:
+        for name, (low, high, closed) in _BOUNDS.items():
+            v = getattr(self, name)
+            scalar = name in _SCALARS
+            values = (v,) if scalar else tuple(v) if isinstance(v, (tuple, list)) and len(v) == 2 else ()
+            if not (values and all(_number(x) and (low <= x if closed else low < x) and x <= high for x in values)
+                    and values[0] <= values[-1]):
+                what = "a number" if scalar else "a range [low, high] with low <= high"
+                raise ValueError(f"{name} must be {what} in {'[' if closed else '('}{low:g}, {high:g}"
+                                 f"{')' if math.isinf(high) else ']'}, got {v!r}")
+        lots = self.lots_per_block
+        if not (isinstance(lots, (tuple, list)) and len(lots) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) for v in lots) and 1 <= lots[0] <= lots[1]):
+            raise ValueError(f"lots_per_block must be a range [low, high] of integers with 1 <= low <= high, "
+                             f"got {lots!r}")
+
+    def distribution(self, seed: int) -> CityDistribution:
+        """The distribution city `seed` is drawn from: this one (as `CityMixture.distribution`)."""
+        return self
 
     def params(self, seed: int) -> CityGenParams:
         """The generator parameters of city `seed` (its own PCG64 stream, separate from the layout's)."""
@@ -76,6 +122,94 @@ class CityDistribution:
         return generate_city(self.params(seed), int(seed), name=f"gen-{int(seed)}")
 
 
+
+@dataclass(frozen=True)
+class CityMixture:
+    """Cities from several distributions: each city seed draws its component, by the weights, from its own
+    PCG64 stream (apart from the one its parameters come from), so a seed names one city on any machine.
+
+    Attributes:
+        components: the distributions (at least one).
+        weights: the share of cities from each, positive, summing to 1.
+
+    Raises:
+        ValueError: components and weights of different lengths, no component, or weights that are not
+            positive or do not sum to 1, naming the key.
+    """
+
+    components: tuple[CityDistribution, ...]
+    weights: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "components", tuple(self.components))
+        object.__setattr__(self, "weights", tuple(self.weights))
+        if not self.components or not all(isinstance(c, CityDistribution) for c in self.components):
+            raise ValueError(f"cities.components must be one or more city distributions, got {self.components!r}")
+        w = self.weights
+        if len(w) != len(self.components) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in w):
+            raise ValueError(f"cities.weights must be {len(self.components)} positive numbers (one per component), "
+                             f"got {list(w)}")
+        if abs(sum(w) - 1.0) > 1e-9:
+            raise ValueError(f"cities.weights must sum to 1, got {list(w)} (sum {sum(w):g})")
+
+    def component(self, seed: int) -> int:
+        """The index of the component city `seed` comes from."""
+        u = np.random.Generator(np.random.PCG64([int(seed), _MIXTURE_STREAM])).random()
+        edges = np.cumsum(self.weights)
+        return min(int(np.searchsorted(edges, u, side="right")), len(edges) - 1)  # u ~ 1 - 1e-16 past a rounded sum
+
+    def distribution(self, seed: int) -> CityDistribution:
+        """The distribution city `seed` is drawn from: its component."""
+        return self.components[self.component(seed)]
+
+    def params(self, seed: int) -> CityGenParams:
+        """The generator parameters of city `seed`, drawn from its component."""
+        return self.distribution(seed).params(seed)
+
+    def city(self, seed: int) -> BuildingMap:
+        """City `seed`: deterministic, named `gen-<seed>`."""
+        return generate_city(self.params(seed), int(seed), name=f"gen-{int(seed)}")
+
+
+def cities_from_dict(d: Any, key: str = "cities") -> CityDistribution | CityMixture:
+    """The inverse of `dataclasses.asdict` for a task's cities: a `CityMixture` when `d` has components, else a
+    `CityDistribution` (lists read as tuples).
+
+    Raises:
+        ValueError: unknown or bad settings, naming the key (e.g. "cities.components[1].street_width_m").
+    """
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{key} must be a mapping of settings, got {d!r}")
+    if "components" in d:
+        bad = sorted(set(d) - {"components", "weights"})
+        if bad:
+            raise ValueError(f"unknown {key} settings {bad} (written by another version?)")
+        parts = d["components"]
+        if not isinstance(parts, list | tuple):
+            raise ValueError(f"{key}.components must be a list of city distributions, got {parts!r}")
+        weights = d.get("weights")
+        if not isinstance(weights, list | tuple):
+            raise ValueError(f"{key}.weights must be a list of numbers, got {weights!r}")
+        return CityMixture(tuple(_distribution(c, f"{key}.components[{i}]") for i, c in enumerate(parts)),
+                           tuple(weights))
+    return _distribution(d, key)
+
+
+def _distribution(d: Any, key: str) -> CityDistribution:
+    """One `CityDistribution` from its settings (errors name `key`)."""
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{key} must be a mapping of settings, got {d!r}")
+    bad = sorted(set(d) - {f.name for f in fields(CityDistribution)})
+    if bad:
+        raise ValueError(f"unknown {key} settings {bad} (written by another version?)")
+    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+    try:
+        return CityDistribution(**values)
+    except ValueError as exc:
+        raise ValueError(f"{key}.{exc}") from None
+
+
 @dataclass(frozen=True)
 class TaskDistribution:
     """How start/goal pairs are drawn in free space of a city.
@@ -102,7 +236,8 @@ class TaskDistribution:
     timeout_per_climb: float = 0.0
 
     def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
-               attempts: int = 200, difficulty: float = 1.0, max_vertical_speed_m_s: float | None = None) -> Task:
+               attempts: int = MAX_TASK_DRAWS, difficulty: float = 1.0,
+               max_vertical_speed_m_s: float | None = None) -> Task:
         """A free start/goal pair in `city` drawn from `rng` (ENU metres).
 
         `difficulty` in (0, 1] (the training curriculum) shrinks the distance range's upper end

@@ -12,7 +12,7 @@ from rl.sensing.observation import ObservationScales, ObservedContext
 from rl.sensing.perception import PerceptionConfig
 from rl.sensing.route import RouteConfig
 from rl.task.air import AirDistribution
-from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, TaskDistribution
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, CityMixture, TaskDistribution, cities_from_dict
 from rl.task.reward import RewardConfig
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Task
@@ -37,7 +37,8 @@ class NavConfig:
             geofence, a history of decisions; `rl.sensing.observation.ObservedContext`).
         city_split: "train" or "eval": which seed range the city pool comes from.
         city_pool_size: number of cities in the pool; city_pool_offset: first seed within the range.
-        cities: city generator parameter ranges; tasks: start/goal distribution.
+        cities: city generator parameter ranges (`CityDistribution`), or several with the share of cities from
+            each (`CityMixture`); tasks: start/goal distribution.
         air: the air of the episodes (`rl.task.air`): fields (elevation, temperature), turbulence levels,
             steady wind.
         wind_pool_size: turbulence stacks per turbulence level (series at the probe heights up to the
@@ -58,7 +59,7 @@ class NavConfig:
     city_split: str = "train"
     city_pool_size: int = 1024
     city_pool_offset: int = 0
-    cities: CityDistribution = field(default_factory=CityDistribution)
+    cities: CityDistribution | CityMixture = field(default_factory=CityDistribution)
     tasks: TaskDistribution = field(default_factory=TaskDistribution)
     air: AirDistribution = field(default_factory=AirDistribution)
     wind_pool_size: int = 16
@@ -106,7 +107,9 @@ class NavConfig:
             raise ValueError(f"navigation settings {sorted(legacy)} and 'air' both given")
         if legacy:
             d["air"] = {_LEGACY_AIR[k]: ([v] if k == "turbulence" else v) for k, v in legacy.items()}
-        nested = {"cities": CityDistribution, "tasks": TaskDistribution, "reward": RewardConfig,
+        if "cities" in d:
+            d["cities"] = cities_from_dict(d["cities"])
+        nested = {"tasks": TaskDistribution, "reward": RewardConfig,
                   "perception": PerceptionConfig, "route": RouteConfig, "scales": ObservationScales,
                   "air": AirDistribution, "observe": ObservedContext}
         known = {f.name for f in fields(cls)}
