@@ -104,19 +104,23 @@ def test_the_sets_resolve_by_name(quick) -> None:
 def test_a_shipped_policy_is_warned_in_thin_air_not_at_sea_level(quick) -> None:
     facts = policy_facts(shipped_policy_dir("small_quad"))
     env = facts.envelope
-    assert env is not None and env.steady_wind_max_m_s == 3.0 and env.turbulence == ("light",)
-    assert abs(env.density_altitude_m[0]) < 5.0 and abs(env.density_altitude_m[1]) < 5.0  # sea level only
+    # the shipped quad policy is trained across the envelope: density altitude -0.6 to 4.0 km, wind to 8 m/s
+    assert env is not None and env.steady_wind_max_m_s == 8.0 and env.turbulence == ("none", "light", "moderate")
+    assert -600.0 < env.density_altitude_m[0] < -500.0 and 4000.0 < env.density_altitude_m[1] < 4100.0
     quad = [sc for sc in quick.scenarios if sc.vehicle_name == "small_quad"]
     sea = next(sc for sc in quad if sc.name.endswith("-da0000-w020"))
-    thin = next(sc for sc in quad if sc.name.endswith("-da3000-w020"))
-    windy = next(sc for sc in quad if sc.name.endswith("-da0000-w060"))
-    assert scenario_outside(sea, env) == ()
-    assert scenario_outside(thin, env) == ("density altitude 2999 m",)
-    assert scenario_outside(windy, env) == ("steady wind 6.0 m/s",)
+    inside = next(sc for sc in quad if sc.name.endswith("-da3000-w020"))
+    thin = next(sc for sc in quad if sc.name.endswith("-da4500-w020"))
+    windy = next(sc for sc in quad if sc.name.endswith("-da0000-w100"))
+    assert scenario_outside(sea, env) == () and scenario_outside(inside, env) == ()
+    assert scenario_outside(thin, env) == ("density altitude 4497 m",)
+    assert scenario_outside(windy, env) == ("steady wind 10.0 m/s",)
     cells, _ = plan_cells(quad, RunOptions(Path("unused")), None)
     notes = outside_trained_air(quad, cells, {facts.vehicle_fingerprint: env})
-    assert len(notes) == 1 and notes[0].startswith("ppo flies 11 of 13 small_quad scenarios outside")
-    assert thin.name in notes[0] and sea.name not in notes[0]
+    # past the envelope: 4.5 km, and wind 10 and 12 m/s
+    assert len(notes) == 1 and notes[0].startswith("ppo flies 3 of 13 small_quad scenarios outside")
+    assert thin.name in notes[0] and windy.name in notes[0] and sea.name not in notes[0]
+    assert inside.name not in notes[0]
     assert outside_trained_air([sea], plan_cells([sea], RunOptions(Path("unused")), None)[0],
                                {facts.vehicle_fingerprint: env}) == []
 
@@ -144,5 +148,5 @@ def test_a_run_warns_and_still_flies_outside_the_envelope(quick, tmp_path: Path,
     info = read_run_info(tmp_path / "run")
     assert any("density altitude 4497 m" in n for n in info.notes)
     (pol,) = info.policies("ppo")
-    assert pol.envelope is not None and pol.envelope.steady_wind_max_m_s == 3.0
+    assert pol.envelope is not None and pol.envelope.steady_wind_max_m_s == 8.0
     assert len(open_episodes(tmp_path / "run").entries) == 1  # flown all the same

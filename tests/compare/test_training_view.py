@@ -78,9 +78,11 @@ def test_view_training_command(tiny_flights_policy, tmp_path, capsys, monkeypatc
 def test_a_folder_without_flights_is_one_clear_line(tmp_path, capsys):
     from rl.policies.folder import DEFAULT_POLICY_DIR
 
-    assert main(["view-training", str(DEFAULT_POLICY_DIR), "--out", str(tmp_path / "x.html")]) == 2
+    bare = tmp_path / "bare"  # a policy trained before recording (or with --record-flights 0)
+    shutil.copytree(DEFAULT_POLICY_DIR, bare, ignore=shutil.ignore_patterns("training_flights"))
+    assert main(["view-training", str(bare), "--out", str(tmp_path / "x.html")]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and str(DEFAULT_POLICY_DIR) in err and "uam-compare train" in err
+    assert err.count("\n") == 0 and str(bare) in err and "uam-compare train" in err
     assert not (tmp_path / "x.html").exists()
     assert main(["view-training", str(tmp_path / "nowhere")]) == 2
     assert "not a policy folder" in capsys.readouterr().err
