@@ -30,6 +30,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE / "tests"))  # the synthetic run folder builder
+sys.path.insert(0, str(HERE))  # the packages before tests/'s folders that mirror them (tests/uam_fdm, ...)
 
 from synthetic_run import to_store, write_benchmark_run  # noqa: E402
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the synthetic run folder builder
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the packages before tests/'s mirrored folders
 
 from pypdf import PdfReader  # noqa: E402
 
