@@ -433,6 +433,7 @@ def _option(option: str, check: Callable[[str], T], value: str) -> T:
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from rl.env.world import NavWorld
     from rl.pilots.learned import load_policy
+    from rl.task.vehicles import in_task_space, task_for
     from rl.training.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
 
     if args.episodes < 1:
@@ -441,24 +442,27 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     _one_torch_thread()
     air = _air_from_options(args)  # before anything is loaded: a bad option is named at once
     policy = load_policy(args.policy)
-    nav = eval_config(policy.nav, args.episodes, pool=args.pool, air=air(policy.nav.air))
+    own = policy.nav if args.task == "own" else in_task_space(policy.nav, task_for(policy.nav.vehicle, envelope=True))
+    nav = eval_config(own, args.episodes, pool=args.pool, air=air(own.air))
     world = NavWorld(nav)
     res = evaluate(lambda obs, _batch: policy.act_batch(obs), nav, args.episodes, seed=args.seed, pool=args.pool,
                    world=world)
     a = nav.air
-    out = {"pool": args.pool, "episodes": res.episodes, "seed": args.seed, "turbulence": ",".join(a.turbulence),
+    out = {"pool": args.pool, "episodes": res.episodes, "seed": args.seed, "task": args.task,
+           "turbulence": ",".join(a.turbulence),
            "steady_wind_max_m_s": a.steady_wind_max_m_s, "elevation_m": list(a.elevation_m),
            "isa_offset_k": list(a.isa_offset_k), "fields": len(world.atmospheres), "policy": str(policy.folder),
            "success_rate": res.success_rate, "success_ci95": res.success_ci95,
            "collision_rate": res.collision_rate, "collision_ci95": res.collision_ci95, "outcomes": res.outcomes}
-    print(f"{res.episodes} {args.pool} episodes ({'/'.join(a.turbulence)} turbulence, steady wind up to "
+    print(f"{res.episodes} {args.pool} episodes in the {'policy' if args.task == 'own' else 'envelope'}'s task "
+          f"({'/'.join(a.turbulence)} turbulence, steady wind up to "
           f"{a.steady_wind_max_m_s:g} m/s, {_describe_fields(a)}, {policy.nav.vehicle}), Wilson 95 % intervals:")
     print(f"  ppo              success {res.success_rate:6.1%} [{res.success_ci95[0]:.1%}, {res.success_ci95[1]:.1%}]"
           f"  collisions {res.collision_rate:5.1%} [{res.collision_ci95[0]:.1%}, {res.collision_ci95[1]:.1%}]"
           f"  {res.outcomes}")
     if not args.no_baseline:
         # the same tasks (cities, legs, wind), the reactive pilot at the 50 Hz it was tuned for
-        ex = evaluate_potential_field(policy.nav, args.episodes, seed=args.seed, pool=args.pool, world=world)
+        ex = evaluate_potential_field(nav, args.episodes, seed=args.seed, pool=args.pool, world=world)
         pairs = paired_counts(res, ex)
         print(f"  potential field  success {ex.success_rate:6.1%} [{ex.success_ci95[0]:.1%}, {ex.success_ci95[1]:.1%}]"
               f"  collisions {ex.collision_rate:5.1%} [{ex.collision_ci95[0]:.1%}, {ex.collision_ci95[1]:.1%}]"
@@ -509,7 +513,7 @@ def _observed(text: str) -> ObservedContext:
 
 def _air_from_options(args: argparse.Namespace) -> Callable[[AirDistribution], AirDistribution]:
     """The air `evaluate-policy` flies, from --air or --elevation/--isa-offset, --wind-max and --turbulence, as a
-    function of the policy's training air (what is not given stays the policy's). Checked here, before any work.
+    function of the task's air (what is not given stays the task's). Checked here, before any work.
 
     Raises:
         ValueError: conflicting or out-of-range options, naming them.
@@ -756,18 +760,21 @@ def _add_evaluate_command(sub: argparse._SubParsersAction[argparse.ArgumentParse
     ev.add_argument("--pool", choices=("test", "validation"), default="test",
                     help="held-out city pool (default test; validation is for choices made while developing)")
     ev.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
+    ev.add_argument("--task", choices=("own", "envelope"), default="own",
+                    help="whose cities, legs and air: the policy's own (default), or its vehicle's envelope "
+                         "(`train --envelope`: to compare policies trained on different tasks on the same legs)")
     ev.add_argument("--air", choices=tuple(AIR_LEVELS), default=None,
                     help="the benchmark's air levels: fields drawn in its elevation and temperature ranges "
-                         "(default: the air the policy was trained in)")
+                         "(default: the --task's air)")
     ev.add_argument("--elevation", type=float, default=None, metavar="M",
                     help="one field elevation above mean sea level [m] (instead of --air)")
     ev.add_argument("--isa-offset", type=float, default=None, metavar="K",
                     help="one ISA temperature offset [K] (instead of --air)")
     ev.add_argument("--wind-max", type=float, default=None, metavar="M/S",
-                    help="steady wind speed uniform in [0, this] (default: the policy's training air's)")
+                    help="steady wind speed uniform in [0, this] (default: the --task's air's)")
     ev.add_argument("--turbulence", default=None, metavar="LEVELS",
                     help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
-                         "(default: the policy's training air's)")
+                         "(default: the --task's air's)")
     ev.add_argument("--no-baseline", action="store_true", help="skip the potential-field pilot on the same tasks")
     ev.set_defaults(func=_cmd_evaluate)
 

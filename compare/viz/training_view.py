@@ -145,6 +145,7 @@ def training_html(policy_dir: Path, opts: TrainingViewOptions = TrainingViewOpti
         "PLOTLY_JS": code_for_script(plotly.offline.get_plotlyjs()),
         "PLOTLY_VERSION": text_for_html(plotly.__version__),
         "DATA_JSON": json_for_script(payload),  # every text from the policy folder goes in here
+        "PLAYER_JS": code_for_script((assets / "player.js").read_text(encoding="utf-8")),
         "TRAINING_JS": code_for_script((assets / "training.js").read_text(encoding="utf-8")),
     }
     for key, text in parts.items():  # one pass per placeholder; inserted texts are never rescanned

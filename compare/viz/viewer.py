@@ -212,6 +212,7 @@ def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerOptions = ViewerO
         "PLOTLY_JS": code_for_script(plotly.offline.get_plotlyjs()),
         "PLOTLY_VERSION": text_for_html(plotly.__version__),
         "DATA_JSON": data,  # every text of the run folder and its scenarios goes in here, as json_for_script
+        "PLAYER_JS": code_for_script((assets / "player.js").read_text(encoding="utf-8")),
         "VIEWER_JS": code_for_script((assets / "viewer.js").read_text(encoding="utf-8")),
     }
     at = {}

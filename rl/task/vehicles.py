@@ -143,3 +143,16 @@ def task_for(vehicle: str, envelope: bool = False) -> NavConfig:
     if vehicle not in TASKS:
         raise ValueError(f"no learned-pilot task for vehicle {vehicle!r}; tasks exist for {sorted(TASKS)}")
     return ENVELOPE_TASKS[vehicle] if envelope else TASKS[vehicle]
+
+
+def in_task_space(policy_task: NavConfig, space: NavConfig) -> NavConfig:
+    """`policy_task` flown in `space`'s cities, legs and air (e.g. an older policy on the envelope's legs, to
+    compare it with an envelope policy on the same tasks). What the network reads stays the policy's: its
+    vehicle, decision rate, perception, route, observation scales and observed context, and its reward.
+
+    Raises:
+        ValueError: the two tasks are for different vehicles.
+    """
+    if policy_task.vehicle != space.vehicle:
+        raise ValueError(f"a {policy_task.vehicle} policy cannot fly the {space.vehicle} task's space")
+    return replace(policy_task, cities=space.cities, tasks=space.tasks, air=space.air)

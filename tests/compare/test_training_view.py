@@ -55,7 +55,8 @@ def test_policy_texts_cannot_break_the_page(tiny_flights_policy, tmp_path):
     d["rule"] = "</script><img src=x onerror=alert(1)>"
     tasks.write_text(json.dumps(d))
     html = build_training_view(hostile, tmp_path / "h.html").read_text(encoding="utf-8")
-    assert html.count("</script>") == 3 and "<img src=x" not in html
+    # the page's own four scripts (plotly.js, the data, player.js, training.js) and no other
+    assert html.count("</script>") == 4 and "<img src=x" not in html
     assert _data(tmp_path / "h.html")["policy"]["rule"] == d["rule"]
 
 

@@ -25,8 +25,7 @@
   const CONFIG = { responsive: true, displaylogo: false, scrollZoom: true };
   const PATH = 3; // first flight trace: path, trail, vehicle
 
-  const state = { a: CK.length - 1, b: 0, task: 0, index: 0, playing: false, ready: false, simTime: 0,
-                  lastWall: null };
+  const state = { a: CK.length - 1, b: 0, task: 0, index: 0, ready: false };
   let queue = Promise.resolve(); // drawing requests run one after the other
 
   function later(fn) { queue = queue.then(fn, fn); return queue; }
@@ -183,31 +182,12 @@
     return later(drawTime);
   }
 
-  /* ---- playing ------------------------------------------------------------------------------------------ */
-  function frame(wall) {
-    if (!state.playing) return;
-    if (state.lastWall !== null) state.simTime += (wall - state.lastWall) / 1000 * Number(rateSelect.value);
-    state.lastWall = wall;
-    const k = Math.round(state.simTime / DATA.dt_s);
-    if (k >= length() - 1) { setIndex(length() - 1); stop(); return; }
-    setIndex(k).then(() => requestAnimationFrame(frame));
-  }
-
-  function play() {
-    if (state.index >= length() - 1) state.index = 0;
-    state.simTime = state.index * DATA.dt_s;
-    state.playing = true;
-    state.lastWall = null;
-    playButton.innerHTML = "&#10074;&#10074; Pause";
-    playButton.setAttribute("aria-label", "pause");
-    requestAnimationFrame(frame);
-  }
-
-  function stop() {
-    state.playing = false;
-    playButton.innerHTML = "&#9654; Play";
-    playButton.setAttribute("aria-label", "play");
-  }
+  /* ---- playing (player.js) ------------------------------------------------------------------------------ */
+  const player = window.uamPlayer({
+    button: playButton, rate: rateSelect, now: () => state.index * DATA.dt_s, end: () => (length() - 1) * DATA.dt_s,
+    show: (t) => setIndex(t / DATA.dt_s),
+  });
+  const stop = player.stop;
 
   /* ---- start -------------------------------------------------------------------------------------------- */
   const pol = DATA.policy;
@@ -226,7 +206,6 @@
   ckptSlider.addEventListener("input", () => selectCheckpoint(Number(ckptSlider.value)));
   ckptB.addEventListener("change", () => compareWith(Number(ckptB.value)));
   timeSlider.addEventListener("input", () => { stop(); setIndex(Number(timeSlider.value)); });
-  playButton.addEventListener("click", () => (state.playing ? stop() : play()));
 
   window.uamTraining = {
     data: DATA,
@@ -234,9 +213,9 @@
     compareWith: compareWith,
     selectTask: selectTask,
     setIndex: (k) => { stop(); return setIndex(k); },
-    play: play,
+    play: player.play,
     stop: stop,
-    state: () => ({ a: state.a, b: state.b, task: state.task, index: state.index, playing: state.playing,
+    state: () => ({ a: state.a, b: state.b, task: state.task, index: state.index, playing: player.playing(),
                     ready: state.ready, timesteps_a: CK[state.a].timesteps, timesteps_b: CK[state.b].timesteps }),
     drawn: (s) => { const d = plots[s].data[PATH]; return { x: Array.from(d.x), y: Array.from(d.y) }; },
   };

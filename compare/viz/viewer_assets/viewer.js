@@ -20,8 +20,7 @@
   const FIRST_PILOT_TRACE = 3;
   const CONFIG = { responsive: true, displaylogo: false, scrollZoom: true };
 
-  const state = { group: 0, index: 0, playing: false, simTime: 0, lastWall: null, ready: false,
-                  busy: false, pending: null };
+  const state = { group: 0, index: 0, ready: false, busy: false, pending: null };
 
   function fmt(v, digits) {
     return (v === null || v === undefined || !isFinite(v)) ? "\u2013" : Number(v).toFixed(digits);
@@ -131,36 +130,11 @@
     return Plotly.restyle(plot, { opacity: seeThrough.checked ? 0.3 : 1.0 }, [0]);
   }
 
-  function frame(wall) {
-    if (!state.playing) return;
-    const g = group();
-    if (state.lastWall !== null) state.simTime += (wall - state.lastWall) / 1000 * Number(rateSelect.value);
-    state.lastWall = wall;
-    if (state.simTime >= g.duration_s) {
-      state.simTime = g.duration_s;
-      setIndex(g.t.length - 1);
-      stop();
-      return;
-    }
-    setIndex(indexOfTime(state.simTime));
-    requestAnimationFrame(frame);
-  }
-
-  function play() {
-    const g = group();
-    if (state.index >= g.t.length - 1) state.simTime = 0; else state.simTime = g.t[state.index];
-    state.playing = true;
-    state.lastWall = null;
-    playButton.innerHTML = "&#10074;&#10074; Pause";
-    playButton.setAttribute("aria-label", "pause");
-    requestAnimationFrame(frame);
-  }
-
-  function stop() {
-    state.playing = false;
-    playButton.innerHTML = "&#9654; Play";
-    playButton.setAttribute("aria-label", "play");
-  }
+  const player = window.uamPlayer({  // player.js
+    button: playButton, rate: rateSelect, now: () => group().t[state.index], end: () => group().duration_s,
+    show: (t) => setIndex(indexOfTime(t)),
+  });
+  const stop = player.stop;
 
   DATA.groups.forEach((g, i) => {
     const opt = document.createElement("option");
@@ -173,18 +147,17 @@
   flightSelect.addEventListener("change", () => select(Number(flightSelect.value)));
   slider.addEventListener("input", () => { stop(); setIndex(Number(slider.value)); });
   seeThrough.addEventListener("change", applySeeThrough);
-  playButton.addEventListener("click", () => (state.playing ? stop() : play()));
 
   window.uamViewer = {
     data: DATA,
     select: select,
     setTime: (t) => { stop(); return setIndex(indexOfTime(t)); },
-    play: play,
+    play: player.play,
     stop: stop,
     state: () => {
       const g = group();
       const t = g.t[state.index];
-      return { group: state.group, spec: g.spec, index: state.index, t: t, playing: state.playing,
+      return { group: state.group, spec: g.spec, index: state.index, t: t, playing: player.playing(),
                ready: state.ready, pilots: g.pilots.map((p) => Object.assign({ label: p.label },
                                                                                pilotAt(p, state.index, t))) };
     },

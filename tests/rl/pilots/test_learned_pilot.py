@@ -195,6 +195,32 @@ def test_evaluate_policy_under_stated_air(capsys):
     assert "fields 1800-2600 m, ISA +20-30 K" in out[0] and sum(last["paired"].values()) == 2
 
 
+def test_evaluate_policy_in_the_envelope_task(capsys):
+    """--task envelope: a policy flies its vehicle's envelope legs and air (the shipped UAM policy, trained on its
+    own narrower task, on the envelope's 15 m from the side and 12 m/s of wind), reading what it was trained to."""
+    from compare.cli import main
+
+    assert main(["evaluate-policy", str(SHIPPED_POLICIES["uam_multicopter"]), "--episodes", "2", "--pool",
+                 "validation", "--task", "envelope", "--no-baseline"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(out[-1])
+    assert last["task"] == "envelope" and last["steady_wind_max_m_s"] == 12.0 and last["fields"] == 64
+    assert "in the envelope's task" in out[0] and last["episodes"] == 2
+
+
+def test_in_task_space_keeps_what_the_network_reads():
+    from rl.task.vehicles import ENVELOPE_TASKS, TASKS, in_task_space
+
+    own, space = TASKS["uam_multicopter"], ENVELOPE_TASKS["uam_multicopter"]
+    flown = in_task_space(own, space)
+    assert (flown.cities, flown.tasks, flown.air) == (space.cities, space.tasks, space.air)
+    assert flown.observe == own.observe != space.observe  # the old policy does not observe the geofence
+    assert (flown.perception, flown.scales, flown.route, flown.decision_hz) == \
+        (own.perception, own.scales, own.route, own.decision_hz)
+    with pytest.raises(ValueError, match="a small_quad policy cannot fly the uam_multicopter task's space"):
+        in_task_space(TASKS["small_quad"], space)
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--air", "hot-and-high", "--elevation", "100"], "--air and --elevation/--isa-offset"),
     (["--elevation", "12000"], "--elevation 12000: must be within [-500, 9000]"),
