@@ -9,8 +9,9 @@ searches a grid around that scaled starting point, per vehicle:
 * top speed (fraction of the vehicle's limit): 0.6, 0.8;
 
 18 candidates (the untuned scaled gains among them), each flown on the same `--episodes` validation legs
-(`rl.training.evaluation.evaluate_potential_field`: the learned pilot's validation pool, its task's cities,
-legs, light turbulence and wind; paired across candidates). The score is success - 2 x collisions (the rule
+(`rl.training.evaluation.evaluate_potential_field`: the learned pilot's validation pool, the vehicle's envelope
+task by default, i.e. the air, wind and space the benchmark and the `full` set fly, as the learned pilot is trained;
+`--task own` for the sea-level policy's task; paired across candidates). The score is success - 2 x collisions (the rule
 that keeps the learned pilot's checkpoint). The best `--finalists` are flown again on `--confirm` further
 validation legs (other cities of the same pool) and the best of them on the sum is kept. Test cities and
 the comparison's scenario sets are never flown.
@@ -68,14 +69,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--finalists", type=int, default=3)
     ap.add_argument("--confirm", type=int, default=300, help="further validation legs for the finalists")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--task", choices=("envelope", "own"), default="envelope",
+                    help="the vehicle's envelope task (the air and space every pilot meets: default) or the shipped "
+                         "sea-level policy's own")
     ap.add_argument("--write", action="store_true", help=f"store the kept gains in {GAINS_FILE}")
     args = ap.parse_args(argv)
-    nav = task_for(args.vehicle)
+    nav = task_for(args.vehicle, envelope=args.task == "envelope")
     t0 = time.perf_counter()
     grid = candidates(args.vehicle)
     untuned = gains_for_task(nav.scales, TUNED)
     rows = []
-    print(f"{args.vehicle}: {len(grid)} candidates x {args.episodes} validation legs (seed {args.seed})")
+    print(f"{args.vehicle}: {len(grid)} candidates x {args.episodes} validation legs of the {args.task} task "
+          f"(seed {args.seed})")
     print(f"{'#':>3} {'range m':>8} {'repulsion':>9} {'speed':>5} {'success':>8} {'collision':>9} {'score':>6}")
     # one world per leg set (cities, fields, turbulence tabulated once), every candidate flies the same legs
     search = NavWorld(eval_config(nav, args.episodes, pool="validation"))
@@ -103,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     assert best is not None
     _, i, g, succ, coll, n = best
     base_row = next(x for x in rows if x[2] == untuned)
-    out = {"vehicle": args.vehicle, "kept_candidate": i, "gains": asdict(g),
+    out = {"vehicle": args.vehicle, "task": args.task, "kept_candidate": i, "gains": asdict(g),
            "validation_legs": n, "success_rate": succ / n, "success_ci95": wilson_interval(succ, n),
            "collision_rate": coll / n, "collision_ci95": wilson_interval(coll, n),
            "untuned_success_rate_search": base_row[3].success_rate,
@@ -117,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
             "gains": asdict(g),
             "provenance": {
                 "command": "python benchmarks/apf_gains.py " + " ".join(sys.argv[1:] if argv is None else argv),
-                "pool": f"validation cities of the {args.vehicle} task (search: the first {args.episodes}, "
+                "pool": f"validation cities of the {args.vehicle} {args.task} task (search: the first {args.episodes}, "
                         f"confirmation: the next {args.confirm}); no test city, no comparison scenario",
                 "rule": f"max success - {COLLISION_WEIGHT:g} x collisions over search + confirmation legs",
                 "grid": {"distance_factor": FACTORS, "repulsion": REPULSIONS, "speed_max": SPEEDS},

@@ -83,12 +83,19 @@ class NavWorld:
 
     def __init__(self, config: NavConfig, fixed: FixedEpisodes | None = None,
                  dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | Sequence[Atmosphere] | None = None,
-                 wind_from: NavWorld | None = None) -> None:
+                 wind_from: NavWorld | None = None, geometry_from: NavWorld | None = None) -> None:
         """`atmosphere`: the one atmosphere every episode flies (e.g. a scenario's), or the pool of fields
         (e.g. another world's `atmospheres`, shared instead of tabulated again); None: the pool of
         `config.air.fields()`. `wind_from`: a world whose turbulence stacks this one would generate too
         (same level, seed, series length, probe heights and airspeed; checked stack by stack), e.g. the
-        training world for its validation world: those are shared instead of generated again."""
+        training world for its validation world: those are shared instead of generated again.
+        `geometry_from`: a world of the same cities, sensing and vehicle size (e.g. a policy's evaluation world,
+        for another pilot flying its tasks at another decision rate): its cities, clearance sensor and
+        perception are shared instead of built again (a 1,000-city UAM world holds about 6 GB of them).
+
+        Raises:
+            ValueError: `geometry_from` has other cities, sensing or vehicle size (naming what differs).
+        """
         self.config = config
         self.vehicle: VehicleParams = dynamics.params if dynamics is not None else load_vehicle(config.vehicle)
         self.dynamics = dynamics or VehicleDynamics(self.vehicle, config.physics_hz, config.control_hz)
@@ -99,13 +106,17 @@ class NavWorld:
         else:
             self.atmospheres = [atmosphere] if isinstance(atmosphere, Atmosphere) else list(atmosphere)
         self.fixed = fixed
-        if fixed is not None:
-            self.cities = list(fixed.cities)
-        else:
-            self.cities = [config.cities.city(s) for s in config.city_seeds()]
         radius = self.vehicle.collision_radius_m
-        self.clearance_sensor = clearance_sensor(self.cities, config.scales, radius)
-        self.perception = Perception(self.cities, radius, config.perception)
+        if geometry_from is not None:
+            _check_same_geometry(self, geometry_from)
+            self.cities = geometry_from.cities
+            self.clearance_sensor = geometry_from.clearance_sensor
+            self.perception = geometry_from.perception
+        else:
+            self.cities = list(fixed.cities) if fixed is not None else \
+                [config.cities.city(s) for s in config.city_seeds()]
+            self.clearance_sensor = clearance_sensor(self.cities, config.scales, radius)
+            self.perception = Perception(self.cities, radius, config.perception)
         self.lo = np.array([c.bounds_min_m for c in self.cities])
         self.hi = np.array([c.bounds_max_m for c in self.cities])
         shapes = np.array([grid_shape(c, config.route.cell_m) for c in self.cities])
@@ -458,4 +469,16 @@ def route_levels(config: NavConfig, fixed: FixedEpisodes | None) -> int:
         return max([len(flight_levels(t.start_m[2], t.goal_m[2], step)) for _, t in fixed.tasks] + [1])
     return max_levels(config.tasks.altitude_m, step)
 
+
+def _check_same_geometry(world: NavWorld, other: NavWorld) -> None:
+    """Raise ValueError naming what differs where `world` (being built) would share `other`'s cities and sensing."""
+    a, b = world.config, other.config
+    same = {"cities": (a.cities, b.cities), "city seeds": (a.city_seeds() if world.fixed is None else None,
+                                                          b.city_seeds() if other.fixed is None else None),
+            "fixed episodes": (world.fixed, other.fixed), "perception": (a.perception, b.perception),
+            "observation scales": (a.scales, b.scales),
+            "collision radius": (world.vehicle.collision_radius_m, other.vehicle.collision_radius_m)}
+    differ = [name for name, (x, y) in same.items() if x != y]
+    if differ:
+        raise ValueError(f"cannot share another world's cities and sensing: {', '.join(differ)} differ")
 

@@ -127,13 +127,14 @@ def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool:
     vehicle, or the small quad's scaled to the task).
 
     Args:
-        world: a world whose dynamics and atmosphere to reuse (e.g. the policy's evaluation world).
+        world: the world whose tasks to fly, sharing its dynamics, fields, turbulence, cities and sensing (e.g. the
+            policy's evaluation world).
         gains: other gains (e.g. a candidate while tuning).
     """
     base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
                        decision_hz=nav.control_hz)
     base_world = NavWorld(base_nav, dynamics=world.dynamics if world else None,
-                          atmosphere=world.atmospheres if world else None, wind_from=world)
+                          atmosphere=world.atmospheres if world else None, wind_from=world, geometry_from=world)
     holder: dict[str, PotentialFieldPilot] = {}
 
     flown = gains or gains_for(base_world.vehicle)

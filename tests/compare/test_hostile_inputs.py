@@ -121,8 +121,9 @@ def test_the_viewer_embeds_hostile_text_as_data(run_copy: Path, tmp_path: Path) 
     out = tmp_path / "v.html"
     assert main(["view", str(run_copy), "--out", str(out)]) == 0
     page = out.read_text(encoding="utf-8")
-    # the template's own three scripts close, nothing else does; no markup from the data
-    assert len(re.findall(r"</script", page, re.IGNORECASE)) == 3
+    # the template's own four scripts (plotly.js, the data, player.js, viewer.js) close, nothing else does; no markup
+    # from the data
+    assert len(re.findall(r"</script", page, re.IGNORECASE)) == 4
     for markup in ("<img src=x", "<svg onload", "<script>alert", "\u2028"):
         assert markup.lower() not in page.lower()
     data = page.split('<script type="application/json" id="uam-data">')[1].split("</script>")[0]

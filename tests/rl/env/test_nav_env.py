@@ -261,6 +261,21 @@ def test_a_validation_world_shares_the_training_worlds_turbulence_only_when_iden
     assert other.gust_stacks[0].duration_s > world.gust_stacks[0].duration_s
 
 
+def test_another_pilots_world_shares_the_cities_and_sensing_only_when_identical(world):
+    """The potential field's world (the policy's tasks at 50 Hz decisions) holds the policy world's cities,
+    clearance sensor and perception, not copies; a world of other cities is refused, naming them."""
+    apf = NavWorld(replace(world.config, decision_hz=world.config.control_hz), dynamics=world.dynamics,
+                   atmosphere=world.atmosphere, wind_from=world, geometry_from=world)
+    assert apf.cities is world.cities and apf.perception is world.perception
+    assert apf.clearance_sensor is world.clearance_sensor and apf.config.action_repeat == 1
+    with pytest.raises(ValueError, match="city seeds differ"):
+        NavWorld(replace(world.config, city_pool_offset=world.config.city_pool_offset + 1), dynamics=world.dynamics,
+                 atmosphere=world.atmosphere, geometry_from=world)
+    with pytest.raises(ValueError, match="perception differ"):
+        NavWorld(replace(world.config, perception=replace(world.config.perception, n_rays=4)),
+                 dynamics=world.dynamics, atmosphere=world.atmosphere, geometry_from=world)
+
+
 def test_time_limit_adds_the_climb_time_only_when_asked():
     """The UAM's time limit adds per_climb x |Δz| / max vertical speed; the same draws, the same legs."""
     from dataclasses import replace
