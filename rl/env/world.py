@@ -36,6 +36,7 @@ from rl.sensing.observation import (
 from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, flight_levels, grid_shape, max_levels
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
+from rl.sensing.sensor import BoxSensor
 from rl.task.config import FixedEpisodes, NavConfig
 from rl.task.reward import TERMS, reward_terms, stopping_distance
 from uam_fdm import episode
@@ -50,6 +51,7 @@ from uam_fdm.air.wind import (
     probe_heights_up_to,
     turbulence_airspeed_m_s,
 )
+from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Task
 from uam_fdm.sim import BatchSimulator
 from uam_fdm.vehicle.dynamics import VehicleDynamics
@@ -109,9 +111,9 @@ class NavWorld:
         radius = self.vehicle.collision_radius_m
         if geometry_from is not None:
             _check_same_geometry(self, geometry_from)
-            self.cities = geometry_from.cities
-            self.clearance_sensor = geometry_from.clearance_sensor
-            self.perception = geometry_from.perception
+            self.cities: list[BuildingMap] = geometry_from.cities
+            self.clearance_sensor: BoxSensor = geometry_from.clearance_sensor
+            self.perception: Perception = geometry_from.perception
         else:
             self.cities = list(fixed.cities) if fixed is not None else \
                 [config.cities.city(s) for s in config.city_seeds()]
