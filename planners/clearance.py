@@ -180,13 +180,8 @@ class RequiredClearance:
             d = np.linalg.norm(knots - np.asarray(p), axis=1)
             inside = np.maximum(d[:-1], d[1:]) <= zone
             req[inside] = np.minimum(req[inside], r_e)
-        out: list[tuple[np.ndarray, np.ndarray, float]] = []
-        start = 0
-        for j in range(1, n + 1):
-            if j == n or req[j] != req[start]:
-                out.append((knots[start], knots[j], float(req[start])))
-                start = j
-        return out
+        cuts = np.concatenate(([0], np.flatnonzero(req[1:] != req[:-1]) + 1, [n]))  # where R changes
+        return [(knots[i], knots[j], float(req[i])) for i, j in zip(cuts[:-1], cuts[1:])]
 
     def near(self, pa: Sequence[float] | np.ndarray, pb: Sequence[float] | np.ndarray) -> bool:
         """Whether the segment comes within reach of any start or goal that changes R (pure Python floats:
