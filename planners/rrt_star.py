@@ -71,6 +71,12 @@ class PlannerConfig:
             of all neighbours within the shrinking r-disc radius; the radius version was about
             twice as fast per iteration here at equal path quality.  BIT* keeps OMPL's default.
         clearance_spacing_m: spacing of the dense clearance measurement of the result [m].
+        climb_weight: what a metre of height change costs in metres of level flight: the planner minimises the
+            path's length in (x, y, climb_weight * z), a Euclidean metric, so OMPL's own cost, nearest neighbours
+            and informed sampling stay exact. 1 (the default, which the classical pilot flies) is the plain length;
+            the reference's horizontal over vertical speed limit (4 for the small quad) makes the cost the flight
+            time at those limits to within sqrt(2). Tried for the classical pilot, it made long street detours in
+            the canyon (docs/planner.md, "Planning for time").
     """
 
     algorithm: str = "informed_rrtstar"
@@ -83,6 +89,7 @@ class PlannerConfig:
     rewire_factor: float = 1.1
     k_nearest: bool = False
     clearance_spacing_m: float = 0.05
+    climb_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
@@ -91,7 +98,7 @@ class PlannerConfig:
                 isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, (int, np.integer))
                 or self.max_iterations < 0):
             raise ValueError(f"max_iterations must be None or an integer >= 0, got {self.max_iterations!r}")
-        for name in ("time_budget_s", "goal_tolerance_m", "rewire_factor", "clearance_spacing_m"):
+        for name in ("time_budget_s", "goal_tolerance_m", "rewire_factor", "clearance_spacing_m", "climb_weight"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {v!r}")
@@ -126,7 +133,7 @@ class PlanResult:
         solve_time_s: wall time inside the planner's solve [s].
         first_solution_time_s: time from the start of solve to the first solution [s] (nan if none).
         first_solution_iterations: iterations until the first solution (-1 if none).
-        first_solution_length_m: cost (length) of that first solution [m] (nan if none).
+        first_solution_length_m: cost (length; in (x, y, climb_weight z)) of that first solution [m] (nan if none).
         iterations: iterations run.
         wall_cap_hit: the wall-time cap ended an iteration budget early (not reproducible).
         min_clearance_m: smallest clearance of the vehicle's sphere (radius `radius_m`) along the
@@ -236,30 +243,33 @@ def _ompl_log_silenced() -> Iterator[None]:
 class _ValidityChecker(ob.StateValidityChecker):
     """Validity (clearance > R) and OMPL's clearance hook (the vehicle sphere's clearance)."""
 
-    def __init__(self, si: ob.SpaceInformation, free: FreeSpace) -> None:
+    def __init__(self, si: ob.SpaceInformation, free: FreeSpace, climb_weight: float) -> None:
         super().__init__(si)
         self._free = free
         self._clear = free.city.clearance_one
         self._r = free.r
+        self._w = climb_weight  # the planning space's z is climb_weight x height
 
     def isValid(self, s: ob.State) -> bool:
-        return self._free.state_ok(s[0], s[1], s[2])
+        return self._free.state_ok(s[0], s[1], s[2] / self._w)
 
     def clearance(self, s: ob.State) -> float:
-        return self._clear(s[0], s[1], s[2], self._r)
+        return self._clear(s[0], s[1], s[2] / self._w, self._r)
 
 
 class _MotionValidator(ob.MotionValidator):
     """Exact swept-sphere motion check (no sampling resolution, so no tunnelling)."""
 
-    def __init__(self, si: ob.SpaceInformation, free: FreeSpace) -> None:
+    def __init__(self, si: ob.SpaceInformation, free: FreeSpace, climb_weight: float) -> None:
         super().__init__(si)
         self._edge_ok = free.edge_ok
+        self._w = climb_weight
         self.calls = 0
 
     def checkMotion(self, s1: ob.State, s2: ob.State) -> bool:
         self.calls += 1
-        return self._edge_ok((s1[0], s1[1], s1[2]), (s2[0], s2[1], s2[2]))
+        w = self._w
+        return self._edge_ok((s1[0], s1[1], s1[2] / w), (s2[0], s2[1], s2[2] / w))
 
 
 @dataclass
@@ -306,8 +316,9 @@ def _make_planner(si: ob.SpaceInformation, config: PlannerConfig) -> ob.Planner:
     return planner
 
 
-def _states_xyz(path: og.PathGeometric) -> np.ndarray:
-    return np.array([[s[0], s[1], s[2]] for s in path.getStates()], dtype=float).reshape(-1, 3)
+def _states_xyz(path: og.PathGeometric, climb_weight: float) -> np.ndarray:
+    """The path's states as ENU metres (K, 3) (the planning space's z is climb_weight x height)."""
+    return np.array([[s[0], s[1], s[2] / climb_weight] for s in path.getStates()], dtype=float).reshape(-1, 3)
 
 
 def ompl_seed(seed: int) -> int:
@@ -335,21 +346,23 @@ def _solve(free: FreeSpace, lo: np.ndarray, hi: np.ndarray, start: tuple[float, 
            goal: tuple[float, float, float], config: PlannerConfig, seed: int) -> _Solved:
     """Build the OMPL problem, solve, simplify."""
     ou.RNG.setSeed(ompl_seed(seed))  # before any OMPL object exists: every RNG below derives from it
+    w = float(config.climb_weight)
+    scale = (1.0, 1.0, w)  # the planning space: (x, y, w z), where the path length is the cost (PlannerConfig)
     space = ob.RealVectorStateSpace(3)
     bounds = ob.RealVectorBounds(3)
     for i in range(3):
-        bounds.setLow(i, float(lo[i]))
-        bounds.setHigh(i, float(hi[i]))
+        bounds.setLow(i, float(lo[i]) * scale[i])
+        bounds.setHigh(i, float(hi[i]) * scale[i])
     space.setBounds(bounds)
     ss = og.SimpleSetup(space)
     si = ss.getSpaceInformation()
-    checker = _ValidityChecker(si, free)
+    checker = _ValidityChecker(si, free, w)
     ss.setStateValidityChecker(checker)
-    motion = _MotionValidator(si, free)
+    motion = _MotionValidator(si, free, w)
     si.setMotionValidator(motion)
     s, g = space.allocState(), space.allocState()
     for i in range(3):
-        s[i], g[i] = start[i], goal[i]
+        s[i], g[i] = start[i] * scale[i], goal[i] * scale[i]
     ss.setStartAndGoalStates(s, g, float(config.goal_tolerance_m))
     ss.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
     planner = _make_planner(si, config)
@@ -366,14 +379,14 @@ def _solve(free: FreeSpace, lo: np.ndarray, hi: np.ndarray, start: tuple[float, 
     raw_xyz, path_xyz, ompl_clearance, simplify_polls = np.zeros((0, 3)), np.zeros((0, 3)), math.nan, 0
     if bool(status):
         path = ss.getSolutionPath()
-        raw_xyz = _states_xyz(path)
+        raw_xyz = _states_xyz(path, w)
         if math.isnan(progress.first_time_s):  # RRTConnect has no bestCost: its first is its only solution
             progress.first_time_s, progress.first_iterations = solve_time, progress.iterations
             progress.first_cost = path.length()
         if config.simplify and exact:
             simplify_polls, capped = _simplify(ss, si, path, config.time_budget_s)
             progress.wall_cap_hit |= capped
-        path_xyz = _states_xyz(path)
+        path_xyz = _states_xyz(path, w)
         ompl_clearance = float(path.clearance())
     return _Solved(solve_time_s=solve_time, progress=progress, status=status.asString(), exact=exact,
                    approximate=status == ob.PlannerStatus.APPROXIMATE_SOLUTION, path=path_xyz,

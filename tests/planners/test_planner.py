@@ -85,6 +85,24 @@ def test_every_algorithm_goes_through_the_gap(algorithm):
     assert r.ompl_clearance_m >= r.min_clearance_m - 1e-9
 
 
+def test_climb_weight_trades_a_climb_for_a_detour():
+    """A 20 m high block across the way, 70 m wide: over it is shorter (about 87 m against 109 m around its end),
+    but a climb is slow. With climb_weight 4 (the small quad's 9.6 over 2.4 m/s) the cost of going over is about
+    158 m, and the planner goes round; with 1 it goes over. Both paths are clear and end at the goal."""
+    city = BuildingMap([Building(0, (50.0, 50.0), (10.0, 70.0), 20.0)], (0, 0, 0), (100, 100, 60))
+    start, goal = (10.0, 50.0, 5.0), (90.0, 50.0, 5.0)
+    over = plan_path(city, start, goal, R_QUAD, PlannerConfig(), seed=1)
+    around = plan_path(city, start, goal, R_QUAD, PlannerConfig(climb_weight=4.0), seed=1)
+    assert over.ok and around.ok
+    assert over.path_m[:, 2].max() > 20.0 and over.length_m < 100.0
+    assert around.path_m[:, 2].max() < 20.0 and np.abs(around.path_m[:, 1] - 50.0).max() > 35.0
+    for plan in (over, around):
+        assert_clear(city, plan.path_m, MARGIN)
+        np.testing.assert_allclose(plan.path_m[-1], goal)
+    with pytest.raises(ValueError, match="climb_weight"):
+        PlannerConfig(climb_weight=0.0)
+
+
 def test_random_queries_on_a_generated_city_are_collision_free():
     from uam_fdm.city.generator import CityGenParams, generate_city
 
