@@ -14,7 +14,7 @@ import tempfile
 import threading
 import traceback
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import asdict, replace
 from datetime import datetime
 from pathlib import Path
 from typing import TypeVar
@@ -434,7 +434,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from rl.env.world import NavWorld
     from rl.pilots.learned import load_policy
     from rl.task.vehicles import in_task_space, task_for
-    from rl.training.evaluation import eval_config, evaluate, evaluate_potential_field, paired_counts
+    from rl.training.evaluation import (
+        eval_config,
+        evaluate,
+        evaluate_potential_field,
+        paired_counts,
+        rates_by_city_component,
+    )
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
@@ -460,6 +466,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"  ppo              success {res.success_rate:6.1%} [{res.success_ci95[0]:.1%}, {res.success_ci95[1]:.1%}]"
           f"  collisions {res.collision_rate:5.1%} [{res.collision_ci95[0]:.1%}, {res.collision_ci95[1]:.1%}]"
           f"  {res.outcomes}")
+    groups = {"ppo": rates_by_city_component(res, nav)}
     if not args.no_baseline:
         # the same tasks (cities, legs, wind), the reactive pilot at the 50 Hz it was tuned for
         ex = evaluate_potential_field(nav, args.episodes, seed=args.seed, pool=args.pool, world=world)
@@ -472,6 +479,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         out.update(expert_success_rate=ex.success_rate, expert_success_ci95=ex.success_ci95,
                    expert_collision_rate=ex.collision_rate, expert_collision_ci95=ex.collision_ci95,
                    paired=pairs)
+        groups["potential field"] = rates_by_city_component(ex, nav)
+    if groups["ppo"]:  # a task whose cities mix several kinds: the rates per kind
+        print("  by kind of city:")
+        for pilot, rows in groups.items():
+            for g in rows:
+                print(f"    {pilot:<15} {g.label}: {g.episodes} episodes, success {g.success_rate:.1%} "
+                      f"[{g.success_ci95[0]:.1%}, {g.success_ci95[1]:.1%}], collisions {g.collision_rate:.1%} "
+                      f"[{g.collision_ci95[0]:.1%}, {g.collision_ci95[1]:.1%}]  {g.outcomes}")
+        out["by_city_kind"] = {pilot: [asdict(g) for g in rows] for pilot, rows in groups.items()}
     print(json.dumps(out))
     return 0
 

@@ -17,6 +17,7 @@ from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.pilots.potential_field import PotentialField, PotentialFieldPilot, gains_for
 from rl.task.air import AirDistribution
+from rl.task.cities import CityMixture
 from rl.task.config import NavConfig
 from uam_fdm.episode import Outcome
 from uam_fdm.stats import wilson_interval
@@ -107,6 +108,49 @@ def evaluate(pilot: Pilot, nav: NavConfig, episodes: int, seed: int = 0, pool: s
     return EvalResult(episodes, ns / episodes, nc / episodes, wilson_interval(ns, episodes),
                       wilson_interval(nc, episodes), counts, float(returns.mean()), float(times.mean()),
                       tuple(outcomes), pool, int(seed))
+
+
+@dataclass(frozen=True)
+class GroupRates:
+    """Outcomes of the episodes of one group of an evaluation (e.g. the cities of one `CityMixture` component).
+
+    Attributes:
+        label: what the group is, in words; episodes: how many; outcomes: count per outcome.
+        success_rate, collision_rate: fractions; *_ci95: their Wilson 95 % intervals.
+    """
+
+    label: str
+    episodes: int
+    success_rate: float
+    success_ci95: tuple[float, float]
+    collision_rate: float
+    collision_ci95: tuple[float, float]
+    outcomes: dict[str, int]
+
+
+def rates_by_city_component(res: EvalResult, nav: NavConfig) -> tuple[GroupRates, ...]:
+    """`res`'s outcomes per component of a `CityMixture` task (episode i flies the pool's city i, `evaluate`);
+    empty for a task of one city distribution.
+
+    Args:
+        res: an evaluation of `nav` (its `eval_config`).
+        nav: the task flown, whose city seeds and cities say each episode's component.
+    """
+    if not isinstance(nav.cities, CityMixture):
+        return ()
+    seeds = nav.city_seeds()
+    kinds = [nav.cities.component(seeds[i % len(seeds)]) for i in range(res.episodes)]
+    out = []
+    for k, dist in enumerate(nav.cities.components):
+        mine = [o for o, c in zip(res.per_episode, kinds, strict=True) if c == k]
+        n = len(mine)
+        ns, nc = mine.count(Outcome.SUCCESS), mine.count(Outcome.COLLISION)
+        label = (f"cities {dist.extent_m[0]:g}-{dist.extent_m[1]:g} m, streets {dist.street_width_m[0]:g}-"
+                 f"{dist.street_width_m[1]:g} m")
+        out.append(GroupRates(label, n, ns / n if n else float("nan"), wilson_interval(ns, n) if n else (0.0, 1.0),
+                              nc / n if n else float("nan"), wilson_interval(nc, n) if n else (0.0, 1.0),
+                              {o: mine.count(o) for o in sorted(set(mine))}))
+    return tuple(out)
 
 
 def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:

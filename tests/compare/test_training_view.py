@@ -76,6 +76,20 @@ def test_view_training_command(tiny_flights_policy, tmp_path, capsys, monkeypatc
     assert "the file exists" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("vehicle", ["small_quad", "uam_multicopter"])
+def test_both_shipped_policies_carry_their_training_flights(vehicle):
+    """Issue 30: a fresh install opens the learning of either shipped policy: its folder holds the flights of every
+    checkpoint of its final training run (from step 0), the kept one among them."""
+    from rl.policies.folder import SHIPPED_POLICIES
+
+    data = training_payload(SHIPPED_POLICIES[vehicle])
+    steps = [c["timesteps"] for c in data["checkpoints"]]
+    assert len(steps) >= 10 and steps[0] == 0 and steps == sorted(steps)
+    assert data["policy"]["vehicle"] == vehicle and len(data["tasks"]) >= 8
+    assert data["curve"]["kept"] in steps  # the kept checkpoint's flights are among them
+    assert all(len(c["flights"]) == len(data["tasks"]) for c in data["checkpoints"])
+
+
 def test_a_folder_without_flights_is_one_clear_line(tmp_path, capsys):
     from rl.policies.folder import DEFAULT_POLICY_DIR
 

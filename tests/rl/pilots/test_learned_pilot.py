@@ -206,6 +206,11 @@ def test_evaluate_policy_in_the_envelope_task(capsys):
     last = json.loads(out[-1])
     assert last["task"] == "envelope" and last["steady_wind_max_m_s"] == 12.0 and last["fields"] == 64
     assert "in the envelope's task" in out[0] and last["episodes"] == 2
+    # its cities mix the UAM's districts and the shipped maps' scale: the rates per kind, which add up
+    kinds = last["by_city_kind"]["ppo"]
+    assert [k["label"] for k in kinds] == ["cities 1000-1600 m, streets 35-70 m", "cities 600-1100 m, streets 15-30 m"]
+    assert sum(k["episodes"] for k in kinds) == 2
+    assert sum(sum(k["outcomes"].values()) for k in kinds) == 2 and "  by kind of city:" in out
 
 
 def test_in_task_space_keeps_what_the_network_reads():
