@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from compare.backends import BACKENDS
+from compare.benchmark import BENCHMARK_SETS
 from compare.campaign import (
     VIDEOS_DIR,
     RunInterrupted,
@@ -32,6 +33,7 @@ from compare.campaign import (
 from compare.demo import demo_flight
 from compare.pilots import METHODS, pilot
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
+from compare.results.level_rates import level_json, level_rates, level_table_lines
 from compare.results.metrics import read_metrics_csv
 from compare.results.outputs import check_not_replacing, check_output_dir, check_output_file
 from compare.results.run_info import RUN_INFO_NAME, read_run_info
@@ -193,15 +195,22 @@ def _print_headline_json(run_dir: Path) -> None:
         "failed_cells": len(read_failures(run_dir))}
     if suite is not None and suite.name in SWEEP_SETS:  # per vehicle, axis, step and pilot (printed above)
         out["sweep"] = sweep_json(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv")))
+    if suite is not None and suite.name in BENCHMARK_SETS and (run_dir / "metrics.csv").exists():
+        # per vehicle, air and turbulence level (printed above)
+        out["by_level"] = level_json(level_rates(info, read_metrics_csv(run_dir / "metrics.csv")))
     print(json.dumps(out))
 
 
 def _print_suite(run_dir: Path) -> None:
-    """The benchmark set a run flew, with its version (nothing for scenario files); a sweep's rates per step."""
+    """The benchmark set a run flew, with its version (nothing for scenario files); a sweep's rates per step, a
+    benchmark's per air and turbulence level."""
     info = read_run_info(run_dir)
     suite = info.suite
     if suite is not None and suite.name in SWEEP_SETS:
         for line in sweep_table_lines(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv"))):
+            print(line)
+    if suite is not None and suite.name in BENCHMARK_SETS and (run_dir / "metrics.csv").exists():
+        for line in level_table_lines(level_rates(info, read_metrics_csv(run_dir / "metrics.csv"))):
             print(line)
     if suite is not None:
         print(f"task set {suite.name}, version {suite.version}: {suite.description}")

@@ -273,3 +273,62 @@ def test_the_quick_set_stays_the_version_reported() -> None:
     """The sets are made from fixed settings (not the learned pilots' current training tasks): retraining a pilot
     in other air or cities leaves the benchmark, and before-and-after figures, comparable."""
     assert build_suite("benchmark-quick").info.version == "1+b27f29cc25"  # docs/benchmark.md
+
+
+# ---- the rates per level ---------------------------------------------------------------------------------
+def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: Suite, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Every scenario's levels are read from the air it flew; each level pools its scenarios' episodes, counted
+    by outcome, with Wilson intervals; a benchmark run prints the table and its JSON carries it."""
+    from compare.cli import _print_suite
+    from compare.results.level_rates import level_json, level_rates
+    from compare.results.metrics import EpisodeMetrics, write_metrics_csv
+    from uam_fdm.stats import wilson_interval
+
+    scenarios = list(quick.scenarios)
+    opts = RunOptions(out_dir=tmp_path, methods=("apf", "ppo"), progress=False)
+    cells, notes = plan_cells(scenarios, opts, None)
+    write_run_files(scenarios, opts, cells, notes, {})
+    outcomes = ("success", "collision", "timeout", "out_of_bounds")
+    rows = [EpisodeMetrics(sc.name, e, m, 0, "city", sc.vehicle_name, outcomes[(k + e + j) % 4],
+                           outcomes[(k + e + j) % 4] == "success", outcomes[(k + e + j) % 4] == "collision",
+                           "" if (k + e + j) % 4 == 0 else outcomes[(k + e + j) % 4], *([1.0] * 12))
+            for k, sc in enumerate(scenarios) for e in range(3) for j, m in enumerate(("apf", "ppo"))]
+    write_metrics_csv(rows, tmp_path / "metrics.csv")
+    info = read_run_info(tmp_path)
+    rates = level_rates(info, rows)
+    for vehicle, mine in _by_vehicle(quick).items():
+        index = {sc.name: int(sc.name.rsplit("-", 1)[1]) for sc in mine}
+        for axis, names, key in (("air", list(bench.LEVELS_OF_AIR), lambda i: levels(i).air),
+                                 ("turbulence", list(TURBULENCE_LEVELS), lambda i: levels(i).turbulence)):
+            got = [r for r in rates if r.vehicle == vehicle and r.axis == axis]
+            assert [r.level for r in got if r.method == "apf"] == [n for n in names if any(
+                key(i) == names.index(n) for i in index.values())]
+            for r in got:
+                mine_rows = [x for x in rows if x.method == r.method and x.vehicle == vehicle
+                             and key(index[x.scenario]) == names.index(r.level)]
+                assert r.episodes == len(mine_rows)
+                assert r.successes == sum(x.success for x in mine_rows)
+                assert r.collisions == sum(x.collision for x in mine_rows)
+                assert r.timeouts == sum(x.outcome == "timeout" for x in mine_rows)
+                assert dict(r.other) == dict(Counter(x.outcome for x in mine_rows if x.outcome == "out_of_bounds"))
+                assert r.success_ci95 == wilson_interval(r.successes, r.episodes)
+        (whole,) = [r for r in rates if r.vehicle == vehicle and r.axis == "all" and r.method == "ppo"]
+        assert whole.episodes == 3 * len(mine) and whole.level == "all"
+    data = level_json(rates)
+    assert set(data) == set(VEHICLES) and set(data["small_quad"]) == {"all", "air", "turbulence"}
+    _print_suite(tmp_path)
+    out = capsys.readouterr().out
+    assert "small_quad, per air and turbulence level (Wilson 95 % intervals):" in out
+    assert "air hot-and-high" in out and "turbulence moderate" in out
+
+
+def test_a_field_outside_every_air_level_is_other() -> None:
+    from compare.results.level_rates import OTHER, air_level
+    from compare.results.run_info import AtmosphereInfo, ScenarioInfo
+
+    def at(elevation: float | None, offset: float | None) -> str:
+        return air_level(ScenarioInfo("s", atmosphere=AtmosphereInfo(elevation, offset, 1.0)))
+
+    assert at(0.0, 0.0) == "sea-level" and at(1200.0, 10.0) == "warm-and-raised" and at(2600.0, 30.0) == "hot-and-high"
+    assert at(0.0, -10.0) == OTHER and at(1500.0, 15.0) == OTHER and at(None, 0.0) == OTHER
