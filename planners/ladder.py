@@ -43,8 +43,10 @@ log = logging.getLogger(__name__)
 
 LAST_STEP_ITERATIONS = 4
 QUICK_ITERATIONS = 2000
-# a failure no other planner or margin can cure: stop climbing
-_FINAL_STATUSES = ("invalid_start", "invalid_goal", "invalid_path")
+# a failure no other planner or margin can cure: stop climbing. An "invalid_path" (a found path that failed the
+# exact re-check) is not one: the next step's planner or margin finds another path (seen on the benchmark: a
+# small-quad goal given up after step 1)
+_FINAL_STATUSES = ("invalid_start", "invalid_goal")
 
 
 @dataclass(frozen=True)
@@ -95,7 +97,7 @@ class LadderResult:
         margin_m: the cruise margin the path keeps away from the start and goal [m].
         tapers: the margin tapers the path keeps (none for a floor-margin step).
         reachability: for a failure after every step, whether a path at the floor margin exists (None
-            when a step found the path or the failure is final: an invalid start, goal or path).
+            when a step found the path or the failure is final: an invalid start or goal).
     """
 
     plan: PlanResult

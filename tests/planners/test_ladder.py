@@ -63,3 +63,31 @@ def test_a_step_that_repeats_an_earlier_query_is_skipped():
     found = plan_with_escalation(city, start, goal, R_QUAD, flat, 0, floor_margin_m=1.0)
     # floor = cruise: step 3 would be step 1 again; step 4 (more iterations) is a new query
     assert len(found.attempts) == 3 and "in 3 attempts" in found.plan.message
+
+
+def test_a_path_that_fails_the_final_check_climbs_on(monkeypatch: pytest.MonkeyPatch):
+    """A found path that fails the exact re-check ("invalid_path") is no reason to give up: the next step plans
+    another; only an invalid start or goal ends the ladder at once."""
+    import dataclasses
+
+    import planners.ladder as ladder
+
+    city, start, _ = alley_city(R_QUAD)
+    goal = (-5.0, 25.0, 10.0)
+    real = ladder.plan_path
+    calls: list[str] = []
+
+    def first_invalid(*args, **kwargs):
+        plan = real(*args, **kwargs)
+        calls.append(plan.status)
+        if len(calls) == 1:
+            return dataclasses.replace(plan, status="invalid_path", message="re-check failed")
+        return plan
+
+    monkeypatch.setattr(ladder, "plan_path", first_invalid)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert found.ok and found.step == 2 and [a.status for a in found.attempts] == ["invalid_path", "exact"]
+    inside = (0.0, 0.0, -5.0)  # below the ground: an invalid goal ends the ladder at its first step
+    stopped = plan_with_escalation(city, start, inside, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, inside))
+    assert not stopped.ok and stopped.plan.status == "invalid_goal" and len(stopped.attempts) == 1
+    assert stopped.reachability is None
