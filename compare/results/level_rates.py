@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from compare.results.metrics import EpisodeMetrics
 from compare.results.run_info import RunInfo, ScenarioInfo
+from compare.results.stats import OutcomeRates
 from rl.task.air import AIR_LEVELS
 from uam_fdm.episode import Outcome
 from uam_fdm.stats import wilson_interval
@@ -30,7 +31,7 @@ _TOLERANCE = 1e-6  # a field on a level's edge belongs to it (the generator roun
 
 
 @dataclass(frozen=True)
-class LevelRate:
+class LevelRate(OutcomeRates):
     """One pilot's outcomes at one level of one axis of a vehicle's run.
 
     Attributes:
@@ -52,16 +53,6 @@ class LevelRate:
     success_ci95: tuple[float, float]
     collision_ci95: tuple[float, float]
     timeout_ci95: tuple[float, float]
-
-    @property
-    def success(self) -> float:
-        """Success rate (NaN without episodes)."""
-        return self.successes / self.episodes if self.episodes else math.nan
-
-    @property
-    def collision(self) -> float:
-        """Collision rate (NaN without episodes)."""
-        return self.collisions / self.episodes if self.episodes else math.nan
 
     @property
     def timeout(self) -> float:

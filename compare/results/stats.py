@@ -28,6 +28,25 @@ DESIGN_RATE = 0.5
 """The rate assumed for the design value of a rate's MDD: the largest variance, p (1 - p) = 1/4."""
 
 
+class OutcomeRates:
+    """Success and collision rates of a group of episodes, for a frozen dataclass with the counts `episodes`,
+    `successes` and `collisions` (the sweep's steps, the benchmark's levels)."""
+
+    episodes: int
+    successes: int
+    collisions: int
+
+    @property
+    def success(self) -> float:
+        """Success rate (NaN without episodes)."""
+        return self.successes / self.episodes if self.episodes else math.nan
+
+    @property
+    def collision(self) -> float:
+        """Collision rate (NaN without episodes)."""
+        return self.collisions / self.episodes if self.episodes else math.nan
+
+
 @dataclass(frozen=True)
 class PairedCounts:
     """Paired 0/1 outcomes of two pilots on the same cells: both 1, first only, second only, neither."""

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from compare.results.metrics import EpisodeMetrics
 from compare.results.run_info import AirEnvelope, RunInfo, ScenarioInfo
+from compare.results.stats import OutcomeRates
 from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.stats import wilson_interval
 
@@ -25,7 +26,7 @@ AXES = ("density altitude", "wind")
 
 
 @dataclass(frozen=True)
-class SweepRate:
+class SweepRate(OutcomeRates):
     """One pilot's rates at one step of one axis of a vehicle's sweep.
 
     Attributes:
@@ -47,16 +48,6 @@ class SweepRate:
     success_ci95: tuple[float, float]
     collision_ci95: tuple[float, float]
     outside: tuple[str, ...] = ()
-
-    @property
-    def success(self) -> float:
-        """Success rate (NaN without episodes)."""
-        return self.successes / self.episodes if self.episodes else math.nan
-
-    @property
-    def collision(self) -> float:
-        """Collision rate (NaN without episodes)."""
-        return self.collisions / self.episodes if self.episodes else math.nan
 
 
 def _density_altitude(s: ScenarioInfo) -> float | None:
