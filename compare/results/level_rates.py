@@ -92,8 +92,7 @@ def level_rates(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[LevelRate
         info: the run's run.json (the scenarios' air and turbulence, the pilots).
         rows: its metrics rows.
     """
-    vehicles = list(dict.fromkeys(s.vehicle for s in info.scenarios))
-    methods = list(dict.fromkeys([*info.methods, *(r.method for r in rows)]))
+    vehicles, methods = info.run_order(r.method for r in rows)
     out = []
     for vehicle in vehicles:
         mine = [s for s in info.scenarios if s.vehicle == vehicle]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -194,6 +194,12 @@ class RunInfo:
     def colors(self) -> dict[str, str]:
         """The colours the run recorded, by method (plug-ins that stated one)."""
         return {name: m.color for name, m in self.methods.items() if m.color}
+
+    def run_order(self, more_methods: Iterable[str] = ()) -> tuple[list[str], list[str]]:
+        """The vehicles of its scenarios and its methods, then `more_methods` (e.g. those of metrics rows), each
+        once, in run order."""
+        return (list(dict.fromkeys(s.vehicle for s in self.scenarios)),
+                list(dict.fromkeys([*self.methods, *more_methods])))
 
     def scenario(self, name: str) -> ScenarioInfo | None:
         """The scenario named `name`, or None."""
