@@ -27,6 +27,11 @@ stream, so a scenario's first legs do not depend on how many it has. "benchmark-
 `quick_scenarios` scenarios of each vehicle with their first `quick_legs` legs: the same names, tasks and
 cell seeds as in "benchmark", so its cells are cells of the full set.
 
+Validation: "benchmark-validation" is the full set's twin on other cities (`VALIDATION_SEED_OFFSET` added to every
+city seed; the same design, levels, leg bins and time limits; scenarios named "benchmark-validation-<tag>-007"). A
+pilot's choices (margins, budgets, gains, checkpoints) are tuned there; "benchmark" is the test pool, flown only to
+report.
+
 Version: `GENERATOR_VERSION` + "+" + a hash of everything generated (the scenario mappings and the
 buildings of every city), so any change to the output, including the city generator's, changes it.
 """
@@ -56,8 +61,11 @@ from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 GENERATOR_VERSION = "1"
 """Bumped by hand when the design changes on purpose; the hash in the version catches every change anyway."""
-BENCHMARK_SETS = ("benchmark", "benchmark-quick")  # the generated sets' names (`compare.sets` resolves them)
-FULL, QUICK = BENCHMARK_SETS
+BENCHMARK_SETS = ("benchmark", "benchmark-quick", "benchmark-validation")  # the generated sets (`compare.sets`)
+FULL, QUICK, VALIDATION = BENCHMARK_SETS
+VALIDATION_SEED_OFFSET = 200_000
+"""The validation twin's city seeds: the full set's plus this (3,200,000.. for the small quad, 3,300,000.. for the
+UAM: clear of the full set's 36 and of every learned pilot's pool, `_check_design`)."""
 METHODS = ("ppo", "rrt_mpc", "apf")
 TURBULENCE_LEVELS = ("none", "light", "moderate")
 DENSITY_LEVELS = ("sparse", "medium", "dense")
@@ -165,15 +173,19 @@ def build_suite(name: str, design: BenchmarkDesign = DESIGN) -> Suite:
     if name not in BENCHMARK_SETS:
         raise ValueError(f"unknown benchmark set {name!r} (known: {', '.join(BENCHMARK_SETS)})")
     _check_design(design)
-    n_scenarios, n_legs = ((design.scenarios_per_vehicle, design.legs_per_scenario) if name == FULL
-                           else (design.quick_scenarios, design.quick_legs))
+    n_scenarios, n_legs = ((design.quick_scenarios, design.quick_legs) if name == QUICK
+                           else (design.scenarios_per_vehicle, design.legs_per_scenario))
+    flown, prefix = design, "benchmark"
+    if name == VALIDATION:
+        flown, prefix = validation_design(design), VALIDATION
+        _check_design(flown, others={f"{v} benchmark": seeds for v, seeds in city_seed_ranges(design).items()})
     checked = []
-    for vb in design.vehicles:
+    for vb in flown.vehicles:
         vehicle = load_vehicle(vb.vehicle)
         for i in range(n_scenarios):
-            data = scenario_mapping(vb, vehicle, i, n_legs, design)
+            data = scenario_mapping(vb, vehicle, i, n_legs, flown, prefix)
             checked.append(scenario_from_dict(data, f"{name}:{data['name']}", Path(".")))
-    info = SuiteInfo(name, suite_version(checked), _describe(name, n_scenarios, n_legs, design))
+    info = SuiteInfo(name, suite_version(checked), _describe(name, n_scenarios, n_legs, flown))
     return Suite(info, tuple(dataclasses.replace(sc, suite=info) for sc in checked))
 
 
@@ -182,13 +194,20 @@ def city_seed_ranges(design: BenchmarkDesign = DESIGN) -> dict[str, range]:
     return {vb.vehicle: range(vb.first_seed, vb.first_seed + design.scenarios_per_vehicle) for vb in design.vehicles}
 
 
-def _check_design(design: BenchmarkDesign) -> None:
-    """Raise ValueError when the quick set is not a subset, or a city seed is in a learned pilot's pool or twice."""
+def validation_design(design: BenchmarkDesign = DESIGN) -> BenchmarkDesign:
+    """The design of the validation twin: every vehicle's city seeds moved by `VALIDATION_SEED_OFFSET`."""
+    return dataclasses.replace(design, vehicles=tuple(
+        dataclasses.replace(vb, first_seed=vb.first_seed + VALIDATION_SEED_OFFSET) for vb in design.vehicles))
+
+
+def _check_design(design: BenchmarkDesign, others: dict[str, range] | None = None) -> None:
+    """Raise ValueError when the quick set is not a subset, or a city seed is in a learned pilot's pool, in
+    `others` (named seed ranges: the test set's, for its validation twin) or twice."""
     if not (1 <= design.quick_scenarios <= design.scenarios_per_vehicle
             and 1 <= design.quick_legs <= design.legs_per_scenario):
         raise ValueError(f"the quick set ({design.quick_scenarios} x {design.quick_legs}) must be a non-empty subset "
                          f"of the full set ({design.scenarios_per_vehicle} x {design.legs_per_scenario})")
-    taken: dict[str, range] = dict(LEARNED_PILOT_POOLS)
+    taken: dict[str, range] = {**LEARNED_PILOT_POOLS, **(others or {})}
     for vehicle, seeds in city_seed_ranges(design).items():
         for pool, other in taken.items():
             if seeds.start < other.stop and other.start < seeds.stop:
@@ -209,7 +228,9 @@ def suite_version(scenarios: Sequence[Scenario], generator_version: str = GENERA
 def _describe(name: str, n_scenarios: int, n_legs: int, design: BenchmarkDesign) -> str:
     sizes = ", ".join(f"{vb.vehicle} {n_scenarios} cities x {n_legs} legs = {n_scenarios * n_legs} tasks"
                       for vb in design.vehicles)
-    subset = f" (the first of {FULL}'s)" if name == QUICK else ""
+    subset = {QUICK: f" (the first of {FULL}'s)",
+              VALIDATION: f" for tuning: the validation twin of {FULL} (city seeds +{VALIDATION_SEED_OFFSET:,})"
+              }.get(name, "")
     return (f"Held-out generated tasks per vehicle{subset}: {sizes}; cities of each learned pilot's distribution at "
             f"unseen seeds; buildings {'/'.join(DENSITY_LEVELS)}, turbulence {'/'.join(TURBULENCE_LEVELS)}, air "
             f"{'/'.join(a.name for a in AIR_LEVELS)}, {len(design.vehicles[0].leg_bins_m)} leg-length bins, straight "
@@ -218,7 +239,7 @@ def _describe(name: str, n_scenarios: int, n_legs: int, design: BenchmarkDesign)
 
 # ---- one scenario -----------------------------------------------------------------------------------
 def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n_legs: int,
-                     design: BenchmarkDesign = DESIGN) -> dict:
+                     design: BenchmarkDesign = DESIGN, prefix: str = "benchmark") -> dict:
     """The scenario mapping (the scenario-file schema, `compare.scenario`) of scenario `index` of a vehicle.
 
     Args:
@@ -227,6 +248,7 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
         index: the scenario's index (its city seed is vb.first_seed + index).
         n_legs: how many legs (the first n of this scenario's sequence).
         design: the sets' design (seeds, methods).
+        prefix: the scenario's name before "-<tag>-<index>".
 
     Raises:
         RuntimeError: a leg with no free start and goal after MAX_LEG_DRAWS candidates.
@@ -249,7 +271,7 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
                                                         vehicle.controller.max_vertical_speed_m_s), 1)}
                 for a, b in legs]
     density_altitude = density_altitude_m(field_density_kg_m3(elevation, offset))
-    name = f"benchmark-{vb.tag}-{index:03d}"
+    name = f"{prefix}-{vb.tag}-{index:03d}"
     fields = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(params).items()}
     return {
         "name": name,

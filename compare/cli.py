@@ -613,8 +613,8 @@ def _add_maps_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
 def _add_run_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     run = sub.add_parser("run", help="fly both pilots through scenarios and write metrics and the PDF report")
     run.add_argument("scenario", nargs="?", default="default",
-                     help="a built-in set (default, full, benchmark, benchmark-quick, sweep, sweep-quick), a "
-                          "scenario YAML or a folder of them (default: default)")
+                     help="a built-in set (default, full, benchmark, benchmark-quick, benchmark-validation, sweep, "
+                          "sweep-quick), a scenario YAML or a folder of them (default: default)")
     _add_run_options(run)
     run.set_defaults(func=_cmd_run)
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from planners.clearance import MarginTaper, endpoint_allowance
-from planners.ladder import plan_with_escalation
+from planners.ladder import LADDER, LadderResult, PlanStep, plan_with_escalation
 from planners.margins import (
     MarginRule,
     Margins,
@@ -60,6 +60,10 @@ class ClassicalConfig:
         max_clearance_replans: at most this many clearance replans per episode.
         replan_cooldown_s: no clearance replan within this time of the previous replan [s] (the new
             reference needs a moment to pull the prediction out).
+        time_fraction: a plan fits the task's time when its reference takes at most this share of the time left
+            (the tracker lags the reference); the planning ladder climbs on past a step whose fastest plan does
+            not (`planners.ladder`).
+        ladder: the planning attempts, in order (`planners.ladder.LADDER`).
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -73,6 +77,8 @@ class ClassicalConfig:
     replan_on_clearance: bool = True
     max_clearance_replans: int = 3
     replan_cooldown_s: float = 1.0
+    time_fraction: float = 0.8
+    ladder: tuple[PlanStep, ...] = LADDER
 
 
 @dataclass
@@ -94,6 +100,7 @@ class ClassicalStats:
     clearance_over_margin: list[float] = field(default_factory=list)
     planner_attempts: int = 0
     planner_step: str = ""
+    planner_candidates: int = 0
 
 
 class ClassicalAgent:
@@ -116,6 +123,7 @@ class ClassicalAgent:
             self._table = load_tracking_table(*(() if self.config.tracking_table is None
                                                  else (self.config.tracking_table,)))
         self.plan: PlanResult | None = None
+        self.ladder_result: LadderResult | None = None  # the last planning ladder's: every candidate, judged
         self.reference: Reference | None = None
         self.last_solution: MPCSolution | None = None
         self.margins: Margins | None = None
@@ -175,23 +183,27 @@ class ClassicalAgent:
         accel = math.hypot(limits.max_accel_m_s2, limits.max_vertical_accel_m_s2)
         tapers = tuple(MarginTaper((float(p[0]), float(p[1]), float(p[2])), *by_speed.taper(accel, v0))
                        for p, v0 in ((start, moving), (np.asarray(task.goal_m, float), 0.0)))
+        references: dict[int, Reference] = {}
+
+        def judge(plan: PlanResult, margin_m: float, plan_tapers: tuple[MarginTaper, ...]) -> float:
+            """The plan's flight time: its reference timed as it would be flown [s]."""
+            ref = self._reference(plan, limits, margin_m, plan_tapers, velocity_m_s)
+            references[id(plan)] = ref
+            return ref.duration_s if ref.ok else math.inf
+
+        time_left = cfg.time_fraction * (task.timeout_s - t_start)
         found = plan_with_escalation(world.city, start, task.goal_m, radius, self._planner_cfg,
                                      seed=self._seed + sum(self.stats.replans_by_cause.values()),
-                                     floor_margin_m=by_speed.floor_m, tapers=tapers)
-        plan = found.plan
+                                     floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=cfg.ladder, judge=judge,
+                                     time_available_s=time_left)
+        plan, self.ladder_result = found.plan, found
         self.stats.plan_time_s += found.plan_time_s
         if velocity_m_s is None:  # the plan at reset: which step of the ladder found it
             self.stats.planner_attempts, self.stats.planner_step = len(found.attempts), found.step_name
+            self.stats.planner_candidates = len(found.candidates)
         if not plan.ok:
             return False, "planner_failure", f"{plan.status}: {plan.message}"
-        # a replan from a moving vehicle starts at its speed along the new path (not at rest: no hard brake)
-        start_speed = 0.0
-        if velocity_m_s is not None and len(plan.path_m) > 1:
-            tangent = plan.path_m[1] - plan.path_m[0]
-            start_speed = max(0.0, float(velocity_m_s @ tangent) / max(float(np.linalg.norm(tangent)), 1e-9))
-        reference = time_parameterize(plan.path_m, limits, world.city, radius, found.margin_m,
-                                      start_speed_m_s=start_speed, tapers=found.tapers,
-                                      speed_limit=by_speed.speed_limit_m_s)
+        reference = references[id(plan)]
         if not reference.ok:
             return False, "planner_failure", f"time-parameterisation: {reference.status}"
         self.plan, self.reference, self._t_ref0 = plan, reference, t_start
@@ -206,6 +218,20 @@ class ClassicalAgent:
             if zone > 0.0:
                 self._promise_ends.append((end, zone, r_e - radius))
         return True, "ok", ""
+
+    def _reference(self, plan: PlanResult, limits: TimingLimits, margin_m: float,
+                   tapers: tuple[MarginTaper, ...], velocity_m_s: np.ndarray | None) -> Reference:
+        """A plan's reference, timed within `limits`, keeping `margin_m` (narrowed by `tapers`) and slowed where it
+        passes closer than the cruise margin; from a moving vehicle it starts at its speed along the path (not at
+        rest: no hard brake)."""
+        world, margins = self._flying()
+        start_speed = 0.0
+        if velocity_m_s is not None and len(plan.path_m) > 1:
+            tangent = plan.path_m[1] - plan.path_m[0]
+            start_speed = max(0.0, float(velocity_m_s @ tangent) / max(float(np.linalg.norm(tangent)), 1e-9))
+        return time_parameterize(plan.path_m, limits, world.city, world.vehicle.collision_radius_m, margin_m,
+                                 start_speed_m_s=start_speed, tapers=tapers,
+                                 speed_limit=margins.by_speed.speed_limit_m_s)
 
     def episode_report(self) -> ClassicalReport:
         """What the tracker did in the episode so far (see `ClassicalReport`)."""

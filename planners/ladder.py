@@ -19,6 +19,16 @@ exact path:
    still follows the speed;
 4. RRTConnect at the floor margin with `LAST_STEP_ITERATIONS` times its budget (more time).
 
+A step plans with several seeds (`PlanStep.candidates`): RRT* within its budget ends in whichever way round the
+buildings its tree happened to grow (over a 100 m block or along the street below it), and RRTConnect keeps its
+first path. An optimising planner's iteration budget is shared by its seeds (two of half the budget each: the same
+plan time, measured as fast paths on validation legs); a first-path planner's seeds each get the whole (it stops at
+its first path) and are tried only once the first found one (where it finds none, more seeds would only make the
+failure dear). With a judge (the pilot's own timing of the reference,
+`planners.agent.ClassicalAgent`), the step keeps its fastest plan, and when even that does not fit the time left
+(`time_available_s`), the ladder climbs on and flies the fastest plan of every step tried: a path that cannot
+arrive in time is no better than none.
+
 A goal none of them reaches is a planner failure whose message says so: no path at the floor
 margin within these attempts, and whether a path at the floor margin exists at all
 (`planners.reachability`: proved reachable, proved unreachable, or undetermined at the finest grid), so
@@ -29,14 +39,16 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+import math
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from planners.clearance import MarginTaper
 from planners.reachability import Reachability, check_reachable
-from planners.rrt_star import ALGORITHMS, PlannerConfig, PlanResult, plan_path
+from planners.rrt_star import ALGORITHMS, FIRST_PATH, PlannerConfig, PlanResult, plan_path
 from uam_fdm.city.buildings import BuildingMap
 
 log = logging.getLogger(__name__)
@@ -47,6 +59,13 @@ QUICK_ITERATIONS = 2000
 # exact re-check) is not one: the next step's planner or margin finds another path (seen on the benchmark: a
 # small-quad goal given up after step 1)
 _FINAL_STATUSES = ("invalid_start", "invalid_goal")
+CANDIDATE_SEED_STRIDE = 1_000_003
+"""Candidate k of a step plans with seed + k * this (a prime far above the seeds episodes use, so that one
+episode's candidates are not another seed's first plans)."""
+
+Judge = Callable[[PlanResult, float, tuple[MarginTaper, ...]], float]
+"""How long a plan takes to fly [s], given the margin and tapers it was planned with; inf when it cannot be
+flown (its reference fails)."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +78,9 @@ class PlanStep:
         iteration_factor: multiple of the algorithm's iteration budget [-].
         floor_margin: plan at the floor margin everywhere instead of the speed-dependent margins.
         max_iterations: a fixed iteration budget instead (when the configuration counts iterations).
+        candidates: seeds planned (1: one plan); the fastest exact plan is kept (with a judge; without one the
+            first). An optimising planner's budget is shared by them; a first-path planner's (`FIRST_PATH`) seeds
+            each get the whole, after the first has found a path.
     """
 
     name: str
@@ -66,18 +88,23 @@ class PlanStep:
     iteration_factor: int = 1
     floor_margin: bool = False
     max_iterations: int | None = None
+    candidates: int = 1
 
     def __post_init__(self) -> None:
         if self.algorithm is not None and self.algorithm not in ALGORITHMS:
             raise ValueError(f"algorithm must be None or one of {ALGORITHMS}, got {self.algorithm!r}")
         if self.iteration_factor < 1:
             raise ValueError(f"iteration_factor must be >= 1, got {self.iteration_factor!r}")
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be >= 1, got {self.candidates!r}")
 
 
+# candidates: RRT*'s budget spread over two seeds (the same plan time), RRTConnect's quick first path four times
+# (cheap where a path exists); the last step, already 4x the budget, once
 LADDER: tuple[PlanStep, ...] = (
-    PlanStep("configured planner, speed margins"),
-    PlanStep("rrtconnect, speed margins", "rrtconnect", max_iterations=QUICK_ITERATIONS),
-    PlanStep("configured planner, floor margin", floor_margin=True),
+    PlanStep("configured planner, speed margins", candidates=2),
+    PlanStep("rrtconnect, speed margins", "rrtconnect", max_iterations=QUICK_ITERATIONS, candidates=4),
+    PlanStep("configured planner, floor margin", floor_margin=True, candidates=2),
     PlanStep(f"rrtconnect, floor margin, {LAST_STEP_ITERATIONS}x iterations", "rrtconnect",
              LAST_STEP_ITERATIONS, floor_margin=True),
 )
@@ -88,16 +115,20 @@ class LadderResult:
     """What the ladder found.
 
     Attributes:
-        plan: the exact plan found, or the last attempt's failure (its message then says the goal
-            was not reached at the floor margin in any attempt).
-        step: 1-based index in the ladder of the step that found the path (0: none did). A step that
+        plan: the plan flown (the fastest found, with a judge), or the last attempt's failure (its message then
+            says the goal was not reached at the floor margin in any attempt).
+        step: 1-based index in the ladder of the step whose plan it is (0: none found one). A step that
             would repeat an earlier query exactly (the floor margin equal to the cruise margin) is skipped.
         step_name: that step's name ("" when none did).
-        attempts: every attempt's result, in order.
+        attempts: one plan per step tried, in order (its first exact plan, else its first plan): what
+            `planner_attempts` counts.
         margin_m: the cruise margin the path keeps away from the start and goal [m].
         tapers: the margin tapers the path keeps (none for a floor-margin step).
         reachability: for a failure after every step, whether a path at the floor margin exists (None
             when a step found the path or the failure is final: an invalid start or goal).
+        candidates: every exact path found, over every step's seeds, in order.
+        durations_s: the judge's flight time of each of `candidates` [s] (empty without a judge).
+        plan_time_s: wall time of the whole ladder: every plan and every judgement [s].
     """
 
     plan: PlanResult
@@ -107,66 +138,112 @@ class LadderResult:
     margin_m: float
     tapers: tuple[MarginTaper, ...]
     reachability: Reachability | None = None
+    candidates: tuple[PlanResult, ...] = ()
+    durations_s: tuple[float, ...] = ()
+    plan_time_s: float = 0.0
 
     @property
     def ok(self) -> bool:
         return self.plan.ok
 
     @property
-    def plan_time_s(self) -> float:
-        """Wall time of every attempt together [s]."""
-        return float(sum(a.plan_time_s for a in self.attempts))
+    def duration_s(self) -> float:
+        """The judged flight time of the plan flown [s] (nan without a judge or a plan)."""
+        for plan, d in zip(self.candidates, self.durations_s, strict=False):
+            if plan is self.plan:
+                return d
+        return math.nan
+
+
+@dataclass(frozen=True)
+class _Found:
+    """A path found by a step, with what it was planned with and (with a judge) its flight time [s]."""
+
+    plan: PlanResult
+    step: int
+    margin_m: float
+    tapers: tuple[MarginTaper, ...]
+    duration_s: float
 
 
 def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarray,
                          goal_m: Sequence[float] | np.ndarray, radius_m: float, config: PlannerConfig,
                          seed: int, floor_margin_m: float, tapers: Sequence[MarginTaper] = (),
-                         ladder: Sequence[PlanStep] = LADDER) -> LadderResult:
-    """Climb the ladder (module docstring) until a step finds an exact path.
+                         ladder: Sequence[PlanStep] = LADDER, judge: Judge | None = None,
+                         time_available_s: float = math.inf) -> LadderResult:
+    """Climb the ladder (module docstring) until a step finds an exact path (that fits the time, with a judge).
 
     Args:
         city: the map (`plan_path`'s).
         start_m, goal_m: (3,) ENU metres.
         radius_m: vehicle collision radius [m].
         config: the configured planner; its `safety_margin_m` is the cruise margin [m].
-        seed: OMPL seed, the same for every step.
+        seed: OMPL seed of each step's first plan (candidate k: + k * `CANDIDATE_SEED_STRIDE`).
         floor_margin_m: the margin at rest [m] (<= the cruise margin).
         tapers: the speed-dependent narrowing towards start and goal.
         ladder: the steps (`LADDER`).
+        judge: a plan's flight time [s] (`Judge`); None: a step's first path is flown.
+        time_available_s: a step whose fastest path takes longer than this [s] does not end the climb.
 
     Returns:
         A LadderResult; a goal no step reaches is a failure status in it, never an exception.
     """
     if not ladder:
         raise ValueError("the ladder needs at least one step")
+    t0 = time.perf_counter()
     floor = min(float(floor_margin_m), float(config.safety_margin_m))
     attempts: list[PlanResult] = []
     names: list[str] = []
+    found: list[_Found] = []
     tried: set[tuple] = set()
+
+    def result(best: _Found) -> LadderResult:
+        return LadderResult(best.plan, best.step, ladder[best.step - 1].name, tuple(attempts), best.margin_m,
+                            best.tapers, None, tuple(f.plan for f in found),
+                            tuple(f.duration_s for f in found) if judge is not None else (),
+                            time.perf_counter() - t0)
+
     for i, step in enumerate(ladder, start=1):
         algorithm = step.algorithm or config.algorithm
-        budget: int | None = None  # a pure time budget stays one (scaled below)
+        shared = algorithm not in FIRST_PATH  # an optimising planner's budget is shared by the step's seeds
+        share = step.candidates if shared else 1
+        budget: int | None = None  # the step's; a pure time budget stays one (scaled below)
         if config.max_iterations is not None:
             per_step = PlannerConfig(algorithm=algorithm, max_iterations=config.max_iterations).iteration_budget
             budget = step.max_iterations or step.iteration_factor * int(per_step or 0)
         margin = floor if step.floor_margin else config.safety_margin_m
-        cfg = dataclasses.replace(config, algorithm=algorithm, max_iterations=budget, safety_margin_m=margin,
-                                  time_budget_s=config.time_budget_s * step.iteration_factor)
+        cfg = dataclasses.replace(config, algorithm=algorithm, safety_margin_m=margin,
+                                  max_iterations=None if budget is None else max(1, -(-budget // share)),
+                                  time_budget_s=config.time_budget_s * step.iteration_factor / share)
         used = () if step.floor_margin else tuple(tapers)
         key = (algorithm, budget, margin, used if margin > floor else ())
         if key in tried:  # the same query again (calm air: the floor is the cruise margin) finds nothing new
             continue
         tried.add(key)
-        plan = plan_path(city, start_m, goal_m, radius_m, cfg, seed=seed, tapers=used)
-        attempts.append(plan)
+        plans = [plan_path(city, start_m, goal_m, radius_m, cfg, seed=seed, tapers=used)]
+        if plans[0].ok or shared:
+            plans += [plan_path(city, start_m, goal_m, radius_m, cfg, seed=seed + k * CANDIDATE_SEED_STRIDE,
+                                tapers=used) for k in range(1, step.candidates)]
+        mine = [p for p in plans if p.ok]
+        attempts.append(mine[0] if mine else plans[0])
         names.append(step.name)
-        if plan.ok:
-            if i > 1:
-                log.info("planner: step %d (%s) found the path after %s", i, step.name,
-                         ", ".join(a.status for a in attempts[:-1]))
-            return LadderResult(plan, i, step.name, tuple(attempts), margin, used)
-        if plan.status in _FINAL_STATUSES:
+        if mine:
+            for p in mine:
+                found.append(_Found(p, i, margin, used, math.nan if judge is None else float(judge(p, margin, used))))
+            if judge is None:
+                return result(found[-len(mine)])
+            best = min(found[-len(mine):], key=lambda f: f.duration_s)
+            if best.duration_s <= time_available_s:
+                if i > 1:
+                    log.info("planner: step %d (%s) found the path after %s", i, step.name,
+                             ", ".join(a.status for a in attempts[:-1]))
+                return result(best)
+            log.info("planner: step %d's fastest path takes %.1f s, more than the %.1f s left: climbing on", i,
+                     best.duration_s, time_available_s)
+        if plans[0].status in _FINAL_STATUSES:
             break
+    if found:  # none fits the time: fly the fastest (it may still arrive; no path is sure not to)
+        return result(min(found, key=lambda f: f.duration_s))
     summary = "; ".join(f"{n}: {a.status}" for n, a in zip(names, attempts, strict=True))
     last = attempts[-1]
     reach = None
@@ -175,4 +252,5 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         last = dataclasses.replace(last, message=f"no path at the floor margin {floor:.2f} m in {len(attempts)} "
                                                  f"attempts ({summary}); {reach.verdict}: {reach.reason}; "
                                                  f"last: {last.message}")
-    return LadderResult(last, 0, "", tuple(attempts), float(config.safety_margin_m), tuple(tapers), reach)
+    return LadderResult(last, 0, "", tuple(attempts), float(config.safety_margin_m), tuple(tapers), reach,
+                        plan_time_s=time.perf_counter() - t0)

@@ -37,6 +37,7 @@ from uam_fdm.city.buildings import BuildingMap
 logger = logging.getLogger(__name__)
 
 ALGORITHMS = ("rrtstar", "informed_rrtstar", "bitstar", "rrtconnect")
+FIRST_PATH = ("rrtconnect",)  # the planners that stop at their first solution; the others optimise their budget
 _OMPL_CLASS = {"rrtstar": "RRTstar", "informed_rrtstar": "InformedRRTstar", "bitstar": "BITstar",
                "rrtconnect": "RRTConnect"}
 _SIMPLIFY_POLLS = 2000  # termination polls allowed to the simplifier (it converges in far fewer)

@@ -22,6 +22,8 @@ from compare.benchmark import (
     FULL,
     QUICK,
     TURBULENCE_LEVELS,
+    VALIDATION,
+    VALIDATION_SEED_OFFSET,
     Suite,
     build_suite,
     levels,
@@ -164,6 +166,30 @@ def test_quick_is_a_subset_of_full(full: Suite, quick: Suite) -> None:
     assert quick.info.description.startswith("Held-out generated tasks per vehicle (the first of benchmark's)")
 
 
+def test_the_validation_twin_is_the_same_design_on_other_cities(full: Suite) -> None:
+    """`benchmark-validation`: where a pilot's choices are tuned. Scenario i has the test set's levels, leg bins and
+    time-limit rule in city seed + 200,000: disjoint from the test set and every learned pilot's pool."""
+    twin = build_suite(VALIDATION)
+    assert twin.info.name == VALIDATION and twin.info.version != full.info.version
+    assert "validation twin of benchmark (city seeds +200,000)" in twin.info.description
+    assert len(twin.scenarios) == len(full.scenarios)
+    test_seeds = {_seed(sc) for sc in full.scenarios}
+    for mine, theirs in zip(twin.scenarios, full.scenarios, strict=True):
+        assert mine.name == theirs.name.replace("benchmark-", "benchmark-validation-", 1)
+        assert _seed(mine) == _seed(theirs) + VALIDATION_SEED_OFFSET and _seed(mine) not in test_seeds
+        assert not any(_seed(mine) in pool for pool in (TRAIN_SEEDS, EVAL_SEEDS))
+        assert mine.wind.turbulence == theirs.wind.turbulence and len(mine.episodes) == len(theirs.episodes)
+        assert mine.city.buildings != theirs.city.buildings
+        for a, b in zip(mine.episodes, theirs.episodes, strict=True):  # the same leg-length bin
+            vb = next(v for v in DESIGN.vehicles if v.vehicle == mine.vehicle_name)
+            lo, hi = vb.leg_bins_m[a.index % 3]
+            assert lo <= math.dist(a.task.start_m, a.task.goal_m) <= hi and a.index == b.index
+    # the twin's seeds may not land on another vehicle's test cities
+    crowded = dataclasses.replace(DESIGN.vehicles[1], first_seed=DESIGN.vehicles[0].first_seed + VALIDATION_SEED_OFFSET)
+    with pytest.raises(ValueError, match="small_quad: city seeds 3200000-3200035 overlap the uam_multicopter benchmark"):
+        build_suite(VALIDATION, dataclasses.replace(DESIGN, vehicles=(DESIGN.vehicles[0], crowded)))
+
+
 # ---- strict checks and the CLI -------------------------------------------------------------------------
 def test_every_scenario_passes_the_strict_checks_as_a_file(full: Suite, tmp_path: Path) -> None:
     for sc in full.scenarios:  # built by the loader: again from its mapping, and the first few from a file
@@ -179,7 +205,7 @@ def test_every_scenario_passes_the_strict_checks_as_a_file(full: Suite, tmp_path
 
 
 def test_sets_resolve_and_validate(quick: Suite, capsys: pytest.CaptureFixture[str]) -> None:
-    assert {FULL, QUICK} <= set(builtin_sets())
+    assert {FULL, QUICK, VALIDATION} <= set(builtin_sets())
     resolved = resolve_scenarios(QUICK)
     assert [s.name for s in resolved] == [s.name for s in quick.scenarios] and resolved[0].suite == quick.info
     assert resolved[0].source == f"{QUICK}:{resolved[0].name}"

@@ -185,3 +185,37 @@ def test_a_walled_in_goal_is_a_planner_failure_with_its_reason(vehicles, compile
     assert traj.outcome == "planner_failure" and "no path at the floor margin 1.00 m in 4 attempts" in traj.detail
     assert "unreachable: no connected free space joins start and goal at margin 1.00 m" in traj.detail
     assert len(traj.t_s) == 1 and agent.episode_report().planner_attempts == 4
+
+
+def test_the_fastest_candidate_plan_is_flown_and_a_late_one_climbs_the_ladder(vehicles, compiled_dynamics):
+    """Each step's further seeds are timed as the pilot would fly them; the fastest is flown. A task whose time
+    even the fastest does not fit makes the ladder try every step, and the fastest path of all is flown."""
+    import dataclasses
+
+    p = vehicles["small_quad"]
+    city = _three_buildings(1.0)
+    world = World(p, compiled_dynamics["small_quad"], city,
+                  Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "light")
+    steps = (dataclasses.replace(LADDER[0], candidates=3), *LADDER[1:])
+    task = Task(start_m=(0.0, 0.0, 15.0), goal_m=(110.0, 0.0, 20.0), goal_radius_m=2.5, timeout_s=90.0)
+    agent = ClassicalAgent(ClassicalConfig(ladder=steps))
+    assert agent.reset(world, task, seed=5).ok
+    found = agent.ladder_result
+    assert found is not None and found.step == 1 and len(found.candidates) == 3
+    assert agent.plan is found.plan and agent.stats.planner_candidates == 3
+    assert agent.reference.duration_s == found.duration_s == min(found.durations_s)
+    assert max(found.durations_s) > min(found.durations_s)  # the seeds found different paths
+    # each is judged by the pilot's own timing: the first candidate (a third of the budget) flown alone
+    alone = (dataclasses.replace(LADDER[0], candidates=1, max_iterations=-(-10_000 // 3)), *LADDER[1:])
+    single = ClassicalAgent(ClassicalConfig(ladder=alone))
+    assert single.reset(world, task, seed=5).ok
+    assert single.reference.duration_s == found.durations_s[0] >= agent.reference.duration_s
+    # no time for any path (80 % of 5 s): every step is tried (3: at sea level in light turbulence the floor is
+    # the cruise margin, so step 3 would repeat step 1), the fastest path of all flown
+    late = dataclasses.replace(task, timeout_s=5.0)
+    assert agent.reset(world, late, seed=5).ok
+    tried = agent.ladder_result
+    assert agent.margins.floor_m == agent.margins.planner_m
+    assert [a.algorithm for a in tried.attempts] == ["informed_rrtstar", "rrtconnect", "rrtconnect"]
+    assert tried.duration_s == min(tried.durations_s) > 4.0 and len(tried.candidates) == sum(
+        s.candidates for i, s in enumerate(steps) if i != 2)

@@ -1,11 +1,14 @@
 """The planning ladder: the order of its steps, which step found the path, and a failure only when none did."""
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import pytest
 
 from alley import alley_city
 from planners.clearance import MarginTaper
-from planners.ladder import LADDER, PlanStep, plan_with_escalation
+from planners.ladder import CANDIDATE_SEED_STRIDE, LADDER, PlanStep, plan_with_escalation
 from planners.margins import SpeedMargins
 from planners.rrt_star import PlannerConfig
 
@@ -21,8 +24,11 @@ def _tapers(start, goal, accel=5.0):
 def test_the_ladder_order():
     assert [(s.algorithm, s.iteration_factor, s.max_iterations, s.floor_margin) for s in LADDER] == [
         (None, 1, None, False), ("rrtconnect", 1, 2000, False), (None, 1, None, True), ("rrtconnect", 4, None, True)]
+    assert [s.candidates for s in LADDER] == [2, 4, 2, 1]
     with pytest.raises(ValueError, match="algorithm"):
         PlanStep("x", "astar")
+    with pytest.raises(ValueError, match="candidates"):
+        PlanStep("x", candidates=0)
 
 
 def test_an_open_goal_is_found_by_the_first_step():
@@ -41,7 +47,7 @@ def test_a_goal_inside_the_cruise_margin_is_found_at_the_floor_margin():
     assert found.attempts[1].algorithm == "rrtconnect" and found.attempts[1].iterations <= 2001  # the quick step
     assert found.margin_m == MARGINS.floor_m and found.tapers == ()
     assert found.plan.min_clearance_m >= MARGINS.floor_m - 1e-9
-    assert found.plan_time_s == pytest.approx(sum(a.plan_time_s for a in found.attempts))
+    assert found.plan_time_s >= sum(a.plan_time_s for a in found.attempts)  # the ladder's wall time: all of it
     # deterministic: the same seed, the same path
     again = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
     assert (again.plan.path_m == found.plan.path_m).all()
@@ -68,8 +74,6 @@ def test_a_step_that_repeats_an_earlier_query_is_skipped():
 def test_a_path_that_fails_the_final_check_climbs_on(monkeypatch: pytest.MonkeyPatch):
     """A found path that fails the exact re-check ("invalid_path") is no reason to give up: the next step plans
     another; only an invalid start or goal ends the ladder at once."""
-    import dataclasses
-
     import planners.ladder as ladder
 
     city, start, _ = alley_city(R_QUAD)
@@ -85,9 +89,65 @@ def test_a_path_that_fails_the_final_check_climbs_on(monkeypatch: pytest.MonkeyP
         return plan
 
     monkeypatch.setattr(ladder, "plan_path", first_invalid)
-    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    single = tuple(dataclasses.replace(s, candidates=1) for s in LADDER)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=single)
     assert found.ok and found.step == 2 and [a.status for a in found.attempts] == ["invalid_path", "exact"]
+    # with the shipped ladder, step 1's other seed (half its budget each) finds another path
+    calls.clear()
+    shared = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert shared.ok and shared.step == 1 and shared.plan.seed == CANDIDATE_SEED_STRIDE
+    assert calls == ["exact", "exact"] and len(shared.candidates) == 1
     inside = (0.0, 0.0, -5.0)  # below the ground: an invalid goal ends the ladder at its first step
     stopped = plan_with_escalation(city, start, inside, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, inside))
     assert not stopped.ok and stopped.plan.status == "invalid_goal" and len(stopped.attempts) == 1
     assert stopped.reachability is None
+
+
+def _length_judge(calls: list):
+    """A judge that flies every path at 5 m/s and records what it saw."""
+    def judge(plan, margin_m, tapers):
+        calls.append((plan.seed, margin_m, tapers))
+        return plan.length_m / 5.0
+    return judge
+
+
+def test_a_step_keeps_its_fastest_candidate():
+    city, start, _ = alley_city(R_QUAD)
+    goal = (46.0 + R_QUAD, 0.0, 10.0)  # behind the alley's end block: round it on either side
+    steps = (dataclasses.replace(LADDER[0], candidates=3), *LADDER[1:])
+    calls: list = []
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 7, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=steps, judge=_length_judge(calls))
+    assert found.ok and found.step == 1 and len(found.attempts) == 1 and len(found.candidates) == 3
+    # candidate k plans with seed + k * the stride, each judged with the margin and tapers it was planned with
+    assert [c[0] for c in calls] == [7 + k * CANDIDATE_SEED_STRIDE for k in range(3)]
+    assert all(c.iterations <= CONFIG.max_iterations // 3 + 1 for c in found.candidates)  # the budget, shared
+    assert all(c[1] == MARGINS.cruise_m and c[2] == _tapers(start, goal) for c in calls)
+    assert found.duration_s == min(found.durations_s) == found.plan.length_m / 5.0
+    assert len({round(c.length_m, 6) for c in found.candidates}) > 1  # the seeds do find other paths
+    # without a judge: the first path, as one candidate
+    first = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 7, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=steps)
+    assert (first.plan.path_m == found.candidates[0].path_m).all() and math.isnan(first.duration_s)
+    # deterministic
+    again = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 7, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=steps, judge=_length_judge([]))
+    assert (again.plan.path_m == found.plan.path_m).all() and again.durations_s == found.durations_s
+
+
+def test_a_path_too_slow_for_the_time_left_climbs_on_and_the_fastest_is_flown():
+    city, start, _ = alley_city(R_QUAD)
+    goal = (-5.0, 25.0, 10.0)
+    single = tuple(dataclasses.replace(s, candidates=1) for s in LADDER)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=single, judge=_length_judge([]), time_available_s=1.0)
+    # no path takes under 1 s: every step is tried, and the fastest of all their paths is flown
+    assert found.ok and len(found.attempts) == len(LADDER) and len(found.candidates) == len(LADDER)
+    assert found.duration_s == min(found.durations_s) > 1.0
+    assert found.step == 1 + found.durations_s.index(found.duration_s)
+    assert found.margin_m == (MARGINS.cruise_m if found.step <= 2 else MARGINS.floor_m)
+    # with time enough the first step's path is flown
+    easy = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal),
+                                ladder=single, judge=_length_judge([]), time_available_s=found.durations_s[0])
+    assert easy.step == 1 and len(easy.attempts) == 1
