@@ -186,7 +186,7 @@ def test_the_validation_twin_is_the_same_design_on_other_cities(full: Suite) -> 
             assert lo <= math.dist(a.task.start_m, a.task.goal_m) <= hi and a.index == b.index
     # the twin's seeds may not land on another vehicle's test cities
     crowded = dataclasses.replace(DESIGN.vehicles[1], first_seed=DESIGN.vehicles[0].first_seed + VALIDATION_SEED_OFFSET)
-    with pytest.raises(ValueError, match="small_quad: city seeds 3200000-3200035 overlap the uam_multicopter benchmark"):
+    with pytest.raises(ValueError, match="small_quad: city seeds 3200000-3200035 overlap the uam_multicopter bench"):
         build_suite(VALIDATION, dataclasses.replace(DESIGN, vehicles=(DESIGN.vehicles[0], crowded)))
 
 
