@@ -210,11 +210,13 @@ def measure_pilot_plans(vehicle: str, per_map: int, seeds: Sequence[int]) -> dic
     table, the escalation ladder of `planners.ladder`) per query, air and seed; its plan time per plan
     (the ladder's attempts together), the step that found each path and the failures."""
     from planners.agent import ClassicalAgent
+    from rl.task.vehicles import task_for
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.pilot import Task, World
     from uam_fdm.vehicle.dynamics import VehicleDynamics
 
     params = load_vehicle(vehicle)
+    nav = task_for(vehicle).tasks
     agent, dynamics = ClassicalAgent(), VehicleDynamics(params, 500.0, 50.0)
     queries = make_queries(per_map, params.collision_radius_m, 1.0)
     rows = []
@@ -224,7 +226,11 @@ def measure_pilot_plans(vehicle: str, per_map: int, seeds: Sequence[int]) -> dic
             atm = Atmosphere.from_jsbsim(AtmosphereConditions(elevation, offset),
                                          z_max_m=float(city.bounds_max_m[2]) + 100.0, z_min_m=-50.0)
             world = World(params, dynamics, city, atm, turbulence)
-            task = Task(start_m=q.start_m, goal_m=q.goal_m)
+            # the time limit the comparison's generated tasks get (`compare.benchmark`): the pilot's ladder climbs on
+            # past a plan that does not fit it (a default 120 s made these cross-map legs late everywhere)
+            limit = nav.timeout_s(math.dist(q.start_m, q.goal_m), q.goal_m[2] - q.start_m[2],
+                                  params.controller.max_speed_m_s, params.controller.max_vertical_speed_m_s)
+            task = Task(start_m=q.start_m, goal_m=q.goal_m, timeout_s=limit)
             for seed in seeds:
                 info = agent.reset(world, task, seed)
                 rep = agent.episode_report()
