@@ -79,7 +79,7 @@ class PlanStep:
         floor_margin: plan at the floor margin everywhere instead of the speed-dependent margins.
         max_iterations: a fixed iteration budget instead (when the configuration counts iterations).
         candidates: seeds planned (1: one plan); the fastest exact plan is kept (with a judge; without one the
-            first). An optimising planner's budget is shared by them; a first-path planner's (`FIRST_PATH`) seeds
+            shortest). An optimising planner's budget is shared by them; a first-path planner's (`FIRST_PATH`) seeds
             each get the whole, after the first has found a path.
     """
 
@@ -182,7 +182,7 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         floor_margin_m: the margin at rest [m] (<= the cruise margin).
         tapers: the speed-dependent narrowing towards start and goal.
         ladder: the steps (`LADDER`).
-        judge: a plan's flight time [s] (`Judge`); None: a step's first path is flown.
+        judge: a plan's flight time [s] (`Judge`); None: a step's shortest path is flown.
         time_available_s: a step whose fastest path takes longer than this [s] does not end the climb.
 
     Returns:
@@ -230,8 +230,8 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         if mine:
             for p in mine:
                 found.append(_Found(p, i, margin, used, math.nan if judge is None else float(judge(p, margin, used))))
-            if judge is None:
-                return result(found[-len(mine)])
+            if judge is None:  # the planner's own cost decides: the shortest
+                return result(min(found[-len(mine):], key=lambda f: f.plan.length_m))
             best = min(found[-len(mine):], key=lambda f: f.duration_s)
             if best.duration_s <= time_available_s:
                 if i > 1:
