@@ -1,7 +1,7 @@
 """Training curves of several seeds in one figure, for the docs: mean and min–max band across seeds.
 
 Reads each policy folder's `reward_curve.csv` (written by `uam-compare train`) and draws
-`compare.viz.figures.seed_curves_figure`: (a) the training return (centred moving average over 2 % of
+`compare.report.figures.seed_curves_figure`: (a) the training return (centred moving average over 2 % of
 each run's updates) and (b) the validation success rate, each seed thin, the mean and the
 min–max band on a common timestep grid. Seeds are labelled from each folder's provenance.json
 ("seed 3"), or by the folder name. The PNG is written atomically.
@@ -15,8 +15,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from compare.viz.figures import seed_curves_figure
-from compare.viz.report import read_reward_curve
+from compare.report.figures import seed_curves_figure
+from compare.report.report import read_reward_curve
 from rl.policies.folder import PolicyFolder
 from uam_fdm.city.plot import save_figure
 

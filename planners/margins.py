@@ -5,7 +5,7 @@ obstacle (planner and time-parameterisation) and asks its MPC, softly, to keep M
 vehicle strays from the reference depends on the vehicle and the air: a 900 kg multicopter with a
 0.12 s motor lag in moderate turbulence strays metres, a small quad in calm air centimetres. So M
 is not a constant but read from a table of tracking-error percentiles measured by flying this pilot
-closed loop on the simulator (`benchmarks/tracking_error.py`, on the learned pilot's *validation*
+closed loop on the simulator (`perf/tracking_error.py`, on the learned pilot's *validation*
 pool of generated cities, never on the comparison's scenarios), shipped as
 `planners/data/tracking_error.json` with its provenance.
 

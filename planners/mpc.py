@@ -74,7 +74,7 @@ class MPCConfig:
             spans the vehicle's attitude response (quad 0.05 s → 1 s; UAM 0.15 s → 3 s: with a 1 s
             horizon the UAM tilts hard and cannot recover its attitude within the horizon).
         solver: "rti" (default: the real-time iteration, chosen by measurement in
-            benchmarks/classical.py: quad 1.0 ms median, UAM 2.7-4.5 ms, 7x and 11-15x faster than
+            perf/classical.py: quad 1.0 ms median, UAM 2.7-4.5 ms, 7x and 11-15x faster than
             Ipopt, tracking RMS within 3 % of Ipopt's, no failures),
             "ipopt" (the reference), "fatrop" or "sqpmethod" (module docstring; docs/planner.md).
         qp_solver: QP solver of "rti" (one of `planners.rti.QP_SOLVERS`) or of "sqpmethod" ("qrqp";

@@ -45,7 +45,7 @@ STATUSES = ("exact", "approximate", "no_solution", "timeout", "invalid_start", "
 
 # Per-algorithm default iteration budgets (one iteration = one poll of the termination condition,
 # i.e. one main-loop pass of the planner).  Chosen by measurement on the shipped maps: see
-# docs/planner.md and benchmarks/classical.py.
+# docs/planner.md and perf/classical.py.
 DEFAULT_ITERATIONS = {"rrtstar": 10000, "informed_rrtstar": 10000, "bitstar": 20000, "rrtconnect": 20000}
 
 

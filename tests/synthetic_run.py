@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.episode_loop import Trajectory
+from compare.flying.episode_loop import Trajectory
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, save_episode
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.city.generator import map_yaml_text
@@ -21,7 +21,7 @@ from uam_fdm.city.generator import map_yaml_text
 SCENARIO = "toy-quad"
 LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC"}
 START, GOAL = (20.0, 20.0, 10.0), (170.0, 160.0, 20.0)
-# rl.policies.folder.CURVE_COLUMNS (tests/compare/test_report.py checks they agree)
+# rl.policies.folder.CURVE_COLUMNS (tests/compare/report/test_report.py checks they agree)
 CURVE_COLUMNS = ["timesteps", "mean_episode_reward", "train_success_rate", "train_collision_rate",
                  "train_timeout_rate", "train_episodes", "difficulty", "success_rate", "collision_rate",
                  "eval_episodes", "wall_s"]

@@ -18,13 +18,17 @@ MAY_IMPORT = {"uam_fdm": {"uam_fdm"}, "planners": {"uam_fdm", "planners"}, "rl":
 # What `compare` may import inside a function or a TYPE_CHECKING block: PyTorch, Ray, matplotlib and plotly
 # (the figures, the viewer, the map plots), rerun-sdk (an optional extra) and the pilots' own packages (PyTorch,
 # OMPL), so that printing help, checking a scenario or reading a run folder needs none of them.
-DEFERRED_IMPORTS = ("torch", "ray", "compare.backends.ray", "compare.viz", "uam_fdm.city.plot", "rl", "planners",
+DEFERRED_IMPORTS = ("torch", "ray", "compare.run.backends.ray", "compare.report",
+                    "compare.playback", "compare.pages", "uam_fdm.city.plot", "rl", "planners",
                     "matplotlib", "rerun")
 # What `rl` may import inside a function or for the type checker only: PyTorch (the network's module included,
 # so reading a policy folder's settings needs none) and matplotlib (the env's rgb_array frames).
 RL_DEFERRED_IMPORTS = ("torch", "rl.policies.network", "matplotlib", "uam_fdm.city.plot")
 # The learned pilot's rooms, in the order they may import each other: a module imports only rooms before its own.
 RL_ROOMS = ("sensing", "task", "policies", "env", "pilots", "training")
+# The comparison's rooms, in the same sense: flying an episode, its results, what is flown (scenario files and the
+# generated task sets), what is made of results (the PDF report, playback, HTML pages), running a campaign, the CLI.
+COMPARE_ROOMS = ("flying", "results", "scenarios", "report", "playback", "pages", "run", "cli")
 
 
 def _module_name(path: Path, root: Path = ROOT) -> str:
@@ -90,17 +94,34 @@ def test_compare_and_rl_defer_only_slow_or_optional_imports() -> None:
 
 def test_the_learned_pilots_rooms_import_one_way() -> None:
     """rl/sensing, task, policies, env, pilots, training: each imports only the rooms before it (and `uam_fdm`)."""
+    assert _rooms_out_of_order("rl", RL_ROOMS) == []
+
+
+def test_the_comparisons_rooms_import_one_way() -> None:
+    """compare/flying, results, scenarios, report, playback, pages, run, cli: each imports only the rooms before
+    it (and the other packages); every module of compare stands in a room."""
+    assert _rooms_out_of_order("compare", COMPARE_ROOMS) == []
+
+
+def _rooms_out_of_order(package: str, rooms: tuple[str, ...], root: Path = ROOT) -> list[str]:
+    """Imports of `package`'s modules that reach a room after their own, wherever the import stands, and modules
+    outside every room (a package's `__init__.py` and `__main__.py` at its top level excepted)."""
     wrong = []
-    for path in sorted((ROOT / "rl").rglob("*.py")):
-        parts = path.relative_to(ROOT / "rl").parts
+    for path in sorted((root / package).rglob("*.py")):
+        parts = path.relative_to(root / package).parts
         if len(parts) < 2:
-            continue  # rl/__init__.py imports none of the rooms
-        rank = RL_ROOMS.index(parts[0])
-        for m in sorted(_imports(path)):
-            room = m.split(".")[1] if m.startswith("rl.") else None
-            if room is not None and room in RL_ROOMS and RL_ROOMS.index(room) > rank:
-                wrong.append(f"{path.relative_to(ROOT)} imports {m}")
-    assert wrong == []
+            if path.name not in ("__init__.py", "__main__.py"):
+                wrong.append(f"{path.relative_to(root)} stands in no room")
+            continue
+        if parts[0] not in rooms:
+            wrong.append(f"{path.relative_to(root)} stands in no room")
+            continue
+        rank = rooms.index(parts[0])
+        for m in sorted(_imports(path, root)):
+            room = m.split(".")[1] if m.startswith(f"{package}.") else None
+            if room is not None and room in rooms and rooms.index(room) > rank:
+                wrong.append(f"{path.relative_to(root)} imports {m}")
+    return wrong
 
 
 def _wrong_imports(root: Path = ROOT) -> list[str]:
@@ -155,6 +176,15 @@ PROBES = {
     "compare/_probe_typed_b.py": ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
                                  "    from compare._probe_typed_a import X\n"),
 }
+# compare's rooms: results reaching forward into run (inside a function: still a room out of order), a module in
+# no room
+ROOM_PROBES = {
+    "compare/results/__init__.py": "",
+    "compare/run/__init__.py": "",
+    "compare/run/campaign.py": "from compare.results import metrics\n",
+    "compare/results/metrics.py": "def f():\n    from compare.run.campaign import run\n    return run\n",
+    "compare/stray.py": "X = 1\n",
+}
 
 
 @pytest.fixture
@@ -180,3 +210,17 @@ def test_the_checks_see_a_wrong_import_and_every_kind_of_circle(probe_tree: Path
     assert len(circles) == 3
     assert _needless_deferred_imports(probe_tree) == ["compare/_probe_lazy_b.py defers compare._probe_lazy_a",
                                                       "compare/_probe_typed_b.py defers compare._probe_typed_a"]
+
+
+def test_the_room_check_sees_a_room_out_of_order_and_a_module_in_no_room(tmp_path: Path) -> None:
+    """The room scan itself, on a scratch tree: an import reaching a later room (inside a function too) and a
+    module outside every room are named; an import of an earlier room is not."""
+    (tmp_path / "compare").mkdir()
+    for name, text in ROOM_PROBES.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text, encoding="utf-8")
+    assert _rooms_out_of_order("compare", COMPARE_ROOMS, tmp_path) == [
+        "compare/results/metrics.py imports compare.run.campaign",
+        "compare/results/metrics.py imports compare.run.campaign.run",
+        "compare/stray.py stands in no room",
+    ]

@@ -16,7 +16,7 @@ PACKAGES = ("uam_fdm", "planners", "rl", "compare")
 # (file, function) pairs that own their process and may set process-wide state, with the reason
 ALLOWED = {
     ("compare/cli.py", "*"): "the command line owns its process",
-    ("compare/backends/worker.py", "prepare_process"): "a run's worker process is the run's own",
+    ("compare/run/backends/worker.py", "prepare_process"): "a run's worker process is the run's own",
     ("rl/training/loop.py", "train"): "the training job owns its process (its config names the thread count)",
 }
 GLOBAL_CALLS = {("os", "chdir"), ("matplotlib", "use"), ("torch", "set_num_threads")}

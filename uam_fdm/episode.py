@@ -1,6 +1,6 @@
 """The rules that end an episode, written once for every place that flies one.
 
-The comparison runner (`compare.episode_loop`, one vehicle) and the learned pilot's environment
+The comparison runner (`compare.flying.episode_loop`, one vehicle) and the learned pilot's environment
 (`rl.env.world`, N vehicles) both call these after every control period, so an episode flown through
 either ends at the same physics substep for the same reason (tests/rl/pilots/test_learned_pilot.py flies one
 episode both ways and compares the states bit for bit).

@@ -21,7 +21,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from compare.episode_loop import PilotError
+from compare.flying.episode_loop import PilotError
 from compare.results.trajectory import EpisodeKey
 from uam_fdm.files.atomic import write_text_atomic
 

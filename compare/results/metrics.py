@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from compare import pilots
+from compare.flying import pilots
 from compare.results.trajectory import SavedEpisode
 from planners.report import ClassicalReport
 from uam_fdm.episode import Outcome

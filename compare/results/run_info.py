@@ -142,7 +142,7 @@ class MethodInfo:
 
 @dataclass(frozen=True)
 class SuiteInfo:
-    """The published task set a run's scenarios come from (`compare.benchmark`).
+    """The published task set a run's scenarios come from (`compare.scenarios.benchmark`).
 
     Attributes:
         name: the set's name (e.g. "benchmark-quick").
@@ -168,7 +168,7 @@ class RunInfo:
         methods: the pilots by method name, in run order.
         versions: software versions by package name.
         fairness: the fairness statement.
-        fingerprints: hashes of the inputs (`compare.fingerprint.run_fingerprints`; None in runs saved before
+        fingerprints: hashes of the inputs (`compare.scenarios.fingerprint.run_fingerprints`; None in runs saved before
             they were recorded).
         suite: the published task set the scenarios come from (None: scenario files, or a run saved before
             suites existed).

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from compare import pilots
+from compare.flying import pilots
 from compare.results.metrics import (
     CLEARANCE_THRESHOLDS_M,
     TRACKER_METRICS,
@@ -172,7 +172,8 @@ class Summary:
     Attributes:
         bootstrap: the bootstrap settings.
         metrics: the summarised metrics, in report order.
-        methods: per method, in table order (`compare.pilots.ordered`); empty in a run-wide summary of several vehicles.
+        methods: per method, in table order (`compare.flying.pilots.ordered`); empty in a run-wide summary of
+            several vehicles.
         paired: per pair of methods (first < second by name); empty where `methods` is.
         by_scenario: the same per scenario, by scenario name; None for a summary that is itself one
             scenario's or one vehicle's, or one written without them.
@@ -271,7 +272,7 @@ def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confiden
     `time_s`, `path_length_m` and `energy_kj` are over successful episodes only (`over` "successes"), the
     rest over all episodes (`over` "all").
 
-    Paired: for each pair of methods a before b in table order (`compare.pilots.ordered`), the episodes both
+    Paired: for each pair of methods a before b in table order (`compare.flying.pilots.ordered`), the episodes both
     flew with the same (scenario, episode, seed); per metric (not the tracker's) the mean of the differences
     a − b and its CI (Newcombe's for rates, else the bootstrap's, pairs resampled), the standard deviation of the
     differences, the MDD at that many pairs (two-sided `alpha`, `power`) and, for rates, the design MDD.

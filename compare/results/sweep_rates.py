@@ -3,9 +3,9 @@ read from a run's results (run.json and metrics.csv), never re-simulated.
 
 The axes are read from the air each scenario flew (run.json), not from names: the wind axis is the scenarios
 at sea level on a standard day (elevation 0, ISA +0 K), stepped by steady wind speed; the density-altitude
-axis is the scenarios in the one wind that every raised or warmed field flies (`compare.sweep`: the
+axis is the scenarios in the one wind that every raised or warmed field flies (`compare.scenarios.sweep`: the
 vehicle's low wind), sea level in that wind included, stepped by field. A step pools its scenarios' episodes
-(one per city in `compare.sweep`), so each step holds the same tasks. A step lies outside a learned pilot's
+(one per city in `compare.scenarios.sweep`), so each step holds the same tasks. A step lies outside a learned pilot's
 trained air when its air is outside the envelope run.json records for that pilot's policy of the vehicle.
 """
 from __future__ import annotations

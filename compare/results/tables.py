@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from compare.episode_loop import Trajectory
+from compare.flying.episode_loop import Trajectory
 from compare.results.metrics import EpisodeMetrics
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, meta_from_json, meta_to_json
 

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from compare import pilots
-from compare.episode_loop import Trajectory
+from compare.flying import pilots
+from compare.flying.episode_loop import Trajectory
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_open
 from uam_fdm.pilot import PilotReport
@@ -89,7 +89,7 @@ class EpisodeMeta:
         vehicle_fingerprint: the vehicle's parameters' fingerprint (`VehicleParams.fingerprint`; "" in files saved
             before it was recorded): two vehicles that share a name are told apart by it.
         report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
-            method's `compare.pilots.PilotSpec.report_type`), None when it gives none.
+            method's `compare.flying.pilots.PilotSpec.report_type`), None when it gives none.
     """
 
     key: EpisodeKey

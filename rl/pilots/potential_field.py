@@ -115,7 +115,7 @@ def gains_for_task(scales: ObservationScales, base: PotentialField = TUNED) -> P
 
 
 GAINS_FILE = Path(__file__).parent / "data" / "potential_field_gains.json"
-"""Gains tuned per vehicle on validation cities (`benchmarks/apf_gains.py --write`), with their provenance."""
+"""Gains tuned per vehicle on validation cities (`perf/apf_gains.py --write`), with their provenance."""
 
 
 @functools.lru_cache(maxsize=4)

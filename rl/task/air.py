@@ -6,7 +6,7 @@ turbulence level (drawn uniformly from the task's levels) and a steady horizonta
 in [0, `steady_wind_max_m_s`] and uniform heading. Thin air is thrust-to-weight: a density altitude of
 3 km is sigma ~0.74, 26 % less thrust at the same rotor speed.
 
-`AIR_LEVELS` are the benchmark's levels of the air (compare.benchmark): the same names serve
+`AIR_LEVELS` are the benchmark's levels of the air (compare.scenarios.benchmark): the same names serve
 `uam-compare evaluate-policy --air` and the robustness sweep.
 """
 from __future__ import annotations

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from alley import alley_city
-from compare.episode_loop import run_episode
+from compare.flying.episode_loop import run_episode
 from planners.agent import ClassicalAgent, ClassicalConfig
 from planners.ladder import LADDER
 from planners.margins import SpeedBin, TrackingErrorRow, write_tracking_table

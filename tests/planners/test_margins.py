@@ -92,7 +92,7 @@ def test_table_file_round_trip_and_clear_errors(tmp_path):
 
 
 def test_the_shipped_table_covers_both_presets_and_says_where_it_came_from():
-    """A preset whose physics changed needs the table measured again (benchmarks/tracking_error.py)."""
+    """A preset whose physics changed needs the table measured again (perf/tracking_error.py)."""
     table = load_tracking_table(DEFAULT_TABLE_PATH)
     for vehicle in (QUAD, UAM):
         assert table.measured_levels(vehicle) == [T.NONE, T.LIGHT, T.MODERATE], vehicle.name
@@ -101,7 +101,7 @@ def test_the_shipped_table_covers_both_presets_and_says_where_it_came_from():
                 assert row.episodes >= 4 and row.samples > 1000
                 assert 0 < row.p50_m <= row.p95_m <= row.p99_m <= row.max_m
     prov = table.provenance
-    assert "validation" in str(prov["pool"]) and "benchmarks/tracking_error.py" in str(prov["command"])
+    assert "validation" in str(prov["pool"]) and "perf/tracking_error.py" in str(prov["command"])
     assert isinstance(prov["seed"], int) and prov["episodes"]
 
 

@@ -119,7 +119,7 @@ def test_halfspace_keeps_the_prediction_off_a_wall(solver, vehicles, trackers):
 # Gauss-Newton steps), it converges to the NLP's KKT point, so its first control must reach Ipopt's
 # converged one. Tolerance 0.05 rad/s: 6e-5 of the quad's hover speed (794 rad/s), 7e-4 of the UAM's
 # (75 rad/s); measured 0.007 rad/s at most. Both on CasADi's VM (no compile). One step per decision
-# in closed loop is compared with Ipopt by benchmarks/classical.py (RMS ratio on the same episodes).
+# in closed loop is compared with Ipopt by perf/classical.py (RMS ratio on the same episodes).
 AGREEMENT_TOL_RAD_S = 0.05
 
 

@@ -8,7 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
-from compare.episode_loop import run_episode
+from compare.flying.episode_loop import run_episode
 from planners.agent import ClassicalAgent
 from planners.rrt_star import PlannerConfig, densify, plan_path
 from planners.timing import TimingLimits, time_parameterize

@@ -75,7 +75,7 @@ Reproducibility and cost
     Dryden filters start at rest, so each rung first runs a spin-up of three times the largest
     scale length on the ladder (L_u at the top rung, 1000 ft at 300 m; 1750 ft for one series
     above 1000 ft) over the airspeed, then records. Measured here (2-core machine, ~2.6 us per
-    JSBSim step, benchmarks/fdm_throughput.py): the seven rungs of a 60 s episode at 120 Hz and
+    JSBSim step, perf/fdm_throughput.py): the seven rungs of a 60 s episode at 120 Hz and
     12 m/s cost 0.32 s, against ~0.08 s for the single series before (a 60 s episode flies in
     several seconds). The learned pilot's pool of 16 stacks of 400 s at six rungs takes ~15 s and
     110 MB (one series each: 3.3 s, 18 MB). Lookups are NumPy only: 5.9 us for one vehicle (2.7 us

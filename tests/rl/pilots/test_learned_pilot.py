@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from compare.episode_loop import run_episode
+from compare.flying.episode_loop import run_episode
 from rl.env.gym_env import UAMNavEnv
 from rl.env.world import NavWorld
 from rl.pilots.learned import PolicyAgent, load_policy

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from compare.episode_loop import run_episode
+from compare.flying.episode_loop import run_episode
 from rl.env.gym_env import UAMNavEnv
 from rl.env.world import NavWorld
 from rl.pilots.potential_field import PotentialField, PotentialFieldAgent, PotentialFieldPilot, gains_for
@@ -47,7 +47,7 @@ def test_apf_agent_flies_exactly_like_the_evaluation_environment(seed):
 
 def test_gains_scale_with_the_vehicles_task():
     """Untuned, a vehicle's gains are the small quad's scaled to its task (x4 for the UAM); the shipped table's
-    gains, tuned per vehicle on validation legs (benchmarks/apf_gains.py), take their place."""
+    gains, tuned per vehicle on validation legs (perf/apf_gains.py), take their place."""
     from rl.pilots.potential_field import gains_for_task, tuned_gains
     from rl.task.vehicles import task_for
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from compare.fingerprint import policy_fingerprint
+from compare.scenarios.fingerprint import policy_fingerprint
 from rl.pilots.learned import load_policy
 from rl.policies.folder import (
     CHECKPOINT_FILES,

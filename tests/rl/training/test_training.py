@@ -130,7 +130,7 @@ def test_wilson_interval_matches_the_formula():
 def test_a_policy_trained_in_drawn_air_observing_it_flies_in_the_runner(tmp_path):
     """Training across fields, levels and wind with the air and a history in the observation: the folder
     records the envelope and the observation, and the runner's pilot flies the policy (the same layout)."""
-    from compare.episode_loop import run_episode
+    from compare.flying.episode_loop import run_episode
     from rl.pilots.learned import PolicyAgent
     from rl.sensing.observation import ObservedContext
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions

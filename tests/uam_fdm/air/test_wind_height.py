@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from compare.fingerprint import scenario_fingerprint
-from compare.scenario import scenario_from_dict
+from compare.scenarios.fingerprint import scenario_fingerprint
+from compare.scenarios.scenario import scenario_from_dict
 from scenario_box import BASE
 from uam_fdm.air.wind import (
     PROBE_HEIGHTS_M,

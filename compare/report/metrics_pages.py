@@ -1,0 +1,332 @@
+"""The report's metrics pages for one vehicle: tables and figures from its summary and metrics rows.
+
+A run may fly several vehicles; nothing here pools them. For each vehicle `vehicle_pages` gives, in
+order: the per-method table (mean [95 % CI]), the forest plot of the main metrics, the paired
+differences (forest plot and table, each metric's minimum detectable difference beside it), success
+along task difficulty, the scenarios' conditions and the per-scenario table. `episode_table_pages`
+lists its episodes (bounded: every row is in metrics.csv).
+
+Builders take loaded data (`Summary`, `EpisodeMetrics`, `ScenarioConditions`) and a `MethodStyle`;
+they return figures and never read files.
+"""
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from compare.report import figures as F
+from compare.report.summary_figures import ForestPanel, ForestRow, difficulty_figure, forest_figure
+from compare.results.difficulty import ScenarioConditions, success_by_difficulty
+from compare.results.metrics import EpisodeMetrics
+from compare.results.summary import RATE_METRICS, BootstrapSettings, PairedStat, PairedSummary, Stat, Summary
+
+# (summary key, row label with unit, scale, decimals)
+SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
+    ("success", "success [%]", 100.0, 0),
+    ("collision", "collision [%]", 100.0, 0),
+    ("min_clearance_m", "min clearance [m]", 1.0, 2),
+    ("time_below_2m_s", "time below 2 m clearance [s]", 1.0, 2),
+    ("time_below_5m_s", "time below 5 m clearance [s]", 1.0, 2),
+    ("time_s", "flight time [s]", 1.0, 1),
+    ("path_length_m", "path length [m]", 1.0, 1),
+    ("spl", "SPL (success weighted by path length) [-]", 1.0, 3),
+    ("energy_kj", "rotor energy [kJ]", 1.0, 2),
+    ("compute_ms_mean", "compute per decision, mean [ms]", 1.0, 2),
+    ("compute_ms_max", "compute per decision, max [ms]", 1.0, 2),
+    ("plan_time_s", "plan time [s]", 1.0, 3),
+    ("mpc_solve_ms_median", "MPC solve, median per episode [ms]", 1.0, 2),
+    ("mpc_solve_ms_p95", "MPC solve, p95 per episode [ms]", 1.0, 2),
+    ("mpc_failures", "MPC failed solves per episode", 1.0, 2),
+    ("replans_tracking", "replans per episode: tracking error", 1.0, 2),
+    ("replans_clearance", "replans per episode: predicted clearance", 1.0, 2),
+    ("tracking_rms_m", "tracking RMS (distance to the reference) [m]", 1.0, 3),
+    ("tracking_max_m", "tracking max (distance to the reference) [m]", 1.0, 3),
+    ("planner_margin_m", "planner clearance margin [m]", 1.0, 2),
+    ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
+    ("planner_margin_floor_m", "planner clearance margin at rest [m]", 1.0, 2),
+    ("planner_attempts", "planning attempts at reset", 1.0, 2),
+    ("clearance_over_margin_min", "min clearance / margin in force", 1.0, 2),
+)
+
+# the summary figure's metrics: (summary key, panel title, scale, decimals)
+FOREST_METRICS: tuple[tuple[str, str, float, int], ...] = (
+    ("success", "success [%]", 100.0, 0),
+    ("collision", "collision [%]", 100.0, 0),
+    ("min_clearance_m", "min clearance [m]", 1.0, 2),
+    ("time_s", "flight time, successes [s]", 1.0, 1),
+    ("energy_kj", "rotor energy, successes [kJ]", 1.0, 2),
+    ("compute_ms_mean", "compute per decision, mean [ms]", 1.0, 2),
+)
+
+# the per-scenario table's metrics: (summary key, column header, scale, decimals)
+SCENARIO_COLUMNS: tuple[tuple[str, str, float, int], ...] = (
+    ("success", "success [%]", 100.0, 0),
+    ("collision", "collision [%]", 100.0, 0),
+    ("min_clearance_m", "min clearance [m]", 1.0, 2),
+    ("time_s", "time [s] (successes)", 1.0, 1),
+    ("energy_kj", "energy [kJ] (successes)", 1.0, 2),
+    ("compute_ms_mean", "compute mean [ms]", 1.0, 2),
+)
+EPISODE_ROWS_PER_VEHICLE = 104
+"""Per-episode table rows shown per vehicle (4 pages); the rest are in metrics.csv."""
+
+
+@dataclass(frozen=True)
+class MethodStyle:
+    """How methods show: table order, display labels and colours (by method name)."""
+
+    order: tuple[str, ...]
+    labels: Mapping[str, str]
+    colors: Mapping[str, str]
+
+    def label(self, method: str) -> str:
+        return self.labels.get(method, method)
+
+    def color(self, method: str) -> str:
+        return self.colors.get(method, "0.3")
+
+    def rank(self, method: str) -> int:
+        """The method's place in table order (after every known one when unknown)."""
+        return self.order.index(method) if method in self.order else len(self.order)
+
+    def sorted(self, methods: Sequence[str]) -> list[str]:
+        """`methods` in table order (those the style does not know last, in the order given)."""
+        known = [m for m in self.order if m in methods]
+        return known + [m for m in methods if m not in known]
+
+    def pair_label(self, pair: PairedSummary) -> str:
+        return f"{self.label(pair.first)} − {self.label(pair.second)}"
+
+
+def format_ci(stat: Stat | None, scale: float = 1.0, digits: int = 2) -> str:
+    """"mean [low, high]" of a summary's `Stat` (a paired one: the mean difference), scaled; "n/a" if missing."""
+    if stat is None or stat.mean is None or not math.isfinite(stat.mean):
+        return "n/a"
+    text = f"{stat.mean * scale:.{digits}f}"
+    if stat.ci_low is not None and stat.ci_high is not None and math.isfinite(stat.ci_low) \
+            and math.isfinite(stat.ci_high):
+        text += f" [{stat.ci_low * scale:.{digits}f}, {stat.ci_high * scale:.{digits}f}]"
+    return text
+
+
+def wrapped(notes: Sequence[str], width: int = 160) -> list[str]:
+    """Notes under a table, each wrapped to lines of at most `width` characters (a table page does not wrap)."""
+    return [line for note in notes for line in textwrap.wrap(note, width)]
+
+
+def _number(v: float | None, scale: float, digits: int) -> str:
+    return "n/a" if v is None or not math.isfinite(v) else f"{v * scale:.{digits}f}"
+
+
+def interval_words(summary: Summary) -> str:
+    """How the summary's intervals were made, in words (an older summary.json: all by the bootstrap)."""
+    b: BootstrapSettings = summary.bootstrap
+    fields = (("resamples", b.resamples), ("confidence", b.confidence), ("seed", b.seed), ("method", b.method))
+    boot = ", ".join(f"{k}={v}" for k, v in fields if v is not None)
+    rates = summary.intervals.rates
+    named = {"wilson": "Wilson score"}.get(rates or "", rates)
+    head = f"Rates ({', '.join(summary.intervals.rate_metrics)}): {named} interval; the rest: " if rates else ""
+    return head + "percentile bootstrap over episodes" + (f" ({boot})." if boot else ".")
+
+
+# ---- one vehicle ---------------------------------------------------------------------------------------
+def vehicle_pages(vehicle: str, summary: Summary, scenarios: Mapping[str, Summary], rows: Sequence[EpisodeMetrics],
+                  conditions: Mapping[str, ScenarioConditions], style: MethodStyle,
+                  source: str) -> list[tuple[str, list[Figure]]]:
+    """The metrics pages of one vehicle, as (page name, figures) in report order.
+
+    Args:
+        vehicle: its name.
+        summary: its summary (`Summary.per_vehicle()[vehicle]`).
+        scenarios: the summaries of its scenarios, by name, in run order.
+        rows: its metrics rows.
+        conditions: its scenarios' conditions, by name.
+        style: the methods' order, labels and colours.
+        source: where the numbers come from (a sentence for the notes).
+    """
+    methods = style.sorted(list(summary.methods))
+    where = f"{len(scenarios)} scenario{'s' if len(scenarios) != 1 else ''} of vehicle {vehicle}"
+    slug = f"vehicle_{vehicle}"
+    out = [(f"{slug}_methods", _methods_pages(vehicle, summary, methods, style, where, source)),
+           (f"{slug}_forest", [_forest_page(vehicle, summary, methods, style, where)])]
+    if summary.paired:
+        out.append((f"{slug}_paired", _paired_pages(vehicle, summary, style)))
+    axes = success_by_difficulty(rows, conditions, methods)
+    subtitle = ("Success rate per bin with its 95 % Wilson interval (wide where a bin holds few episodes); bins "
+                "shared by the pilots, easier conditions on the left. Leg: straight-line start-goal distance; "
+                "coverage: share of the map under building footprints (maps/*.yaml); turbulence and air density "
+                "at the field from run.json.")
+    out.append((f"{slug}_difficulty", [difficulty_figure(f"{vehicle}: where does each pilot break?", axes,
+                                                         {m: style.label(m) for m in methods}, style.colors,
+                                                         subtitle=subtitle)]))
+    out.append((f"{slug}_scenarios", _conditions_pages(vehicle, scenarios, rows, conditions)
+                + _scenario_pages(vehicle, scenarios, style)))
+    return out
+
+
+def _methods_pages(vehicle: str, summary: Summary, methods: list[str], style: MethodStyle, where: str,
+                   source: str) -> list[Figure]:
+    stats = summary.methods
+    keys = [k for k, *_ in SUMMARY_ROWS]
+    spec = list(SUMMARY_ROWS) + [(k, k, 1.0, 3) for k in summary.metrics if k not in keys]
+    table = [["episodes"] + [str(stats[m].episodes) for m in methods]]
+    for key, label, scale, digits in spec:
+        if any(key in stats[m].stats for m in methods):
+            table.append([label] + [format_ci(stats[m].stats.get(key), scale, digits) for m in methods])
+    reasons = [", ".join(f"{k}: {v}" for k, v in stats[m].failure_reasons.items()) or "none" for m in methods]
+    table.append(["failure reasons"] + reasons)
+    notes = [f"Over the {where}, never pooled with another vehicle; {source}",
+             "Cells: mean [95 % confidence interval] over episodes (flight time, path length and energy: successful "
+             "ones only). " + interval_words(summary)]
+    return F.table_pages(f"{vehicle}: per method, mean [95 % CI]", ["metric"] + [style.label(m) for m in methods],
+                         table, rows_per_page=30, notes=wrapped(notes), font_size=8.5)
+
+
+def _forest_page(vehicle: str, summary: Summary, methods: list[str], style: MethodStyle, where: str) -> Figure:
+    panels = []
+    for key, title, scale, _ in FOREST_METRICS:
+        rows = []
+        for m in methods:
+            st = summary.methods[m].stats.get(key)
+            ok = st is not None and st.mean is not None
+            rows.append(ForestRow(style.label(m), style.color(m), _scaled(st, "mean", scale),
+                                  _scaled(st, "ci_low", scale), _scaled(st, "ci_high", scale),
+                                  note=f"n {st.n}" if ok and st is not None else "n/a"))
+        panels.append(ForestPanel(title, tuple(rows), limits=(-4.0, 104.0) if key in RATE_METRICS else None))
+    subtitle = (f"Per method over the {where}: mean and 95 % interval (rates: Wilson; the rest: bootstrap); "
+                f"n = episodes used (time and energy: successful ones).")
+    return forest_figure(f"{vehicle}: summary per method", panels, subtitle=subtitle)
+
+
+def _scaled(st: Stat | None, name: str, scale: float) -> float | None:
+    v = None if st is None else getattr(st, name)
+    return None if v is None or not math.isfinite(v) else v * scale
+
+
+def mdd_words(summary: Summary) -> str:
+    """What the MDD columns mean, with the summary's alpha and power."""
+    p = summary.power
+    if p.alpha is None or p.power is None:
+        return "MDD: not recorded in this summary.json (written before it was computed)."
+    return (f"MDD (minimum detectable difference): the true mean difference that n paired episodes detect with "
+            f"probability {p.power:g} at two-sided alpha {p.alpha:g}: (z_{1 - p.alpha / 2:g} + z_{p.power:g}) x "
+            f"sd / sqrt(n), sd the observed standard deviation of the paired differences (0 where every pair "
+            f"agreed). For rates also the design value before any run: both pilots at {p.design_rate or 0.5:g}, "
+            f"outcomes independent. A smaller true difference is likely to go unseen.")
+
+
+def _paired_pages(vehicle: str, summary: Summary, style: MethodStyle) -> list[Figure]:
+    """The paired differences of one vehicle: a forest plot (MDD beside each) and the full table."""
+    pairs = summary.paired
+    panels = []
+    for key, title, scale, digits in FOREST_METRICS:
+        rows = []
+        for p in pairs:
+            st = p.stats.get(key)
+            excl = st.excludes_zero if st is not None else None
+            mdd = "n/a" if st is None else mdd_cell(st, key, scale, digits).replace(" (no spread)", " †")
+            rows.append(ForestRow(style.pair_label(p), "0.15", _scaled(st, "mean", scale),
+                                  _scaled(st, "ci_low", scale), _scaled(st, "ci_high", scale),
+                                  note=f"MDD {mdd}" + (" *" if excl else ""), hollow=not excl))
+        unit = title.replace("success [%]", "success [% points]").replace("collision [%]", "collision [% points]")
+        panels.append(ForestPanel(unit, tuple(rows), zero_line=True))
+    subtitle = ("Mean paired difference (first − second; same scenario, episode and seed; time and energy where both "
+                "succeeded) with its 95 % interval (rates: Newcombe; the rest: bootstrap). Filled and * : the "
+                "interval excludes 0. MDD: the smallest difference these pairs detect (alpha 0.05, power 0.8); "
+                "†: every pair agreed, so the observed spread says nothing (see the table's design value).")
+    figs = [forest_figure(f"{vehicle}: paired differences", panels, subtitle=subtitle, columns=2)]
+    table = []
+    for p in pairs:
+        for key, label, scale, digits in SUMMARY_ROWS:
+            st = p.stats.get(key)
+            if st is None:
+                continue
+            label = label.replace("[%]", "[% points]") if key in RATE_METRICS else label
+            table.append(_paired_row(style.pair_label(p), label, st, key, scale, digits))
+    header = ["pair (first − second)", "metric", "pairs", "mean difference [95 % CI]", "excludes 0",
+              "MDD", "MDD before any run"]
+    notes = ["Rates in percentage points. " + mdd_words(summary),
+             "Intervals: " + ("Newcombe's hybrid score interval for rates, the percentile bootstrap for the rest."
+                              if summary.intervals.paired_rates else "the percentile bootstrap.")]
+    figs += F.table_pages(f"{vehicle}: paired differences and minimum detectable differences", header, table,
+                          rows_per_page=26, notes=wrapped(notes), font_size=7.5)
+    return figs
+
+
+def _paired_row(pair: str, label: str, st: PairedStat, key: str, scale: float, digits: int) -> list[str]:
+    excl = st.excludes_zero
+    design = mdd_cell(st, key, scale, digits, design=True) if key in RATE_METRICS else ""
+    return [pair, label, str(st.n), format_ci(st, scale, digits),
+            "n/a" if excl is None else ("yes" if excl else "no"), mdd_cell(st, key, scale, digits), design]
+
+
+def mdd_cell(st: PairedStat, key: str, scale: float, digits: int, design: bool = False) -> str:
+    """A paired difference's MDD (or its design value) as a cell: "0 (no spread)" when every pair agreed (the
+    observed spread then says nothing: see the design value), "> 100" for a rate no difference can reach."""
+    value = st.mdd_design if design else st.mdd
+    if value is None:
+        return "n/a"
+    if not design and st.sd == 0.0:
+        return "0 (no spread)"
+    if key in RATE_METRICS and value > 1.0:
+        return f"> {scale:.0f}"
+    return _number(value, scale, digits)
+
+
+def _conditions_pages(vehicle: str, scenarios: Mapping[str, Summary], rows: Sequence[EpisodeMetrics],
+                      conditions: Mapping[str, ScenarioConditions]) -> list[Figure]:
+    table = []
+    for name in scenarios:
+        c = conditions.get(name)
+        mine = [r for r in rows if r.scenario == name]
+        cells = {(r.episode, r.seed) for r in mine}
+        legs = np.array([r.straight_line_m for r in mine], dtype=float)
+        legs = legs[np.isfinite(legs)]
+        da = None if c is None else c.density_altitude_m
+        table.append([name, "n/a" if c is None else _number(c.building_coverage, 100.0, 0),
+                      (c.turbulence if c is not None else None) or "n/a",
+                      "n/a" if c is None else _number(c.density_kg_m3, 1.0, 3), _number(da, 1.0, 0),
+                      str(len(cells)), _number(float(np.median(legs)) if legs.size else None, 1.0, 0)])
+    header = ["scenario", "building coverage [%]", "turbulence", "air density [kg/m³]", "density altitude [m]",
+              "episodes x seeds", "leg length, median [m]"]
+    notes = ["Building coverage: share of the map's area under building footprints (maps/<scenario>.yaml). "
+             "Density altitude: the ISA altitude with the field's air density."]
+    return F.table_pages(f"{vehicle}: scenarios and their conditions", header, table, rows_per_page=26,
+                         notes=wrapped(notes), font_size=8)
+
+
+def _scenario_pages(vehicle: str, scenarios: Mapping[str, Summary], style: MethodStyle) -> list[Figure]:
+    table = []
+    for name, part in scenarios.items():
+        for m in style.sorted(list(part.methods)):
+            ms = part.methods[m]
+            reasons = ", ".join(f"{k} {v}" for k, v in ms.failure_reasons.items()) or "none"
+            table.append([name, style.label(m), str(ms.episodes)]
+                         + [format_ci(ms.stats.get(k), scale, digits) for k, _, scale, digits in SCENARIO_COLUMNS]
+                         + [reasons])
+    header = ["scenario", "method", "episodes"] + [h for _, h, *_ in SCENARIO_COLUMNS] + ["failures"]
+    notes = ["Cells: mean [95 % CI] within the scenario (rates: Wilson; the rest: bootstrap)."]
+    return F.table_pages(f"{vehicle}: per scenario", header, table, rows_per_page=24, notes=notes, font_size=7)
+
+
+def episode_table_pages(vehicle: str, rows: Sequence[EpisodeMetrics], style: MethodStyle,
+                        scenario_order: Sequence[str], max_rows: int = EPISODE_ROWS_PER_VEHICLE) -> list[Figure]:
+    """One vehicle's episodes, one row per metrics.csv row in run order, at most `max_rows` (a note says so)."""
+    def order(r: EpisodeMetrics) -> tuple:
+        k = scenario_order.index(r.scenario) if r.scenario in scenario_order else len(scenario_order)
+        return (k, r.scenario, r.episode, r.seed, style.rank(r.method), r.method)
+
+    ordered = sorted(rows, key=order)
+    shown = ordered[:max_rows]
+    table = [[r.scenario, str(r.episode), str(r.seed), style.label(r.method), r.outcome,
+              _number(r.min_clearance_m, 1.0, 2), _number(r.time_s, 1.0, 1), _number(r.energy_kj, 1.0, 2)]
+             for r in shown]
+    header = ["scenario", "episode", "seed", "method", "outcome", "min clearance [m]", "time [s]", "energy [kJ]"]
+    note = (f"{len(rows)} rows of metrics.csv." if len(shown) == len(rows) else
+            f"The first {len(shown)} of {len(rows)} rows of metrics.csv (run order); every row is in metrics.csv.")
+    return F.table_pages(f"{vehicle}: per episode", header, table, rows_per_page=26, notes=[note])

@@ -1,0 +1,361 @@
+"""The benchmark sets: held-out task distributions per vehicle, generated, seeded and versioned.
+
+`build_suite("benchmark")` (or "benchmark-quick") generates the scenarios of a set: per vehicle, cities
+drawn from the learned pilot's own city distribution (`rl.task.vehicles.task_for(vehicle).cities`) at seeds no
+pool of its training or evaluation uses (`rl.task.cities`: training 0.., test 1,000,000.., validation
+1,050,000..; here 3,000,000.. for the small quad and 3,100,000.. for the UAM), each flown in one air and
+turbulence condition on several start/goal legs at that vehicle's task scale (goal radius, clearances,
+margins and time limits of its task; `rl.task.vehicles`). Every scenario is a plain scenario mapping checked by
+the same strict loader as a file (`compare.scenarios.scenario.scenario_from_dict`), so `uam-compare validate
+benchmark` checks every one.
+
+The difficulty axes vary on purpose, so that success can be plotted against them:
+
+* building density: three levels of the generator's lot occupancy and footprint fill (the lowest, middle
+  and highest the learned pilot trained on); measured as the built cover (`building_coverage`);
+* turbulence: none, light, moderate;
+* air: sea level on a standard day, warm and raised, hot and high (`AIR_LEVELS`; `density_altitude_m`);
+* leg length: three bins per vehicle (leg j of a scenario is in bin j mod 3).
+
+The scenario index i sets the first three through an orthogonal array (i in base 3: a, b, c; turbulence
+a, density a + b, air a + 2b + c, mod 3): every run of 9 consecutive scenarios holds each pair of levels
+of any two axes once, every 27 the full factorial. Legs prefer a straight line blocked by buildings (the
+first blocked candidate; the first free one when none of `MAX_LEG_DRAWS` is blocked).
+
+Determinism and subsets: scenario i's city, air and wind come from its own seed, and leg j from its own
+stream, so a scenario's first legs do not depend on how many it has. "benchmark-quick" is the first
+`quick_scenarios` scenarios of each vehicle with their first `quick_legs` legs: the same names, tasks and
+cell seeds as in "benchmark", so its cells are cells of the full set.
+
+Validation: "benchmark-validation" is the full set's twin on other cities (`VALIDATION_SEED_OFFSET` added to every
+city seed; the same design, levels, leg bins and time limits; scenarios named "benchmark-validation-<tag>-007"). A
+pilot's choices (margins, budgets, gains, checkpoints) are tuned there; "benchmark" is the test pool, flown only to
+report.
+
+Version: `GENERATOR_VERSION` + "+" + a hash of everything generated (the scenario mappings and the
+buildings of every city), so any change to the output, including the city generator's, changes it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from compare.results.difficulty import building_coverage
+from compare.results.run_info import SuiteInfo
+from compare.scenarios.fingerprint import scenario_fingerprint
+from compare.scenarios.scenario import Scenario, scenario_from_dict
+from rl.task.air import AIR_LEVELS as LEVELS_OF_AIR
+from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, CityMixture, TaskDistribution
+from rl.task.vehicles import task_for
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.city.generator import CityGenParams, generate_city
+from uam_fdm.vehicle.params import VehicleParams, load_vehicle
+
+GENERATOR_VERSION = "1"
+"""Bumped by hand when the design changes on purpose; the hash in the version catches every change anyway."""
+# the generated sets (`compare.scenarios.sets`)
+BENCHMARK_SETS = ("benchmark", "benchmark-quick", "benchmark-validation")
+FULL, QUICK, VALIDATION = BENCHMARK_SETS
+VALIDATION_SEED_OFFSET = 200_000
+"""The validation twin's city seeds: the full set's plus this (3,200,000.. for the small quad, 3,300,000.. for the
+UAM: clear of the full set's 36 and of every learned pilot's pool, `_check_design`)."""
+METHODS = ("ppo", "rrt_mpc", "apf")
+TURBULENCE_LEVELS = ("none", "light", "moderate")
+DENSITY_LEVELS = ("sparse", "medium", "dense")
+MAX_LEG_DRAWS = 256  # candidate legs per leg before a free straight line is accepted
+_DRAW_BATCH = 32
+_STREAM_AIR, _STREAM_LEG = 0xA1B, 0x1E6  # PCG64 stream tags: a scenario's air and wind, its legs
+LEARNED_PILOT_POOLS: dict[str, range] = {"training": TRAIN_SEEDS, "test and validation": EVAL_SEEDS}
+"""The learned pilot's city seed pools (`rl.task.cities`, `rl.training.evaluation`), which the benchmark's seeds
+avoid."""
+
+
+AIR_LEVELS = tuple(LEVELS_OF_AIR.values())
+"""The air axis's levels (`rl.task.air.AIR_LEVELS`: sea level on a standard day, warm and raised, hot and high)."""
+
+
+@dataclass(frozen=True)
+class VehicleBenchmark:
+    """The task distribution of one vehicle (the rest is its learned pilot's task, `rl.task.vehicles.task_for`).
+
+    Attributes:
+        vehicle: the vehicle preset.
+        tag: short name in the scenario names ("benchmark-<tag>-007").
+        first_seed: the first city seed (scenario i flies city first_seed + i).
+        leg_bins_m: straight start-goal distance ranges [m]; leg j is drawn in bin j mod len.
+        altitude_m: start and goal height range above the ground [m].
+        steady_wind_max_m_s: each scenario's steady wind speed is uniform in [0, this] [m/s] (the learned
+            pilot's training air when the set was made; fixed here so the set does not move with training).
+    """
+
+    vehicle: str
+    tag: str
+    first_seed: int
+    leg_bins_m: tuple[tuple[float, float], ...]
+    altitude_m: tuple[float, float]
+    steady_wind_max_m_s: float
+
+
+@dataclass(frozen=True)
+class BenchmarkDesign:
+    """What the benchmark sets hold.
+
+    Attributes:
+        vehicles: one task distribution per vehicle (never pooled: each vehicle has its own scenarios).
+        scenarios_per_vehicle, legs_per_scenario: the full set's size per vehicle.
+        quick_scenarios, quick_legs: the quick subset's (the first scenarios, their first legs).
+        seeds: the seeds every episode is flown with.
+        methods: the pilots flown.
+    """
+
+    vehicles: tuple[VehicleBenchmark, ...] = (
+        # the learned quad's legs are 40-250 m at 5-30 m; the shipped scenarios 120-250 m at 8-20 m
+        VehicleBenchmark("small_quad", "quad", 3_000_000, ((60.0, 120.0), (120.0, 180.0), (180.0, 240.0)),
+                         (8.0, 25.0), 3.0),
+        # the learned UAM's legs are 300-1500 m at 30-90 m; a 1.2 km leg still fits the smallest city's
+        # flyable square (1000 m less 2 x 80 m margins: 1188 m across the diagonal)
+        VehicleBenchmark("uam_multicopter", "uam", 3_100_000, ((300.0, 600.0), (600.0, 900.0), (900.0, 1200.0)),
+                         (30.0, 90.0), 5.0),
+    )
+    # 36 = 4 blocks of the orthogonal array: every pair of levels 4 times, each level 12 times
+    scenarios_per_vehicle: int = 36
+    legs_per_scenario: int = 12
+    # the first 6 scenarios hold every level of each axis twice and no axis moves in step with another (the
+    # first 3 alone would raise every axis together), 3 legs every length bin; sized to run in under 10 min
+    # with --jobs 2, report included, a plug-in pilot too (measured: docs/benchmark.md)
+    quick_scenarios: int = 6
+    quick_legs: int = 3
+    seeds: tuple[int, ...] = (0,)
+    methods: tuple[str, ...] = METHODS
+
+
+DESIGN = BenchmarkDesign()
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A generated set: what run.json records of it, and its checked scenarios (vehicle by vehicle)."""
+
+    info: SuiteInfo
+    scenarios: tuple[Scenario, ...]
+
+
+@dataclass(frozen=True)
+class Levels:
+    """Scenario i's levels on the designed axes (indices into TURBULENCE_LEVELS, DENSITY_LEVELS, AIR_LEVELS)."""
+
+    turbulence: int
+    density: int
+    air: int
+
+
+def levels(index: int) -> Levels:
+    """The orthogonal-array levels of scenario `index` (see the module docstring)."""
+    a, b, c = index % 3, (index // 3) % 3, (index // 9) % 3
+    return Levels(turbulence=a, density=(a + b) % 3, air=(a + 2 * b + c) % 3)
+
+
+# ---- the sets ---------------------------------------------------------------------------------------
+def build_suite(name: str, design: BenchmarkDesign = DESIGN) -> Suite:
+    """Generate and check the benchmark set `name` (one of `BENCHMARK_SETS`).
+
+    Raises:
+        ValueError: an unknown set name, or a design whose quick set is not a subset of the full one or whose
+            city seeds are not held out (`LEARNED_PILOT_POOLS`, or another vehicle's).
+    """
+    if name not in BENCHMARK_SETS:
+        raise ValueError(f"unknown benchmark set {name!r} (known: {', '.join(BENCHMARK_SETS)})")
+    _check_design(design)
+    n_scenarios, n_legs = ((design.quick_scenarios, design.quick_legs) if name == QUICK
+                           else (design.scenarios_per_vehicle, design.legs_per_scenario))
+    flown, prefix = design, "benchmark"
+    if name == VALIDATION:
+        flown, prefix = validation_design(design), VALIDATION
+        _check_design(flown, others={f"{v} benchmark": seeds for v, seeds in city_seed_ranges(design).items()})
+    checked = []
+    for vb in flown.vehicles:
+        vehicle = load_vehicle(vb.vehicle)
+        for i in range(n_scenarios):
+            data = scenario_mapping(vb, vehicle, i, n_legs, flown, prefix)
+            checked.append(scenario_from_dict(data, f"{name}:{data['name']}", Path(".")))
+    info = SuiteInfo(name, suite_version(checked), _describe(name, n_scenarios, n_legs, flown))
+    return Suite(info, tuple(dataclasses.replace(sc, suite=info) for sc in checked))
+
+
+def city_seed_ranges(design: BenchmarkDesign = DESIGN) -> dict[str, range]:
+    """The city seeds of the full set, per vehicle."""
+    return {vb.vehicle: range(vb.first_seed, vb.first_seed + design.scenarios_per_vehicle) for vb in design.vehicles}
+
+
+def validation_design(design: BenchmarkDesign = DESIGN) -> BenchmarkDesign:
+    """The design of the validation twin: every vehicle's city seeds moved by `VALIDATION_SEED_OFFSET`."""
+    return dataclasses.replace(design, vehicles=tuple(
+        dataclasses.replace(vb, first_seed=vb.first_seed + VALIDATION_SEED_OFFSET) for vb in design.vehicles))
+
+
+def _check_design(design: BenchmarkDesign, others: dict[str, range] | None = None) -> None:
+    """Raise ValueError when the quick set is not a subset, or a city seed is in a learned pilot's pool, in
+    `others` (named seed ranges: the test set's, for its validation twin) or twice."""
+    if not (1 <= design.quick_scenarios <= design.scenarios_per_vehicle
+            and 1 <= design.quick_legs <= design.legs_per_scenario):
+        raise ValueError(f"the quick set ({design.quick_scenarios} x {design.quick_legs}) must be a non-empty subset "
+                         f"of the full set ({design.scenarios_per_vehicle} x {design.legs_per_scenario})")
+    taken: dict[str, range] = {**LEARNED_PILOT_POOLS, **(others or {})}
+    for vehicle, seeds in city_seed_ranges(design).items():
+        for pool, other in taken.items():
+            if seeds.start < other.stop and other.start < seeds.stop:
+                raise ValueError(f"{vehicle}: city seeds {seeds.start}-{seeds.stop - 1} overlap the {pool} cities "
+                                 f"({other.start}-{other.stop - 1})")
+        taken[f"{vehicle} benchmark"] = seeds
+
+
+def suite_version(scenarios: Sequence[Scenario], generator_version: str = GENERATOR_VERSION) -> str:
+    """`generator_version` (this module's `GENERATOR_VERSION`) + "+" + 10 hex digits of SHA-256 over the
+    scenarios' mappings and their cities' buildings and bounds (the mapping names the city by generator
+    parameters and seed; the hash of what was generated catches a change of the city generator too)."""
+    content = [[sc.raw, scenario_fingerprint(sc)["map"]] for sc in scenarios]
+    digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+    return f"{generator_version}+{digest[:10]}"
+
+
+def _describe(name: str, n_scenarios: int, n_legs: int, design: BenchmarkDesign) -> str:
+    sizes = ", ".join(f"{vb.vehicle} {n_scenarios} cities x {n_legs} legs = {n_scenarios * n_legs} tasks"
+                      for vb in design.vehicles)
+    subset = {QUICK: f" (the first of {FULL}'s)",
+              VALIDATION: f" for tuning: the validation twin of {FULL} (city seeds +{VALIDATION_SEED_OFFSET:,})"
+              }.get(name, "")
+    return (f"Held-out generated tasks per vehicle{subset}: {sizes}; cities of each learned pilot's distribution at "
+            f"unseen seeds; buildings {'/'.join(DENSITY_LEVELS)}, turbulence {'/'.join(TURBULENCE_LEVELS)}, air "
+            f"{'/'.join(a.name for a in AIR_LEVELS)}, {len(design.vehicles[0].leg_bins_m)} leg-length bins, straight "
+            f"lines blocked by buildings where possible")
+
+
+# ---- one scenario -----------------------------------------------------------------------------------
+def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n_legs: int,
+                     design: BenchmarkDesign = DESIGN, prefix: str = "benchmark") -> dict:
+    """The scenario mapping (the scenario-file schema, `compare.scenarios.scenario`) of scenario `index` of a vehicle.
+
+    Args:
+        vb: the vehicle's distribution.
+        vehicle: its parameters (`load_vehicle(vb.vehicle)`).
+        index: the scenario's index (its city seed is vb.first_seed + index).
+        n_legs: how many legs (the first n of this scenario's sequence).
+        design: the sets' design (seeds, methods).
+        prefix: the scenario's name before "-<tag>-<index>".
+
+    Raises:
+        RuntimeError: a leg with no free start and goal after MAX_LEG_DRAWS candidates.
+    """
+    nav = task_for(vb.vehicle)
+    seed = vb.first_seed + index
+    lv = levels(index)
+    params = city_params(nav.cities, seed, lv.density)
+    city = generate_city(params, seed, name=f"gen-{seed}")
+    rng = np.random.Generator(np.random.PCG64([seed, _STREAM_AIR]))
+    air = AIR_LEVELS[lv.air]
+    elevation = round(float(rng.uniform(*air.elevation_m)), -1)
+    offset = round(float(rng.uniform(*air.isa_offset_k)), 1)
+    speed, heading = float(rng.uniform(0.0, vb.steady_wind_max_m_s)), float(rng.uniform(-math.pi, math.pi))
+    wind = [round(speed * math.cos(heading), 1), round(speed * math.sin(heading), 1), 0.0]
+    turbulence = TURBULENCE_LEVELS[lv.turbulence]
+    legs = [draw_leg(city, nav.tasks, vb, vehicle.collision_radius_m, seed, j) for j in range(n_legs)]
+    episodes = [{"start": a, "goal": b,
+                 "timeout_s": round(nav.tasks.timeout_s(math.dist(a, b), b[2] - a[2], vehicle.controller.max_speed_m_s,
+                                                        vehicle.controller.max_vertical_speed_m_s), 1)}
+                for a, b in legs]
+    density_altitude = density_altitude_m(field_density_kg_m3(elevation, offset))
+    name = f"{prefix}-{vb.tag}-{index:03d}"
+    fields = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(params).items()}
+    return {
+        "name": name,
+        "description": (f"{vb.vehicle} in held-out city {seed}: {DENSITY_LEVELS[lv.density]} buildings (built cover "
+                        f"{building_coverage(city):.2f}), turbulence {turbulence}, {air.name} (field {elevation:g} m, "
+                        f"ISA{offset:+g} K, density altitude {round(density_altitude):d} m), wind {speed:.1f} m/s"),
+        "map": {"generator": {"seed": seed, "name": city.name, **fields}},
+        "vehicle": vb.vehicle,
+        "atmosphere": {"elevation_m": elevation, "isa_offset_k": offset, "wind_mps": wind, "turbulence": turbulence},
+        "goal_radius_m": nav.tasks.goal_radius_m,
+        "episodes": episodes,
+        "seeds": list(design.seeds),
+        "methods": list(design.methods),
+    }
+
+
+def city_params(cities: CityDistribution | CityMixture, seed: int, density_level: int) -> CityGenParams:
+    """City `seed` of the learned pilot's distribution with its lot occupancy and footprint fill set to the
+    density level's (0: the lowest of the distribution's ranges, 1: the middle, 2: the highest); the fill's
+    spread is the city's own (from a mixture: the ranges of the component the city comes from)."""
+    cities = cities.distribution(seed)
+    p = cities.params(seed)
+    t = density_level / (len(DENSITY_LEVELS) - 1)
+    density = cities.density[0] + t * (cities.density[1] - cities.density[0])
+    fill_low = cities.fill_low[0] + t * (cities.fill_low[1] - cities.fill_low[0])
+    spread = p.fill_range[1] - p.fill_range[0]
+    return dataclasses.replace(p, density=round(density, 3),
+                               fill_range=(round(fill_low, 3), round(min(0.9, fill_low + spread), 3)))
+
+
+def draw_leg(city: BuildingMap, tasks: TaskDistribution, vb: VehicleBenchmark, radius_m: float, seed: int,
+         j: int) -> tuple[list[float], list[float]]:
+    """Leg j of city `seed`: start and goal (ENU, rounded to 0.1 m) from the leg's own stream.
+
+    Candidates: a length in the leg's bin, heights in the vehicle's range, a heading, then a start uniform
+    over the places from which the goal stays inside the flyable area (bounds less the task's margin);
+    both ends at least the task's clearance beyond the collision radius from buildings and the ground.
+    The first candidate whose straight line is blocked wins, else the first free one.
+    """
+    rng = np.random.Generator(np.random.PCG64([seed, _STREAM_LEG, j]))
+    d_lo, d_hi = vb.leg_bins_m[j % len(vb.leg_bins_m)]
+    lo = np.asarray(city.bounds_min_m[:2]) + tasks.bounds_margin_m
+    hi = np.asarray(city.bounds_max_m[:2]) - tasks.bounds_margin_m
+    need = tasks.min_clearance_m
+    fallback = None
+    for _ in range(MAX_LEG_DRAWS // _DRAW_BATCH):
+        n = _DRAW_BATCH
+        dist = rng.uniform(d_lo, d_hi, n)
+        z = rng.uniform(*vb.altitude_m, (n, 2))
+        heading = rng.uniform(-math.pi, math.pi, n)
+        u = rng.random((n, 2))
+        horiz = np.sqrt(np.maximum(dist ** 2 - (z[:, 1] - z[:, 0]) ** 2, 1.0))
+        step = horiz[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+        # the start's range along each axis that keeps start and goal inside [lo, hi]
+        s_lo, s_hi = np.maximum(lo, lo - step), np.minimum(hi, hi - step)
+        fits = np.all(s_hi > s_lo, axis=1)
+        start_xy = s_lo + u * (s_hi - s_lo)
+        starts = np.round(np.column_stack([start_xy, z[:, 0]]), 1)
+        goals = np.round(np.column_stack([start_xy + step, z[:, 1]]), 1)
+        ok = fits & np.all((goals[:, :2] >= lo) & (goals[:, :2] <= hi), axis=1)
+        ok &= np.all((starts[:, :2] >= lo) & (starts[:, :2] <= hi), axis=1)
+        if not np.any(ok):
+            continue
+        clear_a = city.clearance(starts, radius_m).distance_m
+        clear_b = city.clearance(goals, radius_m).distance_m
+        for k in np.flatnonzero(ok & (clear_a >= need) & (clear_b >= need)):
+            d = math.dist(starts[k], goals[k])
+            if not d_lo <= d <= d_hi:  # rounding at the bin's edge
+                continue
+            leg = (starts[k].tolist(), goals[k].tolist())
+            if not city.segment_free(starts[k], goals[k], radius_m):
+                return leg
+            fallback = fallback or leg
+    if fallback is None:
+        raise RuntimeError(f"city {seed}: no free start and goal for leg {j} ({d_lo:g}-{d_hi:g} m) in "
+                           f"{MAX_LEG_DRAWS} candidates")
+    return fallback
+
+
+# ---- difficulty measures ------------------------------------------------------------------------------
+def field_density_kg_m3(elevation_m: float, isa_offset_k: float) -> float:
+    """Air density at the field [kg/m³] in JSBSim's atmosphere (the one flown)."""
+    air = Atmosphere.from_jsbsim(AtmosphereConditions(elevation_m, isa_offset_k), z_max_m=10.0, z_min_m=0.0)
+    return float(air.density_kg_m3(0.0))
+
+

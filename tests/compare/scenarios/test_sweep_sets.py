@@ -1,0 +1,152 @@
+"""The robustness sweep: the same tasks at every step, the density altitudes it claims, held-out cities, a
+version that is repeatable and moves with the output; a learned pilot warned (and still flown) where the air
+leaves its training."""
+from __future__ import annotations
+
+import logging
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+from compare.results.episodes import open_episodes
+from compare.results.run_info import AirEnvelope
+from compare.run.campaign import RunOptions, plan_cells, policy_facts
+from compare.run.trained_air import outside_trained_air, scenario_outside
+from compare.scenarios import sweep
+from compare.scenarios.benchmark import LEARNED_PILOT_POOLS, city_seed_ranges
+from compare.scenarios.sets import builtin_sets, resolve_scenarios
+from compare.scenarios.sweep import DA_TOLERANCE_M, DENSITY_ALTITUDES_M, DESIGN, build_sweep, sweep_seed_ranges
+from rl.policies.folder import shipped_policy_dir
+from uam_fdm.air.atmosphere import density_altitude_m
+
+
+@pytest.fixture(scope="module")
+def quick():
+    return build_sweep("sweep-quick")
+
+
+def _city(sc) -> int:
+    return sc.raw["map"]["generator"]["seed"]
+
+
+def test_the_same_tasks_at_every_step(quick) -> None:
+    by_city = defaultdict(list)
+    for sc in quick.scenarios:
+        by_city[_city(sc)].append(sc)
+    assert len(by_city) == 2 * DESIGN.quick_cities  # one city per vehicle
+    for scenarios in by_city.values():
+        legs = {tuple((tuple(e.task.start_m), tuple(e.task.goal_m)) for e in sc.episodes) for sc in scenarios}
+        assert len(legs) == 1 and len(next(iter(legs))) == DESIGN.quick_legs
+        assert len({sc.city.buildings for sc in scenarios}) == 1
+        assert {tuple(sc.methods) for sc in scenarios} == {("ppo", "rrt_mpc", "apf")}
+        # one axis at a time: raised fields fly one wind; winds vary at sea level only
+        raised = [sc for sc in scenarios if sc.atmosphere.elevation_m > 0.0]
+        assert len({round(math.hypot(*sc.wind.steady_enu_m_s), 1) for sc in raised}) == 1
+        headings = {round(math.atan2(sc.wind.steady_enu_m_s[1], sc.wind.steady_enu_m_s[0]), 2)
+                    for sc in scenarios if math.hypot(*sc.wind.steady_enu_m_s) > 0}
+        assert len(headings) == 1
+        assert {sc.wind.turbulence.value for sc in scenarios} == {"light"}
+
+
+def test_the_steps_hit_their_density_altitudes_and_winds(quick) -> None:
+    for sv in DESIGN.vehicles:
+        mine = [sc for sc in quick.scenarios if sc.vehicle_name == sv.tasks.vehicle]
+        assert len(mine) == len(DENSITY_ALTITUDES_M) + len(sv.wind_steps_m_s) - 1  # the sea-level point shared
+        das = sorted({density_altitude_m(float(sc.air.density_kg_m3(0.0))) for sc in mine})
+        assert len(das) == len(DENSITY_ALTITUDES_M) >= 7 and max(DENSITY_ALTITUDES_M) >= 4500.0
+        for want, got in zip(DENSITY_ALTITUDES_M, das):
+            assert abs(got - want) <= DA_TOLERANCE_M
+        sea = [sc for sc in mine if sc.atmosphere.elevation_m == 0.0]
+        winds = sorted(round(math.hypot(*sc.wind.steady_enu_m_s), 1) for sc in sea)
+        assert winds == pytest.approx(sorted(sv.wind_steps_m_s), abs=0.06) and len(winds) >= 7
+    quad = next(sv for sv in DESIGN.vehicles if sv.tasks.vehicle == "small_quad")
+    uam = next(sv for sv in DESIGN.vehicles if sv.tasks.vehicle == "uam_multicopter")
+    assert max(quad.wind_steps_m_s) == 12.0 and max(uam.wind_steps_m_s) == 16.0
+
+
+def test_city_seeds_are_held_out() -> None:
+    taken = {**LEARNED_PILOT_POOLS, **{f"{v} benchmark": r for v, r in city_seed_ranges().items()}}
+    ranges = sweep_seed_ranges()
+    for vehicle, seeds in ranges.items():
+        for other in [*taken.values(), *(r for v, r in ranges.items() if v != vehicle)]:
+            assert not set(seeds) & set(other), vehicle
+    with pytest.raises(ValueError, match="overlap the small_quad benchmark"):
+        tasks = DESIGN.vehicles[0].tasks
+        clash = sweep.SweepVehicle(sweep.VehicleBenchmark(tasks.vehicle, tasks.tag, 3_000_010, tasks.leg_bins_m,
+                                                          tasks.altitude_m, 0.0), (0.0, 2.0), 2.0)
+        build_sweep("sweep-quick", sweep.SweepDesign(vehicles=(clash,)))
+
+
+def test_version_is_repeatable_and_quick_is_a_subset(quick) -> None:
+    again = build_sweep("sweep-quick")
+    assert again.info.version == quick.info.version and [s.raw for s in again.scenarios] == [s.raw for s in
+                                                                                              quick.scenarios]
+    assert quick.info.version.startswith(f"{sweep.GENERATOR_VERSION}+")
+    assert quick.info.version == "1+c72ac2382a"  # docs/benchmark.md
+    bigger = build_sweep("sweep-quick", sweep.SweepDesign(quick_legs=3))
+    assert bigger.info.version != quick.info.version
+    for small, big in zip(quick.scenarios, bigger.scenarios):
+        assert small.name == big.name and small.raw["episodes"] == big.raw["episodes"][:2]
+    only = build_sweep("sweep-quick", vehicles=("small_quad",))
+    assert [s.name for s in only.scenarios] == [s.name for s in quick.scenarios if s.vehicle_name == "small_quad"]
+    with pytest.raises(ValueError, match="--vehicle .*: no sweep for this vehicle"):
+        build_sweep("sweep-quick", vehicles=("zeppelin",))
+
+
+def test_the_sets_resolve_by_name(quick) -> None:
+    assert {"sweep", "sweep-quick"} <= set(builtin_sets())
+    assert [s.name for s in resolve_scenarios("sweep-quick")] == [s.name for s in quick.scenarios]
+
+
+# ---- the trained envelope --------------------------------------------------------------------------------
+def test_a_shipped_policy_is_warned_in_thin_air_not_at_sea_level(quick) -> None:
+    facts = policy_facts(shipped_policy_dir("small_quad"))
+    env = facts.envelope
+    # the shipped quad policy is trained across the envelope: density altitude -0.6 to 4.0 km, wind to 8 m/s
+    assert env is not None and env.steady_wind_max_m_s == 8.0 and env.turbulence == ("none", "light", "moderate")
+    assert -600.0 < env.density_altitude_m[0] < -500.0 and 4000.0 < env.density_altitude_m[1] < 4100.0
+    quad = [sc for sc in quick.scenarios if sc.vehicle_name == "small_quad"]
+    sea = next(sc for sc in quad if sc.name.endswith("-da0000-w020"))
+    inside = next(sc for sc in quad if sc.name.endswith("-da3000-w020"))
+    thin = next(sc for sc in quad if sc.name.endswith("-da4500-w020"))
+    windy = next(sc for sc in quad if sc.name.endswith("-da0000-w100"))
+    assert scenario_outside(sea, env) == () and scenario_outside(inside, env) == ()
+    assert scenario_outside(thin, env) == ("density altitude 4497 m",)
+    assert scenario_outside(windy, env) == ("steady wind 10.0 m/s",)
+    cells, _ = plan_cells(quad, RunOptions(Path("unused")), None)
+    notes = outside_trained_air(quad, cells, {facts.vehicle_fingerprint: env})
+    # past the envelope: 4.5 km, and wind 10 and 12 m/s
+    assert len(notes) == 1 and notes[0].startswith("ppo flies 3 of 13 small_quad scenarios outside")
+    assert thin.name in notes[0] and windy.name in notes[0] and sea.name not in notes[0]
+    assert inside.name not in notes[0]
+    assert outside_trained_air([sea], plan_cells([sea], RunOptions(Path("unused")), None)[0],
+                               {facts.vehicle_fingerprint: env}) == []
+
+
+def test_envelope_reasons() -> None:
+    env = AirEnvelope((-600.0, 4100.0), 8.0, ("none", "light"))
+    assert env.outside(4000.0, 8.0, "light") == ()
+    assert env.outside(4200.0, 8.5, "moderate") == ("density altitude 4200 m", "steady wind 8.5 m/s",
+                                                    "moderate turbulence")
+    assert env.outside(None, None, None) == ()
+
+
+def test_a_run_warns_and_still_flies_outside_the_envelope(quick, tmp_path: Path,
+                                                          caplog: pytest.LogCaptureFixture) -> None:
+    """The warning comes before flying, through logging; run.json keeps the note and the policy's trained air."""
+    from compare.results.run_info import read_run_info
+    from compare.run.campaign import run_comparison
+
+    thin = next(sc for sc in quick.scenarios if sc.name == "sweep-quad-00-da4500-w020")
+    thin = sweep.dataclasses.replace(thin, episodes=thin.episodes[:1])
+    opts = RunOptions(tmp_path / "run", methods=("ppo",), progress=False, report=False, videos="none")
+    with caplog.at_level(logging.WARNING, logger="compare.run.campaign"):
+        run_comparison([thin], opts)
+    assert any("ppo flies 1 of 1 small_quad scenarios outside" in r.getMessage() for r in caplog.records)
+    info = read_run_info(tmp_path / "run")
+    assert any("density altitude 4497 m" in n for n in info.notes)
+    (pol,) = info.policies("ppo")
+    assert pol.envelope is not None and pol.envelope.steady_wind_max_m_s == 8.0
+    assert len(open_episodes(tmp_path / "run").entries) == 1  # flown all the same
