@@ -3,9 +3,9 @@
 Fly it beside ours without installing anything (the folder on PYTHONPATH, the class by its import
 path)::
 
-    PYTHONPATH=examples uam-compare run benchmark-quick --method straight_climb:StraightClimbPilot
+    PYTHONPATH=examples uam-compare run benchmark-quick --pilot straight_climb:StraightClimbPilot
 
-A plug-in is any class with the `uam_fdm.pilot.Agent` interface: `name`, `reset(world, task, seed)`
+A plug-in is any class with the `uam_fdm.pilot.Pilot` interface: `name`, `reset(world, task, seed)`
 (called once per episode, timed as planning), `act(obs)` (called once per decision, timed) and
 `episode_report()`. Optional class attributes tell the report how to show it: `label`, `color`,
 `given` (a sentence for the run's fairness statement: what it uses of what it is given) and

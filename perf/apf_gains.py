@@ -37,7 +37,7 @@ from datetime import datetime, timezone
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from rl.env.world import NavWorld  # noqa: E402
-from rl.pilots.potential_field import GAINS_FILE, TUNED, PotentialField, gains_for_task  # noqa: E402
+from rl.pilots.potential_field import GAINS_FILE, TUNED, PotentialFieldConfig, gains_for_task  # noqa: E402
 from rl.task.vehicles import task_for  # noqa: E402
 from rl.training.evaluation import EvalResult, eval_config, evaluate_potential_field  # noqa: E402
 from uam_fdm.files.atomic import write_text_atomic  # noqa: E402
@@ -50,7 +50,7 @@ SPEEDS = (0.6, 0.8)
 COLLISION_WEIGHT = 2.0
 
 
-def candidates(vehicle: str) -> list[PotentialField]:
+def candidates(vehicle: str) -> list[PotentialFieldConfig]:
     """The grid around the vehicle's scaled starting point (the untuned gains are factor 1, repulsion 2, 0.8)."""
     base = gains_for_task(task_for(vehicle).scales, TUNED)
     return [replace(base.scaled(f), repulsion=r, speed_max=s) for f, r, s in itertools.product(FACTORS, REPULSIONS,

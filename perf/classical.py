@@ -18,7 +18,7 @@ tracking error, and the ratios to Ipopt.
     OMP_NUM_THREADS=1 python perf/classical.py --mpc-only [--mpc-extra fatrop,sqpmethod]
     OMP_NUM_THREADS=1 python perf/classical.py --pilot-plans-only   # plan time per plan, both vehicles
 
-The pilot's plans (`measure_pilot_plans`): `ClassicalAgent.reset` on the same kind of queries for
+The pilot's plans (`measure_pilot_plans`): `ClassicalPilot.reset` on the same kind of queries for
 both vehicles, at sea level in calm air and hot and high (2500 m, ISA+25 K) in moderate
 turbulence, i.e. with the margins by speed and the escalation ladder: `plan_time_s_median`,
 `plan_time_s_p95` (the worse vehicle's), per vehicle under `pilot_plans`.
@@ -206,10 +206,10 @@ PILOT_AIRS = (("sea_level", 0.0, 0.0, "none"), ("hot_high", 2500.0, 25.0, "moder
 
 
 def measure_pilot_plans(vehicle: str, per_map: int, seeds: Sequence[int]) -> dict:
-    """The classical pilot's planning as it flies: `ClassicalAgent.reset` (margins by speed from the
+    """The classical pilot's planning as it flies: `ClassicalPilot.reset` (margins by speed from the
     table, the escalation ladder of `planners.ladder`) per query, air and seed; its plan time per plan
     (the ladder's attempts together), the step that found each path and the failures."""
-    from planners.agent import ClassicalAgent
+    from planners.classical_pilot import ClassicalPilot
     from rl.task.vehicles import task_for
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.pilot import Task, World
@@ -217,7 +217,7 @@ def measure_pilot_plans(vehicle: str, per_map: int, seeds: Sequence[int]) -> dic
 
     params = load_vehicle(vehicle)
     nav = task_for(vehicle).tasks
-    agent, dynamics = ClassicalAgent(), VehicleDynamics(params, 500.0, 50.0)
+    pilot, dynamics = ClassicalPilot(), VehicleDynamics(params, 500.0, 50.0)
     queries = make_queries(per_map, params.collision_radius_m, 1.0)
     rows = []
     for air, elevation, offset, turbulence in PILOT_AIRS:
@@ -233,8 +233,8 @@ def measure_pilot_plans(vehicle: str, per_map: int, seeds: Sequence[int]) -> dic
                                   params.controller.max_speed_m_s, params.controller.max_vertical_speed_m_s)
             task = Task(start_m=q.start_m, goal_m=q.goal_m, timeout_s=limit)
             for seed in seeds:
-                info = agent.reset(world, task, seed)
-                rep = agent.episode_report()
+                info = pilot.reset(world, task, seed)
+                rep = pilot.episode_report()
                 rows.append(dict(air=air, map=q.map_name, seed=seed, ok=info.ok, plan_time_s=info.plan_time_s,
                                  attempts=rep.planner_attempts, step=rep.planner_step,
                                  margin_m=rep.planner_margin_m, floor_m=rep.planner_margin_floor_m))

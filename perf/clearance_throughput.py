@@ -20,7 +20,7 @@ import fcl  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uam_fdm.city.buildings import BuildingMap  # noqa: E402
-from uam_fdm.city.generator import CityGenParams, generate_city  # noqa: E402
+from uam_fdm.city.generator import CityGenConfig, generate_city  # noqa: E402
 
 N_BUILDINGS = 200
 RADIUS_M = 1.0
@@ -30,7 +30,7 @@ SEED = 1
 
 def _city() -> BuildingMap:
     """A rotated-grid city with a taller core, cut to its first 200 buildings."""
-    params = CityGenParams(extent_m=(1000.0, 1000.0), block_size_m=(90.0, 90.0), street_width_m=24.0,
+    params = CityGenConfig(extent_m=(1000.0, 1000.0), block_size_m=(90.0, 90.0), street_width_m=24.0,
                            lots_per_block=(2, 2), density=0.9, core_radius_m=250.0, core_height_factor=4.0,
                            grid_yaw_deg=15.0, yaw_jitter_deg=3.0, height_median_m=30.0)
     full = generate_city(params, SEED)

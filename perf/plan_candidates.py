@@ -1,7 +1,7 @@
 """The classical pilot's planning candidates, measured on the benchmark's validation twin.
 
 For every leg of `benchmark-validation` (the test set's design on other cities:
-`compare.scenarios.benchmark`), the pilot's plan at reset (`ClassicalAgent.reset`: margins for the scenario's air
+`compare.scenarios.benchmark`), the pilot's plan at reset (`ClassicalPilot.reset`: margins for the scenario's air
 and turbulence, the planning ladder, the reference timed as it will be flown) under each variant of the ladder,
 paired by leg:
 
@@ -35,8 +35,8 @@ import numpy as np  # noqa: E402
 
 from compare.flying.seeding import cell_seed  # noqa: E402
 from compare.run.cells import CellRunner  # noqa: E402
-from compare.scenarios.benchmark import VALIDATION, build_suite  # noqa: E402
-from planners.agent import ClassicalAgent, ClassicalConfig  # noqa: E402
+from compare.scenarios.benchmark import VALIDATION, build_task_set  # noqa: E402
+from planners.classical_pilot import ClassicalConfig, ClassicalPilot  # noqa: E402
 from planners.ladder import LADDER  # noqa: E402
 from planners.rrt_star import DEFAULT_ITERATIONS, FIRST_PATH, PlannerConfig  # noqa: E402
 
@@ -61,17 +61,17 @@ def variant_config(name: str) -> ClassicalConfig:
 
 def plan_legs(vehicle: str, variant: str, n_scenarios: int) -> list[dict]:
     """Every leg's plan at reset under `variant`: ok, ladder step, reference time, limit and plan time [s]."""
-    scenarios = [sc for sc in build_suite(VALIDATION).scenarios if sc.vehicle_name == vehicle][:n_scenarios]
+    scenarios = [sc for sc in build_task_set(VALIDATION).scenarios if sc.vehicle_name == vehicle][:n_scenarios]
     runner = CellRunner(scenarios, out_dir=os.devnull, policies={})
-    agent = ClassicalAgent(variant_config(variant))
+    pilot = ClassicalPilot(variant_config(variant))
     rows = []
     for si, sc in enumerate(scenarios):
         world = runner.world(si)
         for ep in sc.episodes:
-            info = agent.reset(world, ep.task, cell_seed(sc.name, ep.index, sc.seeds[0], "agent"))
-            found = agent.ladder_result
+            info = pilot.reset(world, ep.task, cell_seed(sc.name, ep.index, sc.seeds[0], "agent"))
+            found = pilot.ladder_result
             rows.append({"leg": f"{sc.name}:{ep.index}", "ok": info.ok, "step": 0 if found is None else found.step,
-                         "duration_s": agent.reference.duration_s if info.ok and agent.reference else math.nan,
+                         "duration_s": pilot.reference.duration_s if info.ok and pilot.reference else math.nan,
                          "limit_s": ep.task.timeout_s, "plan_time_s": info.plan_time_s})
     return rows
 

@@ -9,7 +9,7 @@ shared machine, other work only ever adds time). Episodes per second = cells / w
 ratio = Ray's wall time / the local backend's. Every metrics.csv must agree apart from the wall-clock
 columns (checked: the same episodes, whichever backend flew them).
 
-    OMP_NUM_THREADS=1 python perf/ray_overhead.py [--set default] [--seeds 0] [--methods M,..] [--repeats 2]
+    OMP_NUM_THREADS=1 python perf/ray_overhead.py [--set default] [--seeds 0] [--pilots P,..] [--repeats 2]
 
 Prints a table and, as its last line, one JSON object: local_jobs2_episodes_per_s, ray_2cpu_episodes_per_s,
 ray_overhead_ratio (and the wall times and cell count).
@@ -27,7 +27,7 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from compare.run.campaign import RunOptions, plan_cells, run_comparison, select_policies  # noqa: E402
+from compare.run.campaign import RunConfig, plan_cells, run_comparison, select_policies  # noqa: E402
 from compare.scenarios.sets import resolve_scenarios  # noqa: E402
 
 WALL_CLOCK_COLUMNS = {"compute_ms_mean", "compute_ms_max", "plan_time_s", "mpc_solve_ms_median",
@@ -43,21 +43,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", default="default", help="scenario set, file or folder (default: default)")
     ap.add_argument("--seeds", default=None, help="comma-separated seeds (default: the scenarios' own)")
-    ap.add_argument("--methods", default=None, help="comma-separated methods (default: the scenarios' own)")
+    ap.add_argument("--pilots", default=None, help="comma-separated pilots (default: the scenarios' own)")
     ap.add_argument("--repeats", type=int, default=2, help="runs per backend, alternating (default 2)")
     args = ap.parse_args()
     scenarios = resolve_scenarios(args.set)
     seeds = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
-    methods = tuple(args.methods.split(",")) if args.methods else None
+    methods = tuple(args.pilots.split(",")) if args.pilots else None
     backends = {"local_jobs2": "local", "ray_2cpu": "ray"}
     walls: dict[str, list[float]] = {name: [] for name in backends}
     reference, cells = None, 0
     with tempfile.TemporaryDirectory(prefix="ray-overhead-") as tmp:
         for k in range(args.repeats):
             for name in (list(backends) if k % 2 == 0 else list(backends)[::-1]):
-                opts = RunOptions(out_dir=Path(tmp) / f"{name}-{k}", methods=methods, seeds=seeds, jobs=2,
-                                  progress=False, report=False, videos="none", backend=backends[name],
-                                  command=f"benchmark {name}")
+                opts = RunConfig(out_dir=Path(tmp) / f"{name}-{k}", methods=methods, seeds=seeds, jobs=2,
+                                 progress=False, report=False, videos="none", backend=backends[name],
+                                 command=f"benchmark {name}")
                 cells = len(plan_cells(scenarios, opts, select_policies(scenarios, opts))[0])
                 t0 = time.perf_counter()
                 run_comparison(scenarios, opts)

@@ -1,5 +1,5 @@
 """What `uam-compare report` costs in wall time and peak memory, on a run folder of `.npz` episodes by the code
-before the run store and on the same episodes in the store by this code (issue 31).
+before the run store and on the same episodes in the store by this code.
 
 Builds a synthetic run folder shaped like a benchmark run (`tests/synthetic_run.py`: 2 vehicles x `--scenarios`
 x `--episodes` x 1 seed x 3 methods) whose episodes have `--samples` rows each at the physics rate (10,000:
@@ -34,7 +34,7 @@ sys.path.insert(0, str(HERE))  # the packages before tests/'s folders that mirro
 
 from synthetic_run import to_store, write_benchmark_run  # noqa: E402
 
-METHODS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC", "apf": "Potential field"}
+PILOT_LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC", "apf": "Potential field"}
 BENCHMARK_EPISODES = 2592
 _CHILD = ("import atexit, resource, sys\n"
           "atexit.register(lambda: print('MAXRSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "
@@ -69,7 +69,7 @@ def main() -> None:
         for scale in (args.episodes, 2 * args.episodes):
             npz = Path(tmp) / f"npz-{scale}"
             rows = write_benchmark_run(npz, scenarios_per_vehicle=args.scenarios, episodes=scale, seeds=(0,),
-                                       methods=METHODS, samples=args.samples)
+                                       methods=PILOT_LABELS, samples=args.samples)
             store = Path(tmp) / f"store-{scale}"
             shutil.copytree(npz, store)
             to_store(store)

@@ -133,7 +133,7 @@ def shipped_training() -> dict:
 def test_evaluation(episodes: int, seed: int = EVAL_SEED) -> dict:
     """The shipped policy and the potential-field pilot on the same `episodes` held-out test tasks.
 
-    As `uam-compare evaluate-policy` (compare/cli.py `_cmd_evaluate`): the policy's task on the test
+    As `uam-compare evaluate-policy` (compare/cli/evaluate.py `evaluate_policy`): the policy's task on the test
     pool with light turbulence; the potential field on the same cities, legs and wind at
     decision_hz = control_hz (50 Hz, the rate it was tuned at). A policy that cannot be loaded or
     cannot act is reported on the console and its figures are None; the potential field then flies

@@ -1,4 +1,4 @@
-"""What the run store costs and saves (issue 31): the same flown episodes written as the `.npz` files a run
+"""What the run store costs and saves: the same flown episodes written as the `.npz` files a run
 wrote before the store (one per episode, physics rate, float64) and as the store (each cell's part at the
 control rate, then compacted into the episode table and samples files), in this process.
 
@@ -30,7 +30,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from compare.results.store import compact, part_path, store_dir, write_part  # noqa: E402
 from compare.results.trajectory import episode_bytes  # noqa: E402
-from compare.run.campaign import RunOptions, plan_cells, select_policies  # noqa: E402
+from compare.run.campaign import RunConfig, plan_cells, select_policies  # noqa: E402
 from compare.run.cells import CellRunner  # noqa: E402
 from compare.scenarios.sets import resolve_scenarios  # noqa: E402
 
@@ -44,7 +44,7 @@ def main() -> None:
     scenarios = resolve_scenarios(args.set)
     with tempfile.TemporaryDirectory(prefix="store_size_") as tmp:
         run_dir = Path(tmp) / "run"
-        opts = RunOptions(out_dir=run_dir, progress=False, report=False, videos="none", store=args.store)
+        opts = RunConfig(out_dir=run_dir, progress=False, report=False, videos="none", store=args.store)
         cells, _ = plan_cells(scenarios, opts, select_policies(scenarios, opts))
         tasks: dict[str, list] = defaultdict(list)  # per vehicle, in run order
         for c in cells:

@@ -1,6 +1,6 @@
 """The classical pilot's tracking error per vehicle and air, measured closed loop: the margin table.
 
-Flies `planners.agent.ClassicalAgent` (fixed margins, no replanning: the tracker as it is) through
+Flies `planners.classical_pilot.ClassicalPilot` (fixed margins, no replanning: the tracker as it is) through
 the comparison's own runner (`compare.flying.episode_loop.run_episode`, 500 Hz physics, 50 Hz decisions) on
 generated cities and legs from the learned pilot's **validation** pool of each vehicle
 (`rl.task.vehicles.task_for(vehicle)`, `rl.training.evaluation.eval_config(..., pool="validation")`: city i of the
@@ -8,7 +8,7 @@ pool, a leg drawn from the vehicle's task distribution with its own seed, a stea
 task's maximum). The comparison's scenario sets (`default`, `full`) are the evaluation and are
 never flown here. The same cities, legs and winds serve every condition (paired).
 
-At every decision the agent records its distance to the reference curve (`Reference.deviation_m`)
+At every decision the pilot records its distance to the reference curve (`Reference.deviation_m`)
 and the reference's speed; the table holds the percentiles of these distances pooled per (vehicle,
 turbulence, air) and per bin of reference speed (`planners.margins.bin_by_speed`), and is
 written with its provenance to `planners/data/tracking_error.json` (`--out`), which the classical
@@ -96,13 +96,13 @@ def _validation_task(vehicle: str, index: int, seed: int):
     return p, city, city_seed, task, (speed * math.cos(heading), speed * math.sin(heading), 0.0)
 
 
-_AGENTS: dict = {}
+_PILOTS: dict = {}
 
 
 def fly(job: Job) -> dict:
     """Fly one episode; its deviations from the reference and its outcome."""
     from compare.flying.episode_loop import run_episode
-    from planners.agent import ClassicalAgent, ClassicalConfig
+    from planners.classical_pilot import ClassicalConfig, ClassicalPilot
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.air.wind import WindConditions, WindField, probe_heights_up_to
     from uam_fdm.pilot import World
@@ -110,11 +110,11 @@ def fly(job: Job) -> dict:
 
     p, city, city_seed, task, steady = _validation_task(job.vehicle, job.index, job.seed)
     key = (job.vehicle, job.adaptive)
-    if key not in _AGENTS:
+    if key not in _PILOTS:
         cfg = (ClassicalConfig() if job.adaptive else
                ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False))
-        _AGENTS[key] = (ClassicalAgent(cfg), VehicleDynamics(p, 500.0, 50.0))
-    agent, dyn = _AGENTS[key]
+        _PILOTS[key] = (ClassicalPilot(cfg), VehicleDynamics(p, 500.0, 50.0))
+    pilot, dyn = _PILOTS[key]
     elevation, offset = AIRS[job.air]
     top = float(city.bounds_max_m[2]) + 100.0
     atm = Atmosphere.from_jsbsim(AtmosphereConditions(elevation, offset), z_max_m=top, z_min_m=-50.0)
@@ -124,11 +124,11 @@ def fly(job: Job) -> dict:
     wind = WindField.from_conditions(conditions, job.seed * 100_003 + job.index, task.timeout_s + 1.0, airspeed,
                                      probe_heights_up_to(float(city.bounds_max_m[2])))
     t0 = time.perf_counter()
-    traj = run_episode(world, agent, task, wind, seed=job.seed + job.index)
-    rep = agent.episode_report()
+    traj = run_episode(world, pilot, task, wind, seed=job.seed + job.index)
+    rep = pilot.episode_report()
     return {"job": dataclasses.asdict(job), "city_seed": city_seed, "outcome": traj.outcome,
-            "deviations_m": np.asarray(agent.stats.deviations_m, float),
-            "reference_speeds_m_s": np.asarray(agent.stats.reference_speeds_m_s, float),
+            "deviations_m": np.asarray(pilot.stats.deviations_m, float),
+            "reference_speeds_m_s": np.asarray(pilot.stats.reference_speeds_m_s, float),
             "max_speed_m_s": float(p.controller.max_speed_m_s),
             "local_margin_ratio": rep.clearance_over_margin_min, "planner_attempts": rep.planner_attempts,
             "planner_margin_floor_m": rep.planner_margin_floor_m,
@@ -163,7 +163,7 @@ def table_rows(results: list[dict]) -> list[TrackingErrorRow]:
 def plan_only(job: Job) -> dict:
     """Only the shipped pilot's plan at reset (margins by speed, the planning ladder) for one validation leg:
     which step found the path (deterministic; the plan time is wall time)."""
-    from planners.agent import ClassicalAgent
+    from planners.classical_pilot import ClassicalPilot
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.air.wind import TurbulenceLevel
     from uam_fdm.pilot import World
@@ -171,14 +171,14 @@ def plan_only(job: Job) -> dict:
 
     p, city, city_seed, task, _ = _validation_task(job.vehicle, job.index, job.seed)
     key = (job.vehicle, "plan")
-    if key not in _AGENTS:
-        _AGENTS[key] = (ClassicalAgent(), VehicleDynamics(p, 500.0, 50.0))
-    agent, dyn = _AGENTS[key]
+    if key not in _PILOTS:
+        _PILOTS[key] = (ClassicalPilot(), VehicleDynamics(p, 500.0, 50.0))
+    pilot, dyn = _PILOTS[key]
     elevation, offset = AIRS[job.air]
     atm = Atmosphere.from_jsbsim(AtmosphereConditions(elevation, offset), z_max_m=float(city.bounds_max_m[2]) + 100.0,
                                  z_min_m=-50.0)
-    info = agent.reset(World(p, dyn, city, atm, TurbulenceLevel.parse(job.turbulence)), task, job.seed + job.index)
-    rep = agent.episode_report()
+    info = pilot.reset(World(p, dyn, city, atm, TurbulenceLevel.parse(job.turbulence)), task, job.seed + job.index)
+    rep = pilot.episode_report()
     return {"job": dataclasses.asdict(job), "city_seed": city_seed, "ok": info.ok, "status": info.status,
             "detail": info.detail, "plan_time_s": info.plan_time_s, "attempts": rep.planner_attempts,
             "step": rep.planner_step}
@@ -276,8 +276,8 @@ def main() -> None:
             "pool": "validation (rl.training.evaluation.eval_config(task_for(vehicle), n, pool='validation'): cities "
                     "1,050,000 on of rl.task.cities.EVAL_SEEDS), never the comparison's scenario sets",
             "seed": args.seed, "episodes": n, "uam_max_leg_m": UAM_MAX_LEG_M,
-            "pilot": "planners.agent.ClassicalAgent(margin_rule=None, replan_error_m=None, replan_on_clearance=False): "
-                     "fixed 1 m planner / 0.5 m MPC margins, no replanning",
+            "pilot": "planners.classical_pilot.ClassicalPilot(margin_rule=None, replan_error_m=None, "
+                     "replan_on_clearance=False): fixed 1 m planner / 0.5 m MPC margins, no replanning",
             "statistic": "distance from the vehicle to its reference curve at each 50 Hz decision "
                          "(planners.timing.Reference.deviation_m), pooled over the episodes' decisions; "
                          "speed_bins: the same per bin of the reference's speed at the decision "

@@ -1,4 +1,4 @@
-"""What recording the checkpoints' flights (issue 30) costs training: wall time with and without it.
+"""What recording the checkpoints' flights costs training: wall time with and without it.
 
 The same small training run twice, in this process (one torch thread): once recording `--tasks` fixed
 validation tasks at step 0 and at every evaluation (`rl.training.recording`), once not. The recorder's own

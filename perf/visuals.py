@@ -21,9 +21,9 @@ import time
 from pathlib import Path
 
 from compare.pages.viewer import build_viewer
-from compare.playback.animate import AnimationOptions, _Scene, ffmpeg_available, frame_times, render_animation
+from compare.playback.animate import AnimationConfig, _Scene, ffmpeg_available, frame_times, render_animation
 from compare.playback.flights import flight_groups
-from compare.run.campaign import RunOptions, run_comparison
+from compare.run.campaign import RunConfig, run_comparison
 from compare.scenarios.sets import resolve_scenarios
 
 SCENARIO = Path(__file__).resolve().parents[1] / "compare" / "scenarios" / "default" / "downtown-quad.yaml"
@@ -54,12 +54,12 @@ def main() -> None:
         if run_dir is None:
             run_dir = Path(tmp) / "run"
             run_comparison(resolve_scenarios(str(SCENARIO)),
-                           RunOptions(out_dir=run_dir, progress=False, report=False, videos="none"))
+                           RunConfig(out_dir=run_dir, progress=False, report=False, videos="none"))
         group = flight_groups(run_dir)[0]
-        opts = AnimationOptions(duration_s=args.frames / 20.0)
+        opts = AnimationConfig(duration_s=args.frames / 20.0)
         times = frame_times(group.duration_s, opts)
         fixed = per_frame_ms(_Scene(group, times, opts), args.frames)
-        orbit_opts = AnimationOptions(duration_s=args.frames / 20.0, orbit_deg=60.0)
+        orbit_opts = AnimationConfig(duration_s=args.frames / 20.0, orbit_deg=60.0)
         orbit = per_frame_ms(_Scene(group, times, orbit_opts), args.frames)
         full = per_frame_ms(_Scene(group, times, opts), max(args.frames // 4, 10), full_redraw=True)
         mp4 = None

@@ -1,39 +1,29 @@
 """No give-up while a path exists: the classical pilot's planning attempts, in order.
 
-RRT* with its deterministic budget sometimes ends with only an approximate path: the goal sits in
-a narrow spot that the tree did not enter, or every way there is narrower than twice the cruise
-margin. Neither means the goal is unreachable. The ladder tries, in this order, until one finds an
-exact path:
+RRT* with its deterministic budget sometimes ends with only an approximate path: the goal sits in a narrow
+spot that the tree did not enter, or every way there is narrower than twice the cruise margin. Neither
+means the goal is unreachable. The ladder tries, in this order, until one finds an exact path:
 
-1. the configured planner (InformedRRT*) with the speed-dependent margins (the cruise margin,
-   narrowing towards the start and goal: `planners.clearance.MarginTaper`);
-2. RRTConnect with the same margins and a small budget (`QUICK_ITERATIONS`): another OMPL planner of
-   the family, bidirectional, so it grows a tree out of the goal's narrow spot too; it stops at its
-   first path (the simplifier then shortens it). Where a path exists at these margins it finds one in
-   far fewer iterations; where none does, the small budget keeps the failure cheap (on validation
-   legs, hot and high, the quad's cruise margin left 11 of 40 plans to the ladder, and this step
-   found 1 of them: the floor margin found the rest);
-3. the configured planner at the floor margin everywhere (the margin at rest, `SpeedMargins.floor_m`):
-   relaxed towards the floor; the reference is then slowed wherever the path passes closer than the
-   cruise margin (`planners.timing.time_parameterize(..., speed_limit=...)`), so the margin in force
-   still follows the speed;
-4. RRTConnect at the floor margin with `LAST_STEP_ITERATIONS` times its budget (more time).
+1. the configured planner (InformedRRT*) with the speed-dependent margins (the cruise margin, narrowing
+   towards the start and goal: `planners.clearance.MarginTaper`);
+2. RRTConnect (bidirectional; it stops at its first path, which the simplifier then shortens) with the same
+   margins and a small budget (`QUICK_ITERATIONS`);
+3. the configured planner at the floor margin everywhere (the margin at rest, `SpeedMargins.floor_m`); the
+   reference is then slowed wherever the path passes closer than the cruise margin
+   (`planners.timing.time_parameterize(..., speed_limit=...)`), so the margin in force still follows the speed;
+4. RRTConnect at the floor margin with `LAST_STEP_ITERATIONS` times its budget.
 
-A step plans with several seeds (`PlanStep.candidates`): RRT* within its budget ends in whichever way round the
-buildings its tree happened to grow (over a 100 m block or along the street below it), and RRTConnect keeps its
-first path. An optimising planner's iteration budget is shared by its seeds (two of half the budget each: the same
-plan time, measured as fast paths on validation legs); a first-path planner's seeds each get the whole (it stops at
-its first path) and are tried only once the first found one (where it finds none, more seeds would only make the
-failure dear). With a judge (the pilot's own timing of the reference,
-`planners.agent.ClassicalAgent`), the step keeps its fastest plan, and when even that does not fit the time left
-(`time_available_s`), the ladder climbs on and flies the fastest plan of every step tried: a path that cannot
-arrive in time is no better than none.
+A step plans with several seeds (`PlanStep.candidates`): an optimising planner's iteration budget is shared
+by its seeds; a first-path planner's seeds each get the whole budget and are tried only once the first
+found a path. With a judge (the pilot's own timing of the reference,
+`planners.classical_pilot.ClassicalPilot`), the step keeps its fastest plan, and when even that does not fit
+the time left (`time_available_s`), the ladder climbs on and flies the fastest plan of every step tried;
+without a judge a step keeps its shortest path.
 
-A goal none of them reaches is a planner failure whose message says so: no path at the floor
-margin within these attempts, and whether a path at the floor margin exists at all
-(`planners.reachability`: proved reachable, proved unreachable, or undetermined at the finest grid), so
-that a failure on a reachable goal is told from one on a walled-in goal. Every step is seeded from the
-same seed (deterministic).
+A goal none of them reaches is a planner failure whose message says so, and says whether a path at the
+floor margin exists at all (`planners.reachability`: proved reachable, proved unreachable, or undetermined
+at the finest grid). Every step is seeded from the same seed (deterministic). Why these steps, in this
+order: docs/design_notes.md, "planners.ladder".
 """
 from __future__ import annotations
 

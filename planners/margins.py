@@ -21,7 +21,7 @@ Why: the reference keeps M; the vehicle then keeps M − e where e is its deviat
 obstacle at the closest approach. The comparison's target is M − e ≥ M / 2, i.e. e ≤ M / 2; with
 k = 2 that is e ≤ e_p99 (a deviation beyond the 99th percentile would also have to point at the
 nearest wall at the moment of closest approach), and the MPC's constraint at M / 2 together with
-replanning on a predicted violation (`planners.agent`) cover the rest. The floor (the former fixed
+replanning on a predicted violation (`planners.classical_pilot`) cover the rest. The floor (the former fixed
 1 m) covers what the table does not: the reference's 5 cm clearance sampling, the MPC's half-space
 linearisation at building corners, and a vehicle whose tracking in calm air is nearly perfect.
 """
@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from uam_fdm.air.wind import TurbulenceLevel, milspec_low_altitude
+from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.vehicle.params import VehicleParams
 
 log = logging.getLogger(__name__)
@@ -294,12 +295,6 @@ class Margins:
         return self.by_speed.floor_m
 
 
-def margin_from_p99(p99_m: float, rule: MarginRule) -> Margins:
-    """M = max(floor, k · p99), M_mpc = mpc_fraction · M, for a known 99th-percentile error [m]."""
-    planner = max(rule.floor_m, rule.k * float(p99_m))
-    return Margins(planner, rule.mpc_fraction * planner, float(p99_m), "")
-
-
 def interpolate_p99(rows: Sequence[TrackingErrorRow], density_ratio: float) -> float:
     """p99 [m] at `density_ratio` from rows sorted by density ratio: linear between the measured
     densities, the nearest measured one outside them (thin air is not extrapolated)."""
@@ -462,8 +457,6 @@ def _speed_bins(raw: object, where: str) -> tuple[SpeedBin, ...]:
 
 def write_tracking_table(rows: Sequence[TrackingErrorRow], provenance: Mapping[str, object], path: Path) -> Path:
     """Write a table readable by `load_tracking_table` (atomically)."""
-    from uam_fdm.files.atomic import write_text_atomic
-
     out = {"format_version": TABLE_FORMAT_VERSION, "provenance": dict(provenance),
            "rows": [{"vehicle": r.vehicle, "fingerprint": r.fingerprint, "turbulence": r.turbulence.value,
                      "density_ratio": round(r.density_ratio, 4), "episodes": r.episodes, "samples": r.samples,

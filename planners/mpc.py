@@ -27,7 +27,7 @@ stage-wise layout and the reasons for it are in `planners.mpc_ocp`):
 
 The clearance half-spaces are parameters: for each stage, the nearest buildings to the previous
 prediction give a plane through the nearest point, facing the vehicle, offset by the collision
-radius plus a margin (computed by the agent from the city; inactive ones are 0 ≥ −1).
+radius plus a margin (computed by the pilot from the city; inactive ones are 0 ≥ −1).
 
 Solvers: ``"rti"`` (the default), the real-time iteration of `planners.rti`: one Gauss-Newton SQP
 step per decision on the stage-structured QP, solved by HPIPM; or the NLP solvers ipopt (the

@@ -18,7 +18,7 @@ Layout (what structure-exploiting solvers need, and why each choice was made):
   the path rows of stage k that touch only x_k and u_k (rotor limits in wrench mode, tilt, the
   soft clearance half-spaces). The gap rows must read x_{k+1} − F, with +1 on x_{k+1}: CasADi's
   fatrop runtime checks those entries and raises otherwise ("gap-closing constraints must be like
-  this: x_{k+1}-F(xk,uk)"), which is what made every fatrop solve of the earlier F − x_{k+1} form fail.
+  this: x_{k+1}-F(xk,uk)").
 * Cost Σ_k |r_k(x_k, u_k)|² + w_s1 s_k + |r_N(x_N)|² with stage residuals r_k, so a Gauss-Newton
   Hessian 2 JᵀJ is block diagonal and positive semidefinite (the real-time iteration's QP).
 """
@@ -193,10 +193,6 @@ class OcpLayout:
     def x_start(self, k: int) -> int:
         """Offset of x_k in w."""
         return k * self.stage_len
-
-    def u_start(self, k: int) -> int:
-        """Offset of u_k (the MPC input; the slack follows it) in w."""
-        return k * self.stage_len + self.nx
 
     def states(self, w: np.ndarray) -> np.ndarray:
         """States (N+1, nx) of a decision vector."""

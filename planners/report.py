@@ -1,6 +1,6 @@
 """The classical pilot's end-of-episode report (a `uam_fdm.pilot.PilotReport`).
 
-Kept apart from `planners.agent` (which needs CasADi and OMPL) so that reading a saved episode
+Kept apart from `planners.classical_pilot` (which needs CasADi and OMPL) so that reading a saved episode
 needs neither.
 """
 from __future__ import annotations

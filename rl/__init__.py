@@ -7,7 +7,7 @@
 - `rl.env`: the batched engine (`NavWorld`, `NavBatch`), the gymnasium env and the SB3 VecEnv;
 - `rl.policies`: the policy-folder format, its safe reader, the network, and the shipped folders;
 - `rl.training`: PPO presets and settings, the training loop, resuming, held-out evaluation;
-- `rl.pilots`: the learned pilot and the potential-field pilot as `uam_fdm.pilot.Agent`s.
+- `rl.pilots`: the learned pilot and the potential-field pilot as `uam_fdm.pilot.Pilot`s.
 
 Importing the package registers the gymnasium environment `UAMNav-v0` by its entry point's name
 (`rl.env.gym_env:UAMNavEnv`, imported by `gymnasium.make` only), so importing any part of `rl`

@@ -14,7 +14,7 @@ import signal
 import time
 from pathlib import Path
 
-from rl.pilots.potential_field import PotentialFieldAgent
+from rl.pilots.potential_field import PotentialFieldPilot
 from uam_fdm.pilot import Actuation, Observation
 
 ARMED_AFTER_S = 0.2
@@ -36,7 +36,7 @@ def take(fault: str) -> bool:
     return True
 
 
-class _FaultyPilot(PotentialFieldAgent):
+class _FaultyPilot(PotentialFieldPilot):
     fault = ""
     wall_s_per_flight_s = 0.2
 

@@ -1,8 +1,8 @@
 """Objects named as plug-in pilots by tests/compare/flying/test_plugin_pilots.py (`plugin_fixtures:...`)."""
 from __future__ import annotations
 
-from compare.flying.pilots import PILOTS, PilotSpec
-from rl.pilots.potential_field import PotentialFieldAgent
+from compare.flying.pilots import PILOTS, PilotEntry
+from rl.pilots.potential_field import PotentialFieldPilot
 
 
 class NoAct:
@@ -17,10 +17,10 @@ class NoAct:
         return None
 
 
-class NamedWrong(PotentialFieldAgent):
+class NamedWrong(PotentialFieldPilot):
     """The potential-field pilot under another class: its `name` attribute ("apf") is not the method's."""
 
 
 NOT_A_CLASS = 3
-SPEC: PilotSpec = PilotSpec(name="anything", label="Spec'd field", color="tab:olive", description="a spec",
-                            given="It is given a spec.", build=PILOTS["apf"].build, default=True)
+ENTRY: PilotEntry = PilotEntry(name="anything", label="Entered field", color="tab:olive", description="an entry",
+                               given="It is given an entry.", build=PILOTS["apf"].build, default=True)

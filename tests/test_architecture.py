@@ -1,7 +1,7 @@
-"""The rooms keep their one-way flow (issue 14, docs/architecture.md): `uam_fdm` imports none of the other
+"""The rooms keep their one-way flow (docs/architecture.md): `uam_fdm` imports none of the other
 packages, `planners` and `rl` import only `uam_fdm` (and themselves), nothing imports `compare`; and no
 two modules import each other (no import circles), counting every import: at module level, inside functions
-and in `TYPE_CHECKING` blocks (issue 27: an import moved into a function hides a circle, it does not remove it).
+and in `TYPE_CHECKING` blocks (an import moved into a function hides a circle, it does not remove it).
 Inside a function (or for the type checker only) `compare` imports only what is slow to import or optional
 (`DEFERRED_IMPORTS`)."""
 from __future__ import annotations

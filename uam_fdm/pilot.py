@@ -1,7 +1,7 @@
-"""The boundary between a pilot and the simulator: what every agent is given and what it returns.
+"""The boundary between a pilot and the simulator: what every pilot is given and what it returns.
 
 Both pilots are complete autonomy stacks flying the same `uam_fdm` vehicle at the same physics
-rate. Each decision, an agent returns an `Actuation`:
+rate. Each decision, a pilot returns an `Actuation`:
 
 * `RotorCommand`: rotor-speed commands [rad/s], held for the decision period (what the MPC emits);
 * `VelocityCommand`: a world-frame velocity (and heading) setpoint for the vehicle's own low-level
@@ -18,7 +18,7 @@ and the full vehicle state at each decision (perfect state estimation). Neither 
 its gusts: the steady wind and the turbulence realisation are the simulator's alone. (The classical
 pilot sizes its clearance margins from the forecast level; the learned pilot does not use it.)
 
-At the end of an episode the runner's caller asks the agent for its `episode_report()`: a typed
+At the end of an episode the runner's caller asks the pilot for its `episode_report()`: a typed
 `PilotReport` of what it did (the classical pilot: planning, replans, its MPC), saved with the
 episode and read back as the same type, or None when the pilot has nothing to add.
 """
@@ -33,6 +33,7 @@ import numpy as np
 from uam_fdm.air.atmosphere import Atmosphere
 from uam_fdm.air.wind import TurbulenceLevel
 from uam_fdm.episode import Outcome
+from uam_fdm.renamed import renamed
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.params import VehicleParams
 
@@ -53,7 +54,7 @@ class Task:
 
 @dataclass(frozen=True)
 class World:
-    """What an agent may know about the world it flies in (no wind: see the module docstring).
+    """What a pilot may know about the world it flies in (no wind: see the module docstring).
 
     `turbulence` is the forecast level, a category, not the gusts the vehicle will meet.
     """
@@ -67,14 +68,10 @@ class World:
     def __post_init__(self) -> None:
         object.__setattr__(self, "turbulence", TurbulenceLevel.parse(self.turbulence))  # "light" accepted
 
-    @property
-    def decision_period_s(self) -> float:
-        return 1.0 / self.dynamics.control_hz
-
 
 @dataclass(frozen=True)
 class Observation:
-    """What the agent sees at a decision: time [s] and the full vehicle state (13 + n,)."""
+    """What the pilot sees at a decision: time [s] and the full vehicle state (13 + n,)."""
 
     t_s: float
     x: np.ndarray
@@ -97,21 +94,18 @@ class VelocityCommand:
     yaw_rad: float = 0.0
     hold_periods: int = 1
 
-    def as_vector(self) -> np.ndarray:
-        return np.append(np.asarray(self.velocity_enu_m_s, float), self.yaw_rad)
-
 
 Actuation = RotorCommand | VelocityCommand
 
 
 @dataclass(frozen=True)
 class ResetInfo:
-    """What an agent reports after `reset`: whether it can fly the task, and why not.
+    """What a pilot reports after `reset`: whether it can fly the task, and why not.
 
     Attributes:
-        ok: False when the agent has no way to fly the task (e.g. no path found in the budget).
+        ok: False when the pilot has no way to fly the task (e.g. no path found in the budget).
         status: a short machine-readable status ("ok", "planner_failure", "invalid_start", ...).
-        plan_time_s: wall time spent planning inside reset [s] (0 for agents that do not plan).
+        plan_time_s: wall time spent planning inside reset [s] (0 for pilots that do not plan).
         detail: human-readable detail.
     """
 
@@ -148,7 +142,7 @@ class PilotReport(Protocol):
 
 
 @runtime_checkable
-class Agent(Protocol):
+class Pilot(Protocol):
     """A pilot. The runner calls `reset` once per episode, then `act` once per decision (every
     control period, or every `hold_periods` of the previous actuation); after the episode its caller
     asks for `episode_report`."""
@@ -166,3 +160,9 @@ class Agent(Protocol):
     def episode_report(self) -> PilotReport | None:
         """What the pilot did in the episode flown since `reset` (None: nothing beyond the trajectory)."""
         ...
+
+
+if not TYPE_CHECKING:  # hidden from the type checker: our own code must use the new names (`uam_fdm.renamed`)
+    def __getattr__(name: str) -> Any:
+        """The old name `Agent` (kept for one release, for plug-ins written against it): `Pilot`, with a warning."""
+        return renamed(__name__, name, {"Agent": "Pilot"})

@@ -1,4 +1,4 @@
-"""Demo flight of a vehicle preset: the main job until the comparison runner exists.
+"""Demo flight of a vehicle preset: a quick check that the flight model and its low-level controller fly.
 
 Flies waypoints (climb, a square, return, descend) through the low-level velocity controller in
 JSBSim light turbulence over a steady breeze, and reports what happened.

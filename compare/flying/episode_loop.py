@@ -1,11 +1,11 @@
-"""THE episode loop: flies any agent through the same simulator and records what happened.
+"""THE episode loop: flies any pilot through the same simulator and records what happened.
 
-The runner owns the clock: the agent decides once per decision (timed with one stopwatch,
+The runner owns the clock: the pilot decides once per decision (timed with one stopwatch,
 `time.perf_counter`; an actuation may be held for several control periods), the simulator
 advances each control period at the physics rate, and
 clearance to the city and the ground is checked at every physics step with the city's exact
 clearance (the same geometry FCL holds). The episode ends on success (inside the goal radius),
-collision, leaving the flight volume, a non-finite state or the timeout; an agent that cannot fly
+collision, leaving the flight volume, a non-finite state or the timeout; a pilot that cannot fly
 the task (e.g. no path found) ends it before the first step. The end rules are `uam_fdm.episode`'s,
 the same the learned pilot's training environment applies.
 """
@@ -19,7 +19,7 @@ import numpy as np
 from uam_fdm import episode
 from uam_fdm.air.wind import WindField
 from uam_fdm.episode import Outcome
-from uam_fdm.pilot import Agent, Observation, RotorCommand, Task, VelocityCommand, World
+from uam_fdm.pilot import Observation, Pilot, RotorCommand, Task, VelocityCommand, World
 from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.model import hover_state
@@ -37,12 +37,12 @@ class Trajectory:
         wind_enu_m_s: (M, 3) wind the vehicle flew in [m/s] (held per decision period).
         clearance_m: (M,) signed distance from the vehicle's collision sphere to the nearest
             building or the ground [m].
-        decision_t_s: (D,) times of the agent's decisions [s].
+        decision_t_s: (D,) times of the pilot's decisions [s].
         compute_s: (D,) wall time of each decision [s].
         energy_J: rotor shaft energy over the flight [J].
-        outcome: how it ended: an end rule's outcome, or `Outcome.PLANNER_FAILURE` when the agent could
+        outcome: how it ended: an end rule's outcome, or `Outcome.PLANNER_FAILURE` when the pilot could
             not fly the task (before the first step).
-        plan_time_s: planning time the agent reported at reset [s].
+        plan_time_s: planning time the pilot reported at reset [s].
         detail: why the episode ended, in words.
         shaft_power_W: (M,) total rotor shaft power Σ Q_i·Ω_i of the model at each row's state, in the air
             density held over the control period that produced it (row 0: the first period's) [W]; the
@@ -67,12 +67,12 @@ class Trajectory:
         return self.outcome == Outcome.SUCCESS
 
 
-def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: int, *,
+def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: int, *,
                 pilot_name: str | None = None) -> Trajectory:
-    """Fly `agent` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period).
+    """Fly `pilot` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period).
 
     Raises:
-        PilotError: the agent commanded what cannot be flown, naming it (`pilot_name`, default `agent.name`).
+        PilotError: the pilot commanded what cannot be flown, naming it (`pilot_name`, default `pilot.name`).
     """
     p, dyn, city = world.vehicle, world.dynamics, world.city
     radius = p.collision_radius_m
@@ -80,7 +80,7 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
     start = np.asarray(task.start_m, float)
     x0 = hover_state(p, start, task.start_yaw_rad, density_ratio=world.atmosphere.density_ratio(start[2]))
     sim.reset(x0)
-    info = agent.reset(world, task, seed)
+    info = pilot.reset(world, task, seed)
     hover = x0[dyn.layout.rotor]
     times, states, cmds, winds, clear = [np.zeros(1)], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
     clear.append(np.array([_clearance(city, x0[None, 0:3], radius)[0]]))
@@ -97,10 +97,10 @@ def run_episode(world: World, agent: Agent, task: Task, wind: WindField, seed: i
         if held <= 0:  # a decision (else the previous actuation is still held)
             obs = Observation(s.t_s, s.x.copy())
             t0 = time.perf_counter()
-            act = agent.act(obs)
+            act = pilot.act(obs)
             compute.append(time.perf_counter() - t0)
             decision_t.append(s.t_s)
-            command = _checked_command(pilot_name or agent.name, act, p.n_rotors, s.t_s)
+            command = _checked_command(pilot_name or pilot.name, act, p.n_rotors, s.t_s)
             held = act.hold_periods
         held -= 1
         # ground effect: the height above the surface below, from the clearance at the period's start

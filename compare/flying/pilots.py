@@ -1,24 +1,24 @@
 """The pilots a comparison can fly, by method name: how each is built, what it needs, how it is shown.
 
 `PILOTS` is the one list of methods. Scenario files are checked against it, the campaign builds
-agents through it, and run.json, the metrics, the report and its figures take labels, colours,
-descriptions and the table order from it. Adding a pilot touches this file (one `PilotSpec`) and
-the pilot itself (an `uam_fdm.pilot.Agent`).
+pilots through it, and run.json, the metrics, the report and its figures take labels, colours,
+descriptions and the table order from it. Adding a pilot touches this file (one `PilotEntry`) and
+the pilot itself (a `uam_fdm.pilot.Pilot`).
 
 A builder is given a `BuildRequest` (the vehicle, the policy folder for it, the scenario's name for messages),
 not the scenario: this module imports no scenario code, so the scenario loader, the episode files and the
 metrics can all import it. The builders import their pilot's package only when called: reading a run folder,
 or checking a scenario, needs neither PyTorch nor OMPL.
 
-A pilot that is not ours flies as a plug-in, named wherever a method is (scenario files, --methods,
---method) in one of two ways, resolved the same in every process (no registration step):
+A pilot that is not ours flies as a plug-in, named wherever a pilot is (scenario files, --pilots,
+--pilot) in one of two ways, resolved the same in every process (no registration step):
 
 * `module:Class`, e.g. `mypkg.pilots:MyPilot`: imported from an installed package or PYTHONPATH;
 * the name of an entry point in the `uam_compare.pilots` group of an installed distribution.
 
-The object named is either an `Agent` class (made with no arguments, one per process and vehicle;
+The object named is either a `Pilot` class (made with no arguments, one per process and vehicle;
 the run shows its `label` class attribute, else its class name, and the first paragraph of its
-docstring) or a ready `PilotSpec` (full control of label, colour, rates and report type).
+docstring) or a ready `PilotEntry` (full control of label, colour, rates and report type).
 """
 from __future__ import annotations
 
@@ -30,9 +30,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from planners.report import ClassicalReport
-from uam_fdm.pilot import Agent, PilotReport
+from uam_fdm.pilot import Pilot, PilotReport
+from uam_fdm.renamed import renamed
 from uam_fdm.vehicle.params import VehicleParams
 
 
@@ -44,7 +46,7 @@ class BuildRequest:
         vehicle: the parameters of the vehicle it flies.
         vehicle_name: the vehicle as the scenario names it (a preset's name, else `vehicle.name`), for messages.
         source: the scenario it flies first (its file, or its generated set and name), for messages.
-        policy: the policy folder for the vehicle, for a pilot that flies one (`PilotSpec.needs_policy`), else None.
+        policy: the policy folder for the vehicle, for a pilot that flies one (`PilotEntry.needs_policy`), else None.
     """
 
     vehicle: VehicleParams
@@ -53,21 +55,21 @@ class BuildRequest:
     policy: Path | None = None
 
 
-Builder = Callable[[BuildRequest], Agent]
-"""Builds a pilot: (what it is built for) -> agent."""
+Builder = Callable[[BuildRequest], Pilot]
+"""Builds a pilot: (what it is built for) -> the pilot."""
 
 
 @dataclass(frozen=True)
-class PilotSpec:
+class PilotEntry:
     """One method of the comparison.
 
     Attributes:
-        name: the method name (scenario files, --methods, file names, metrics.csv).
+        name: the method name (scenario files, --pilots, file names, metrics.csv).
         label: its display name in the report, the figures and the viewer.
         color: its matplotlib colour on every page.
         description: what the pilot is (run.json, the report's Methods section).
         given: what it is given and how it decides, one sentence for the run's fairness statement.
-        build: makes the agent (`Builder`); one agent flies every cell of its method in a process (one
+        build: makes the pilot (`Builder`); one pilot flies every cell of its method in a process (one
             per vehicle when `needs_policy`).
         default: flown when a scenario file does not list its methods.
         needs_policy: flies a trained policy folder per vehicle (`--policy`, or the one shipped for the
@@ -99,28 +101,28 @@ class PilotSpec:
 
 # Each builder imports its pilot's package when called, so that reading a run folder or checking a scenario
 # needs neither PyTorch (the learned pilot) nor OMPL (the classical one).
-def _learned(request: BuildRequest) -> Agent:
-    from rl.pilots.learned import PolicyAgent, load_policy
+def _learned(request: BuildRequest) -> Pilot:
+    from rl.pilots.learned import PolicyPilot, load_policy
 
     if request.policy is None:
         raise ValueError(f"{request.source}: no learned policy for vehicle {request.vehicle_name!r}")
-    return PolicyAgent(load_policy(request.policy, request.vehicle))
+    return PolicyPilot(load_policy(request.policy, request.vehicle))
 
 
-def _classical(request: BuildRequest) -> Agent:
-    from planners.agent import ClassicalAgent
+def _classical(request: BuildRequest) -> Pilot:
+    from planners.classical_pilot import ClassicalPilot
 
-    return ClassicalAgent()
-
-
-def _potential_field(request: BuildRequest) -> Agent:
-    from rl.pilots.potential_field import PotentialFieldAgent
-
-    return PotentialFieldAgent()
+    return ClassicalPilot()
 
 
-PILOTS: dict[str, PilotSpec] = {spec.name: spec for spec in (
-    PilotSpec(
+def _potential_field(request: BuildRequest) -> Pilot:
+    from rl.pilots.potential_field import PotentialFieldPilot
+
+    return PotentialFieldPilot()
+
+
+PILOTS: dict[str, PilotEntry] = {entry.name: entry for entry in (
+    PilotEntry(
         name="ppo", label="PPO policy", color="tab:orange",
         description="Learned pilot: policy network (2 x 128 tanh units, trained from scratch with PPO, no "
                     "demonstrations; see its provenance) choosing a 3D velocity command at its decision rate (held "
@@ -134,7 +136,7 @@ PILOTS: dict[str, PilotSpec] = {spec.name: spec for spec in (
               "roof-height map of the buildings near it) and commands a velocity that the vehicle's low-level "
               "controller turns into rotor speeds.",
         build=_learned, default=True, needs_policy=True, uses_torch=True, wall_s_per_flight_s=0.2),
-    PilotSpec(
+    PilotEntry(
         name="rrt_mpc", label="RRT* + MPC", color="tab:blue",
         description="Classical pilot: OMPL RRT* path (planned before take-off, timed) -> time-parameterised "
                     "reference -> CasADi NMPC (real-time iteration: one Gauss-Newton SQP step per decision, HPIPM) "
@@ -146,7 +148,7 @@ PILOTS: dict[str, PilotSpec] = {spec.name: spec for spec in (
               "forecast turbulence level, plans on the whole map before take-off and when it replans (its planning "
               "time is reported separately) and commands rotor speeds through its MPC.",
         build=_classical, default=True, plans=True, report_type=ClassicalReport, wall_s_per_flight_s=1.0),
-    PilotSpec(
+    PilotEntry(
         name="apf", label="Potential field", color="tab:purple",
         description="Reactive baseline: artificial potential field (attraction along the straight line to the "
                     "goal, repulsion and a climb bias from the k = 5 nearest buildings within its range, slowing "
@@ -161,9 +163,9 @@ PILOTS: dict[str, PilotSpec] = {spec.name: spec for spec in (
         build=_potential_field, wall_s_per_flight_s=0.2),
 )}
 
-METHODS: tuple[str, ...] = tuple(PILOTS)
+PILOT_NAMES: tuple[str, ...] = tuple(PILOTS)
 """Every registered method, in table order."""
-DEFAULT_METHODS: tuple[str, ...] = tuple(name for name, spec in PILOTS.items() if spec.default)
+DEFAULT_PILOTS: tuple[str, ...] = tuple(name for name, entry in PILOTS.items() if entry.default)
 """The methods a scenario flies when its file does not list them."""
 PLUGIN_GROUP = "uam_compare.pilots"
 """The entry-point group of plug-in pilots (`[project.entry-points."uam_compare.pilots"]`)."""
@@ -177,16 +179,16 @@ def is_reference(name: str) -> bool:
     return bool(_REFERENCE.match(name))
 
 
-def pilot(name: str) -> PilotSpec:
+def pilot(name: str) -> PilotEntry:
     """The pilot `name`: a registered method, a plug-in `module:Class` or a plug-in entry point's name.
 
     Raises:
         ValueError: an unknown name (listing the registered ones and the plug-in forms), or a plug-in
             that cannot be imported or is not a pilot (saying why).
     """
-    spec = PILOTS.get(name)
-    if spec is not None:
-        return spec
+    known = PILOTS.get(name)
+    if known is not None:
+        return known
     if is_reference(name):
         return _plugin(name)
     entry = _entry_point(name)
@@ -194,11 +196,11 @@ def pilot(name: str) -> PilotSpec:
         return _plugin_from_entry_point(entry.name, entry.value)
     plugins = sorted(e.name for e in metadata.entry_points(group=PLUGIN_GROUP))
     listed = f"; installed plug-ins: {', '.join(plugins)}" if plugins else ""
-    raise ValueError(f"unknown method {name!r} (registered: {', '.join(METHODS)}){listed}; a plug-in pilot is "
+    raise ValueError(f"unknown method {name!r} (registered: {', '.join(PILOT_NAMES)}){listed}; a plug-in pilot is "
                      f"named as module:Class")
 
 
-def registered(name: str) -> PilotSpec | None:
+def registered(name: str) -> PilotEntry | None:
     """The registered pilot `name` (`PILOTS`), else None; never imports anything.
 
     Readers of a run folder (metrics, report, viewer, animation) use this, never `pilot`: a method name read
@@ -213,8 +215,8 @@ def _entry_point(name: str) -> metadata.EntryPoint | None:
     return found[0] if found else None
 
 
-@functools.cache  # one import and one spec per name and process (the module is cached by Python anyway)
-def _plugin(reference: str) -> PilotSpec:
+@functools.cache  # one import and one entry per name and process (the module is cached by Python anyway)
+def _plugin(reference: str) -> PilotEntry:
     module_name, _, attr = reference.partition(":")
     try:
         module = importlib.import_module(module_name)
@@ -228,11 +230,11 @@ def _plugin(reference: str) -> PilotSpec:
         if not hasattr(obj, part):
             raise ValueError(f"method {reference!r}: module {module_name!r} has no {attr!r}")
         obj = getattr(obj, part)
-    return _spec_of(reference, reference, obj)
+    return _entry_of(reference, reference, obj)
 
 
 @functools.cache
-def _plugin_from_entry_point(name: str, value: str) -> PilotSpec:
+def _plugin_from_entry_point(name: str, value: str) -> PilotEntry:
     if not _ENTRY_NAME.match(name) or "__" in name:
         raise ValueError(f"plug-in entry point {name!r} ({PLUGIN_GROUP}): a method name may only hold letters, "
                          f"digits, '_', '.' and '-', without '__' (it names output files)")
@@ -243,7 +245,7 @@ def _plugin_from_entry_point(name: str, value: str) -> PilotSpec:
     except (Exception, SystemExit) as exc:  # not installed, or its own code failed at import
         raise ValueError(f"method {name!r}: cannot load entry point {value!r} of {PLUGIN_GROUP} "
                          f"({_failure(exc)})") from None
-    return _spec_of(name, value, obj)
+    return _entry_of(name, value, obj)
 
 
 def _failure(exc: BaseException) -> str:
@@ -286,7 +288,7 @@ def _check_color(name: str, color: str) -> str:
 
 
 def _check_constructible(name: str, cls: type) -> None:
-    """A plug-in Agent class is made with no arguments: say so now if its constructor needs some."""
+    """A plug-in Pilot class is made with no arguments: say so now if its constructor needs some."""
     try:
         signature = inspect.signature(cls)
     except (TypeError, ValueError):  # a builtin or C class without a signature: made and checked at build
@@ -295,35 +297,35 @@ def _check_constructible(name: str, cls: type) -> None:
               if p.default is p.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
     if needed:
         raise ValueError(f"method {name!r}: {cls.__qualname__}() needs the argument(s) {', '.join(needed)}; a "
-                         f"plug-in Agent class is made with no arguments (or name a PilotSpec instead)")
+                         f"plug-in Pilot class is made with no arguments (or name a PilotEntry instead)")
 
 
 class _PluginBuilder:
-    """Builds a plug-in `Agent` class with no arguments and checks that it is one."""
+    """Builds a plug-in `Pilot` class with no arguments and checks that it is one."""
 
     def __init__(self, name: str, cls: type) -> None:
         self.name, self.cls = name, cls
 
-    def __call__(self, request: BuildRequest) -> Agent:
-        agent = self.cls()
-        if not isinstance(agent, Agent):
-            raise ValueError(f"method {self.name!r}: {self.cls.__qualname__} is not a pilot: an Agent has a name "
-                             f"and the methods reset, act and episode_report (uam_fdm.pilot.Agent)")
-        return agent
+    def __call__(self, request: BuildRequest) -> Pilot:
+        built = self.cls()
+        if not isinstance(built, Pilot):
+            raise ValueError(f"method {self.name!r}: {self.cls.__qualname__} is not a pilot: a Pilot has a name "
+                             f"and the methods reset, act and episode_report (uam_fdm.pilot.Pilot)")
+        return built
 
 
-def _spec_of(name: str, source: str, obj: object) -> PilotSpec:
-    """The `PilotSpec` of a plug-in object (a `PilotSpec`, or an `Agent` class) named `name`."""
-    if isinstance(obj, PilotSpec):
+def _entry_of(name: str, source: str, obj: object) -> PilotEntry:
+    """The `PilotEntry` of a plug-in object (a `PilotEntry`, or a `Pilot` class) named `name`."""
+    if isinstance(obj, PilotEntry):
         _check_text(name, "label", obj.label, MAX_LABEL_CHARS)
         _check_text(name, "description", obj.description, MAX_DESCRIPTION_CHARS)
         return replace(obj, name=name, default=False, color=_check_color(name, obj.color))
     if not inspect.isclass(obj):
-        raise ValueError(f"method {name!r}: {source} is a {type(obj).__name__}, not an Agent class or a PilotSpec")
+        raise ValueError(f"method {name!r}: {source} is a {type(obj).__name__}, not a Pilot class or a PilotEntry")
     missing = [m for m in ("reset", "act", "episode_report") if not callable(getattr(obj, m, None))]
     if missing:
         raise ValueError(f"method {name!r}: {obj.__qualname__} is not a pilot: it lacks {', '.join(missing)} "
-                         f"(uam_fdm.pilot.Agent)")
+                         f"(uam_fdm.pilot.Pilot)")
     _check_constructible(name, obj)
     label = _check_text(name, "label", str(getattr(obj, "label", obj.__name__)), MAX_LABEL_CHARS)
     doc = inspect.getdoc(obj) or ""
@@ -335,7 +337,7 @@ def _spec_of(name: str, source: str, obj: object) -> PilotSpec:
              f"the atmosphere and the forecast turbulence level, then the full vehicle state at each decision."
              + (f" {label}: {own}" if own else ""))
     report_type = getattr(obj, "report_type", None)
-    return PilotSpec(
+    return PilotEntry(
         name=name, label=label, color=_check_color(name, str(getattr(obj, "color", ""))),
         description=f"{description} (plug-in {source})",
         given=given, build=_PluginBuilder(name, obj), plans=bool(getattr(obj, "plans", False)),
@@ -347,17 +349,25 @@ def _spec_of(name: str, source: str, obj: object) -> PilotSpec:
 def ordered(methods: Iterable[str]) -> list[str]:
     """`methods` without repeats, registered ones in table order first, then any others by name."""
     names = set(methods)
-    return [m for m in METHODS if m in names] + sorted(names - set(METHODS))
+    return [m for m in PILOT_NAMES if m in names] + sorted(names - set(PILOT_NAMES))
 
 
-def build(name: str, request: BuildRequest) -> Agent:
+def build(name: str, request: BuildRequest) -> Pilot:
     """Build the pilot `name` for `request` (its vehicle, and that vehicle's policy folder for a pilot that
     needs one).
 
     Raises:
         ValueError: an unknown method, or a pilot that needs a policy and has none (naming the file).
     """
-    agent = pilot(name).build(request)
-    if name in PILOTS and agent.name != name:  # the agent's own name labels its errors in the runner
-        raise ValueError(f"the builder of method {name!r} made an agent named {agent.name!r}")
-    return agent
+    built = pilot(name).build(request)
+    if name in PILOTS and built.name != name:  # the pilot's own name labels its errors in the runner
+        raise ValueError(f"the builder of method {name!r} made a pilot named {built.name!r}")
+    return built
+
+
+if not TYPE_CHECKING:  # hidden from the type checker: our own code must use the new names
+    def __getattr__(name: str) -> Any:
+        """The old names (kept for one release, for plug-ins written against them): `PilotSpec` is `PilotEntry`,
+        `METHODS` is `PILOT_NAMES`, `DEFAULT_METHODS` is `DEFAULT_PILOTS`; each with a warning (`uam_fdm.renamed`)."""
+        return renamed(__name__, name, {"PilotSpec": "PilotEntry", "METHODS": "PILOT_NAMES",
+                                        "DEFAULT_METHODS": "DEFAULT_PILOTS"})

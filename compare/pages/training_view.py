@@ -8,7 +8,7 @@ fixed task, its city as a plotly mesh. A scrubber (or hovering the curve) select
 are listed by task, coloured by outcome, and the chosen task is drawn in 3D beside the same task flown by a
 second checkpoint, both playable in time. It opens from disk with no network.
 
-Flights are put in the page at `TrainingViewOptions.page_hz` (10 Hz: the pilot's decision rate), not at
+Flights are put in the page at `TrainingViewConfig.page_hz` (10 Hz: the pilot's decision rate), not at
 the recorded control rate, to keep the page small.
 """
 from __future__ import annotations
@@ -39,7 +39,7 @@ OUTCOME_WORDS = {"success": "arrived", "collision": "collided", "timeout": "time
 
 
 @dataclass(frozen=True)
-class TrainingViewOptions:
+class TrainingViewConfig:
     """What the page holds: flights resampled to `page_hz` [Hz], positions rounded to `round_m` [m]."""
 
     page_hz: float = 10.0
@@ -96,7 +96,7 @@ def _curve(folder: PolicyFolder) -> dict:
     return out
 
 
-def training_payload(policy_dir: Path, opts: TrainingViewOptions = TrainingViewOptions()) -> dict:
+def training_payload(policy_dir: Path, opts: TrainingViewConfig = TrainingViewConfig()) -> dict:
     """Everything the page shows, as JSON-ready data (see the module docstring).
 
     Raises:
@@ -134,7 +134,7 @@ def training_payload(policy_dir: Path, opts: TrainingViewOptions = TrainingViewO
             "outcome_colors": OUTCOME_COLORS}
 
 
-def training_html(policy_dir: Path, opts: TrainingViewOptions = TrainingViewOptions()) -> str:
+def training_html(policy_dir: Path, opts: TrainingViewConfig = TrainingViewConfig()) -> str:
     """The page of a policy folder's training, as one HTML string (plotly.js, script, style and data inline)."""
     payload = training_payload(policy_dir, opts)
     assets = resources.files("compare.pages") / "viewer_assets"
@@ -156,7 +156,7 @@ def training_html(policy_dir: Path, opts: TrainingViewOptions = TrainingViewOpti
     return page
 
 
-def build_training_view(policy_dir: Path, out: Path, opts: TrainingViewOptions = TrainingViewOptions()) -> Path:
+def build_training_view(policy_dir: Path, out: Path, opts: TrainingViewConfig = TrainingViewConfig()) -> Path:
     """Write the page of `policy_dir`'s training to `out` atomically; returns `out`.
 
     Raises:

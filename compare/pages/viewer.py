@@ -12,7 +12,6 @@ figures (`Plotly.react`) and moves the trail and vehicle traces (`Plotly.restyle
 """
 from __future__ import annotations
 
-import io
 import json
 import math
 from collections.abc import Callable
@@ -40,7 +39,7 @@ _BUILDING_SCALE = [[i / 8, to_hex(colormaps["viridis"](0.15 + 0.75 * i / 8))] fo
 
 
 @dataclass(frozen=True)
-class ViewerOptions:
+class ViewerConfig:
     """What the page holds: `max_samples` time samples per cell (the slider's steps) at most, positions rounded
     to `round_m` [m] and times to `round_s` [s] (small files, no visible loss)."""
 
@@ -105,13 +104,13 @@ def rounded(values, step: float) -> list:
     return [None if not math.isfinite(v) else round(float(v), digits) for v in a.ravel()]
 
 
-def _time_grid(group: FlightGroup, opts: ViewerOptions) -> np.ndarray:
+def _time_grid(group: FlightGroup, opts: ViewerConfig) -> np.ndarray:
     end = max(group.duration_s, opts.min_step_s)
     n = int(min(opts.max_samples, math.ceil(end / opts.min_step_s))) + 1
     return np.linspace(0.0, end, n)
 
 
-def group_payload(group: FlightGroup, opts: ViewerOptions) -> dict:
+def group_payload(group: FlightGroup, opts: ViewerConfig) -> dict:
     """One cell for the page: its plotly figure (JSON) and, per pilot, samples on the cell's time grid.
 
     Trace order in the figure: 0 buildings, 1 start, 2 goal, then per pilot: path, trail, vehicle.
@@ -128,7 +127,7 @@ def group_payload(group: FlightGroup, opts: ViewerOptions) -> dict:
             marker={"size": 7, "color": color, "symbol": symbol, "line": {"color": "black", "width": 1}},
             hovertemplate=f"{name}<br>(%{{x:.1f}}, %{{y:.1f}}, %{{z:.1f}}) m<extra></extra>"))
     pilots = []
-    for p in group.pilots:
+    for p in group.flights:
         s = sample_flight(p.episode, t)
         color = to_hex(p.color)
         last = int(np.searchsorted(t, p.end_t_s, side="right"))  # samples up to the flight's end
@@ -175,17 +174,7 @@ def _finite_min(values) -> float | None:
     return round(float(v.min()), 3) if len(v) else None
 
 
-def viewer_html(run_dir: Path, opts: ViewerOptions = ViewerOptions(), *, warn_unreadable: bool = True) -> str:
-    """The viewer page of a run folder, as one HTML string (plotly.js, script, style and data inline).
-
-    Unreadable episode files are left out (see `compare.playback.flights.flight_groups`, `warn_unreadable`).
-    """
-    page = io.StringIO()
-    write_viewer_page(run_dir, page, opts, warn_unreadable=warn_unreadable)
-    return page.getvalue()
-
-
-def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerOptions = ViewerOptions(), *,
+def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerConfig = ViewerConfig(), *,
                       warn_unreadable: bool = True) -> None:
     """Write the viewer page of a run folder to `out`, piece by piece: each cell's data is written as it is
     made, so a run's cells are never held together (a benchmark run's page is hundreds of MB; held as one
@@ -233,7 +222,7 @@ def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerOptions = ViewerO
     out.write(template[pos:])
 
 
-def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerOptions = ViewerOptions(), *,
+def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerConfig = ViewerConfig(), *,
                  warn_unreadable: bool = True) -> Path:
     """Write the viewer of a run folder (default `RUN_DIR/viewer.html`) atomically; returns its path.
 

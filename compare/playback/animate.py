@@ -35,7 +35,7 @@ from mpl_toolkits.mplot3d.art3d import Line3D
 from PIL import GifImagePlugin, Image
 from tqdm import tqdm
 
-from compare.playback.flights import FlightGroup, Pilot, sample_flight
+from compare.playback.flights import Flight, FlightGroup, sample_flight
 from compare.report.figures import GOAL_STYLE, START_STYLE, plain_text, trace_from_episode
 from compare.results.run_info import WindInfo
 from uam_fdm.city.buildings import BuildingMap
@@ -60,7 +60,7 @@ _MARKER: dict[str, Any] = {"linestyle": "none", "markersize": 9, "markeredgecolo
 
 
 @dataclass(frozen=True)
-class AnimationOptions:
+class AnimationConfig:
     """How to render a clip.
 
     Attributes:
@@ -125,7 +125,7 @@ class AnimationResult:
     seconds: float
 
 
-def frame_times(flight_s: float, opts: AnimationOptions) -> np.ndarray:
+def frame_times(flight_s: float, opts: AnimationConfig) -> np.ndarray:
     """Simulated time shown by each frame [s]: evenly from 0 to `flight_s`, both ends included.
 
     The video lasts `opts.duration_s`, or the flight's own length capped at `opts.max_auto_duration_s`
@@ -149,7 +149,7 @@ def ffmpeg_available() -> bool:
 
 
 @plain_text
-def render_animation(group: FlightGroup, out: Path, opts: AnimationOptions = AnimationOptions(),
+def render_animation(group: FlightGroup, out: Path, opts: AnimationConfig = AnimationConfig(),
                      progress: bool = True) -> AnimationResult:
     """Render the pilots of `group` flying on one clock to `out` (".mp4" or ".gif").
 
@@ -200,9 +200,9 @@ def render_animation(group: FlightGroup, out: Path, opts: AnimationOptions = Ani
 # ---- the picture -----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Track:
-    """One pilot prepared for playback: sampled at the frame times, plus a dense path for the trail."""
+    """One pilot's flight prepared for playback: sampled at the frame times, plus a dense path for the trail."""
 
-    pilot: Pilot
+    flight: Flight
     pos_m: np.ndarray        # (n, 3) at the frame times, ENU [m]
     speed_m_s: np.ndarray    # (n,)
     clearance_m: np.ndarray  # (n,)
@@ -211,11 +211,11 @@ class _Track:
     path_count: np.ndarray   # (n,) rows of path_m flown by each frame's time
 
 
-def _track(pilot: Pilot, times: np.ndarray) -> _Track:
-    s = sample_flight(pilot.episode, times)
-    trace = trace_from_episode(pilot.episode, pilot.label, pilot.color)
+def _track(flight: Flight, times: np.ndarray) -> _Track:
+    s = sample_flight(flight.episode, times)
+    trace = trace_from_episode(flight.episode, flight.label, flight.color)
     # ended from the end time, not sample_flight's strict t > end: the last frame (t = end) shows the outcome
-    return _Track(pilot, s.pos_m, s.speed_m_s, s.clearance_m, times >= pilot.end_t_s, trace.pos_m,
+    return _Track(flight, s.pos_m, s.speed_m_s, s.clearance_m, times >= flight.end_t_s, trace.pos_m,
                   np.searchsorted(trace.t_s, times, side="right"))
 
 
@@ -247,17 +247,17 @@ def _status_words(track: _Track, k: int) -> str:
     """Readout of one pilot at frame k: speed, clearance and status."""
     clear = track.clearance_m[k]
     clear_txt = f"{clear:5.1f} m" if math.isfinite(clear) else "  n/a"
-    status = (f"{track.pilot.outcome_words} at {track.pilot.end_t_s:.1f} s" if track.ended[k] else "flying")
+    status = (f"{track.flight.outcome_words} at {track.flight.end_t_s:.1f} s" if track.ended[k] else "flying")
     return f"speed {track.speed_m_s[k]:5.1f} m/s   clearance {clear_txt}\n{status}"
 
 
 class _Scene:
     """The figure and its moving artists; `draw(k)` renders frame k and returns its RGBA pixels."""
 
-    def __init__(self, group: FlightGroup, times: np.ndarray, opts: AnimationOptions) -> None:
+    def __init__(self, group: FlightGroup, times: np.ndarray, opts: AnimationConfig) -> None:
         self.times, self.opts = times, opts
-        self.tracks = [_track(p, times) for p in group.pilots]
-        self.key_colors = [p.color for p in group.pilots] + [START_STYLE["color"], GOAL_STYLE["color"],
+        self.tracks = [_track(p, times) for p in group.flights]
+        self.key_colors = [p.color for p in group.flights] + [START_STYLE["color"], GOAL_STYLE["color"],
                                                               "white", "black"]  # kept in a GIF's palette
         self.speedup = group.duration_s * opts.fps / max(len(times) - 1, 1)
         dpi = min(opts.width_px / _MIN_FIG_IN[0], opts.height_px / _MIN_FIG_IN[1])
@@ -345,8 +345,8 @@ class _Scene:
         self.mark2: list[Line2D] = []
         self.readouts: list[Text] = []
         for i, tr in enumerate(self.tracks):
-            c, top_in = tr.pilot.color, 4.75 + i * step_in
-            self._side_text(top_in, tr.pilot.label, fontsize=11, fontweight="bold", color=c)
+            c, top_in = tr.flight.color, 4.75 + i * step_in
+            self._side_text(top_in, tr.flight.label, fontsize=11, fontweight="bold", color=c)
             self.readouts.append(self._side_text(top_in + 0.24, "", fontsize=9.5, family="monospace", color=c,
                                                  linespacing=1.3))
             self.trail3 += ax3.plot([], [], [], color=c, lw=2.0)
@@ -386,12 +386,12 @@ class _Scene:
 
 def _set_marker_state(mark: Line2D, track: _Track, k: int) -> None:
     """Filled circle while flying; hollow once arrived; a cross once ended any other way."""
-    color = track.pilot.color
+    color = track.flight.color
     if not track.ended[k]:
         mark.set_marker("o")
         mark.set_markerfacecolor(color)
         mark.set_markeredgecolor("k")
-    elif track.pilot.episode.meta.outcome == Outcome.SUCCESS:
+    elif track.flight.episode.meta.outcome == Outcome.SUCCESS:
         mark.set_marker("o")
         mark.set_markerfacecolor("white")
         mark.set_markeredgecolor(color)
@@ -509,7 +509,7 @@ def _changed_box(prev: np.ndarray, cur: np.ndarray) -> tuple[int, int, int, int]
 
 @plain_text
 def render_videos(groups: list[FlightGroup], out_dir: Path, which: str = "scenario",
-                  opts: AnimationOptions = AnimationOptions(), progress: bool = True,
+                  opts: AnimationConfig = AnimationConfig(), progress: bool = True,
                   fmt: str = "mp4") -> list[AnimationResult]:
     """Render several cells of a run to `out_dir/<cell stem>.<fmt>`.
 

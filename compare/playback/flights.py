@@ -34,7 +34,7 @@ OUTCOME_WORDS: dict[Outcome, str] = {
 
 
 @dataclass(frozen=True)
-class Pilot:
+class Flight:
     """One pilot's flight in a group, with how to show it: `label` (e.g. "PPO policy") and `color` (matplotlib).
 
     The flight itself is read when asked for (`episode`, a few kept at a time by `RunEpisodes.load_recent`), so
@@ -68,11 +68,11 @@ class Pilot:
 
 @dataclass(frozen=True)
 class FlightGroup:
-    """All pilots that flew one comparison cell, in the run's method order.
+    """The flights of one comparison cell, one per pilot that flew it, in the run's method order.
 
     Attributes:
         scenario, episode, seed: the cell.
-        pilots: one per method that flew it.
+        flights: one per method that flew it.
         city: the scenario's map (from the run folder's `maps/<scenario>.yaml`).
         description: the scenario's one-line description (may be empty).
         wind: the scenario's wind as run.json records it (None when it does not).
@@ -81,7 +81,7 @@ class FlightGroup:
     scenario: str
     episode: int
     seed: int
-    pilots: tuple[Pilot, ...]
+    flights: tuple[Flight, ...]
     city: BuildingMap
     description: str = ""
     wind: WindInfo | None = None
@@ -99,20 +99,20 @@ class FlightGroup:
     @property
     def duration_s(self) -> float:
         """Time until the last pilot's flight ended [s]."""
-        return max((p.end_t_s for p in self.pilots), default=0.0)
+        return max((p.end_t_s for p in self.flights), default=0.0)
 
     def region(self) -> tuple[BuildingMap, np.ndarray, np.ndarray]:
         """The city cropped to the flights (start and goal included) plus a margin, and that box (lo, hi) ENU [m].
 
         The same region as the report's episode pages (`compare.report.figures.flight_region`, `crop_map`).
         """
-        lo, hi = flight_region([trace_from_episode(p.episode, p.label, p.color) for p in self.pilots])
+        lo, hi = flight_region([trace_from_episode(p.episode, p.label, p.color) for p in self.flights])
         return crop_map(self.city, lo, hi), lo, hi
 
     @property
     def meta(self):
         """The first pilot's episode metadata (task, vehicle and map are the same for every pilot)."""
-        return self.pilots[0].episode.meta
+        return self.flights[0].episode.meta
 
 
 def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[FlightGroup]:
@@ -132,7 +132,7 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
         raise ValueError(f"{run_dir}: no saved episodes (store/ or episodes/*.npz) to show")
     scen_order = {s.name: i for i, s in enumerate(info.scenarios)}
     method_order = {m: i for i, m in enumerate(info.methods)}
-    by_cell: dict[tuple[str, int, int], list[Pilot]] = {}
+    by_cell: dict[tuple[str, int, int], list[Flight]] = {}
     level = logging.WARNING if warn_unreadable else logging.INFO
     unreadable = []
     for bad in episodes.unreadable:
@@ -148,7 +148,7 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
         k = ep.meta.key
         t = np.asarray(ep.trajectory.t_s, float)
         by_cell.setdefault((k.scenario, k.episode, k.seed), []).append(
-            Pilot(entry, episodes, "", "", float(t[-1]) if len(t) else 0.0, ep.meta.outcome))
+            Flight(entry, episodes, "", "", float(t[-1]) if len(t) else 0.0, ep.meta.outcome))
     if not by_cell:
         raise ValueError(f"{run_dir}: no readable saved episodes to show (unreadable: {', '.join(unreadable)})")
     all_methods = sorted({p.method for found in by_cell.values() for p in found},
@@ -161,9 +161,9 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
             maps[scenario] = load_map_file(run_dir / "maps" / f"{scenario}.yaml")
         found = sorted(by_cell[(scenario, episode, seed)],
                        key=lambda p: (method_order.get(p.method, len(method_order)), p.method))
-        pilots = tuple(replace(p, label=info.label(p.method), color=colors[p.method]) for p in found)
+        flights = tuple(replace(p, label=info.label(p.method), color=colors[p.method]) for p in found)
         sc = info.scenario(scenario)
-        groups.append(FlightGroup(scenario, episode, seed, pilots, maps[scenario],
+        groups.append(FlightGroup(scenario, episode, seed, flights, maps[scenario],
                                   description=sc.description if sc else "", wind=sc.wind if sc else None))
     return groups
 

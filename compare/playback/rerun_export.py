@@ -136,7 +136,7 @@ def run_recording(run_dir: Path, out: Path) -> Path:
             meta = g.meta
             rec.log(f"{cell}/start", rr.Points3D([meta.start_m], colors=[(44, 160, 44, 255)], radii=[1.0]), static=True)
             rec.log(f"{cell}/goal", rr.Points3D([meta.goal_m], colors=[(255, 215, 0, 255)], radii=[1.0]), static=True)
-            for p in g.pilots:
+            for p in g.flights:
                 t = np.arange(0.0, p.end_t_s + 1e-9, 1.0 / RUN_SAMPLE_HZ)
                 if not len(t) or t[-1] < p.end_t_s:
                     t = np.r_[t, p.end_t_s]

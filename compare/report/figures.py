@@ -33,7 +33,7 @@ from uam_fdm.city.buildings import BuildingMap, Prism
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
 from uam_fdm.episode import Outcome
 
-METHOD_COLORS: dict[str, str] = {name: spec.color for name, spec in PILOTS.items()}
+METHOD_COLORS: dict[str, str] = {name: entry.color for name, entry in PILOTS.items()}
 FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",
                                     "tab:olive", "tab:cyan", "tab:gray")
 PAGE_SIZE_IN = (11.69, 8.27)  # A4 landscape

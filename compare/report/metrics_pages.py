@@ -23,7 +23,7 @@ from compare.report import figures as F
 from compare.report.summary_figures import ForestPanel, ForestRow, difficulty_figure, forest_figure
 from compare.results.difficulty import ScenarioConditions, success_by_difficulty
 from compare.results.metrics import EpisodeMetrics
-from compare.results.summary import RATE_METRICS, BootstrapSettings, PairedStat, PairedSummary, Stat, Summary
+from compare.results.summary import RATE_METRICS, BootstrapConfig, PairedStat, PairedSummary, Stat, Summary
 
 # (summary key, row label with unit, scale, decimals)
 SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
@@ -125,7 +125,7 @@ def _number(v: float | None, scale: float, digits: int) -> str:
 
 def interval_words(summary: Summary) -> str:
     """How the summary's intervals were made, in words (an older summary.json: all by the bootstrap)."""
-    b: BootstrapSettings = summary.bootstrap
+    b: BootstrapConfig = summary.bootstrap
     fields = (("resamples", b.resamples), ("confidence", b.confidence), ("seed", b.seed), ("method", b.method))
     boot = ", ".join(f"{k}={v}" for k, v in fields if v is not None)
     rates = summary.intervals.rates

@@ -229,8 +229,8 @@ def _make_run(run_dir: Path, info: RunInfo) -> _Run:
 def _registry_label(method: str) -> str:
     """The label of a method run.json does not describe: the registry's, else its name (a plug-in is never
     imported to ask: the name comes from a data file)."""
-    spec = pilots.registered(method)
-    return spec.label if spec is not None else method
+    entry = pilots.registered(method)
+    return entry.label if entry is not None else method
 
 
 def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[EpisodeEntry]]:
@@ -299,8 +299,9 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
         coverage += " The run is incomplete (interrupted): the report covers the episodes saved so far."
     blocks = [("p", f"Created {info.created_utc or 'n/a'} by: {info.command or 'n/a'}"),
               ("p", f"Run folder: {run.run_dir}"), ("p", coverage), ("h", "Scenarios")]
-    if info.suite is not None:  # a benchmark set: its version names the exact tasks flown
-        blocks.insert(1, ("p", f"Task set {info.suite.name}, version {info.suite.version}: {info.suite.description}"))
+    if info.task_set is not None:  # a benchmark set: its version names the exact tasks flown
+        ts = info.task_set
+        blocks.insert(1, ("p", f"Task set {ts.name}, version {ts.version}: {ts.description}"))
     for s in info.scenarios:
         blocks += _scenario_blocks(run, s)
     blocks.append(("h", "Methods"))

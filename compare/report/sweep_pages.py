@@ -24,7 +24,7 @@ DODGE = 0.012
 
 def sweep_pages(info: RunInfo, rows: Sequence[EpisodeMetrics], style: MethodStyle) -> list[tuple[str, Figure]]:
     """The sweep pages of a run, (name, figure) per vehicle; none unless the run flew a sweep set."""
-    if info.suite is None or info.suite.name not in SWEEP_SETS:
+    if info.task_set is None or info.task_set.name not in SWEEP_SETS:
         return []
     rates = sweep_rates(info, rows)
     vehicles = list(dict.fromkeys(r.vehicle for r in rates))
@@ -36,7 +36,7 @@ def sweep_pages(info: RunInfo, rows: Sequence[EpisodeMetrics], style: MethodStyl
                  for (vehicle, m), env in envelopes.items() if vehicle == v and any(
                      r.outside for r in rates if r.vehicle == v and r.method == m)]
         out.append((f"sweep_{v}", sweep_figure(v, [r for r in rates if r.vehicle == v], style, notes,
-                                               f"{info.suite.name} {info.suite.version}")))
+                                               f"{info.task_set.name} {info.task_set.version}")))
     return out
 
 

@@ -60,7 +60,7 @@ class EpisodeMetrics:
         compute_ms_mean, compute_ms_max: wall time per decision [ms] (NaN without decisions).
         plan_time_s: planning time at reset, plus every replan of the classical pilot [s] (for the PPO
             pilot: computing its route field, the geodesic distance-to-go its observation uses; NaN for a
-            pilot that reports none: zero from a pilot that does not always plan, `PilotSpec.plans`).
+            pilot that reports none: zero from a pilot that does not always plan, `PilotEntry.plans`).
             A decision that replans also counts that time in compute_ms_max.
         mpc_solve_ms_median, mpc_solve_ms_p95: the MPC solver's wall time per decision [ms].
         mpc_failures: MPC solves that failed (a fallback command was flown) [count].
@@ -184,8 +184,8 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
     below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
     finite_clearance = clearance[~np.isnan(clearance)]
     # a method the registry does not hold (a plug-in) is not imported to ask whether it plans: the file names it.
-    spec = pilots.registered(key.method)
-    does_not_plan = (spec is None or not spec.plans) and meta.plan_time_s == 0
+    entry = pilots.registered(key.method)
+    does_not_plan = (entry is None or not entry.plans) and meta.plan_time_s == 0
     return EpisodeMetrics(
         scenario=key.scenario, episode=int(key.episode), method=key.method, seed=int(key.seed),
         map=meta.map_name, vehicle=meta.vehicle, vehicle_fingerprint=meta.vehicle_fingerprint,

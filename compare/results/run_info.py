@@ -141,7 +141,7 @@ class MethodInfo:
 
 
 @dataclass(frozen=True)
-class SuiteInfo:
+class TaskSetInfo:
     """The published task set a run's scenarios come from (`compare.scenarios.benchmark`).
 
     Attributes:
@@ -170,8 +170,8 @@ class RunInfo:
         fairness: the fairness statement.
         fingerprints: hashes of the inputs (`compare.scenarios.fingerprint.run_fingerprints`; None in runs saved before
             they were recorded).
-        suite: the published task set the scenarios come from (None: scenario files, or a run saved before
-            suites existed).
+        task_set: the published task set the scenarios come from, under the key "suite" in the file (None:
+            scenario files, or a run saved before task sets were recorded).
         format_version: the file format.
     """
 
@@ -183,7 +183,7 @@ class RunInfo:
     versions: Mapping[str, str] = field(default_factory=dict)
     fairness: str = ""
     fingerprints: Mapping[str, Any] | None = None
-    suite: SuiteInfo | None = None
+    task_set: TaskSetInfo | None = None
     format_version: int = FORMAT_VERSION
 
     def label(self, method: str) -> str:
@@ -227,9 +227,9 @@ def run_info_to_json(info: RunInfo) -> dict[str, Any]:
     }
     if info.fingerprints is not None:
         out["fingerprints"] = info.fingerprints
-    if info.suite is not None:
-        out["suite"] = {"name": info.suite.name, "version": info.suite.version,
-                        "description": info.suite.description}
+    if info.task_set is not None:  # the key keeps its first name: older readers and scripts look for it
+        out["suite"] = {"name": info.task_set.name, "version": info.task_set.version,
+                        "description": info.task_set.description}
     return out
 
 
@@ -302,16 +302,16 @@ def run_info_from_json(data: Any, where: str) -> RunInfo:
         versions={str(k): str(v) for k, v in r.mapping(top.get("versions"), "versions").items()},
         fairness=r.text(top, "fairness", "fairness"),
         fingerprints=None if fingerprints is None else r.mapping(fingerprints, "fingerprints"),
-        suite=_suite_info(r, top.get("suite"), "suite"),
+        task_set=_task_set_info(r, top.get("suite"), "suite"),
     )
 
 
-def _suite_info(r: _Reader, value: Any, key: str) -> SuiteInfo | None:
+def _task_set_info(r: _Reader, value: Any, key: str) -> TaskSetInfo | None:
     if value is None:
         return None
     s = r.mapping(value, key)
-    return SuiteInfo(r.text(s, "name", f"{key}.name"), r.text(s, "version", f"{key}.version"),
-                     r.text(s, "description", f"{key}.description"))
+    return TaskSetInfo(r.text(s, "name", f"{key}.name"), r.text(s, "version", f"{key}.version"),
+                       r.text(s, "description", f"{key}.description"))
 
 
 def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:

@@ -128,7 +128,7 @@ class PairedSummary:
 
 
 @dataclass(frozen=True)
-class BootstrapSettings:
+class BootstrapConfig:
     """How the intervals were drawn: resamples, confidence level in (0, 1), seed, and the CI method."""
 
     resamples: int | None = None
@@ -152,7 +152,7 @@ class IntervalMethods:
 
 
 @dataclass(frozen=True)
-class PowerSettings:
+class PowerConfig:
     """How the minimum detectable differences were computed (None: not recorded, an older file).
 
     Attributes:
@@ -183,7 +183,7 @@ class Summary:
         intervals: which interval the rates carry. power: how the MDDs were computed.
     """
 
-    bootstrap: BootstrapSettings
+    bootstrap: BootstrapConfig
     metrics: tuple[str, ...]
     methods: Mapping[str, MethodSummary]
     paired: tuple[PairedSummary, ...] = ()
@@ -191,7 +191,7 @@ class Summary:
     vehicles: tuple[str, ...] = ()
     by_vehicle: Mapping[str, Summary] | None = None
     intervals: IntervalMethods = IntervalMethods()
-    power: PowerSettings = PowerSettings()
+    power: PowerConfig = PowerConfig()
 
     @property
     def vehicle(self) -> str | None:
@@ -208,7 +208,7 @@ class Summary:
 
 # ---- aggregation ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class _Settings:
+class _StatsConfig:
     boot: Bootstrap
     alpha: float
     power: float
@@ -244,13 +244,13 @@ class _Settings:
                           mdd_design=design_mdd_rate(n, self.alpha, self.power) if metric in RATE_METRICS and n
                           else None)
 
-    def describe(self) -> tuple[BootstrapSettings, IntervalMethods, PowerSettings]:
+    def describe(self) -> tuple[BootstrapConfig, IntervalMethods, PowerConfig]:
         b = self.boot
-        return (BootstrapSettings(b.resamples, b.confidence, b.seed, "percentile"),
-                IntervalMethods(WILSON, NEWCOMBE, RATE_METRICS), PowerSettings(self.alpha, self.power, DESIGN_RATE))
+        return (BootstrapConfig(b.resamples, b.confidence, b.seed, "percentile"),
+                IntervalMethods(WILSON, NEWCOMBE, RATE_METRICS), PowerConfig(self.alpha, self.power, DESIGN_RATE))
 
 
-def _settings(resamples: int, confidence: float, seed: int, alpha: float, power: float) -> _Settings:
+def _stats_config(resamples: int, confidence: float, seed: int, alpha: float, power: float) -> _StatsConfig:
     if int(resamples) != resamples or resamples < 1:
         raise ValueError(f"resamples must be a positive integer, got {resamples!r}")
     if not 0.0 < confidence < 1.0:
@@ -259,7 +259,7 @@ def _settings(resamples: int, confidence: float, seed: int, alpha: float, power:
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
     if not 0.0 < power < 1.0:
         raise ValueError(f"power must be in (0, 1), got {power!r}")
-    return _Settings(Bootstrap(int(resamples), float(confidence), int(seed)), float(alpha), float(power))
+    return _StatsConfig(Bootstrap(int(resamples), float(confidence), int(seed)), float(alpha), float(power))
 
 
 def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
@@ -295,7 +295,7 @@ def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confiden
         ValueError: bad settings, rows of several vehicles (they never pool: `summarize_run` summarises each),
             or two rows for the same cell.
     """
-    settings = _settings(resamples, confidence, seed, alpha, power)
+    settings = _stats_config(resamples, confidence, seed, alpha, power)
     rows = list(rows)
     vehicles = tuple(sorted({r.vehicle for r in label_vehicles(rows)}))
     if len(vehicles) > 1:
@@ -330,7 +330,7 @@ def summarize_run(rows: Sequence[EpisodeMetrics], *, resamples: int = 2000, conf
     by_vehicle = {v: summarize([r for r in rows if r.vehicle == v], **kw) for v in vehicles}
     by_scenario = {name: summarize([r for r in rows if r.scenario == name], **kw)
                    for name in sorted({r.scenario for r in rows})}
-    boot, intervals, pw = _settings(resamples, confidence, seed, alpha, power).describe()
+    boot, intervals, pw = _stats_config(resamples, confidence, seed, alpha, power).describe()
     one = by_vehicle[vehicles[0]] if len(vehicles) == 1 else None
     return Summary(boot, SUMMARY_METRICS, one.methods if one else {}, one.paired if one else (), by_scenario,
                    vehicles=vehicles, by_vehicle=by_vehicle, intervals=intervals, power=pw)
@@ -358,7 +358,7 @@ def _values(rows: Sequence[EpisodeMetrics], metric: str) -> np.ndarray:
     return np.array([float(getattr(r, metric)) for r in rows], dtype=float)
 
 
-def _method_summary(rows: list[EpisodeMetrics], settings: _Settings) -> MethodSummary:
+def _method_summary(rows: list[EpisodeMetrics], settings: _StatsConfig) -> MethodSummary:
     reasons = Counter(r.failure_reason for r in rows if r.failure_reason)
     stats = {}
     for metric in SUMMARY_METRICS:
@@ -368,7 +368,7 @@ def _method_summary(rows: list[EpisodeMetrics], settings: _Settings) -> MethodSu
 
 
 def _paired_summary(first: str, second: str, rows_a: list[EpisodeMetrics], rows_b: list[EpisodeMetrics],
-                    settings: _Settings) -> PairedSummary:
+                    settings: _StatsConfig) -> PairedSummary:
     a = {(r.scenario, r.episode, r.seed): r for r in rows_a}
     b = {(r.scenario, r.episode, r.seed): r for r in rows_b}
     common = sorted(a.keys() & b.keys())
@@ -488,12 +488,12 @@ def _summary_from_json(data: Any, where: str, prefix: str, within: Summary | Non
                    parts["by_vehicle"], own.intervals, own.power)
 
 
-def _bootstrap_from_json(data: Any, where: str, key: str) -> BootstrapSettings:
+def _bootstrap_from_json(data: Any, where: str, key: str) -> BootstrapConfig:
     boot = _mapping(data, where, key)
-    return BootstrapSettings(_integer(boot.get("resamples"), where, f"{key}.resamples"),
-                             _number(boot.get("confidence"), where, f"{key}.confidence"),
-                             _integer(boot.get("seed"), where, f"{key}.seed"),
-                             None if boot.get("method") is None else str(boot["method"]))
+    return BootstrapConfig(_integer(boot.get("resamples"), where, f"{key}.resamples"),
+                           _number(boot.get("confidence"), where, f"{key}.confidence"),
+                           _integer(boot.get("seed"), where, f"{key}.seed"),
+                           None if boot.get("method") is None else str(boot["method"]))
 
 
 def _intervals_from_json(data: Any, where: str, key: str) -> IntervalMethods:
@@ -502,9 +502,9 @@ def _intervals_from_json(data: Any, where: str, key: str) -> IntervalMethods:
                            tuple(str(m) for m in _list(d.get("rate_metrics"), where, f"{key}.rate_metrics")))
 
 
-def _power_from_json(data: Any, where: str, key: str) -> PowerSettings:
+def _power_from_json(data: Any, where: str, key: str) -> PowerConfig:
     d = _mapping(data, where, key)
-    return PowerSettings(*(_number(d.get(k), where, f"{key}.{k}") for k in ("alpha", "power", "design_rate")))
+    return PowerConfig(*(_number(d.get(k), where, f"{key}.{k}") for k in ("alpha", "power", "design_rate")))
 
 
 def _method_from_json(data: Any, where: str, key: str) -> MethodSummary:

@@ -89,7 +89,7 @@ class EpisodeMeta:
         vehicle_fingerprint: the vehicle's parameters' fingerprint (`VehicleParams.fingerprint`; "" in files saved
             before it was recorded): two vehicles that share a name are told apart by it.
         report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
-            method's `compare.flying.pilots.PilotSpec.report_type`), None when it gives none.
+            method's `compare.flying.pilots.PilotEntry.report_type`), None when it gives none.
     """
 
     key: EpisodeKey
@@ -237,8 +237,8 @@ def meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
     extra = m.get("extra") or {}
     if not isinstance(extra, Mapping):
         raise TypeError(f"extra must be a mapping, got {type(extra).__name__}")
-    spec = pilots.registered(key.method)  # never a plug-in's import: the file names the method
-    report_type = spec.report_type if spec is not None else None
+    entry = pilots.registered(key.method)  # never a plug-in's import: the file names the method
+    report_type = entry.report_type if entry is not None else None
     report = None
     if report_type is not None:
         saved = extra.get(_REPORT_KEY)

@@ -59,7 +59,7 @@ from compare.results.run_info import (
     PolicyRecord,
     RunInfo,
     ScenarioInfo,
-    SuiteInfo,
+    TaskSetInfo,
     WindInfo,
     write_run_info,
 )
@@ -67,7 +67,7 @@ from compare.results.store import compact, part_path
 from compare.results.summary import summarize_run, write_summary_json
 from compare.results.tables import STORE_MODES
 from compare.run.backends import check_backend, open_backend
-from compare.run.backends.base import Backend, CellFlown, CellTask, WorkerSetup
+from compare.run.backends.base import Backend, CellFlown, CellJob, WorkerSetup
 from compare.run.cells import Cell, cell_key
 from compare.run.trained_air import air_envelope, outside_trained_air
 from compare.scenarios.fingerprint import check_resume, run_fingerprints
@@ -99,7 +99,7 @@ CELL_LIMIT_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
-class RunOptions:
+class RunConfig:
     """How to run.
 
     Attributes:
@@ -194,11 +194,11 @@ class PolicyFacts:
     envelope: AirEnvelope | None = None
 
 
-def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
+def plan_cells(scenarios: Sequence[Scenario], opts: RunConfig,
                policies: Mapping[str, PolicyFacts] | None) -> tuple[list[Cell], list[str]]:
     """The cells to fly, in a fixed order, and notes on cells left out (e.g. no policy for a vehicle).
 
-    `policies`: the policies of the pilots that need one (`compare.flying.pilots.PilotSpec.needs_policy`), by
+    `policies`: the policies of the pilots that need one (`compare.flying.pilots.PilotEntry.needs_policy`), by
     vehicle fingerprint (`select_policies`); None: not known yet (an estimate), every cell is kept.
 
     Raises:
@@ -219,7 +219,7 @@ def plan_cells(scenarios: Sequence[Scenario], opts: RunOptions,
                 raise ValueError(
                     f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
                     f"{policy.control_hz:g} Hz controller (its config.json, nav.control_hz); fly this scenario at "
-                    f"{policy.control_hz:g} Hz, without {m}{f' (--methods {others})' if others else ''}, or with "
+                    f"{policy.control_hz:g} Hz, without {m}{f' (--pilots {others})' if others else ''}, or with "
                     f"a policy trained for it")
         seeds = opts.seeds if opts.seeds is not None else sc.seeds
         for ep in sc.episodes:
@@ -252,7 +252,7 @@ class RunEstimate:
         return self.wall_h > WARN_RUN_HOURS or self.disk_gb > WARN_RUN_GB
 
 
-def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate:
+def estimate_run(scenarios: Sequence[Scenario], opts: RunConfig) -> RunEstimate:
     """Estimate a run's time and disk from its scenarios and options, without flying or loading a policy."""
     cells, _ = plan_cells(scenarios, opts, None)
     flight_s = wall_s = n_bytes = 0.0
@@ -268,7 +268,7 @@ def estimate_run(scenarios: Sequence[Scenario], opts: RunOptions) -> RunEstimate
     return RunEstimate(len(cells), flight_s, wall_s / workers / 3600.0, n_bytes / 1e9)
 
 
-def cell_limit_s(scenarios: Sequence[Scenario], c: Cell, opts: RunOptions) -> float | None:
+def cell_limit_s(scenarios: Sequence[Scenario], c: Cell, opts: RunConfig) -> float | None:
     """The wall-time limit of cell `c` [s]: `opts.cell_timeout_s` when given, else CELL_LIMIT_BASE_S +
     CELL_LIMIT_FACTOR x the episode's simulated time limit x its pilot's `wall_s_per_flight_s`; None in this
     process (nothing could stop the cell)."""
@@ -313,7 +313,7 @@ def versions() -> dict[str, str]:
     return out
 
 
-def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequence[Cell], notes: Sequence[str],
+def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Sequence[Cell], notes: Sequence[str],
                     fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
     """run.json (with the inputs' `fingerprints`, see `compare.scenarios.fingerprint`, the policy folders of the pilots
     that fly one, their vehicles and decision rates, the methods in table order) and maps/*.yaml."""
@@ -321,28 +321,28 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunOptions, cells: Sequ
     for sc in scenarios:
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
     methods = pilots.ordered(c.method for c in cells)
-    specs = [pilots.pilot(m) for m in methods]
-    at_control_rate = [s.name for s in specs if not s.needs_policy]
+    entries = [pilots.pilot(m) for m in methods]
+    at_control_rate = [s.name for s in entries if not s.needs_policy]
     if policies:
         rates = "; ".join(f"for {p.vehicle} at {p.decision_hz:g} Hz (each command held for "
                           f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
         rest = f"; {', '.join(at_control_rate)} at each scenario's control rate" if at_control_rate else ""
-        notes = [*notes, *(f"{s.name} decides at its policy's rate: {rates}{rest}" for s in specs if s.needs_policy)]
+        notes = [*notes, *(f"{s.name} decides at its policy's rate: {rates}{rest}" for s in entries if s.needs_policy)]
     records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz, p.envelope) for p in policies)
     info = RunInfo(
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
         notes=tuple(notes),
         methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else (),
-                                   "" if s.name in pilots.PILOTS else s.color) for s in specs},
-        versions=versions(), fairness=fairness(methods), fingerprints=fingerprints, suite=run_suite(scenarios))
+                                   "" if s.name in pilots.PILOTS else s.color) for s in entries},
+        versions=versions(), fairness=fairness(methods), fingerprints=fingerprints, task_set=run_task_set(scenarios))
     write_run_info(info, out)
 
 
-def run_suite(scenarios: Sequence[Scenario]) -> SuiteInfo | None:
+def run_task_set(scenarios: Sequence[Scenario]) -> TaskSetInfo | None:
     """The published task set (benchmark) the run's scenarios all come from, else None."""
-    suites = {sc.suite for sc in scenarios}
-    return suites.pop() if len(suites) == 1 else None
+    task_sets = {sc.task_set for sc in scenarios}
+    return task_sets.pop() if len(task_sets) == 1 else None
 
 
 def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
@@ -366,11 +366,11 @@ def fairness(methods: Sequence[str]) -> str:
     return " ".join([common, *(pilots.pilot(m).given for m in pilots.ordered(methods)), FAIRNESS_CLEARANCE])
 
 
-def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
+def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:
     """Fly every cell, then score and report (see the module docstring). Returns the run folder.
 
     Raises:
-        ValueError: a bad option (`RunOptions.validate`), a bad policy, nothing to fly, a refused resume, or a
+        ValueError: a bad option (`RunConfig.validate`), a bad policy, nothing to fly, a refused resume, or a
             backend that cannot start; before the run folder is written.
     """
     opts.validate()
@@ -378,7 +378,7 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
     policies = select_policies(scenarios, opts)
     cells, notes = plan_cells(scenarios, opts, policies)
     if not cells:
-        raise ValueError("nothing to fly: no (scenario, method) left after --methods")
+        raise ValueError("nothing to fly: no (scenario, pilot) left after --pilots")
     out = Path(opts.out_dir)
     flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if pilots.pilot(c.method).needs_policy}
     used = [f for fp, f in policies.items() if fp in flown]
@@ -406,7 +406,7 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunOptions) -> Path:
         write_run_files(scenarios, opts, cells, notes, fingerprints, used)
         kept = kept_keys(out) if opts.resume else set()  # an unreadable episode is flown again (and replaced)
         todo = [c for c in cells if cell_key(scenarios, c) not in kept]
-        tasks = [CellTask(c, cell_key(scenarios, c), cell_limit_s(scenarios, c, opts)) for c in todo]
+        tasks = [CellJob(c, cell_key(scenarios, c), cell_limit_s(scenarios, c, opts)) for c in todo]
         bar = tqdm(total=len(todo), desc="episodes", unit="ep", disable=not opts.progress, file=sys.stderr)
         try:
             failed = _fly(backend, tasks, out, bar)
@@ -433,7 +433,7 @@ def check_empty_run_folder(out: Path) -> None:
         raise ValueError(f"--out {out}: folder exists and is not empty (use --resume to complete it)")
 
 
-def _fly(backend: Backend, tasks: Sequence[CellTask], out: Path, bar) -> list[FailedCell]:
+def _fly(backend: Backend, tasks: Sequence[CellJob], out: Path, bar) -> list[FailedCell]:
     """Fly `tasks` on `backend`, keeping the run folder's record of failed cells: a failure is written as it
     happens, and a cell that flies removes the record of an earlier failure (a resumed run). Returns the
     failures of this run."""
@@ -466,8 +466,8 @@ def policy_facts(policy: Path | None) -> PolicyFacts:
                        float(nav.control_hz), float(nav.decision_hz), air_envelope(nav.air))
 
 
-def select_policies(scenarios: Sequence[Scenario], opts: RunOptions) -> dict[str, PolicyFacts]:
-    """The policy for each vehicle that flies a pilot that needs one (`PilotSpec.needs_policy`), by vehicle
+def select_policies(scenarios: Sequence[Scenario], opts: RunConfig) -> dict[str, PolicyFacts]:
+    """The policy for each vehicle that flies a pilot that needs one (`PilotEntry.needs_policy`), by vehicle
     fingerprint: the one given with --policy for that vehicle, else the shipped one trained for it (none:
     that pilot is not flown there).
 

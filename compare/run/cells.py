@@ -26,7 +26,7 @@ from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, xy
 from compare.scenarios.scenario import Scenario
 from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.air.wind import WindField, probe_heights_up_to, turbulence_airspeed_m_s
-from uam_fdm.pilot import Agent, World
+from uam_fdm.pilot import Pilot, World
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 
 
@@ -46,7 +46,7 @@ def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
 
 
 class CellRunner:
-    """Flies cells; holds per-process caches (worlds per scenario, one agent per method, or per method and
+    """Flies cells; holds per-process caches (worlds per scenario, one pilot per method, or per method and
     vehicle for a pilot that flies a policy)."""
 
     def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path],
@@ -58,7 +58,7 @@ class CellRunner:
         self._conditions: dict[int, EpisodeConditions] = {}
         self._worlds: dict[int, World] = {}
         self._dynamics: dict[tuple, VehicleDynamics] = {}
-        self._agents: dict[tuple[str, str], Agent] = {}
+        self._pilots: dict[tuple[str, str], Pilot] = {}
 
     def world(self, si: int) -> World:
         """What the pilots of scenario `si` are given at take-off (one flight model per vehicle and rates)."""
@@ -71,13 +71,13 @@ class CellRunner:
             self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
         return self._worlds[si]
 
-    def agent(self, method: str, sc: Scenario) -> Agent:
-        """The agent flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
+    def pilot(self, method: str, sc: Scenario) -> Pilot:
+        """The pilot flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
         fp = sc.vehicle.fingerprint() if pilots.pilot(method).needs_policy else ""
-        if (method, fp) not in self._agents:
+        if (method, fp) not in self._pilots:
             request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source, self.policies.get(fp) if fp else None)
-            self._agents[method, fp] = pilots.build(method, request)
-        return self._agents[method, fp]
+            self._pilots[method, fp] = pilots.build(method, request)
+        return self._pilots[method, fp]
 
     def conditions(self, si: int) -> EpisodeConditions:
         """The air and city of scenario `si` (the episode table's condition columns; the density rounded as
@@ -112,8 +112,8 @@ class CellRunner:
     def fly(self, c: Cell) -> tuple[EpisodeMeta, Trajectory]:
         """Fly cell `c`: what its episode file holds (nothing is written)."""
         sc = self.scenarios[c.scenario]
-        spec = sc.episodes[c.episode]
-        task = spec.task
+        ep = sc.episodes[c.episode]
+        task = ep.task
         world = self.world(c.scenario)
         p = sc.vehicle
         wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
@@ -123,9 +123,9 @@ class CellRunner:
         airspeed = turbulence_airspeed_m_s(p.controller.max_speed_m_s, wind_speed)
         heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
-        agent = self.agent(c.method, sc)
-        traj = run_episode(world, agent, task, wind, agent_seed, pilot_name=c.method)
-        report = agent.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
+        pilot = self.pilot(c.method, sc)
+        traj = run_episode(world, pilot, task, wind, agent_seed, pilot_name=c.method)
+        report = pilot.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
         key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
                            vehicle_fingerprint=sc.vehicle.fingerprint(),

@@ -1,6 +1,6 @@
 """The benchmark sets: held-out task distributions per vehicle, generated, seeded and versioned.
 
-`build_suite("benchmark")` (or "benchmark-quick") generates the scenarios of a set: per vehicle, cities
+`build_task_set("benchmark")` (or "benchmark-quick") generates the scenarios of a set: per vehicle, cities
 drawn from the learned pilot's own city distribution (`rl.task.vehicles.task_for(vehicle).cities`) at seeds no
 pool of its training or evaluation uses (`rl.task.cities`: training 0.., test 1,000,000.., validation
 1,050,000..; here 3,000,000.. for the small quad and 3,100,000.. for the UAM), each flown in one air and
@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from compare.results.difficulty import building_coverage
-from compare.results.run_info import SuiteInfo
+from compare.results.run_info import TaskSetInfo
 from compare.scenarios.fingerprint import scenario_fingerprint
 from compare.scenarios.scenario import Scenario, scenario_from_dict
 from rl.task.air import AIR_LEVELS as LEVELS_OF_AIR
@@ -56,7 +56,7 @@ from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, CityMixtur
 from rl.task.vehicles import task_for
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions, density_altitude_m
 from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.city.generator import CityGenParams, generate_city
+from uam_fdm.city.generator import CityGenConfig, generate_city
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 GENERATOR_VERSION = "1"
@@ -67,7 +67,7 @@ FULL, QUICK, VALIDATION = BENCHMARK_SETS
 VALIDATION_SEED_OFFSET = 200_000
 """The validation twin's city seeds: the full set's plus this (3,200,000.. for the small quad, 3,300,000.. for the
 UAM: clear of the full set's 36 and of every learned pilot's pool, `_check_design`)."""
-METHODS = ("ppo", "rrt_mpc", "apf")
+PILOT_NAMES = ("ppo", "rrt_mpc", "apf")
 TURBULENCE_LEVELS = ("none", "light", "moderate")
 DENSITY_LEVELS = ("sparse", "medium", "dense")
 MAX_LEG_DRAWS = 256  # candidate legs per leg before a free straight line is accepted
@@ -113,7 +113,7 @@ class BenchmarkDesign:
         scenarios_per_vehicle, legs_per_scenario: the full set's size per vehicle.
         quick_scenarios, quick_legs: the quick subset's (the first scenarios, their first legs).
         seeds: the seeds every episode is flown with.
-        methods: the pilots flown.
+        pilots: the pilots flown.
     """
 
     vehicles: tuple[VehicleBenchmark, ...] = (
@@ -134,17 +134,17 @@ class BenchmarkDesign:
     quick_scenarios: int = 6
     quick_legs: int = 3
     seeds: tuple[int, ...] = (0,)
-    methods: tuple[str, ...] = METHODS
+    pilots: tuple[str, ...] = PILOT_NAMES
 
 
 DESIGN = BenchmarkDesign()
 
 
 @dataclass(frozen=True)
-class Suite:
+class TaskSet:
     """A generated set: what run.json records of it, and its checked scenarios (vehicle by vehicle)."""
 
-    info: SuiteInfo
+    info: TaskSetInfo
     scenarios: tuple[Scenario, ...]
 
 
@@ -164,7 +164,7 @@ def levels(index: int) -> Levels:
 
 
 # ---- the sets ---------------------------------------------------------------------------------------
-def build_suite(name: str, design: BenchmarkDesign = DESIGN) -> Suite:
+def build_task_set(name: str, design: BenchmarkDesign = DESIGN) -> TaskSet:
     """Generate and check the benchmark set `name` (one of `BENCHMARK_SETS`).
 
     Raises:
@@ -186,8 +186,8 @@ def build_suite(name: str, design: BenchmarkDesign = DESIGN) -> Suite:
         for i in range(n_scenarios):
             data = scenario_mapping(vb, vehicle, i, n_legs, flown, prefix)
             checked.append(scenario_from_dict(data, f"{name}:{data['name']}", Path(".")))
-    info = SuiteInfo(name, suite_version(checked), _describe(name, n_scenarios, n_legs, flown))
-    return Suite(info, tuple(dataclasses.replace(sc, suite=info) for sc in checked))
+    info = TaskSetInfo(name, task_set_version(checked), _describe(name, n_scenarios, n_legs, flown))
+    return TaskSet(info, tuple(dataclasses.replace(sc, task_set=info) for sc in checked))
 
 
 def city_seed_ranges(design: BenchmarkDesign = DESIGN) -> dict[str, range]:
@@ -217,11 +217,15 @@ def _check_design(design: BenchmarkDesign, others: dict[str, range] | None = Non
         taken[f"{vehicle} benchmark"] = seeds
 
 
-def suite_version(scenarios: Sequence[Scenario], generator_version: str = GENERATOR_VERSION) -> str:
+def task_set_version(scenarios: Sequence[Scenario], generator_version: str = GENERATOR_VERSION) -> str:
     """`generator_version` (this module's `GENERATOR_VERSION`) + "+" + 10 hex digits of SHA-256 over the
     scenarios' mappings and their cities' buildings and bounds (the mapping names the city by generator
-    parameters and seed; the hash of what was generated catches a change of the city generator too)."""
-    content = [[sc.raw, scenario_fingerprint(sc)["map"]] for sc in scenarios]
+    parameters and seed; the hash of what was generated catches a change of the city generator too).
+
+    The mappings are hashed with their pilots under the key's first name, `methods` (renamed `pilots` since):
+    the rename changes no task, so it keeps every published version (docs/benchmark.md)."""
+    content = [[{("methods" if k == "pilots" else k): v for k, v in sc.raw.items()}, scenario_fingerprint(sc)["map"]]
+               for sc in scenarios]
     digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
     return f"{generator_version}+{digest[:10]}"
 
@@ -248,7 +252,7 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
         vehicle: its parameters (`load_vehicle(vb.vehicle)`).
         index: the scenario's index (its city seed is vb.first_seed + index).
         n_legs: how many legs (the first n of this scenario's sequence).
-        design: the sets' design (seeds, methods).
+        design: the sets' design (seeds, pilots).
         prefix: the scenario's name before "-<tag>-<index>".
 
     Raises:
@@ -285,11 +289,11 @@ def scenario_mapping(vb: VehicleBenchmark, vehicle: VehicleParams, index: int, n
         "goal_radius_m": nav.tasks.goal_radius_m,
         "episodes": episodes,
         "seeds": list(design.seeds),
-        "methods": list(design.methods),
+        "pilots": list(design.pilots),
     }
 
 
-def city_params(cities: CityDistribution | CityMixture, seed: int, density_level: int) -> CityGenParams:
+def city_params(cities: CityDistribution | CityMixture, seed: int, density_level: int) -> CityGenConfig:
     """City `seed` of the learned pilot's distribution with its lot occupancy and footprint fill set to the
     density level's (0: the lowest of the distribution's ranges, 1: the middle, 2: the highest); the fill's
     spread is the city's own (from a mixture: the ranges of the component the city comes from)."""

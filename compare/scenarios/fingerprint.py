@@ -2,7 +2,7 @@
 
 `run_fingerprints` hashes, per scenario, its resolved content (map, vehicle parameters, atmosphere,
 wind and rates, episodes), the files of each policy folder flown (one per vehicle, for the pilots that fly a
-policy: `compare.flying.pilots.PilotSpec.needs_policy`), and the code version; the run
+policy: `compare.flying.pilots.PilotEntry.needs_policy`), and the code version; the run
 stores them in `run.json` under "fingerprints". `check_resume` reads a folder (never writes) and
 refuses, with every difference listed, a folder that is not a run of this tool or whose saved inputs
 differ from the ones given now: finished episodes are never mixed with episodes of other inputs.
@@ -164,8 +164,8 @@ def check_resume(out: Path, now: dict, flown: Mapping[str, tuple[tuple[int, ...]
         if tuple(seeds) != tuple(info.seeds):
             diffs.append(f"scenario {info.name}: seeds saved {list(info.seeds)}, now {list(seeds)} (--seeds)")
         if tuple(methods) != tuple(info.methods):
-            diffs.append(f"scenario {info.name}: methods saved {', '.join(info.methods)}, now {', '.join(methods)} "
-                         f"(--methods, --method)")
+            diffs.append(f"scenario {info.name}: pilots saved {', '.join(info.methods)}, now {', '.join(methods)} "
+                         f"(--pilots, --pilot)")
     if diffs:
         raise ValueError(f"{out}: cannot resume: the inputs differ from the saved run's: {'; '.join(diffs)}; "
                          f"nothing was written (fly into a new folder)")

@@ -1,54 +1,8 @@
 """Scenario files: a strict loader that checks everything before anything flies.
 
-A scenario is one YAML file: a city, a vehicle, the air it flies in, and the episodes (start,
-goal) each pilot flies, once per seed.  World frame ENU (x east, y north, z up), metres above
-the field (ground at z = 0), seconds, SI units::
-
-    name: suburb-quad          # required. [A-Za-z0-9_.-]+, at most 100 characters, not "." or "..",
-                               #   no "__" (it separates the fields of output file names); names the results
-    description: "..."         # optional free text
-    map: {named: suburb}       # required. Anything `uam_fdm.city.mapfile.map_from_config` accepts:
-                               #   {named: suburb|downtown|canyon}, {buildings: [{center: [x, y] m,
-                               #   size: [w, d] m, height: h m, yaw_deg: a}, ...]}, {generator:
-                               #   {seed: N, ...}}, {geojson: file (relative to this file), ...},
-                               #   each with optional no_fly: [{center, size, z_range: [z0, z1] m}]
-    bounds: {min: [x, y, z], max: [x, y, z]}   # optional flight volume [m] (default: the map's
-                               #   own; required with map.buildings and map.geojson)
-    vehicle: small_quad        # required. A preset name (`uam_fdm.vehicle.params.preset_names()`), a path
-                               #   to a vehicle YAML (relative to this file), or an inline mapping
-                               #   of vehicle parameters (the preset format)
-    atmosphere:                # optional; every key optional, defaults shown
-      elevation_m: 0.0         #   field elevation above mean sea level [m], in [-500, 9000]
-      isa_offset_k: 0.0        #   temperature offset from the ISA day [K], in [-50, 50]
-      wind_mps: [0, 0, 0]      #   steady wind, ENU [m/s] (where the air moves to), |w| <= 60, at
-                               #   wind_reference_height_m above the field
-      wind_reference_height_m: 10   # height of wind_mps above the field [m], in [1, 300]
-      wind_shear: {law: uniform}    # steady wind over height z (`uam_fdm.air.shear`): uniform (the same
-                               #   everywhere), {law: power, exponent: a} (u ~ (z/z_ref)^a, a in
-                               #   [0, 0.6]; about 0.28 towns, 0.40 city centres) or {law: log,
-                               #   roughness_m: z0} (u ~ ln(z/z0), z0 in [0.001, 3] m; about 0.5-1 m
-                               #   towns, 1-2 m city centres); horizontal components only
-      turbulence: none         #   Dryden turbulence: none | light | moderate | severe; its intensity
-                               #   and scale lengths follow MIL-F-8785C's dependence on height
-    episodes:                  # required, non-empty list; one task each
-      - start: [x, y, z]       #   required, ENU [m]
-        goal: [x, y, z]        #   required, ENU [m]
-        goal_radius_m: 3.0     #   optional, > 0 [m] (default: the top-level goal_radius_m)
-        timeout_s: 90.0        #   optional, in (0, 3600] [s] (default: the top-level timeout_s)
-    goal_radius_m: 3.0         # optional default for the episodes, > 0 [m]; default 3.0
-    timeout_s: null            # optional default for the episodes, in (0, 3600] [s], or null (the
-                               #   default): each episode then gets
-                               #   20 s + 2.5 * |goal - start| / vehicle.controller.max_speed_m_s,
-                               #   i.e. 2.5 times the straight-line flight time at the vehicle's
-                               #   top speed, plus 20 s to take off, turn and settle (at most 3600 s)
-    seeds: [0]                 # optional, non-empty list of distinct integers in [0, 2**32 - 1];
-                               #   every episode is flown once per seed; default [0]
-    methods: [ppo, rrt_mpc]    # optional, non-empty list of registered methods (`compare.flying.pilots`:
-                               #   ppo, rrt_mpc, apf); default [ppo, rrt_mpc]
-    physics_hz: 500            # optional physics rate [Hz], in (0, 10000]; default 500; the
-                               #   vehicle's motor_time_constant_s must span >= 2 physics steps
-    control_hz: 50             # optional decision rate [Hz], > 0; default 50; physics_hz must be
-                               #   an integer multiple of it, at most 100 times it
+A scenario is one YAML file: a city, a vehicle, the air it flies in, and the episodes (start, goal)
+each pilot flies, once per seed. World frame ENU (x east, y north, z up), metres above the field
+(ground at z = 0), seconds, SI units. Every key, its unit, range and default: docs/scenario_format.md.
 
 Every value is checked when the file is loaded, and the first problem raises
 `uam_fdm.errors.ConfigError` naming the file, the dotted key and the reason with the bad value,
@@ -57,7 +11,7 @@ unknown keys at any level, duplicate keys, wrong types (booleans and strings are
 non-finite numbers, out-of-range values; a start or goal whose collision sphere (the vehicle's
 `collision_radius_m`) leaves the bounds, touches a building or the ground (clearance <= radius),
 or overlaps a no-fly zone; a goal within the goal radius of its start; duplicate seeds; an
-unknown method; an unknown vehicle (the presets are listed); a vehicle that cannot hover (maximum
+unknown pilot; an unknown vehicle (the presets are listed); a vehicle that cannot hover (maximum
 thrust <= weight) at the highest start or goal in this atmosphere.
 
 Built-in scenario sets live in ``compare/scenarios/<set>/*.yaml``; the benchmark sets are generated
@@ -71,6 +25,7 @@ import copy
 import dataclasses
 import math
 import re
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from compare.flying import pilots
-from compare.flying.pilots import DEFAULT_METHODS, METHODS
-from compare.results.run_info import SuiteInfo
+from compare.flying.pilots import DEFAULT_PILOTS, PILOT_NAMES
+from compare.results.run_info import TaskSetInfo
 from uam_fdm.air.atmosphere import (
     ELEVATION_RANGE_M,
     ISA_OFFSET_RANGE_K,
@@ -120,7 +75,8 @@ MAX_SEED = 2**32 - 1  # OMPL and most RNG seeding APIs take unsigned 32-bit seed
 MAX_NAME_CHARS = 100
 
 _TOP_KEYS = ("name", "description", "map", "bounds", "vehicle", "atmosphere", "episodes", "goal_radius_m",
-             "timeout_s", "seeds", "methods", "physics_hz", "control_hz")
+             "timeout_s", "seeds", "pilots", "physics_hz", "control_hz")
+OLD_PILOTS_KEY = "methods"  # the key `pilots` before its rename: still read, with a warning, until the next release
 _REQUIRED_KEYS = ("name", "map", "vehicle", "episodes")
 _ATMOSPHERE_KEYS = ("elevation_m", "isa_offset_k", "wind_mps", "wind_reference_height_m", "wind_shear", "turbulence")
 _SHEAR_KEYS = ("law", "exponent", "roughness_m")
@@ -131,7 +87,7 @@ AIR_ABOVE_CEILING_M = 100.0  # ... and above the flight volume's ceiling [m]
 
 
 @dataclass(frozen=True)
-class EpisodeSpec:
+class ScenarioEpisode:
     """One episode of a scenario: its index in the file and the task to fly (ENU metres, seconds)."""
 
     index: int
@@ -154,11 +110,11 @@ class Scenario:
         wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
         episodes: the tasks, in file order.
         seeds: the seeds each episode is flown with.
-        methods: the pilots to fly, in `compare.flying.pilots.METHODS` order.
+        methods: the pilots to fly, in `compare.flying.pilots.PILOT_NAMES` order.
         physics_hz: physics rate [Hz].
         control_hz: decision rate [Hz]; physics_hz is an integer multiple of it.
         raw: a copy of the parsed YAML mapping, for provenance.
-        suite: the published task set it belongs to (a benchmark set, `compare.scenarios.benchmark`), else None.
+        task_set: the published task set it belongs to (a benchmark set, `compare.scenarios.benchmark`), else None.
     """
 
     name: str
@@ -169,14 +125,14 @@ class Scenario:
     city: BuildingMap
     atmosphere: AtmosphereConditions
     wind: WindConditions
-    episodes: tuple[EpisodeSpec, ...]
+    episodes: tuple[ScenarioEpisode, ...]
     seeds: tuple[int, ...]
     methods: tuple[str, ...]
     physics_hz: float
     control_hz: float
     air: Atmosphere
     raw: dict = field(default_factory=dict)
-    suite: SuiteInfo | None = None
+    task_set: TaskSetInfo | None = None
 
     def __repr__(self) -> str:
         return (f"Scenario({self.name!r}, {len(self.episodes)} episodes x {len(self.seeds)} seeds, "
@@ -218,7 +174,8 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
         ConfigError: naming the file, the key and the reason.
     """
     root_mapping(data, source, f"scenario keys ({', '.join(_TOP_KEYS)})")
-    reject_unknown(data, _TOP_KEYS, source)
+    pilots_key = _pilots_key(data, source)
+    reject_unknown(data, tuple(pilots_key if k == "pilots" else k for k in _TOP_KEYS), source)
     require_keys(data, _REQUIRED_KEYS, source, reason="missing (required)")
     name = _name(data["name"], source)
     description = _optional(data, "description", "", source, string)
@@ -230,7 +187,7 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     goal_radius = _optional(data, "goal_radius_m", DEFAULT_GOAL_RADIUS_M, source, _goal_radius)
     timeout = None if data.get("timeout_s") is None else _timeout(data["timeout_s"], source, "timeout_s")
     seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
-    methods = _optional(data, "methods", DEFAULT_METHODS, source, _methods)
+    methods = _optional(data, pilots_key, DEFAULT_PILOTS, source, _pilots)
     physics_hz, control_hz = _rates(data, source, vehicle)
     episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
     air = flight_atmosphere(atmosphere, city)
@@ -367,19 +324,32 @@ def _seeds(value: Any, source: str, key: str) -> tuple[int, ...]:
     return tuple(value)
 
 
-def _methods(value: Any, source: str, key: str) -> tuple[str, ...]:
+def _pilots_key(data: Mapping, source: str) -> str:
+    """The key the file lists its pilots under: `pilots`, or its old name (`OLD_PILOTS_KEY`, read with a
+    `DeprecationWarning` naming the file and the new key). Both at once are refused, naming the file."""
+    if OLD_PILOTS_KEY not in data:
+        return "pilots"
+    if "pilots" in data:
+        raise ConfigError(source, OLD_PILOTS_KEY, "the old name of the key 'pilots', which is also given; keep only "
+                                                  "'pilots'")
+    warnings.warn(f"{source}: the key {OLD_PILOTS_KEY!r} is now 'pilots'; the old key is read until the next "
+                  f"release", DeprecationWarning, stacklevel=2)
+    return OLD_PILOTS_KEY
+
+
+def _pilots(value: Any, source: str, key: str) -> tuple[str, ...]:
     if not isinstance(value, list) or not value:
-        raise ConfigError(source, key, f"must be a non-empty list drawn from {', '.join(METHODS)} or plug-in "
+        raise ConfigError(source, key, f"must be a non-empty list drawn from {', '.join(PILOT_NAMES)} or plug-in "
                                        f"pilots (module:Class), got {value!r}")
     for i, m in enumerate(value):
         if not isinstance(m, str):
-            raise ConfigError(source, f"{key}[{i}]", f"a method is a name, got {m!r}")
+            raise ConfigError(source, f"{key}[{i}]", f"a pilot is named by a string, got {m!r}")
         try:
             pilots.pilot(m)  # a plug-in is imported here: a broken one is an error before anything flies
         except ValueError as exc:
             raise ConfigError(source, f"{key}[{i}]", str(exc)) from None
         if m in value[:i]:
-            raise ConfigError(source, f"{key}[{i}]", f"duplicate method {m!r}")
+            raise ConfigError(source, f"{key}[{i}]", f"duplicate pilot {m!r}")
     return tuple(pilots.ordered(value))
 
 
@@ -403,12 +373,12 @@ def _rates(data: Mapping, source: str, vehicle: VehicleParams) -> tuple[float, f
 
 
 def _episodes(value: Any, source: str, city: BuildingMap, vehicle: VehicleParams, goal_radius: float,
-              timeout: float | None) -> tuple[EpisodeSpec, ...]:
+              timeout: float | None) -> tuple[ScenarioEpisode, ...]:
     if not isinstance(value, list) or not value:
         raise ConfigError(source, "episodes", f"must be a non-empty list of {{start: [x, y, z], goal: [x, y, z]}}, "
                                               f"got {value!r}")
     radius = vehicle.collision_radius_m
-    specs = []
+    parsed = []
     for i, item in enumerate(value):
         key = f"episodes[{i}]"
         cfg = _mapping(item, _EPISODE_KEYS, source, key)
@@ -437,8 +407,8 @@ def _episodes(value: Any, source: str, city: BuildingMap, vehicle: VehicleParams
                                                f"{vehicle.controller.max_speed_m_s:g} m/s (the vehicle's "
                                                f"max_speed_m_s) = {t_max:.0f} s, exceeds {MAX_TIMEOUT_S:g} s: "
                                                f"set timeout_s or shorten the flight")
-        specs.append(EpisodeSpec(i, Task(start_m=start, goal_m=goal, goal_radius_m=r_goal, timeout_s=t_max)))
-    return tuple(specs)
+        parsed.append(ScenarioEpisode(i, Task(start_m=start, goal_m=goal, goal_radius_m=r_goal, timeout_s=t_max)))
+    return tuple(parsed)
 
 
 def _check_point(p: tuple[float, float, float], city: BuildingMap, radius: float, source: str, key: str) -> None:
@@ -465,7 +435,7 @@ def _check_point(p: tuple[float, float, float], city: BuildingMap, radius: float
                                        f"{radius:g} m of one)")
 
 
-def _check_hover(episodes: tuple[EpisodeSpec, ...], vehicle: VehicleParams, air: Atmosphere, source: str) -> None:
+def _check_hover(episodes: tuple[ScenarioEpisode, ...], vehicle: VehicleParams, air: Atmosphere, source: str) -> None:
     """Raise when the vehicle's maximum thrust does not exceed its weight at the highest start or goal."""
     z_top = max(max(e.task.start_m[2], e.task.goal_m[2]) for e in episodes)
     conditions = air.conditions

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from compare.scenarios.benchmark import BENCHMARK_SETS, build_suite
+from compare.scenarios.benchmark import BENCHMARK_SETS, build_task_set
 from compare.scenarios.scenario import Scenario, load_scenario
 from compare.scenarios.sweep import SWEEP_SETS, build_sweep
 from uam_fdm.errors import ConfigError
@@ -44,7 +44,7 @@ def resolve_scenarios(spec: str | Path) -> list[Scenario]:
     """
     text = str(spec)
     if text in BENCHMARK_SETS:
-        return list(build_suite(text).scenarios)
+        return list(build_task_set(text).scenarios)
     if text in SWEEP_SETS:
         return list(build_sweep(text).scenarios)
     if text in builtin_sets():

@@ -23,7 +23,7 @@ differs between steps as the air does).
 
 "sweep-quick" is the first `quick_cities` cities with their first `quick_legs` legs at every step: the same
 names and tasks as in "sweep", so its cells are cells of the full set. Version: `GENERATOR_VERSION` + "+" +
-a hash of everything generated (`compare.scenarios.benchmark.suite_version`).
+a hash of everything generated (`compare.scenarios.benchmark.task_set_version`).
 """
 from __future__ import annotations
 
@@ -34,17 +34,17 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.results.run_info import SuiteInfo
+from compare.results.run_info import TaskSetInfo
 from compare.scenarios.benchmark import (
     DENSITY_LEVELS,
     LEARNED_PILOT_POOLS,
-    METHODS,
-    Suite,
+    PILOT_NAMES,
+    TaskSet,
     VehicleBenchmark,
     city_params,
     city_seed_ranges,
     draw_leg,
-    suite_version,
+    task_set_version,
 )
 from compare.scenarios.scenario import scenario_from_dict
 from rl.task.vehicles import task_for
@@ -88,7 +88,7 @@ class SweepDesign:
         cities, legs_per_city: the full set's tasks per vehicle and step (cities x legs).
         quick_cities, quick_legs: the quick set's (the first cities, their first legs).
         seeds: the seeds every episode is flown with.
-        methods: the pilots flown.
+        pilots: the pilots flown.
     """
 
     vehicles: tuple[SweepVehicle, ...] = (
@@ -110,7 +110,7 @@ class SweepDesign:
     quick_cities: int = 1
     quick_legs: int = 2
     seeds: tuple[int, ...] = (0,)
-    methods: tuple[str, ...] = METHODS
+    pilots: tuple[str, ...] = PILOT_NAMES
 
 
 DESIGN = SweepDesign()
@@ -141,7 +141,7 @@ def point_name(tag: str, city: int, p: SweepPoint) -> str:
 
 
 # ---- the sets ---------------------------------------------------------------------------------------
-def build_sweep(name: str, design: SweepDesign = DESIGN, vehicles: tuple[str, ...] | None = None) -> Suite:
+def build_sweep(name: str, design: SweepDesign = DESIGN, vehicles: tuple[str, ...] | None = None) -> TaskSet:
     """Generate and check the sweep set `name` (one of `SWEEP_SETS`), vehicle by vehicle, city by city, step
     by step.
 
@@ -171,8 +171,8 @@ def build_sweep(name: str, design: SweepDesign = DESIGN, vehicles: tuple[str, ..
         for i in range(n_cities):
             for data in city_mappings(sv, i, n_legs, design):
                 checked.append(scenario_from_dict(data, f"{name}:{data['name']}", Path(".")))
-    info = SuiteInfo(name, suite_version(checked, GENERATOR_VERSION), _describe(name, n_cities, n_legs, design))
-    return Suite(info, tuple(dataclasses.replace(sc, suite=info) for sc in checked))
+    info = TaskSetInfo(name, task_set_version(checked, GENERATOR_VERSION), _describe(name, n_cities, n_legs, design))
+    return TaskSet(info, tuple(dataclasses.replace(sc, task_set=info) for sc in checked))
 
 
 def sweep_seed_ranges(design: SweepDesign = DESIGN) -> dict[str, range]:
@@ -223,7 +223,7 @@ def city_mappings(sv: SweepVehicle, index: int, n_legs: int, design: SweepDesign
         index: the city's index (its seed is the first seed + index; its building density level index mod 3,
             starting at the middle one).
         n_legs: how many legs (the first n of the city's sequence).
-        design: the sets' design (seeds, methods).
+        design: the sets' design (seeds, pilots).
 
     Raises:
         RuntimeError: a leg with no free start and goal (`compare.scenarios.benchmark.draw_leg`).
@@ -256,6 +256,6 @@ def city_mappings(sv: SweepVehicle, index: int, n_legs: int, design: SweepDesign
             "goal_radius_m": nav.tasks.goal_radius_m,
             "episodes": episodes,
             "seeds": list(design.seeds),
-            "methods": list(design.methods),
+            "pilots": list(design.pilots),
         })
     return out

@@ -9,7 +9,7 @@ compiled model through `uam_fdm.sim.BatchSimulator` (the low-level controller an
 substeps for every vehicle), followed by the episode rules of `uam_fdm.episode` (the comparison
 runner's own): collision at every physics substep, bounds, arrival, then the time limit. A vehicle
 whose episode ends inside a decision stops there; the others fly the rest of the decision. The
-learned pilot in the runner (`rl.pilots.learned.PolicyAgent`) holds its command the same way, so an episode
+learned pilot in the runner (`rl.pilots.learned.PolicyPilot`) holds its command the same way, so an episode
 flown through the env and through the runner is bit-identical (tested).
 
 Collision at every substep is exact and cheap: the clearance field is 1-Lipschitz, so a vehicle

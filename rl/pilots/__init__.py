@@ -1,1 +1,1 @@
-"""The learned pilots as `uam_fdm.pilot.Agent`s: the trained policy and the potential field."""
+"""The learned pilots as `uam_fdm.pilot.Pilot`s: the trained policy and the potential field."""

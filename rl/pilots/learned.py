@@ -1,4 +1,4 @@
-"""The learned pilot as an `Agent`: policy -> velocity command -> the vehicle's low-level controller.
+"""The learned pilot as a `Pilot`: policy -> velocity command -> the vehicle's low-level controller.
 
 Loads a policy folder (the shipped `rl/policies/default` or one written by `uam-compare train`),
 builds the same observation the environment builds (`rl.sensing.senses.observe_slots`: the same perception,
@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +36,7 @@ from rl.task.cities import boxes_only
 from rl.task.config import NavConfig
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
+from uam_fdm.renamed import renamed
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 if TYPE_CHECKING:  # the network's module pulls in PyTorch, loaded only with a network
@@ -138,8 +139,8 @@ class _CitySenses:
         self.route_cells = grid_shape(city, nav.route.cell_m)
 
 
-class PolicyAgent:
-    """The learned pilot (implements `uam_fdm.pilot.Agent`).
+class PolicyPilot:
+    """The learned pilot (implements `uam_fdm.pilot.Pilot`).
 
     Args:
         policy: a loaded `Policy`, a policy folder, or None for the shipped policy.
@@ -232,3 +233,10 @@ class PolicyAgent:
 
     def episode_report(self) -> None:
         """Nothing beyond the trajectory (its route field's time is the reset's planning time)."""
+
+
+if not TYPE_CHECKING:  # hidden from the type checker: our own code must use the new names
+    def __getattr__(name: str) -> Any:
+        """The old name `PolicyAgent` (kept for one release, for code written against it): `PolicyPilot`, with a
+        warning (`uam_fdm.renamed`)."""
+        return renamed(__name__, name, {"PolicyAgent": "PolicyPilot"})

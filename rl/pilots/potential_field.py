@@ -5,13 +5,12 @@ goal direction, nothing else: attraction along the goal direction, repulsion fro
 building closer than `influence_m` (quadratic in the intrusion), a climb bias near buildings, and a
 speed that falls from `speed_max` to `speed_min` (fractions of the vehicle's limits) as the nearest
 building comes within `slow_m`. Its gains were tuned on validation cities at 50 Hz decisions
-(the earlier learned pilot's teacher): 92 % success, 0 % collisions, the rest time-outs in local
-minima behind buildings (a reactive pilot with a 30 m view cannot see around a block). It flies
-the environment's batch directly, at whatever decision rate the batch runs.
+(docs/design_notes.md, "rl.pilots.potential_field"). It flies the environment's batch directly, at
+whatever decision rate the batch runs.
 
-As an `Agent` (`PotentialFieldAgent`), flown by the comparison runner, each decision it senses the
+As a `Pilot` (`PotentialFieldPilot`), flown by the comparison runner, each decision it senses the
 k nearest buildings within its range (exact distances from the map) from the vehicle's position,
-computes the field's world velocity (`PotentialField.velocity`) and hands it to the vehicle's
+computes the field's world velocity (`PotentialFieldConfig.velocity`) and hands it to the vehicle's
 low-level controller through the learned pilot's own path (`rl.sensing.observation.velocity_command`:
 the goal-frame action, then the environment's `action_to_command`), so a command is the one the
 evaluation environment would fly for the same field (`rl.training.evaluation.evaluate_potential_field`).
@@ -27,6 +26,7 @@ import functools
 import json
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,11 +37,12 @@ from rl.task.cities import boxes_only
 from rl.task.vehicles import TASKS
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
+from uam_fdm.renamed import renamed
 from uam_fdm.vehicle.params import VehicleParams
 
 
 @dataclass(frozen=True)
-class PotentialField:
+class PotentialFieldConfig:
     """Gains of the reactive pilot (distances in metres; speeds as fractions of the vehicle's limits)."""
 
     k_buildings: int = 5
@@ -54,7 +55,7 @@ class PotentialField:
     slow_m: float = 15.0
     vertical_gain: float = 4.0
 
-    def scaled(self, factor: float) -> PotentialField:
+    def scaled(self, factor: float) -> PotentialFieldConfig:
         """The same pilot with every distance (range, influence, slow-down) times `factor`: for a
         vehicle whose task is `factor` times larger (`gains_for_task`: the task's clearance scale over
         the small quad's 30 m). Scaled, not re-tuned."""
@@ -83,7 +84,7 @@ class PotentialField:
         return np.clip(cmd, -1.0, 1.0)
 
 
-class PotentialFieldPilot:
+class BatchedPotentialField:
     """The potential field flying a `NavBatch`: call it as `pilot(obs, batch) -> actions (N, 3)`.
 
     Args:
@@ -91,7 +92,7 @@ class PotentialFieldPilot:
         gains: the pilot's gains.
     """
 
-    def __init__(self, batch: NavBatch, gains: PotentialField = PotentialField()) -> None:
+    def __init__(self, batch: NavBatch, gains: PotentialFieldConfig = PotentialFieldConfig()) -> None:
         w = batch.world
         self.gains = gains
         self.sensor = BoxSensor(w.cities, gains.k_buildings, gains.range_m, w.vehicle.collision_radius_m)
@@ -104,11 +105,11 @@ class PotentialFieldPilot:
 
 
 _CITY = np.zeros(1, dtype=np.int64)
-TUNED = PotentialField()
+TUNED = PotentialFieldConfig()
 """The gains tuned for the small quad."""
 
 
-def gains_for_task(scales: ObservationScales, base: PotentialField = TUNED) -> PotentialField:
+def gains_for_task(scales: ObservationScales, base: PotentialFieldConfig = TUNED) -> PotentialFieldConfig:
     """The potential field's gains for a learned-pilot task of observation scales `scales`: `base` (tuned
     for the small quad's task) with its distances scaled by the task's clearance scale over the small quad's."""
     return base.scaled(scales.clearance_m / ObservationScales().clearance_m)
@@ -119,7 +120,7 @@ GAINS_FILE = Path(__file__).parent / "data" / "potential_field_gains.json"
 
 
 @functools.lru_cache(maxsize=4)
-def tuned_gains(path: Path = GAINS_FILE) -> dict[str, PotentialField]:
+def tuned_gains(path: Path = GAINS_FILE) -> dict[str, PotentialFieldConfig]:
     """The gains tuned per vehicle preset (empty when none were tuned), read once per process.
 
     Raises:
@@ -128,17 +129,17 @@ def tuned_gains(path: Path = GAINS_FILE) -> dict[str, PotentialField]:
     if not path.is_file():
         return {}
     table = json.loads(path.read_text(encoding="utf-8"))
-    known = {f.name for f in fields(PotentialField)}
+    known = {f.name for f in fields(PotentialFieldConfig)}
     out = {}
     for vehicle, entry in table.get("vehicles", {}).items():
         gains = entry.get("gains") if isinstance(entry, dict) else None
         if not isinstance(gains, dict) or set(gains) != known:
             raise ValueError(f"{path}: vehicles.{vehicle}.gains must hold exactly {sorted(known)}")
-        out[vehicle] = PotentialField(**gains)
+        out[vehicle] = PotentialFieldConfig(**gains)
     return out
 
 
-def gains_for(vehicle: VehicleParams, base: PotentialField = TUNED) -> PotentialField:
+def gains_for(vehicle: VehicleParams, base: PotentialFieldConfig = TUNED) -> PotentialFieldConfig:
     """The potential field's gains for `vehicle`: those tuned for its preset on validation cities
     (`tuned_gains`) when `base` is the default, else `gains_for_task` of its learned-pilot task (`base` itself
     for a vehicle without one)."""
@@ -149,8 +150,8 @@ def gains_for(vehicle: VehicleParams, base: PotentialField = TUNED) -> Potential
     return base if task is None else gains_for_task(task.scales, base)
 
 
-class PotentialFieldAgent:
-    """The potential-field pilot (implements `uam_fdm.pilot.Agent`).
+class PotentialFieldPilot:
+    """The potential-field pilot (implements `uam_fdm.pilot.Pilot`).
 
     Args:
         base: the gains tuned for the small quad (scaled per vehicle at reset, `gains_for`).
@@ -158,9 +159,9 @@ class PotentialFieldAgent:
 
     name = "apf"
 
-    def __init__(self, base: PotentialField = TUNED) -> None:
+    def __init__(self, base: PotentialFieldConfig = TUNED) -> None:
         self.base = base
-        self._sensed: tuple[BuildingMap, float, PotentialField, BoxSensor] | None = None
+        self._sensed: tuple[BuildingMap, float, PotentialFieldConfig, BoxSensor] | None = None
 
     def reset(self, world: World, task: Task, seed: int) -> ResetInfo:
         """Prepare the sensor for the city (reused while the city and vehicle stay the same).
@@ -196,3 +197,11 @@ class PotentialFieldAgent:
 
     def episode_report(self) -> None:
         """Nothing beyond the trajectory."""
+
+
+if not TYPE_CHECKING:  # hidden from the type checker: our own code must use the new names
+    def __getattr__(name: str) -> Any:
+        """The old name `PotentialFieldAgent` (kept for one release, for code written against it):
+        `PotentialFieldPilot`, with a warning (`uam_fdm.renamed`). The batched field's old name, `PotentialFieldPilot`,
+        now names the pilot; the batched field is `BatchedPotentialField`."""
+        return renamed(__name__, name, {"PotentialFieldAgent": "PotentialFieldPilot"})

@@ -70,7 +70,7 @@ MAX_LAYERS, MAX_UNITS = 8, 4096  # a network far beyond the paper's 2 x 128 is n
 
 
 @dataclass(frozen=True)
-class NetworkSpec:
+class NetworkConfig:
     """The policy network's shape: the paper's two dense layers of 128 units for the actor and for the
     critic (`rl.policies.network.ActorCritic`), and the initial log standard deviation of its actions.
 
@@ -83,7 +83,7 @@ class NetworkSpec:
     log_std_init: float = -1.0
 
     @classmethod
-    def from_settings(cls, ppo: Mapping[str, Any]) -> NetworkSpec:
+    def from_settings(cls, ppo: Mapping[str, Any]) -> NetworkConfig:
         """From config.json's "ppo" settings (the PPO preset's fields).
 
         Raises:
@@ -116,7 +116,7 @@ class PolicyConfig:
 
     nav: NavConfig
     ppo: Mapping[str, Any]
-    network: NetworkSpec
+    network: NetworkConfig
     preset: str | None = None
 
 
@@ -234,7 +234,7 @@ class PolicyFolder:
             preset = cfg.get("preset")
             if not isinstance(ppo, dict):
                 raise TypeError(f"'ppo' must be an object, got {type(ppo).__name__}")
-            network = NetworkSpec.from_settings(ppo)
+            network = NetworkConfig.from_settings(ppo)
             if nav.vehicle not in preset_names():  # a policy names its preset, never a file elsewhere on the machine
                 raise ValueError(f"nav.vehicle {str(nav.vehicle)[:80]!r} is not a vehicle preset "
                                  f"({', '.join(preset_names())})")

@@ -1,6 +1,6 @@
 """The paper's policy network in plain PyTorch, to fly a trained policy without Stable-Baselines3.
 
-Two dense layers of 128 tanh units for the actor and for the critic (`NetworkSpec`), the action mean
+Two dense layers of 128 tanh units for the actor and for the critic (`NetworkConfig`), the action mean
 bounded by tanh (`rl.training.ppo.TanhMeanPolicy`, the class PPO trains, says why). The modules carry
 SB3's actor-critic parameter names, so the `policy.pth` of a model.zip written by training loads into
 it strictly (every name and shape checked); flying evaluates the actor's mean only, as SB3's
@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rl.policies.folder import NetworkSpec
+from rl.policies.folder import NetworkConfig
 
 ACTIONS = 3
 """The action: a 3D velocity command in the goal frame, each component in [-1, 1]."""
@@ -43,14 +43,14 @@ class ActorCritic(nn.Module):
 
     Args:
         n_obs: observation size.
-        spec: the network's shape (config.json's "ppo").
+        config: the network's shape (config.json's "ppo").
     """
 
-    def __init__(self, n_obs: int, spec: NetworkSpec) -> None:
+    def __init__(self, n_obs: int, config: NetworkConfig) -> None:
         super().__init__()
-        last = spec.net_arch[-1]
-        self.log_std = nn.Parameter(torch.full((ACTIONS,), float(spec.log_std_init)))
-        self.mlp_extractor = _Extractor(n_obs, spec.net_arch)
+        last = config.net_arch[-1]
+        self.log_std = nn.Parameter(torch.full((ACTIONS,), float(config.log_std_init)))
+        self.mlp_extractor = _Extractor(n_obs, config.net_arch)
         self.action_net = nn.Sequential(nn.Linear(last, ACTIONS), nn.Tanh())
         self.value_net = nn.Linear(last, 1)
 

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rl.policies.folder import NetworkSpec
+from rl.policies.folder import NetworkConfig
 from uam_fdm.files.atomic import atomic_open
 
 if TYPE_CHECKING:  # PyTorch loads only with a network
@@ -111,11 +111,11 @@ def zip_entry(path: Path, name: str) -> bytes:
         raise ValueError(f"{path}: not a readable zip file ({exc})") from None
 
 
-def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> ActorCritic:
+def load_network(path: Path, n_obs: int, config: NetworkConfig) -> ActorCritic:
     """The actor-critic of `model.zip` at `path`, built from settings and filled with its weights only.
 
     Args:
-        n_obs: observation size the network must take; spec: the network's shape (config.json's "ppo").
+        n_obs: observation size the network must take; config: the network's shape (config.json's "ppo").
 
     Raises:
         ValueError: the file is unreadable, holds anything but tensors, or its weights do not fit
@@ -141,7 +141,7 @@ def load_network(path: Path, n_obs: int, spec: NetworkSpec) -> ActorCritic:
     if first is not None and first.shape[1] != n_obs:
         raise ValueError(f"{path}: the network takes {first.shape[1]} observations; "
                          f"the task (config.json) gives {n_obs}")
-    net = ActorCritic(n_obs, spec)
+    net = ActorCritic(n_obs, config)
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError as exc:

@@ -1,4 +1,4 @@
-"""The learned pilot's observation, action and short memory, shared by the environment and the agent.
+"""The learned pilot's observation, action and short memory, shared by the environment and the pilot.
 
 Everything is expressed in the **goal frame**: a horizontal frame whose x' axis points from the
 vehicle towards the goal (y' to its left, z up). The policy never sees absolute position or the
@@ -200,7 +200,7 @@ def to_world_frame(v_goal: np.ndarray, heading_rad: np.ndarray) -> np.ndarray:
 
 @dataclass
 class PilotMemory:
-    """What the observation remembers between decisions, for N vehicles (the env's slots or one agent).
+    """What the observation remembers between decisions, for N vehicles (the env's slots or one pilot).
 
     Attributes:
         heading_rad: (N,) goal-frame heading.

@@ -55,7 +55,7 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
                   routes: RouteBank, memory: PilotMemory, perception_config: PerceptionConfig,
                   scales: ObservationScales, decision_hz: float, vehicle: VehicleParams,
                   observe: ObservedContext | None = None, around: Surroundings | None = None) -> np.ndarray:
-    """Observations (M, obs) of slots idx (the env's batch, or the policy agent's single slot).
+    """Observations (M, obs) of slots idx (the env's batch, or the learned pilot's single slot).
 
     Args:
         idx: (M,) slots of `routes` and `memory`; x: (M, nx) states; goal_m: (M, 3) [m];

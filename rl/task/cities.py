@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from uam_fdm.city.buildings import Building, BuildingMap
-from uam_fdm.city.generator import CityGenParams, generate_city
+from uam_fdm.city.generator import CityGenConfig, generate_city
 from uam_fdm.pilot import Task
 
 TRAIN_SEEDS = range(100_000)
@@ -93,7 +93,7 @@ class CityDistribution:
         """The distribution city `seed` is drawn from: this one (as `CityMixture.distribution`)."""
         return self
 
-    def params(self, seed: int) -> CityGenParams:
+    def params(self, seed: int) -> CityGenConfig:
         """The generator parameters of city `seed` (its own PCG64 stream, separate from the layout's)."""
         rng = np.random.Generator(np.random.PCG64([int(seed), 0x5EED]))
 
@@ -108,7 +108,7 @@ class CityDistribution:
         fill_hi = min(0.9, fill_lo + float(rng.uniform(0.05, 0.2)))
         core = rng.random() < self.core_probability
         core_factor = u(self.core_height_factor)
-        return CityGenParams(
+        return CityGenConfig(
             extent_m=(round(w, 1), round(d, 1)), margin_m=self.margin_m, ceiling_m=self.ceiling_m,
             block_size_m=(round(block[0], 1), round(block[1], 1)), street_width_m=round(u(self.street_width_m), 1),
             lots_per_block=lots, density=round(u(self.density), 3), fill_range=(round(fill_lo, 3), round(fill_hi, 3)),
@@ -163,7 +163,7 @@ class CityMixture:
         """The distribution city `seed` is drawn from: its component."""
         return self.components[self.component(seed)]
 
-    def params(self, seed: int) -> CityGenParams:
+    def params(self, seed: int) -> CityGenConfig:
         """The generator parameters of city `seed`, drawn from its component."""
         return self.distribution(seed).params(seed)
 

@@ -2,59 +2,25 @@
 
 `task_for(vehicle)` is the `NavConfig` a policy for that vehicle is trained on (`uam-compare train
 --vehicle NAME`). A policy folder records its task (config.json), so evaluation and the comparison
-runner always fly a policy in the task it learned.
+runner always fly a policy in the task it learned. Distances in metres, speeds in m/s, rates in Hz.
 
-**small_quad** (the `NavConfig` defaults): 0.42 m collision radius, 12 m/s, 45 deg tilt. Cities
-260-420 m across with 12-28 m streets, legs 40-250 m at 5-30 m above the ground, rays to 40 m,
-decisions at 10 Hz (a decision is 0.1 s, a quarter of the velocity loop's 0.4 s time constant).
+**small_quad** (the `NavConfig` defaults): 0.42 m collision radius, 12 m/s. Cities 260-420 m across with
+12-28 m streets, legs 40-250 m at 5-30 m above the ground, rays to 40 m, decisions at 10 Hz.
 
-**uam_multicopter** (VoloCity-sized, 900 kg, 6 m collision radius, 30.5 m/s, 25 deg tilt, 2.5 m/s
-climb, 0.12 s motor lag; `uam_fdm/vehicle/presets/uam_multicopter.yaml`). Everything follows from its
-stopping distance and its slow loops:
+**uam_multicopter** (`UAM_TASK`; 900 kg, 6 m collision radius, 30.5 m/s, 25 deg tilt, 2.5 m/s climb,
+0.12 s motor lag): every number follows from its stopping distance (about 140 m from cruise) and its slow
+velocity loop. Rays to 200 m, decisions at 5 Hz, districts 1.0-1.6 km across with 35-70 m streets
+(`UAM_DISTRICTS`), legs 0.3-1.5 km between points 30-90 m above the ground and a 10 m goal radius, a time
+limit that adds 2 x the climb time to 2.5 x the cruise time, and the reward per unit of its own motion,
+with the braking term of `rl.task.reward` on.
 
-* Braking from cruise at the tilt limit takes v² / (2 g tan 25°) = 30.5² / 9.1 = 102 m, plus ~1.25 s
-  of velocity-loop lag (gain 0.8 1/s) at 30.5 m/s = 38 m: about 140 m. Rays reach 200 m, 1.4
-  stopping distances (the quad's 40 m are ~3 of its ~12 m), the height map 135 m to each side, and
-  the clearance is measured exactly to 120 m (time-to-contact at 30 m/s over the 4 s danger horizon).
-* Decisions at 5 Hz: 0.2 s is a sixth of the velocity loop's ~1.25 s time constant (the quad's
-  10 Hz is a quarter of its 0.4 s) and 6 m of flight at cruise, one collision radius.
-* Districts 1.0-1.6 km across with 35-70 m streets (a 12 m wide vehicle needs several spans of
-  room to turn at speed: its turn radius at cruise and 25 deg is v² / (g tan 25°) = 204 m, so it
-  slows for corners), a low-rise fabric (median height 15-45 m) with a tower core in half the
-  districts (up to 5x taller) that reaches through the cruise layer.
-* Legs 0.3-1.5 km between points 30-90 m above the ground (vertiport approach and cruise
-  altitudes; the 2.5 m/s climb limit makes 60 m of height change take 24 s), at least 10 m clear of
-  everything beyond the 6 m sphere; a 10 m goal radius (the vehicle is 11.3 m across). The time
-  limit adds 2 x the climb time (|Δz| / 2.5 m/s) to the quad's 2.5 x the cruise time: a first
-  run without it timed out above the goal, descending at the 2.5 m/s the vehicle allows.
-* The reward keeps the quad's balance per unit of the vehicle's own motion: progress per metre is
-  0.15 (a 1 km leg is worth 150, as the quad's 150 m legs), the time cost 0.2 per second (4 % of
-  the progress rate at cruise, as the quad's 0.5 is of its 12 m/s), and the proximity cost starts
-  15 m beyond the sphere and grows with speed above 15 m/s. A metre of height difference counts
-  as 3 metres of route in the potential (`RouteConfig.climb_weight`): the UAM climbs 12x slower
-  than it cruises (the quad 4x), so with weight 1 closing a height gap earned a twelfth of the
-  cruise's progress rate and a first run learned to climb away from the roofs and time out
-  above its goal; with 3, climbing and descending earn a quarter of it, as for the quad.
-* A braking term (`rl.task.reward`): heading at a wall closer than 1.5 stopping distances costs up to
-  20 per second. The time-to-contact `danger` term is blind for this vehicle: at 20-30 m/s it needs
-  3.4-4.5 s to stop, at or beyond the 4 s horizon where that term is ~0, and the clearance it uses
-  is often set by a nearer roof below while a taller wall comes up ahead. A run without it crashed
-  mostly into walls at 15-27 m/s with 20-30 m of clearance left, a third of the distance needed to
-  stop. With it, collisions on 1,000 validation tasks went from 3.3 % to 2.8 %: inside the
-  intervals (docs/learned_pilot.md has the figures and the next lever).
+**The envelope** (`task_for(vehicle, envelope=True)`, `uam-compare train --envelope`): the air a pilot
+will meet (`ENVELOPE_AIR`) and, for the UAM, the space of the `full` task set too: half its cities at the
+shipped maps' scale (`SHIPPED_SCALE_CITIES`), starts and goals down to 15 m from the flight volume's side,
+which the policy observes (`ObservedContext(geofence=True)`). The small quad's envelope keeps its shipped
+task's space.
 
-**The envelope** (`task_for(vehicle, envelope=True)`, `uam-compare train --envelope`, issue 28): the air a pilot
-will meet (`ENVELOPE_AIR`) and, for the UAM, the space of the `full` set too, which it failed in (0 of 6 in
-canyon-uam, 0 of 6 in downtown-uam). Those scenarios fly the shipped maps, 700-1000 m across with 16-24 m
-streets (the canyon's gaps at 30-40 m of height are 18.5-24.5 m, for a 12 m wide vehicle), with starts and
-goals 16.8 m from the flight volume's side (canyon: its legs run in the 35 m border between buildings and side),
-9.1 m clear of buildings beyond the sphere and 265-339 m apart. So half the envelope's cities are the UAM's
-districts and half are at the shipped maps' scale (`SHIPPED_SCALE_CITIES`, a `CityMixture` drawing the component
-per city seed); starts and goals lie down to 15 m from the side (a margin is a minimum: drawn uniformly in 15-80 m
-it would put 1 % of them within 30 m of the side instead of 9 %), which the policy observes
-(`ObservedContext(geofence=True)`); legs from 250 m, 8 m of clearance. The small quad's envelope keeps its shipped
-task's space: a policy is being trained on it (its legs, distances to the side and street widths hold the full
-set's; its cities are smaller than the shipped maps, a size the policy does not observe).
+How each number was derived, and the runs that set them: docs/design_notes.md, "rl.task.vehicles".
 """
 from __future__ import annotations
 

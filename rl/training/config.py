@@ -19,7 +19,7 @@ class Curriculum:
     `gate`, the difficulty rises by `step` (to 1 at most; the window then starts afresh).
     `level_steps` > 0 also raises it once a level has lasted that many timesteps: across the air,
     exploration noise in thin air and gusts can hold training success under the gate long after
-    the deterministic policy flies full-length legs (issue 28), and the gate alone then spends most
+    the deterministic policy flies full-length legs, and the gate alone then spends most
     of a run on short legs. `start` = 1 turns the curriculum off.
     """
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
-from rl.pilots.potential_field import PotentialField, PotentialFieldPilot, gains_for
+from rl.pilots.potential_field import BatchedPotentialField, PotentialFieldConfig, gains_for
 from rl.task.air import AirDistribution
 from rl.task.cities import CityMixture
 from rl.task.config import NavConfig
@@ -25,8 +25,9 @@ from uam_fdm.stats import wilson_interval
 VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
 POOLS = ("test", "validation")
 
-Pilot = Callable[[np.ndarray, NavBatch], np.ndarray]
-"""A pilot for evaluation: (raw observations (N, obs), the batch) -> actions (N, 3) in [-1, 1]."""
+BatchedPilot = Callable[[np.ndarray, NavBatch], np.ndarray]
+"""A pilot flying a whole batch, for evaluation (not a `uam_fdm.pilot.Pilot`): (raw observations (N, obs),
+the batch) -> actions (N, 3) in [-1, 1]."""
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,7 @@ def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: s
                    city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0, air=air)
 
 
-def evaluate(pilot: Pilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
+def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
              world: NavWorld | None = None) -> EvalResult:
     """Fly `episodes` held-out episodes at once (episode i in pool city i), deterministically.
 
@@ -164,7 +165,7 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
 
 
 def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
-                             world: NavWorld | None = None, gains: PotentialField | None = None) -> EvalResult:
+                             world: NavWorld | None = None, gains: PotentialFieldConfig | None = None) -> EvalResult:
     """The reactive potential-field pilot (`rl.pilots.potential_field`) on the same tasks as
     `evaluate(..., nav, episodes, seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the
     tasks do not depend on it), with the gains the comparison flies it with (`gains_for`: tuned for the
@@ -179,13 +180,13 @@ def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool:
                        decision_hz=nav.control_hz)
     base_world = NavWorld(base_nav, dynamics=world.dynamics if world else None,
                           atmosphere=world.atmospheres if world else None, wind_from=world, geometry_from=world)
-    holder: dict[str, PotentialFieldPilot] = {}
+    holder: dict[str, BatchedPotentialField] = {}
 
     flown = gains or gains_for(base_world.vehicle)
 
     def potential_field(obs: np.ndarray, batch: NavBatch) -> np.ndarray:
         if "pilot" not in holder:  # its sensor is built on the batch's cities
-            holder["pilot"] = PotentialFieldPilot(batch, flown)
+            holder["pilot"] = BatchedPotentialField(batch, flown)
         return holder["pilot"](obs, batch)
 
     return evaluate(potential_field, base_nav, episodes, seed=seed, pool=pool, world=base_world)

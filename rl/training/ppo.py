@@ -1,5 +1,5 @@
 """PPO as the learned pilot is trained with it (Stable-Baselines3): the presets, the model and its
-normalised environment. The network is the paper's (shape `NetworkSpec`; flown by `rl.policies.network`)."""
+normalised environment. The network is the paper's (shape `NetworkConfig`; flown by `rl.policies.network`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,7 +10,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from torch import nn
 
-from rl.policies.folder import NetworkSpec
+from rl.policies.folder import NetworkConfig
 
 
 class TanhMeanPolicy(ActorCriticPolicy):
@@ -34,7 +34,7 @@ class PPOPreset:
     """PPO settings. `paper`: the original demo's network (two dense layers of 128 units) and clip 0.2;
     the rest chosen by measurement at 10 Hz decisions (docs/learned_pilot.md)."""
 
-    net_arch: tuple[int, ...] = NetworkSpec.net_arch
+    net_arch: tuple[int, ...] = NetworkConfig.net_arch
     clip_range: float = 0.2
     learning_rate: float = 3e-4
     learning_rate_end: float | None = 0.0  # linear decay to this over the run (None: constant)
@@ -46,13 +46,13 @@ class PPOPreset:
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
-    log_std_init: float = NetworkSpec.log_std_init
+    log_std_init: float = NetworkConfig.log_std_init
     target_kl: float | None = None
 
     @property
-    def network(self) -> NetworkSpec:
+    def network(self) -> NetworkConfig:
         """The policy network's shape (written into config.json with the other settings)."""
-        return NetworkSpec(self.net_arch, self.log_std_init)
+        return NetworkConfig(self.net_arch, self.log_std_init)
 
     def learning_rate_schedule(self) -> float | LinearSchedule:
         """The learning rate SB3 gets: constant, or falling linearly to `learning_rate_end` over the run."""

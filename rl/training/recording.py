@@ -42,7 +42,7 @@ from rl.policies.flights import (
 )
 from rl.policies.reader import ObsNorm
 from rl.task.config import NavConfig
-from rl.training.evaluation import Pilot, eval_config
+from rl.training.evaluation import BatchedPilot, eval_config
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.pilot import Task
 
@@ -178,7 +178,7 @@ class FlightRecorder:
         """Whether the checkpoint at `timesteps` is recorded already (a final evaluation repeats the last)."""
         return checkpoint_file(self.folder, timesteps).is_file()
 
-    def fly(self, pilot: Pilot) -> tuple[Flight, ...]:
+    def fly(self, pilot: BatchedPilot) -> tuple[Flight, ...]:
         """Fly every fixed task once with `pilot` (deterministic); the flights in task order."""
         b, w = self.batch, self.world
         n = b.n
@@ -217,7 +217,7 @@ class FlightRecorder:
                                   states[i, :k, 3:6].astype(np.float32), c.astype(np.float32)))
         return tuple(flights)
 
-    def record(self, timesteps: int, pilot: Pilot, actor: dict[str, np.ndarray], obs_norm: ObsNorm) -> Path:
+    def record(self, timesteps: int, pilot: BatchedPilot, actor: dict[str, np.ndarray], obs_norm: ObsNorm) -> Path:
         """Fly the fixed tasks and write the checkpoint at `timesteps` (its file's path)."""
         norm = ObsNorm(np.array(obs_norm.mean, dtype=float), np.array(obs_norm.var, dtype=float), obs_norm.count,
                        obs_norm.epsilon, obs_norm.clip_obs)  # a copy: training updates the running statistics

@@ -1,6 +1,6 @@
 """The NMPC tracker: straight line and circle on the full simulator, with and without wind, for the
 real-time iteration (the default) and Ipopt; fallback; the clearance half-space; the solvers'
-agreement on fixed problems (issue 15, item 5)."""
+agreement on fixed problems."""
 from __future__ import annotations
 
 import numpy as np
@@ -113,7 +113,7 @@ def test_halfspace_keeps_the_prediction_off_a_wall(solver, vehicles, trackers):
     assert sol.predicted_states[:, 0].max() <= 5.0 - p.collision_radius_m - 0.5 + 0.05
 
 
-# -- solver agreement (issue 15, item 5) ------------------------------------------------------------
+# -- solver agreement ------------------------------------------------------------------------------
 # The real-time iteration (solver="rti": one Gauss-Newton SQP step per decision) and the NLP solvers
 # share one OCP (planners.mpc_ocp). Iterated on a fixed problem (rti_iterations > 1: line-searched
 # Gauss-Newton steps), it converges to the NLP's KKT point, so its first control must reach Ipopt's

@@ -1,4 +1,4 @@
-"""No-fly volumes are respected by the classical pilot (issue 15, item 3): the planner, the
+"""No-fly volumes are respected by the classical pilot: the planner, the
 time-parameterisation and the MPC's clearance constraints treat them as obstacles at the same margin
 (`BuildingMap.planning_map`), while the comparison's clearance metric stays on the buildings."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from compare.flying.episode_loop import run_episode
-from planners.agent import ClassicalAgent
+from planners.classical_pilot import ClassicalPilot
 from planners.rrt_star import PlannerConfig, densify, plan_path
 from planners.timing import TimingLimits, time_parameterize
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
@@ -68,6 +68,6 @@ def test_the_classical_pilot_flies_around_it(vehicles, compiled_dynamics) -> Non
     world = World(p, compiled_dynamics["small_quad"], city,
                   Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
     task = Task(start_m=START, goal_m=GOAL, goal_radius_m=2.5, timeout_s=60.0)
-    traj = run_episode(world, ClassicalAgent(), task, WindField.calm(), seed=4)
+    traj = run_episode(world, ClassicalPilot(), task, WindField.calm(), seed=4)
     assert traj.outcome == "success", traj.detail
     assert _zone_clearance(WALL, traj.states[:, 0:3], p.collision_radius_m).min() > 0.0  # never entered it

@@ -104,9 +104,9 @@ def test_climb_weight_trades_a_climb_for_a_detour():
 
 
 def test_random_queries_on_a_generated_city_are_collision_free():
-    from uam_fdm.city.generator import CityGenParams, generate_city
+    from uam_fdm.city.generator import CityGenConfig, generate_city
 
-    city = generate_city(CityGenParams(extent_m=(300.0, 300.0), ceiling_m=80.0, margin_m=20.0, block_size_m=(50, 40),
+    city = generate_city(CityGenConfig(extent_m=(300.0, 300.0), ceiling_m=80.0, margin_m=20.0, block_size_m=(50, 40),
                                        street_width_m=12.0, height_median_m=40.0, height_range_m=(20.0, 100.0)), 5)
     rng = np.random.default_rng(0)
     done = 0

@@ -1,37 +1,19 @@
 """Atmosphere from JSBSim: density, temperature, pressure and speed of sound above the field.
 
-JSBSim (``FGStandardAtmosphere``) implements the 1976 U.S. Standard Atmosphere, which is
-identical to the ICAO Standard Atmosphere (ISA) below 11 km geopotential altitude. A scenario
-gives the field elevation above mean sea level and an ISA temperature offset.
+JSBSim (``FGStandardAtmosphere``: the 1976 U.S. Standard Atmosphere, identical to the ICAO Standard
+Atmosphere (ISA) below 11 km geopotential altitude) gives the atmosphere over a field at a given elevation
+above mean sea level with an ISA temperature offset. The offset follows the convention of performance and
+density-altitude charts: at a given height it changes the temperature but not the pressure, so the density
+is the standard day's scaled by T_std / T (the textbook ISA+dT density).
 
-ISA temperature offset: we follow the ISA-deviation convention of performance and
-density-altitude charts: at a given height the offset changes the temperature but not the
-pressure, so density follows as p / (R T). Temperature and speed of sound come from JSBSim with
-``atmosphere/delta-T`` (a uniform temperature bias, in Rankine); pressure and the standard-day
-density come from JSBSim's standard day, and density is scaled by T_std / T. JSBSim's own
-delta-T would also re-integrate the hydrostatic equation through the warmer column, which raises
-the pressure aloft (+0.8 % at 1000 m MSL for +20 K, +2.5 % at 3000 m); we do not use that
-pressure, so that a hot, high field gets the textbook ISA+dT density.
-
-JSBSim is called only while building the table: :meth:`Atmosphere.from_jsbsim` evaluates the
-atmosphere once per grid row (using the point-mass probe model in ``uam_fdm/jsbsim``, with
-integration suspended; default spacing 5 m, from 50 m below to 1000 m above the field),
-converts to SI at this boundary, and afterwards every query is NumPy/float linear interpolation
-in that table. Nothing here touches JSBSim inside the physics loop, and an :class:`Atmosphere`
-is plain arrays, so it pickles (for process-level parallelism).
-
-Accuracy (measured on this machine, tests/uam_fdm/air/test_atmosphere.py): against the ICAO table at 0, 1000,
-2000 and 3000 m MSL, density agrees within 4.3e-5 relative (the issue's bound is 0.5 %),
-temperature within 0.01 K and pressure within 1e-5 relative; the small residue is JSBSim
-converting geometric to geopotential altitude where the table lists geopotential heights.
-Interpolating the 5 m table adds below 1e-7 relative (a 100 m table errs by 1e-5).
-
-Cost (median on a 2-core machine): building the default table (211 rows, two JSBSim passes)
-about 2 ms (7 ms for the first one in a process, which loads JSBSim); a scalar
-``density_ratio`` about 1.5 us, a scalar ``sample`` 3 us, 1024 heights in one call 18 us.
+JSBSim is called only while building the table: :meth:`Atmosphere.from_jsbsim` evaluates the atmosphere
+once per grid row (default spacing 5 m, from 50 m below to 1000 m above the field); every query afterwards
+is linear interpolation in that table (NumPy or plain floats), never JSBSim, and an :class:`Atmosphere` is
+plain arrays, so it pickles (for process-level parallelism).
 
 Frames and units: ``z_m`` is the ENU up coordinate, metres above the field (ground at z = 0);
-SI units throughout (kg/m^3, K, Pa, m/s).
+SI units throughout (kg/m^3, K, Pa, m/s). Accuracy against the ICAO table and cost:
+docs/design_notes.md, "uam_fdm.air.atmosphere".
 """
 
 from __future__ import annotations
@@ -467,7 +449,7 @@ class _JSBSimToLogging:
     @classmethod
     def create(cls) -> Any:
         if cls._instance_cls is None:
-            import jsbsim
+            import jsbsim  # deferred: see the class docstring
 
             levels = {
                 jsbsim.LogLevel.WARN: logging.WARNING,
@@ -522,7 +504,7 @@ def jsbsim_exec(root_dir: str | os.PathLike[str] | None = None) -> Iterator[Any]
     Yields:
         The executive, with debug level 0. It is only valid inside the block.
     """
-    import jsbsim
+    import jsbsim  # deferred (0.1 s to import): only building a table needs it, not an unpickled Atmosphere
 
     previous = jsbsim.get_logger()
     jsbsim.set_logger(_JSBSimToLogging.create())
@@ -535,7 +517,7 @@ def jsbsim_exec(root_dir: str | os.PathLike[str] | None = None) -> Iterator[Any]
 
 
 def load_probe_model(fdm: Any) -> None:
-    """Load the ``windprobe`` point-mass aircraft shipped in ``uam_fdm/jsbsim`` into ``fdm``.
+    """Load the ``windprobe`` point-mass aircraft shipped in ``uam_fdm/air/jsbsim`` into ``fdm``.
 
     The probe has no engines or systems, so JSBSim's own engine/ and systems/ folders are passed
     (they must merely exist); only the aircraft folder is ours.

@@ -1,89 +1,30 @@
 """Wind from JSBSim: a steady wind sheared with height plus Dryden gusts tabulated in time and height.
 
-What the model is
-    The wind at time t and height z above the field is ``steady(z) + gust(t, z)`` in the world ENU
-    frame (m/s), the same at every horizontal point of the map. The steady part comes from the
-    scenario (``wind_mps: [e, n, u]``, given at a reference height, 10 m by default) and follows the
-    scenario's shear law (`uam_fdm.air.shear`: uniform by default, power or log law; horizontal
-    components only). The gust part is a :class:`GustStack`: JSBSim's own turbulence model
-    (``FGWinds``, turb-type 3, "Milspec": the MIL-F-8785C Dryden spectra in the MIL-STD-1797A discrete
-    form, Yeager 1998) run once per episode at each probe height of a ladder and tabulated; the
-    physics loop only interpolates in NumPy, linearly in time and linearly in log height, clamped to
-    the ladder's lowest and highest rung.
+The wind at time t and height z above the field is ``steady(z) + gust(t, z)``, world ENU [m/s], the same at
+every horizontal point of the map. The steady part is the scenario's (``wind_mps: [e, n, u]`` at a reference
+height, 10 m by default) shaped by its shear law (`uam_fdm.air.shear`; horizontal components only). The gust
+part is a :class:`GustStack`: JSBSim's own turbulence model (``FGWinds``, turb-type 3, "Milspec": the
+MIL-F-8785C Dryden spectra), run once per episode at each height of a ladder of probes (`PROBE_HEIGHTS_M`,
+trimmed to the flight volume by `probe_heights_up_to`) and tabulated, so that the gusts are the standard's
+and the physics loop only interpolates in NumPy: linearly in time and in log height, clamped to the
+ladder's lowest and highest rung.
 
-Turbulence with height
-    MIL-F-8785C's low-altitude model (below 1000 ft) makes the intensities and scale lengths depend
-    on the height h above ground: sigma_w = 0.1 W20, sigma_u = sigma_v = sigma_w / (0.177 + 0.000823
-    h_ft)^0.4 (1.9 sigma_w at 5 m, 1.0 sigma_w at 300 m), L_w = h, L_u = L_v = h / (0.177 + 0.000823
-    h_ft)^1.2 (`milspec_low_altitude`). Each rung is one JSBSim probe at that height; all rungs use
-    the same seed and the same spin-up, and FGWinds draws the same Gaussian numbers per step
-    whatever the height, so the rungs are different filters of one white noise and interpolating
-    between them is smooth (neighbouring rungs correlate at ~0.8).
+What the gusts are, and are not:
 
-The ladder (`PROBE_HEIGHTS_M`: 5, 10, 20, 40, 80, 160, 300 m)
-    Doublings from 5 m, where L_w = 5 m is already below most vehicles' clearance to the ground, to
-    300 m, just under MIL-F-8785C's 1000 ft low-altitude limit. Why doublings: for two first-order
-    filters of one noise with scale lengths L and 2L the correlation is 2 sqrt(2) / 3 = 0.94, so
-    the RMS midway between rungs is at most 1.5 % low; rungs three times apart would lose 3.4 %.
-    Why not finer: each rung costs one JSBSim run. Callers keep only the rungs their flight volume
-    needs (`probe_heights_up_to(ceiling)`: up to the first rung at or above it; the runner uses the
-    scenario's bounds, the learned pilot's environment its cities' ceiling).
+* Heights are above the field, not above sea level: a city at 1500 m elevation gets the low-altitude
+  turbulence MIL-F-8785C prescribes above its rooftops (intensities and scale lengths by height:
+  `milspec_low_altitude`).
+* A gust series is what a probe sees flying level at one reference airspeed per episode, chosen by the
+  caller (`turbulence_airspeed_m_s`); the gusts do not vary across the map or with the vehicle's own
+  airspeed.
+* The longitudinal gust lies along the steady horizontal wind, the lateral one 90 degrees to its right
+  (north and east in calm air). Translational components only (no p, q, r).
+* Levels (`TurbulenceLevel`): W20, the wind 20 ft above ground, is 15 / 30 / 45 kt for light / moderate /
+  severe (MIL-F-8785C 3.7.2.3; low-altitude sigma_w = 0.1 W20), the level's and not the scenario's wind.
+* One integer seed gives bit-identical stacks, in the same or another process.
 
-Probe-airspeed modelling choice
-    Dryden turbulence is a *time* series seen by a body moving through a frozen turbulent field
-    at airspeed V: its correlation times are the scale lengths over V (L_u/V, L_w/V). It is not
-    a spatial field that could be queried at arbitrary points. We therefore fly point-mass JSBSim
-    probes (``uam_fdm/air/jsbsim/aircraft/windprobe``: no aerodynamics, an external LOCAL-frame force
-    that cancels its weight) level at one constant reference airspeed per episode, chosen by the
-    caller (the runner: ``max(vehicle cruise speed, |steady wind|)``, at least 1 m/s), at each
-    rung's height above the field. The vehicle then sees the stack at its own height whatever its
-    path: horizontal variation across the map and the dependence on the vehicle's own airspeed
-    are deliberately not modelled. (The shipped ``ball`` model cannot be used: it falls at
-    hundreds of m/s, which ruins the spectrum.)
-
-Height: above the field, not above sea level
-    MIL-F-8785C's low-altitude model is defined in terms of height above ground (h), and its
-    medium/high-altitude model in terms of altitude. JSBSim's FGWinds evaluates both at the
-    vehicle's altitude above sea level, i.e. it assumes terrain at sea level. We fly the probes at
-    heights *above the field*, so a city at 1500 m elevation still gets the near-ground turbulence
-    that MIL-F-8785C prescribes above its rooftops.
-
-Orientation
-    With no steady wind set inside JSBSim (we never set one there: JSBSim's wind would also change
-    the probe's airspeed) JSBSim's longitudinal component comes out along north, lateral along
-    east, vertical down. We rotate the horizontal pair so that the longitudinal component lies
-    along the scenario's steady horizontal wind (as MIL-F-8785C aligns u with the mean wind) and
-    the lateral one 90 degrees to its right; in calm air they stay north/east. We do this rotation
-    ourselves because FGWinds only updates its wind azimuth when the north wind component is
-    non-zero, and its rotation turns the longitudinal axis to heading -psi instead of +psi (for
-    a wind towards the north-east it would lie north-west, across the wind).
-
-Translational components only
-    JSBSim's rotational turbulence (p, q, r) is ignored: it models the gust gradient across a
-    wing span, and for multirotors of a few metres it is small next to the translational gusts.
-
-Intensity
-    Levels follow MIL-F-8785C 3.7.2.3 and JSBSim's FGWinds.h reference table: the wind speed at
-    20 ft above ground W20 is 15 / 30 / 45 kt for light / moderate / severe (low-altitude
-    sigma_w = 0.1 W20), and the high-altitude probability-of-exceedance curve (MIL-F-8785C Fig. 7)
-    is 1e-2 / 1e-3 / 1e-5, which is JSBSim's ``milspec/severity`` index 3 / 4 / 6. W20 is the
-    level's, not the scenario's steady wind.
-
-Reproducibility and cost
-    One integer seed in (JSBSim's ``atmosphere/randomseed``, a private Mersenne twister in
-    FGWinds): the same seed gives bit-identical stacks, in the same or another process. The
-    Dryden filters start at rest, so each rung first runs a spin-up of three times the largest
-    scale length on the ladder (L_u at the top rung, 1000 ft at 300 m; 1750 ft for one series
-    above 1000 ft) over the airspeed, then records. Measured here (2-core machine, ~2.6 us per
-    JSBSim step, perf/fdm_throughput.py): the seven rungs of a 60 s episode at 120 Hz and
-    12 m/s cost 0.32 s, against ~0.08 s for the single series before (a 60 s episode flies in
-    several seconds). The learned pilot's pool of 16 stacks of 400 s at six rungs takes ~15 s and
-    110 MB (one series each: 3.3 s, 18 MB). Lookups are NumPy only: 5.9 us for one vehicle (2.7 us
-    with a single height), 90 us for 1024 vehicles in a WindBank (44 us).
-
-Statistics (tests/uam_fdm/air/test_wind.py, tests/uam_fdm/air/test_wind_height.py and a 3000 s check): the RMS of each
-axis at each rung is within a few per cent of the MIL-F-8785C low-altitude intensities (0.96-1.06
-over 3000 s at 100 m), and the correlation time of every axis grows with height.
+The ladder's spacing, the probe model, the orientation, the cost and the measured statistics:
+docs/design_notes.md, "uam_fdm.air.wind".
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from typing import Any
 
 _PUBLIC = {
     "Building": "buildings", "BuildingMap": "buildings", "Clearance": "buildings", "NoFlyZone": "buildings",
-    "Prism": "buildings", "CityGenParams": "generator", "generate_city": "generator", "load_map_file": "mapfile",
+    "Prism": "buildings", "CityGenConfig": "generator", "generate_city": "generator", "load_map_file": "mapfile",
     "load_named_map": "mapfile", "map_from_config": "mapfile", "named_maps": "mapfile",
 }
 __all__ = sorted(_PUBLIC)

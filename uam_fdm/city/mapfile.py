@@ -4,7 +4,7 @@ Formats (lengths in metres, ENU; yaw in degrees, counter-clockwise about +z):
 
     bounds: {min: [x, y, z], max: [x, y, z]}      # the flight volume; min z >= 0 (ground at z = 0)
     map: {buildings: [{center: [x, y], size: [w, d], height: h, yaw_deg: a}, ...]}
-    map: {generator: {seed: N, preset: downtown, name: label, <CityGenParams fields>...}}   # bounds optional
+    map: {generator: {seed: N, preset: downtown, name: label, <CityGenConfig fields>...}}   # bounds optional
     map: {geojson: footprints.geojson, height_key: height, origin_lonlat: [lon, lat]}
     map: {named: downtown}                                                    # bounds optional
     # any of them may add  no_fly: [{center: [x, y], size: [w, d], z_range: [z0, z1], yaw_deg: a}]

@@ -21,6 +21,7 @@ from mpl_toolkits.mplot3d import Axes3D
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.city.mapfile import load_named_map, named_maps
 from uam_fdm.files.atomic import atomic_path
 
 _CMAP = "viridis"
@@ -161,8 +162,6 @@ def render_named_maps(out_dir: Path, names: Sequence[str] | None = None) -> list
     Returns:
         The written PNG paths, in name order.
     """
-    from uam_fdm.city.mapfile import load_named_map, named_maps
-
     out = []
     for name in sorted(names if names is not None else named_maps()):
         out.append(save_figure(map_figure(load_named_map(name)), Path(out_dir) / f"map_{name}.png"))

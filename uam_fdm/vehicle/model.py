@@ -245,19 +245,3 @@ def hover_state(p: VehicleParams, position_m=(0.0, 0.0, 0.0), yaw_rad: float = 0
     x[lay.rotor] = p.hover_rotor_speeds_rad_s(density_ratio)
     return x
 
-
-def quasi_static_motor_dynamics(p: VehicleParams) -> ca.Function:
-    """Reduced model for prediction: rotor speeds equal their commands (motor lag neglected).
-
-    Generated from the same expression as the full model by substituting Ω = u, keeping the first
-    13 state derivatives. Valid when the motor time constant is short against the prediction step
-    (the MPC uses it for the small quadrotor: τ_m = 12.5 ms against 50 ms steps).
-
-    Returns:
-        Function (x13, u, env) -> x13_dot, with x13 = [p, v, q, ω] and u rotor speeds [rad/s].
-    """
-    x13 = ca.SX.sym("x", 13)
-    u = ca.SX.sym("u", p.n_rotors)
-    env = ca.SX.sym("env", N_ENV)
-    x_dot, _ = dynamics_expr(p, ca.vertcat(x13, u), u, env)
-    return ca.Function("quasi_static_dynamics", [x13, u, env], [x_dot[:13]], ["x", "u", "env"], ["x_dot"])

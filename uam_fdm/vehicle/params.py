@@ -39,7 +39,7 @@ MAX_SPEED_RANGE_M_S = (0.5, 100.0)
 
 
 @dataclass(frozen=True)
-class ControllerParams:
+class ControllerConfig:
     """Limits and gains of the low-level velocity controller (see `uam_fdm.vehicle.control`).
 
     Gains are normalised by mass and inertia, so they read as bandwidths:
@@ -79,7 +79,7 @@ class VehicleParams:
     drag_linear_N_s_m: tuple[float, float, float]
     drag_quadratic_N_s2_m2: tuple[float, float, float]
     collision_radius_m: float
-    controller: ControllerParams
+    controller: ControllerConfig
     ground_effect: bool = True  # the rotors' thrust gain near a surface below (`uam_fdm.vehicle.ground_effect`)
     source: str = field(default="<inline>", compare=False)
 
@@ -255,13 +255,13 @@ def check_physics(p: VehicleParams, source: str = "<inline>") -> None:
                           f"hover needs rotor speeds {hover.min():.0f}..{hover.max():.0f} rad/s, outside the limits")
 
 
-def _controller(data: Any, source: str) -> ControllerParams:
-    mapping(data, source, "controller", {f.name for f in dataclasses.fields(ControllerParams)})
+def _controller(data: Any, source: str) -> ControllerConfig:
+    mapping(data, source, "controller", {f.name for f in dataclasses.fields(ControllerConfig)})
     values = {k: positive(v, source, f"controller.{k}") for k, v in data.items()}
     try:
-        ctrl = ControllerParams(**values)
+        ctrl = ControllerConfig(**values)
     except TypeError:
-        required = {f.name for f in dataclasses.fields(ControllerParams) if f.default is dataclasses.MISSING}
+        required = {f.name for f in dataclasses.fields(ControllerConfig) if f.default is dataclasses.MISSING}
         raise ConfigError(source, "controller", f"missing {sorted(required - set(values))}") from None
     if not 0.0 < ctrl.max_tilt_deg < 80.0:
         raise ConfigError(source, "controller.max_tilt_deg", f"must be in (0, 80), got {ctrl.max_tilt_deg}")

@@ -55,7 +55,7 @@ def open_backend(kind: str, setup: WorkerSetup, jobs: int, address: str | None =
     """The backend `kind` for a run, closed (its workers ended) when the block ends, normally or not.
 
     Args:
-        kind: "local" or "ray", already checked (`check_backend`, which `compare.run.campaign.RunOptions.validate`
+        kind: "local" or "ray", already checked (`check_backend`, which `compare.run.campaign.RunConfig.validate`
             calls before anything is read or flown).
         setup: the run's scenarios, folder and policies.
         jobs: worker processes (local), or the CPUs of the local Ray instance started when `address` is None

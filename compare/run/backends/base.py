@@ -35,7 +35,7 @@ class WorkerSetup:
 
 
 @dataclass(frozen=True)
-class CellTask:
+class CellJob:
     """One cell to fly: the cell, its episode key and its wall-time limit [s] (None: none)."""
 
     cell: Cell
@@ -68,7 +68,7 @@ class Backend(Protocol):
 
     name: str
 
-    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
+    def fly(self, tasks: Sequence[CellJob]) -> Iterator[CellOutcome]:
         """Fly `tasks`, yielding one outcome per task as each ends."""
         ...
 

@@ -18,7 +18,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pebble import ProcessExpired, ProcessPool
 
 from compare.results.failures import FailedCell, FailureKind, error_failure, exit_reason
-from compare.run.backends.base import CellOutcome, CellTask, WorkerSetup
+from compare.run.backends.base import CellJob, CellOutcome, WorkerSetup
 from compare.run.backends.worker import fly_cell, fly_in_pool_worker, init_pool_worker, new_runner
 
 NAME = "local"
@@ -33,7 +33,7 @@ class InProcessBackend:
     def __init__(self, setup: WorkerSetup) -> None:
         self.setup = setup
 
-    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
+    def fly(self, tasks: Sequence[CellJob]) -> Iterator[CellOutcome]:
         """Fly `tasks` in order (each cell's part written as it ends)."""
         runner = new_runner(self.setup)
         for task in tasks:
@@ -52,11 +52,11 @@ class ProcessPoolBackend:
         self.setup, self.workers = setup, max(1, int(workers))
         self._pool: ProcessPool | None = None
 
-    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
+    def fly(self, tasks: Sequence[CellJob]) -> Iterator[CellOutcome]:
         """Fly `tasks` (each with a limit: a cell without one could hold its worker forever), yielding each
         outcome as it ends."""
         pending = deque(tasks)
-        running: dict[Future, tuple[CellTask, float, ProcessPool]] = {}
+        running: dict[Future, tuple[CellJob, float, ProcessPool]] = {}
         while pending or running:
             pool = self._pool if self._pool is not None else self._start()
             while pending and len(running) < self.workers:
@@ -88,7 +88,7 @@ class ProcessPoolBackend:
             pool.join()
 
 
-def _outcome(future: Future, task: CellTask, elapsed_s: float) -> tuple[CellOutcome, bool]:
+def _outcome(future: Future, task: CellJob, elapsed_s: float) -> tuple[CellOutcome, bool]:
     """How a pool task ended, and whether the pool broke with it."""
     try:
         return future.result(), False

@@ -33,7 +33,7 @@ import ray.exceptions
 from compare.flying import pilots
 from compare.results.failures import FailedCell, FailureKind, error_failure
 from compare.results.store import part_path, write_part
-from compare.run.backends.base import CellFlown, CellOutcome, CellTask, WorkerSetup
+from compare.run.backends.base import CellFlown, CellJob, CellOutcome, WorkerSetup
 from compare.run.backends.worker import fly_cell, new_runner, prepare_process
 from compare.run.cells import CellRunner
 
@@ -57,7 +57,7 @@ class RayBackend:
         self.setup = setup
         self._temp_dir: Path | None = None
         self._connected = False
-        self._running: dict[ray.ObjectRef, tuple[CellTask, float]] = {}
+        self._running: dict[ray.ObjectRef, tuple[CellJob, float]] = {}
         if ray.is_initialized():  # a caller's own Ray session (e.g. a notebook): use it, leave it running
             log.info("using the Ray session already connected")
         else:
@@ -89,7 +89,7 @@ class RayBackend:
                 signal.signal(signal.SIGTERM, previous)
         self._connected = True
 
-    def fly(self, tasks: Sequence[CellTask]) -> Iterator[CellOutcome]:
+    def fly(self, tasks: Sequence[CellJob]) -> Iterator[CellOutcome]:
         """Fly `tasks`, yielding each outcome as it ends (each cell's part written here first)."""
         pending = deque(tasks)
         running = self._running
@@ -112,7 +112,7 @@ class RayBackend:
                               f"its Ray task was cancelled and its worker process killed")
                     yield FailedCell(task.key, FailureKind.HANG, reason, now - t0, NAME, "", task.limit_s)
 
-    def _collect(self, ref: ray.ObjectRef, task: CellTask, elapsed_s: float) -> CellOutcome:
+    def _collect(self, ref: ray.ObjectRef, task: CellJob, elapsed_s: float) -> CellOutcome:
         """The outcome of a finished task; an episode's content is written into the run folder here."""
         try:
             outcome = ray.get(ref)
@@ -192,7 +192,7 @@ _RUNNERS: dict[str, CellRunner] = {}  # a Ray worker process's runner per run (b
 
 
 @ray.remote(num_cpus=1, max_retries=0)
-def _fly_remote(setup_box: list[ray.ObjectRef], task: CellTask) -> CellOutcome:
+def _fly_remote(setup_box: list[ray.ObjectRef], task: CellJob) -> CellOutcome:
     """A Ray task: fly one cell, return its part's content or its failure. The setup arrives boxed in a
     list, so Ray passes the reference rather than the scenarios on every call; it is fetched once per process."""
     ref = setup_box[0]

@@ -9,11 +9,11 @@ import time
 
 from compare.flying import pilots
 from compare.results.failures import error_failure
-from compare.run.backends.base import CellFlown, CellOutcome, CellTask, WorkerSetup
+from compare.run.backends.base import CellFlown, CellJob, CellOutcome, WorkerSetup
 from compare.run.cells import CellRunner
 
 
-def fly_cell(runner: CellRunner, task: CellTask, backend: str, worker: str, to_bytes: bool) -> CellOutcome:
+def fly_cell(runner: CellRunner, task: CellJob, backend: str, worker: str, to_bytes: bool) -> CellOutcome:
     """Fly `task` with `runner`: its part of the run store written into the run folder (or its content, `to_bytes`),
     or the failed cell of an exception raised by the pilot or the runner (its type, message and frame).
 
@@ -63,7 +63,7 @@ def init_pool_worker(setup: WorkerSetup) -> None:
     _POOL_RUNNER = new_runner(setup)
 
 
-def fly_in_pool_worker(task: CellTask) -> CellOutcome:
+def fly_in_pool_worker(task: CellJob) -> CellOutcome:
     """Fly `task` in a local worker process (its part written by the worker)."""
     assert _POOL_RUNNER is not None, "init_pool_worker was not called"
     return fly_cell(_POOL_RUNNER, task, "local", f"pid {os.getpid()}", to_bytes=False)

@@ -18,12 +18,7 @@ from compare.results.episodes import open_episodes
 from compare.results.metrics import COLUMNS, TRACKER_METRICS
 from compare.results.store import EPISODE_TABLE, read_episode_table, store_dir, write_episode_table
 from rl.policies.folder import DEFAULT_POLICY_DIR
-
-DATA = Path(__file__).resolve().parents[2] / "data"
-GOLDEN = Path(__file__).resolve().parents[2] / "golden" / "tiny_metrics.json"
-TINY = DATA / "tiny_scenario.yaml"
-WALL_CLOCK_COLUMNS = {"compute_ms_mean", "compute_ms_max", "plan_time_s", "mpc_solve_ms_median",
-                      "mpc_solve_ms_p95"}  # measured, not simulated
+from run_data import GOLDEN, TINY, WALL_CLOCK_COLUMNS
 
 
 @pytest.fixture(scope="module")
@@ -165,7 +160,7 @@ def test_bad_inputs_exit_non_zero_before_flying(tmp_path, capsys):
     assert main(["run", str(bad), "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "bad.yaml" in err and "episodes[0].start" in err and not out.exists()
-    assert main(["run", str(TINY), "--methods", "ppo,astar", "--out", str(out)]) == 2
+    assert main(["run", str(TINY), "--pilots", "ppo,astar", "--out", str(out)]) == 2
     assert "astar" in capsys.readouterr().err
     assert main(["validate", str(bad)]) == 2
     assert main(["validate", str(TINY)]) == 0
@@ -175,4 +170,4 @@ def test_bad_inputs_exit_non_zero_before_flying(tmp_path, capsys):
 
 def test_python_m_compare_help():
     r = subprocess.run([sys.executable, "-m", "compare", "run", "--help"], capture_output=True, text=True, check=True)
-    assert "--jobs" in r.stdout and "--methods" in r.stdout
+    assert "--jobs" in r.stdout and "--pilots" in r.stdout

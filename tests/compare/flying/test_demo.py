@@ -1,4 +1,4 @@
-"""The main job's placeholder: `uam-compare demo` flies both presets and reports the flight."""
+"""`uam-compare demo`, a quick flight-model check: it flies both presets and reports the flight."""
 from __future__ import annotations
 
 import re

@@ -22,23 +22,22 @@ from compare.run.campaign import fairness
 from compare.run.cells import Cell, CellRunner
 from compare.scenarios.scenario import load_scenario, scenario_from_dict
 from planners.report import ClassicalReport
+from run_data import TINY
 from uam_fdm.episode import OUTCOME_OF_CODE, Outcome
 from uam_fdm.errors import ConfigError
-from uam_fdm.pilot import Agent
-
-TINY = Path(__file__).resolve().parents[2] / "data" / "tiny_scenario.yaml"
+from uam_fdm.pilot import Pilot
 
 
 def _tiny_with(tmp_path: Path, methods: list[str]) -> Path:
     data = yaml.safe_load(TINY.read_text())
-    data["methods"] = methods
+    data["pilots"] = methods
     path = tmp_path / "tiny-apf.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
 
 
 def test_the_registry_keeps_the_existing_pilots_and_adds_apf():
-    assert pilots.METHODS == ("ppo", "rrt_mpc", "apf") and pilots.DEFAULT_METHODS == ("ppo", "rrt_mpc")
+    assert pilots.PILOT_NAMES == ("ppo", "rrt_mpc", "apf") and pilots.DEFAULT_PILOTS == ("ppo", "rrt_mpc")
     assert {m: (s.label, s.color) for m, s in pilots.PILOTS.items()} == {
         "ppo": ("PPO policy", "tab:orange"), "rrt_mpc": ("RRT* + MPC", "tab:blue"),
         "apf": ("Potential field", "tab:purple")}
@@ -49,15 +48,15 @@ def test_the_registry_keeps_the_existing_pilots_and_adds_apf():
     with pytest.raises(ValueError, match=r"unknown method 'astar' \(registered: ppo, rrt_mpc, apf\)"):
         pilots.pilot("astar")
     sc = load_scenario(TINY)
-    agent = pilots.build("apf", pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source))
-    assert isinstance(agent, Agent) and agent.name == "apf"
+    pilot = pilots.build("apf", pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source))
+    assert isinstance(pilot, Pilot) and pilot.name == "apf"
 
 
-def test_a_scenario_naming_an_unknown_method_is_refused_listing_the_registered_ones(tmp_path):
+def test_a_scenario_naming_an_unknown_pilot_is_refused_listing_the_registered_ones(tmp_path):
     data = yaml.safe_load(TINY.read_text())
-    with pytest.raises(ConfigError, match=r"methods\[1\].*unknown method 'astar' \(registered: ppo, rrt_mpc, apf\)"):
-        scenario_from_dict({**data, "methods": ["apf", "astar"]}, "x.yaml", TINY.parent)
-    assert scenario_from_dict({**data, "methods": ["apf", "ppo"]}, "x.yaml", TINY.parent).methods == ("ppo", "apf")
+    with pytest.raises(ConfigError, match=r"pilots\[1\].*unknown method 'astar' \(registered: ppo, rrt_mpc, apf\)"):
+        scenario_from_dict({**data, "pilots": ["apf", "astar"]}, "x.yaml", TINY.parent)
+    assert scenario_from_dict({**data, "pilots": ["apf", "ppo"]}, "x.yaml", TINY.parent).methods == ("ppo", "apf")
     assert scenario_from_dict(data, "x.yaml", TINY.parent).methods == ("ppo", "rrt_mpc")  # apf is off by default
 
 
@@ -103,7 +102,7 @@ def test_fairness_statement_grammar():
     assert two.startswith("Both pilots") and "Neither knows the wind" in two and "potential-field" not in two
     assert three.startswith("All pilots") and "None knows the wind" in three
     # what each pilot is given, in table order, then how clearance is measured
-    given = [pilots.PILOTS[m].given for m in pilots.METHODS]
+    given = [pilots.PILOTS[m].given for m in pilots.PILOT_NAMES]
     assert [three.index(g) for g in given] == sorted(three.index(g) for g in given)
     assert three.endswith("to the buildings and the ground.")
 

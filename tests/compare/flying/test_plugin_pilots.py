@@ -29,28 +29,28 @@ def on_path(monkeypatch):
 
 
 def test_a_class_named_module_colon_class_becomes_a_pilot(on_path):
-    spec = pilots.pilot(CLIMB)
-    assert spec.name == CLIMB and spec.label == "Straight climb" and spec.color == "tab:green"
-    assert spec.description.startswith("Straight-line-then-climb pilot: climb vertically")
-    assert spec.description.endswith(f"(plug-in {CLIMB})")
-    assert "Straight climb (straight_climb:StraightClimbPilot) decides at the scenario's control rate" in spec.given
-    assert "ignores the forecast turbulence level" in spec.given  # its own sentence, from the class
-    assert not spec.default and not spec.needs_policy and spec.report_type is None
-    assert spec.wall_s_per_flight_s == 0.2
-    assert pilots.pilot(CLIMB) is spec  # resolved once per process
+    entry = pilots.pilot(CLIMB)
+    assert entry.name == CLIMB and entry.label == "Straight climb" and entry.color == "tab:green"
+    assert entry.description.startswith("Straight-line-then-climb pilot: climb vertically")
+    assert entry.description.endswith(f"(plug-in {CLIMB})")
+    assert "Straight climb (straight_climb:StraightClimbPilot) decides at the scenario's control rate" in entry.given
+    assert "ignores the forecast turbulence level" in entry.given  # its own sentence, from the class
+    assert not entry.default and not entry.needs_policy and entry.report_type is None
+    assert entry.wall_s_per_flight_s == 0.2
+    assert pilots.pilot(CLIMB) is entry  # resolved once per process
     assert pilots.ordered(["apf", CLIMB, "ppo"]) == ["ppo", "apf", CLIMB]
 
 
-def test_a_plugin_spec_is_taken_as_given_under_its_reference(on_path):
-    spec = pilots.pilot("plugin_fixtures:SPEC")
-    assert (spec.name, spec.label, spec.color, spec.default) == ("plugin_fixtures:SPEC", "Spec'd field", "tab:olive",
-                                                                 False)
+def test_a_plugin_entry_is_taken_as_given_under_its_reference(on_path):
+    entry = pilots.pilot("plugin_fixtures:ENTRY")
+    assert (entry.name, entry.label, entry.color, entry.default) == ("plugin_fixtures:ENTRY", "Entered field",
+                                                                     "tab:olive", False)
 
 
 @pytest.mark.parametrize(("name", "reason"), [
     ("no_such_module_xyz:Pilot", r"cannot import module 'no_such_module_xyz' .*PYTHONPATH"),
     ("plugin_fixtures:Missing", r"module 'plugin_fixtures' has no 'Missing'"),
-    ("plugin_fixtures:NOT_A_CLASS", r"is a int, not an Agent class or a PilotSpec"),
+    ("plugin_fixtures:NOT_A_CLASS", r"is a int, not a Pilot class or a PilotEntry"),
     ("plugin_fixtures:NoAct", r"NoAct is not a pilot: it lacks act"),
     ("astar", r"unknown method 'astar' \(registered: ppo, rrt_mpc, apf\).*module:Class"),
 ])
@@ -60,11 +60,11 @@ def test_a_broken_plugin_is_a_clear_error(on_path, name, reason):
     assert pilots.registered(name) is None  # readers never import a method named in a data file
 
 
-def test_the_agent_name_of_a_plugin_need_not_be_its_method_name(on_path):
+def test_a_plugin_pilots_own_name_need_not_be_its_method_name(on_path):
     sc = load_scenario(TINY)
     request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source)
-    agent = pilots.build("plugin_fixtures:NamedWrong", request)
-    assert agent.name == "apf"
+    pilot = pilots.build("plugin_fixtures:NamedWrong", request)
+    assert pilot.name == "apf"
     with pytest.raises(ValueError, match="unknown method"):  # a registered name still must match
         pilots.build("no_such", request)
 
@@ -75,8 +75,9 @@ def test_an_entry_point_names_a_plugin(on_path, tmp_path, monkeypatch):
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-pilots\nVersion: 1.0\n")
     (dist / "entry_points.txt").write_text(f"[{pilots.PLUGIN_GROUP}]\nclimb = {CLIMB}\nbad__name = {CLIMB}\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    spec = pilots.pilot("climb")
-    assert spec.name == "climb" and spec.label == "Straight climb" and spec.description.endswith(f"(plug-in {CLIMB})")
+    entry = pilots.pilot("climb")
+    assert entry.name == "climb" and entry.label == "Straight climb"
+    assert entry.description.endswith(f"(plug-in {CLIMB})")
     with pytest.raises(ValueError, match="bad__name.*without '__'"):
         pilots.pilot("bad__name")
     with pytest.raises(ValueError, match="installed plug-ins: bad__name, climb"):
@@ -86,17 +87,17 @@ def test_an_entry_point_names_a_plugin(on_path, tmp_path, monkeypatch):
 def test_a_scenario_file_may_name_a_plugin_and_a_broken_one_names_the_key(on_path, tmp_path):
     text = TINY.read_text()
     good, bad = tmp_path / "good.yaml", tmp_path / "bad.yaml"
-    good.write_text(text + f"methods: [{CLIMB}, ppo]\n")
-    bad.write_text(text + "methods: [ppo, nowhere_module:Pilot]\n")
+    good.write_text(text + f"pilots: [{CLIMB}, ppo]\n")
+    bad.write_text(text + "pilots: [ppo, nowhere_module:Pilot]\n")
     assert load_scenario(good).methods == ("ppo", CLIMB)
-    with pytest.raises(ConfigError, match=r"bad.yaml: methods\[1\]: .*cannot import module 'nowhere_module'"):
+    with pytest.raises(ConfigError, match=r"bad.yaml: pilots\[1\]: .*cannot import module 'nowhere_module'"):
         load_scenario(bad)
     assert with_methods(load_scenario(TINY), (CLIMB, "apf")).methods == ("ppo", "rrt_mpc", "apf", CLIMB)
 
 
 def test_cli_flies_a_plugin_beside_ours_in_worker_processes(on_path, tmp_path):
     out = tmp_path / "run"
-    args = ["run", str(TINY), "--method", CLIMB, "--method", "apf", "--methods", f"apf,{CLIMB}", "--jobs", "2",
+    args = ["run", str(TINY), "--pilot", CLIMB, "--pilot", "apf", "--pilots", f"apf,{CLIMB}", "--jobs", "2",
             "--out", str(out), "--no-progress", "--videos", "none"]
     assert main(args) == 0
     with open(out / "metrics.csv", newline="") as f:
@@ -120,6 +121,6 @@ def test_cli_flies_a_plugin_beside_ours_in_worker_processes(on_path, tmp_path):
 
 def test_cli_rejects_an_unknown_plugin_before_flying(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["run", str(TINY), "--method", "nowhere_module:Pilot", "--out", str(out), "--no-progress"]) == 2
-    assert "--method: method 'nowhere_module:Pilot': cannot import module" in capsys.readouterr().err
+    assert main(["run", str(TINY), "--pilot", "nowhere_module:Pilot", "--out", str(out), "--no-progress"]) == 2
+    assert "--pilot: method 'nowhere_module:Pilot': cannot import module" in capsys.readouterr().err
     assert not out.exists()

@@ -1,4 +1,4 @@
-"""`uam-compare view-training` (issue 30): the page of a policy's training, from Python and in headless Chromium."""
+"""`uam-compare view-training`: the page of a policy's training, from Python and in headless Chromium."""
 from __future__ import annotations
 
 import json
@@ -78,7 +78,7 @@ def test_view_training_command(tiny_flights_policy, tmp_path, capsys, monkeypatc
 
 @pytest.mark.parametrize("vehicle", ["small_quad", "uam_multicopter"])
 def test_both_shipped_policies_carry_their_training_flights(vehicle):
-    """Issue 30: a fresh install opens the learning of either shipped policy: its folder holds the flights of every
+    """A fresh install opens the learning of either shipped policy: its folder holds the flights of every
     checkpoint of its final training run (from step 0), the kept one among them."""
     from rl.policies.folder import SHIPPED_POLICIES
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from compare.cli import main
-from compare.pages.viewer import VIEWER_NAME, ViewerOptions, build_viewer, building_mesh, group_payload
+from compare.pages.viewer import VIEWER_NAME, ViewerConfig, build_viewer, building_mesh, group_payload
 from compare.playback.flights import flight_groups
 from synthetic_run import LABELS, SCENARIO, toy_map, write_run
 
@@ -77,7 +77,7 @@ def test_page_data_holds_every_flight(page_html):
     assert ppo["outcome"] == "collision" and ppo["end_t_s"] == pytest.approx(12.0)
     assert g1["duration_s"] == pytest.approx(24.0)
     t = np.array(g1["t"])
-    assert t[0] == 0.0 and np.all(np.diff(t) > 0) and len(t) <= ViewerOptions().max_samples + 1
+    assert t[0] == 0.0 and np.all(np.diff(t) > 0) and len(t) <= ViewerConfig().max_samples + 1
     for p in g1["pilots"]:
         assert len(p["x"]) == len(p["speed"]) == len(p["clearance"]) == len(t)
     # PPO stopped at 12 s: held in place afterwards, and its path trace ends there
@@ -111,7 +111,7 @@ def test_building_mesh_is_closed_and_complete():
 
 def test_group_crop_keeps_only_nearby_buildings(run_dir):
     g = flight_groups(run_dir)[0]
-    payload = group_payload(g, ViewerOptions(max_samples=50))
+    payload = group_payload(g, ViewerConfig(max_samples=50))
     assert len(payload["t"]) <= 51
     ids = {int(c[0]) for c in _array(payload["figure"]["data"][0]["customdata"])}
     assert ids and ids <= {b.id for b in toy_map().buildings}

@@ -15,7 +15,7 @@ from matplotlib.colors import to_rgb
 from PIL import Image
 
 from compare.playback import animate
-from compare.playback.animate import AnimationOptions, ffmpeg_available, frame_times, render_animation
+from compare.playback.animate import AnimationConfig, ffmpeg_available, frame_times, render_animation
 from compare.playback.flights import FlightGroup, flight_groups, select_group
 from synthetic_run import write_run
 
@@ -60,17 +60,17 @@ def _assert_pilot_colours(rgb: np.ndarray, tol: int) -> None:
 
 # ---- clock and options ----------------------------------------------------------------------------------
 def test_frame_times_cover_the_flight_in_real_time_or_capped() -> None:
-    t = frame_times(24.0, AnimationOptions(fps=10.0))
+    t = frame_times(24.0, AnimationConfig(fps=10.0))
     assert len(t) == 240 and t[0] == 0.0 and t[-1] == 24.0
     np.testing.assert_allclose(np.diff(t), 24.0 / 239)
-    assert len(frame_times(100.0, AnimationOptions(fps=10.0))) == 300  # capped at max_auto_duration_s
-    assert len(frame_times(100.0, AnimationOptions(fps=10.0, max_auto_duration_s=5.0))) == 50
-    t = frame_times(100.0, AnimationOptions(fps=20.0, duration_s=2.0))
+    assert len(frame_times(100.0, AnimationConfig(fps=10.0))) == 300  # capped at max_auto_duration_s
+    assert len(frame_times(100.0, AnimationConfig(fps=10.0, max_auto_duration_s=5.0))) == 50
+    t = frame_times(100.0, AnimationConfig(fps=20.0, duration_s=2.0))
     assert len(t) == 40 and t[-1] == 100.0
-    assert len(frame_times(0.01, AnimationOptions(fps=20.0))) == 2  # never fewer than two frames
-    np.testing.assert_array_equal(frame_times(0.0, AnimationOptions()), [0.0, 0.0])
+    assert len(frame_times(0.01, AnimationConfig(fps=20.0))) == 2  # never fewer than two frames
+    np.testing.assert_array_equal(frame_times(0.0, AnimationConfig()), [0.0, 0.0])
     with pytest.raises(ValueError, match="flight_s"):
-        frame_times(math.nan, AnimationOptions())
+        frame_times(math.nan, AnimationConfig())
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
@@ -88,7 +88,7 @@ def test_frame_times_cover_the_flight_in_real_time_or_capped() -> None:
     ({"max_auto_duration_s": 0.0}, "max_auto_duration_s 0"),
 ])
 def test_options_validation_names_the_option(kwargs: dict, message: str) -> None:
-    opts = AnimationOptions(**kwargs)
+    opts = AnimationConfig(**kwargs)
     with pytest.raises(ValueError) as err:
         opts.validate()
     assert message in str(err.value)
@@ -98,15 +98,15 @@ def test_options_validation_names_the_option(kwargs: dict, message: str) -> None
 
 def test_bad_suffix_or_options_write_nothing(collided: FlightGroup, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"clip\.avi.*\.mp4 or \.gif"):
-        render_animation(collided, tmp_path / "clip.avi", AnimationOptions(**SMALL), progress=False)
+        render_animation(collided, tmp_path / "clip.avi", AnimationConfig(**SMALL), progress=False)
     with pytest.raises(ValueError, match="--fps"):
-        render_animation(collided, tmp_path / "clip.gif", AnimationOptions(fps=0.0), progress=False)
+        render_animation(collided, tmp_path / "clip.gif", AnimationConfig(fps=0.0), progress=False)
     assert _files(tmp_path) == []
 
 
 # ---- what the frames show -------------------------------------------------------------------------------
 def test_readouts_follow_the_clock(collided: FlightGroup) -> None:
-    opts = AnimationOptions(**SMALL)
+    opts = AnimationConfig(**SMALL)
     times = frame_times(collided.duration_s, opts)
     scene = animate._Scene(collided, times, opts)
     ppo, mpc = scene.readouts
@@ -118,7 +118,7 @@ def test_readouts_follow_the_clock(collided: FlightGroup) -> None:
     assert ppo.get_text().endswith("collided at 12.0 s") and mpc.get_text().endswith("arrived at 24.0 s")
     assert "speed   0.0 m/s" in ppo.get_text() and "clearance" in mpc.get_text()
     assert scene.mark3[0].get_marker() == "X" and scene.mark3[1].get_markerfacecolor() == "white"
-    real_time = AnimationOptions(**{**SMALL, "duration_s": None, "max_auto_duration_s": 60.0})
+    real_time = AnimationConfig(**{**SMALL, "duration_s": None, "max_auto_duration_s": 60.0})
     scene = animate._Scene(collided, frame_times(collided.duration_s, real_time), real_time)
     scene.draw(3)
     assert "x1.0 real time" in scene.clock.get_text()
@@ -143,7 +143,7 @@ def _decode_mp4(path: Path, size: tuple[int, int]) -> np.ndarray:
 @needs_ffmpeg
 def test_mp4_has_every_frame_at_the_size_with_both_pilots(collided: FlightGroup, tmp_path: Path) -> None:
     out = tmp_path / "clip.mp4"
-    res = render_animation(collided, out, AnimationOptions(**PIXELS_MP4), progress=False)
+    res = render_animation(collided, out, AnimationConfig(**PIXELS_MP4), progress=False)
     assert (res.path, res.format, res.frames, res.width_px, res.height_px) == (out, "mp4", 12, 960, 540)
     assert res.flight_s == pytest.approx(24.0) and res.speedup == pytest.approx(24.0 * 10.0 / 11)
     assert res.seconds > 0
@@ -164,7 +164,7 @@ def _gif_frame(path: Path, k: int) -> np.ndarray:
 
 
 def test_gif_frames_size_pixels_and_determinism(collided: FlightGroup, tmp_path: Path) -> None:
-    opts = AnimationOptions(**PIXELS)
+    opts = AnimationConfig(**PIXELS)
     a = render_animation(collided, tmp_path / "a.gif", opts, progress=False)
     b = render_animation(collided, tmp_path / "b.gif", opts, progress=False)
     assert (a.format, a.frames, a.path) == ("gif", 12, tmp_path / "a.gif")
@@ -178,8 +178,8 @@ def test_gif_frames_size_pixels_and_determinism(collided: FlightGroup, tmp_path:
 
 
 def test_gif_with_orbit_moves_the_camera(collided: FlightGroup, tmp_path: Path) -> None:
-    still = render_animation(collided, tmp_path / "still.gif", AnimationOptions(**SMALL), progress=False)
-    orbit = render_animation(collided, tmp_path / "orbit.gif", AnimationOptions(**SMALL, orbit_deg=90.0),
+    still = render_animation(collided, tmp_path / "still.gif", AnimationConfig(**SMALL), progress=False)
+    orbit = render_animation(collided, tmp_path / "orbit.gif", AnimationConfig(**SMALL, orbit_deg=90.0),
                              progress=False)
     assert orbit.frames == still.frames == 8
     np.testing.assert_array_equal(_gif_frame(still.path, 0), _gif_frame(orbit.path, 0))  # same start view
@@ -196,7 +196,7 @@ def test_mp4_without_ffmpeg_falls_back_to_gif(collided: FlightGroup, tmp_path: P
     monkeypatch.setitem(matplotlib.rcParams, "animation.ffmpeg_path", str(tmp_path / "no-such-ffmpeg"))
     assert not ffmpeg_available()
     with caplog.at_level("WARNING", logger="compare.playback.animate"):
-        res = render_animation(collided, tmp_path / "clip.mp4", AnimationOptions(**SMALL), progress=False)
+        res = render_animation(collided, tmp_path / "clip.mp4", AnimationConfig(**SMALL), progress=False)
     assert (res.path, res.format, res.frames) == (tmp_path / "clip.gif", "gif", 8)
     assert "clip.gif" in caplog.text and "instead of" in caplog.text
     with Image.open(res.path) as im:
@@ -221,7 +221,7 @@ def test_error_while_rendering_leaves_no_file(collided: FlightGroup, tmp_path: P
     monkeypatch.setattr(animate, "_status_words", failing)
     (tmp_path / "out").mkdir()
     with pytest.raises(RuntimeError, match="boom"):
-        render_animation(collided, tmp_path / "out" / f"clip{suffix}", AnimationOptions(**SMALL), progress=False)
+        render_animation(collided, tmp_path / "out" / f"clip{suffix}", AnimationConfig(**SMALL), progress=False)
     assert _files(tmp_path / "out") == []
 
 
@@ -234,7 +234,7 @@ def test_ffmpeg_failure_raises_and_leaves_no_file(collided: FlightGroup, tmp_pat
     monkeypatch.setitem(matplotlib.rcParams, "animation.ffmpeg_path", str(fake))
     (tmp_path / "out").mkdir()
     with pytest.raises(subprocess.CalledProcessError) as err:
-        render_animation(collided, tmp_path / "out" / "clip.mp4", AnimationOptions(**SMALL), progress=False)
+        render_animation(collided, tmp_path / "out" / "clip.mp4", AnimationConfig(**SMALL), progress=False)
     assert "no encoder here" in err.value.stderr
     assert _files(tmp_path / "out") == []
 

@@ -1,4 +1,4 @@
-"""`uam-compare export --rerun` (issue 30): a run's flights and a policy's training flights as a Rerun recording,
+"""`uam-compare export --rerun`: a run's flights and a policy's training flights as a Rerun recording,
 read back with Rerun's own reader (rerun-sdk, the `rerun` extra, in the `test` extra so CI runs these)."""
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def test_run_flights_read_back(tmp_path, capsys):
     chunks = _chunks(out)
     for g in flight_groups(run_dir):
         assert f"/cells/{g.stem}/city" in chunks
-        for p in g.pilots:
+        for p in g.flights:
             base = f"/cells/{g.stem}/{p.method}"
             pos = np.array([v[0] for v in _column(chunks[f"{base}/vehicle"], "Points3D:positions")])
             last = np.asarray(p.episode.trajectory.states, float)[-1, 0:3]

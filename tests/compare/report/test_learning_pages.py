@@ -1,4 +1,4 @@
-"""The report's "learning in pictures" page (issue 30): fixed tasks by checkpoints, beside the convergence page."""
+"""The report's "learning in pictures" page: fixed tasks by checkpoints, beside the convergence page."""
 from __future__ import annotations
 
 import shutil

@@ -19,7 +19,7 @@ from compare.results.summary import read_summary_json, summarize_run, write_summ
 from synthetic_run import write_benchmark_run
 
 GHOST = "ghostpkg.pilots:GhostPilot"  # a plug-in not installed where the report is built
-METHODS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC", GHOST: "Ghost pilot"}
+PILOT_LABELS = {"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC", GHOST: "Ghost pilot"}
 VEHICLES = ("small_quad", "uam_multicopter")
 
 
@@ -31,7 +31,7 @@ def _page(texts: list[str], title: str) -> str:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
     run_dir = tmp_path_factory.mktemp("vehicles") / "run"
-    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=3, episodes=3, seeds=(0,), methods=METHODS,
+    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=3, episodes=3, seeds=(0,), methods=PILOT_LABELS,
                                samples=60)
     write_summary_json(summarize_run(rows, resamples=200), run_dir / "summary.json")
     with pytest.MonkeyPatch.context() as mp:  # draw few flights: the bound is what is tested, not the drawing
@@ -48,7 +48,7 @@ def test_summary_json_of_the_run_pools_nothing(run):
     assert data["vehicles"] == list(VEHICLES) and "methods" not in data and "paired" not in data
     for vehicle in VEHICLES:
         part = data["by_vehicle"][vehicle]
-        assert part["vehicles"] == [vehicle] and set(part["methods"]) == set(METHODS)
+        assert part["vehicles"] == [vehicle] and set(part["methods"]) == set(PILOT_LABELS)
         assert part["methods"]["ppo"]["episodes"] == 3 * 3
     assert all(len(s["vehicles"]) == 1 for s in data["by_scenario"].values())
 
@@ -105,19 +105,19 @@ def test_plug_in_pilot_keeps_its_label_and_own_colour(run):
     run_dir, texts = run
     whole = "\n".join(texts)
     assert whole.count("Ghost pilot") >= 6  # run.json's label: the plug-in cannot be imported here
-    colors = method_colors(list(METHODS))
+    colors = method_colors(list(PILOT_LABELS))
     assert colors["ppo"] == METHOD_COLORS["ppo"] and colors["rrt_mpc"] == METHOD_COLORS["rrt_mpc"]
     assert colors[GHOST] not in (colors["ppo"], colors["rrt_mpc"])
     # the summary figure draws it in that colour under that label
     summary = read_summary_json(run_dir / "summary.json")
     quad = summary.by_vehicle["small_quad"]
     rows = [r for r in read_metrics_csv(run_dir / "metrics.csv") if r.vehicle == "small_quad"]
-    style = MethodStyle(tuple(METHODS), METHODS, colors)
+    style = MethodStyle(tuple(PILOT_LABELS), PILOT_LABELS, colors)
     scenarios = {n: s for n, s in summary.by_scenario.items() if s.vehicle == "small_quad"}
     conditions = {n: ScenarioConditions(n, "small_quad", 0.1, "none", 1.2) for n in scenarios}
     pages = dict(vehicle_pages("small_quad", quad, scenarios, rows, conditions, style, "test."))
     forest = pages["vehicle_small_quad_forest"][0]
     success_panel = forest.axes[0]
-    assert [t.get_text() for t in success_panel.get_yticklabels()] == list(METHODS.values())
+    assert [t.get_text() for t in success_panel.get_yticklabels()] == list(PILOT_LABELS.values())
     drawn = {line.get_color() for line in success_panel.get_lines() if isinstance(line, Line2D)}
     assert colors[GHOST] in drawn

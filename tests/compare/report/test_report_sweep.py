@@ -19,7 +19,7 @@ from compare.results.metrics import read_metrics_csv
 from compare.results.run_info import AirEnvelope, read_run_info
 from compare.results.sweep_rates import sweep_rates
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, save_episode
-from compare.run.campaign import PolicyFacts, RunOptions, finalize, plan_cells, write_run_files
+from compare.run.campaign import PolicyFacts, RunConfig, finalize, plan_cells, write_run_files
 from compare.scenarios.sweep import build_sweep
 from synthetic_run import trajectory
 
@@ -38,9 +38,9 @@ def _outcome(method: str, da_m: float, wind_m_s: float, episode: int) -> str:
 @pytest.fixture(scope="module")
 def sweep_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     run_dir = tmp_path_factory.mktemp("sweep") / "run"
-    suite = build_sweep("sweep-quick", vehicles=("small_quad",))
-    scenarios = list(suite.scenarios)
-    opts = RunOptions(run_dir, methods=("ppo", "rrt_mpc"), command="uam-compare sweep --quick")
+    task_set = build_sweep("sweep-quick", vehicles=("small_quad",))
+    scenarios = list(task_set.scenarios)
+    opts = RunConfig(run_dir, methods=("ppo", "rrt_mpc"), command="uam-compare sweep --quick")
     cells, notes = plan_cells(scenarios, opts, None)
     policy = PolicyFacts(Path("/nonexistent/policy"), "small_quad", scenarios[0].vehicle.fingerprint(), 50.0, 10.0,
                          ENVELOPE)

@@ -22,7 +22,7 @@ from compare.results.metrics import (
     write_metrics_csv,
 )
 from compare.results.summary import (
-    BootstrapSettings,
+    BootstrapConfig,
     Stat,
     Summary,
     methods_table,
@@ -383,7 +383,7 @@ def comparison_rows() -> list[EpisodeMetrics]:
 def test_summary_per_method_on_known_data():
     rows = comparison_rows()
     s = summarize(rows, resamples=500, seed=3)
-    assert s.bootstrap == BootstrapSettings(resamples=500, confidence=0.95, seed=3, method="percentile")
+    assert s.bootstrap == BootstrapConfig(resamples=500, confidence=0.95, seed=3, method="percentile")
     assert s.metrics == S.SUMMARY_METRICS and s.by_scenario is None
     assert list(s.methods) == ["ppo", "rrt_mpc"]
     ppo, mpc = s.methods["ppo"], s.methods["rrt_mpc"]
@@ -480,7 +480,7 @@ def test_summary_json_round_trip(tmp_path):
         "bootstrap": {"resamples": 10}, "metrics": ["success"],
         "methods": {"ppo": {"episodes": 2, "success": {"mean": 0.5, "ci_low": None, "ci_high": None, "n": 2}}}}))
     old = read_summary_json(tmp_path / "old.json")
-    assert old.by_scenario is None and old.paired == () and old.bootstrap == BootstrapSettings(resamples=10)
+    assert old.by_scenario is None and old.paired == () and old.bootstrap == BootstrapConfig(resamples=10)
     assert old.methods["ppo"].stats["success"] == Stat(0.5, None, None, 2) and old.methods["ppo"].failure_reasons == {}
     assert isinstance(old, Summary) and methods_table(old)[1] == ["ppo", "2", "50%"]
 

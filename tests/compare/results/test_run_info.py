@@ -14,7 +14,7 @@ from compare.results.run_info import (
     PolicyRecord,
     RunInfo,
     ScenarioInfo,
-    SuiteInfo,
+    TaskSetInfo,
     WindInfo,
     read_run_info,
     run_info_to_json,
@@ -53,19 +53,19 @@ def test_write_read_round_trip(tmp_path: Path) -> None:
     assert back.scenario("hot-high") is back.scenarios[0] and back.scenario("nowhere") is None
 
 
-def test_the_suite_is_optional(tmp_path: Path) -> None:
+def test_the_task_set_is_optional(tmp_path: Path) -> None:
     """A benchmark run records its task set last; without one, no key: older files rewrite as they were."""
-    suite = SuiteInfo("benchmark-quick", "1+0123456789", "Held-out generated tasks per vehicle.")
-    info = replace(full_info(), suite=suite)
+    task_set = TaskSetInfo("benchmark-quick", "1+0123456789", "Held-out generated tasks per vehicle.")
+    info = replace(full_info(), task_set=task_set)
     path = write_run_info(info, tmp_path)
     data = json.loads(path.read_text())
     assert list(data)[-1] == "suite" and data["suite"] == {"name": "benchmark-quick", "version": "1+0123456789",
                                                            "description": "Held-out generated tasks per vehicle."}
     assert read_run_info(tmp_path) == info
     assert "suite" not in json.loads(write_run_info(full_info(), tmp_path / "plain").read_text())
-    write_run(tmp_path / "old", None)  # a run.json written before suites: reads without one, rewrites unchanged
+    write_run(tmp_path / "old", None)  # a run.json written before task sets: reads without one, rewrites unchanged
     old = read_run_info(tmp_path / "old")
-    assert old.suite is None
+    assert old.task_set is None
     again = write_run_info(old, tmp_path / "rewritten").read_text()
     assert again == write_run_info(read_run_info(tmp_path / "rewritten"), tmp_path / "twice").read_text()
     data["suite"] = {"name": 5}

@@ -1,4 +1,4 @@
-"""The run store (issue 31): an episode's part round-trips, parts compact into the episode table and samples
+"""The run store: an episode's part round-trips, parts compact into the episode table and samples
 files with the same bytes every time, a compaction cut short or a corrupt part loses nothing, and pandas and
 DuckDB read the tables without our code."""
 from __future__ import annotations

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from compare.cli import _print_summary
+from compare.cli.printout import print_summary
 from compare.results.difficulty import (
     ScenarioConditions,
     building_coverage,
@@ -20,7 +20,7 @@ from compare.results.stats import PairedCounts, design_mdd_rate, mdd, newcombe_p
 from compare.results.summary import (
     IntervalMethods,
     PairedStat,
-    PowerSettings,
+    PowerConfig,
     read_summary_json,
     summarize,
     summarize_run,
@@ -92,7 +92,7 @@ def test_paired_differences_and_mdd_on_hand_made_numbers():
     s = summarize(hand_rows(), resamples=400)
     assert s.vehicles == ("small_quad",) and s.vehicle == "small_quad"
     assert s.intervals == IntervalMethods("wilson", "newcombe-hybrid-score", ("success", "collision"))
-    assert s.power == PowerSettings(0.05, 0.8, 0.5)
+    assert s.power == PowerConfig(0.05, 0.8, 0.5)
     ppo = s.methods["ppo"].stats["success"]
     assert (ppo.mean, ppo.n) == (0.8, 5) and (ppo.ci_low, ppo.ci_high) == wilson_interval(4, 5)
     (p,) = s.paired
@@ -172,7 +172,7 @@ def test_a_summary_json_written_before_per_vehicle_summaries_still_reads(tmp_pat
     path.write_text(json.dumps(old))
     s = read_summary_json(path)
     assert s.vehicles == () and s.by_vehicle is None and s.per_vehicle() is None  # may pool: the report recomputes
-    assert s.intervals == IntervalMethods() and s.power == PowerSettings()
+    assert s.intervals == IntervalMethods() and s.power == PowerConfig()
     p = s.paired[0].stats["success"]
     assert isinstance(p, PairedStat) and (p.mean, p.sd, p.mdd, p.mdd_design) == (0.5, None, None, None)
     assert s.by_scenario["a"].bootstrap.resamples == 2000 and s.by_scenario["a"].metrics == ("success",)
@@ -181,7 +181,7 @@ def test_a_summary_json_written_before_per_vehicle_summaries_still_reads(tmp_pat
 
 def test_cli_summary_is_per_vehicle(tmp_path, capsys):
     write_summary_json(summarize_run(two_vehicle_rows(), resamples=100), tmp_path / "summary.json")
-    _print_summary(tmp_path)
+    print_summary(tmp_path)
     out = capsys.readouterr().out
     assert "small_quad: 2 scenarios" in out and "small_quad / park-quad" in out and "small_quad / town-quad" in out
     assert "uam_multicopter: scenario city-uam" in out and "uam_multicopter / city-uam" not in out

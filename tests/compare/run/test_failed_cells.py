@@ -1,4 +1,4 @@
-"""Robust campaigns (issue 18, item 5): one cell's failure (its pilot raised, its worker died, it hung) is a
+"""Robust campaigns: one cell's failure (its pilot raised, its worker died, it hung) is a
 failed cell with its reason, the run goes on and reports the rest; `--resume` flies only the cells without
 an episode and leaves the saved episodes as they are. The faults are plug-in pilots (fault_pilots.py)."""
 from __future__ import annotations
@@ -27,11 +27,11 @@ from compare.results.failures import (
 )
 from compare.results.store import read_episode_table, samples_files
 from compare.results.trajectory import EpisodeKey
-from compare.run.campaign import RunOptions, cell_limit_s
+from compare.run.campaign import RunConfig, cell_limit_s
 from compare.run.cells import Cell
 from compare.scenarios.scenario import load_scenario
+from run_data import TINY
 
-TINY = Path(__file__).resolve().parents[2] / "data" / "tiny_scenario.yaml"
 FAULTS = {"raise": "fault_pilots:RaisingPilot", "exit": "fault_pilots:ExitingPilot",
           "kill": "fault_pilots:KilledPilot", "hang": "fault_pilots:HangingPilot"}
 
@@ -49,10 +49,10 @@ def faults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 
 def _argv(out: Path, pilots: list[str], *extra: str) -> list[str]:
-    argv = ["run", str(TINY), "--method", "apf"]
+    argv = ["run", str(TINY), "--pilot", "apf"]
     for p in pilots:
-        argv += ["--method", p]
-    return [*argv, "--methods", ",".join(["apf", *pilots]), "--out", str(out), "--no-progress", "--videos", "none",
+        argv += ["--pilot", p]
+    return [*argv, "--pilots", ",".join(["apf", *pilots]), "--out", str(out), "--no-progress", "--videos", "none",
             *extra]
 
 
@@ -149,12 +149,12 @@ def test_default_cell_limit_comes_from_the_cell(tmp_path: Path) -> None:
     timeout_s = sc.episodes[0].task.timeout_s
     cell = Cell(0, 0, 0, "rrt_mpc")
     limit = compare.run.campaign.CELL_LIMIT_BASE_S + compare.run.campaign.CELL_LIMIT_FACTOR * timeout_s * 1.0
-    assert cell_limit_s([sc], cell, RunOptions(tmp_path)) is None  # in this process: nothing could stop it
-    assert cell_limit_s([sc], cell, RunOptions(tmp_path, jobs=2)) == pytest.approx(limit)
-    assert cell_limit_s([sc], Cell(0, 0, 0, "apf"), RunOptions(tmp_path, backend="ray")) == pytest.approx(
+    assert cell_limit_s([sc], cell, RunConfig(tmp_path)) is None  # in this process: nothing could stop it
+    assert cell_limit_s([sc], cell, RunConfig(tmp_path, jobs=2)) == pytest.approx(limit)
+    assert cell_limit_s([sc], Cell(0, 0, 0, "apf"), RunConfig(tmp_path, backend="ray")) == pytest.approx(
         compare.run.campaign.CELL_LIMIT_BASE_S + compare.run.campaign.CELL_LIMIT_FACTOR * timeout_s * 0.2)
-    assert cell_limit_s([sc], cell, RunOptions(tmp_path, cell_timeout_s=7.5)) == 7.5
-    assert not RunOptions(tmp_path, cell_timeout_s=7.5).in_process  # a limit needs a worker process
+    assert cell_limit_s([sc], cell, RunConfig(tmp_path, cell_timeout_s=7.5)) == 7.5
+    assert not RunConfig(tmp_path, cell_timeout_s=7.5).in_process  # a limit needs a worker process
 
 
 def test_failed_cell_records_round_trip(tmp_path: Path) -> None:

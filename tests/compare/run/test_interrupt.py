@@ -1,4 +1,4 @@
-"""Interrupting a run (issue 16, item 5): Ctrl-C or SIGTERM stops it promptly, workers included, with one
+"""Interrupting a run: Ctrl-C or SIGTERM stops it promptly, workers included, with one
 line saying what was kept and how to resume; the temporary file of a write cut short goes on the next run
 or report."""
 from __future__ import annotations
@@ -11,19 +11,19 @@ import time
 from pathlib import Path
 
 import pytest
-from test_bad_inputs import TINY, synthetic_flying  # noqa: F401  (a fixture)
 
 import compare.run.cells
 from compare.cli import INTERRUPTED_EXIT, main
 from compare.results.episodes import open_episodes
 from compare.results.store import part_files
+from run_data import TINY
 from uam_fdm.files.atomic import TEMP_MARK, atomic_open, remove_stale_temporaries
 
 SEEDS = "0,1,2,3,4,5,6,7"
 
 
 def test_ctrl_c_keeps_the_finished_episodes_and_says_how_to_resume(
-        tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,  # noqa: F811
+        tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,
         monkeypatch: pytest.MonkeyPatch) -> None:
     fly = compare.run.cells.CellRunner.run
     flown = []
@@ -36,14 +36,14 @@ def test_ctrl_c_keeps_the_finished_episodes_and_says_how_to_resume(
 
     monkeypatch.setattr(compare.run.cells.CellRunner, "run", interrupted_on_the_third)
     out = tmp_path / "run"
-    argv = ["run", str(TINY), "--methods", "rrt_mpc", "--seeds", SEEDS, "--out", str(out), "--no-progress",
+    argv = ["run", str(TINY), "--pilots", "rrt_mpc", "--seeds", SEEDS, "--out", str(out), "--no-progress",
             "--videos", "none"]
     assert main(argv) == INTERRUPTED_EXIT
     err = capsys.readouterr().err
     assert "Traceback" not in err
     lines = [ln for ln in err.splitlines() if ln.startswith("uam-compare: interrupted")]
     assert lines == [f"uam-compare: interrupted: 2 of 8 episodes kept in {out}; to fly the rest: uam-compare "
-                     f"run {TINY} --methods rrt_mpc --seeds {SEEDS} --out {out} --no-progress --videos none "
+                     f"run {TINY} --pilots rrt_mpc --seeds {SEEDS} --out {out} --no-progress --videos none "
                      f"--resume"], err
     assert len(part_files(out)) == 2 and not (out / "metrics.csv").exists()  # each cell's part, as it ended
     monkeypatch.setattr(compare.run.cells.CellRunner, "run", fly)  # the synthetic flight: resume flies the other 6
@@ -67,9 +67,9 @@ def test_a_killed_writer_leaves_a_temporary_that_the_next_report_removes(tmp_pat
 
 
 def test_report_removes_stale_temporaries(tmp_path: Path, capsys: pytest.CaptureFixture,
-                                          synthetic_flying: None) -> None:  # noqa: F811
+                                          synthetic_flying: None) -> None:
     out = tmp_path / "run"
-    assert main(["run", str(TINY), "--methods", "rrt_mpc", "--out", str(out), "--no-progress",
+    assert main(["run", str(TINY), "--pilots", "rrt_mpc", "--out", str(out), "--no-progress",
                  "--videos", "none"]) == 0
     stale = out / "store" / "parts" / f".tiny__ep000__rrt_mpc__s1.parquet{TEMP_MARK}abcdefgh.tmp"
     stale.write_bytes(b"\x00" * 100)
@@ -85,7 +85,7 @@ def test_a_parallel_run_stops_promptly_with_its_workers(tmp_path: Path, how: str
     out = tmp_path / "run"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "compare", "run", str(TINY), "--methods", "ppo", "--seeds", SEEDS, "--jobs", "2",
+        [sys.executable, "-m", "compare", "run", str(TINY), "--pilots", "ppo", "--seeds", SEEDS, "--jobs", "2",
          "--out", str(out), "--no-progress", "--videos", "none"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
         # as from a terminal, even when these tests run where SIGINT is ignored (a shell's background job):
@@ -101,14 +101,12 @@ def test_a_parallel_run_stops_promptly_with_its_workers(tmp_path: Path, how: str
             os.killpg(proc.pid, signal.SIGINT)
         else:
             proc.send_signal(signal.SIGTERM)
-        t0 = time.monotonic()
-        _, err = proc.communicate(timeout=30.0)
-        stopped_s = time.monotonic() - t0
+        # a guard against a hang, not a measure (how promptly it stops: perf/responsiveness.py)
+        _, err = proc.communicate(timeout=120.0)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == INTERRUPTED_EXIT, err
-    assert stopped_s < 10.0
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     lines = [ln for ln in err.splitlines() if ln.startswith("uam-compare: interrupted")]
     kept = len(open_episodes(out).entries)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from compare.run.campaign import RunOptions, plan_cells, select_policies
+from compare.run.campaign import RunConfig, plan_cells, select_policies
 from compare.scenarios.sets import resolve_scenarios
 from rl.policies.folder import SHIPPED_POLICIES
 
@@ -16,7 +16,7 @@ from rl.policies.folder import SHIPPED_POLICIES
 @pytest.mark.parametrize("name", ["default", "full"])
 def test_shipped_sets_fly_both_pilots_on_both_vehicles(tmp_path: Path, name: str) -> None:
     scenarios = resolve_scenarios(name)
-    opts = RunOptions(out_dir=tmp_path)
+    opts = RunConfig(out_dir=tmp_path)
     policies = select_policies(scenarios, opts)
     assert {p.vehicle for p in policies.values()} == {"small_quad", "uam_multicopter"}
     for p in policies.values():
@@ -32,7 +32,7 @@ def test_a_given_policy_replaces_the_shipped_one_for_its_vehicle_only(tmp_path: 
     mine = tmp_path / "my-quad-policy"
     shutil.copytree(SHIPPED_POLICIES["small_quad"], mine)
     scenarios = resolve_scenarios("default")
-    policies = select_policies(scenarios, RunOptions(out_dir=tmp_path, policies=(mine,)))
+    policies = select_policies(scenarios, RunConfig(out_dir=tmp_path, policies=(mine,)))
     by_vehicle = {p.vehicle: p.folder for p in policies.values()}
     assert by_vehicle == {"small_quad": mine.resolve(),
                           "uam_multicopter": SHIPPED_POLICIES["uam_multicopter"].resolve()}
@@ -43,7 +43,7 @@ def test_two_policies_for_one_vehicle_are_refused(tmp_path: Path) -> None:
     shutil.copytree(SHIPPED_POLICIES["small_quad"], mine)
     with pytest.raises(ValueError, match=r"--policy .*copy: a second policy for vehicle 'small_quad'"):
         select_policies(resolve_scenarios("default"),
-                        RunOptions(out_dir=tmp_path, policies=(SHIPPED_POLICIES["small_quad"], mine)))
+                        RunConfig(out_dir=tmp_path, policies=(SHIPPED_POLICIES["small_quad"], mine)))
 
 
 def test_a_vehicle_without_a_policy_flies_only_the_classical_pilot(tmp_path: Path,
@@ -52,7 +52,7 @@ def test_a_vehicle_without_a_policy_flies_only_the_classical_pilot(tmp_path: Pat
 
     monkeypatch.setitem(rl.policies.folder.SHIPPED_POLICIES, "uam_multicopter", tmp_path / "none-shipped")
     scenarios = resolve_scenarios("default")
-    opts = RunOptions(out_dir=tmp_path)
+    opts = RunConfig(out_dir=tmp_path)
     cells, notes = plan_cells(scenarios, opts, select_policies(scenarios, opts))
     flown = {(scenarios[c.scenario].vehicle.name, c.method) for c in cells if c.method == "ppo"}
     assert flown == {("small_quad", "ppo")}

@@ -1,31 +1,28 @@
-"""Scale-out on Ray (issue 18, item 4): `run --backend ray` on a local Ray instance of 2 CPUs started for the
+"""Scale-out on Ray: `run --backend ray` on a local Ray instance of 2 CPUs started for the
 test gives the metrics of a local run apart from the wall-clock columns, with each episode file written by
 this process from what the workers send back, and a pilot's fault recorded as a failed cell; without Ray,
 or with --address but no Ray backend, a clear error before anything flies."""
 from __future__ import annotations
 
-import csv
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import pytest
-from test_compare_run import WALL_CLOCK_COLUMNS
 
 import compare.run.campaign
 from compare.cli import main
 from compare.results.episodes import open_episodes
 from compare.results.failures import FailureKind, read_failures
 from compare.run.backends import RAY_FIX
+from run_data import TINY, deterministic_rows
 
-TINY = Path(__file__).resolve().parents[2] / "data" / "tiny_scenario.yaml"
 RAISING, EXITING = "fault_pilots:RaisingPilot", "fault_pilots:ExitingPilot"
 
 
 def _rows(out: Path) -> list[dict]:
-    with open(out / "metrics.csv", newline="") as f:
-        return [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in csv.DictReader(f)]
+    return deterministic_rows(out / "metrics.csv")
 
 
 def test_ray_gives_the_local_metrics_and_records_faults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -42,7 +39,7 @@ def test_ray_gives_the_local_metrics_and_records_faults(tmp_path: Path, monkeypa
         (faults / fault).touch()
     ours = set(Path(tempfile.gettempdir()).glob("uam-ray-*"))
     out = tmp_path / "ray"
-    assert main(["run", str(TINY), "--method", RAISING, "--method", EXITING, "--backend", "ray", "--jobs", "2",
+    assert main(["run", str(TINY), "--pilot", RAISING, "--pilot", EXITING, "--backend", "ray", "--jobs", "2",
                  "--out", str(out), *common]) == 0
     # the same episodes: metrics.csv identical apart from the measured wall-clock columns
     assert [r for r in _rows(out) if r["method"] in ("ppo", "rrt_mpc")] == _rows(local)

@@ -1,4 +1,4 @@
-"""A real two-node Ray cluster on this machine (issue 31, item 6), started as docs/scale_out.md tells:
+"""A real two-node Ray cluster on this machine, started as docs/scale_out.md tells:
 `ray start --head` and a second node joining it with `ray start --address`, each with its own temporary folder
 and one CPU. `run --backend ray --address` then flies the tiny scenario on it; metrics.csv and the run store
 must be those of a local run (the wall-clock columns aside). The nodes run in their own process groups,
@@ -17,12 +17,12 @@ import time
 from pathlib import Path
 
 import pytest
-from test_compare_run import WALL_CLOCK_COLUMNS
-from test_ray_backend import TINY, _rows
+from test_ray_backend import _rows
 
 from compare.cli import main
 from compare.results.episodes import open_episodes
 from compare.results.store import read_episode_table
+from run_data import TINY, WALL_CLOCK_COLUMNS
 
 pytest.importorskip("ray")
 RAY = shutil.which("ray") or str(Path(sys.executable).with_name("ray"))

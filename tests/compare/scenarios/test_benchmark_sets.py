@@ -18,7 +18,7 @@ import compare.scenarios.benchmark as bench
 from compare.cli import main
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import read_run_info
-from compare.run.campaign import RunOptions, plan_cells, write_run_files
+from compare.run.campaign import RunConfig, plan_cells, write_run_files
 from compare.scenarios.benchmark import (
     AIR_LEVELS,
     DENSITY_LEVELS,
@@ -28,10 +28,10 @@ from compare.scenarios.benchmark import (
     TURBULENCE_LEVELS,
     VALIDATION,
     VALIDATION_SEED_OFFSET,
-    Suite,
-    build_suite,
+    TaskSet,
+    build_task_set,
     levels,
-    suite_version,
+    task_set_version,
 )
 from compare.scenarios.fingerprint import scenario_fingerprint
 from compare.scenarios.scenario import load_scenario, scenario_from_dict
@@ -47,38 +47,39 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")
-def full() -> Suite:
-    return build_suite(FULL)
+def full() -> TaskSet:
+    return build_task_set(FULL)
 
 
 @pytest.fixture(scope="module")
-def quick() -> Suite:
-    return build_suite(QUICK)
+def quick() -> TaskSet:
+    return build_task_set(QUICK)
 
 
 def _seed(sc) -> int:
     return sc.raw["map"]["generator"]["seed"]
 
 
-def _by_vehicle(suite: Suite) -> dict[str, list]:
+def _by_vehicle(task_set: TaskSet) -> dict[str, list]:
     out: dict[str, list] = {v: [] for v in VEHICLES}
-    for sc in suite.scenarios:
+    for sc in task_set.scenarios:
         out[sc.vehicle_name].append(sc)
     return out
 
 
 # ---- determinism and version ---------------------------------------------------------------------------
-def test_same_tasks_and_version_twice(full: Suite, quick: Suite) -> None:
-    again = build_suite(QUICK)
+def test_same_tasks_and_version_twice(full: TaskSet, quick: TaskSet) -> None:
+    again = build_task_set(QUICK)
     assert again.info == quick.info and [s.raw for s in again.scenarios] == [s.raw for s in quick.scenarios]
     assert [scenario_fingerprint(s) for s in again.scenarios] == [scenario_fingerprint(s) for s in quick.scenarios]
-    assert suite_version(full.scenarios) == full.info.version != quick.info.version
+    assert task_set_version(full.scenarios) == full.info.version != quick.info.version
     assert full.info.version.startswith(f"{bench.GENERATOR_VERSION}+") and len(full.info.version) == 12
-    assert {sc.suite for sc in full.scenarios} == {full.info} and full.info.name == FULL
+    assert {sc.task_set for sc in full.scenarios} == {full.info} and full.info.name == FULL
 
 
-def test_same_in_a_fresh_process(quick: Suite) -> None:
-    code = ("import json; from compare.scenarios.benchmark import build_suite; s = build_suite('benchmark-quick'); "
+def test_same_in_a_fresh_process(quick: TaskSet) -> None:
+    code = ("import json; from compare.scenarios.benchmark import build_task_set; "
+            "s = build_task_set('benchmark-quick'); "
             "print(json.dumps([s.info.version, [sc.raw for sc in s.scenarios]]))")
     env = {**os.environ, "PYTHONHASHSEED": "12345", "PYTHONPATH": str(ROOT)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
@@ -86,11 +87,11 @@ def test_same_in_a_fresh_process(quick: Suite) -> None:
     assert version == quick.info.version and raws == json.loads(json.dumps([sc.raw for sc in quick.scenarios]))
 
 
-def test_version_changes_with_the_output(quick: Suite, monkeypatch: pytest.MonkeyPatch) -> None:
-    fewer = build_suite(QUICK, dataclasses.replace(DESIGN, quick_legs=2))
+def test_version_changes_with_the_output(quick: TaskSet, monkeypatch: pytest.MonkeyPatch) -> None:
+    fewer = build_task_set(QUICK, dataclasses.replace(DESIGN, quick_legs=2))
     assert fewer.info.version != quick.info.version
     bins = dataclasses.replace(DESIGN.vehicles[0], leg_bins_m=((50.0, 110.0), (110.0, 180.0), (180.0, 240.0)))
-    other = build_suite(QUICK, dataclasses.replace(DESIGN, vehicles=(bins, DESIGN.vehicles[1])))
+    other = build_task_set(QUICK, dataclasses.replace(DESIGN, vehicles=(bins, DESIGN.vehicles[1])))
     assert other.info.version != quick.info.version
 
     # the city generator changes (the loader's cities lose their last building) while the mappings, which
@@ -102,13 +103,13 @@ def test_version_changes_with_the_output(quick: Suite, monkeypatch: pytest.Monke
         return type(city)(city.buildings[:-1], city.bounds_min_m, city.bounds_max_m, city.no_fly, name=city.name)
 
     monkeypatch.setattr(citygen, "generate_city", fewer_buildings)
-    changed = build_suite(QUICK)
+    changed = build_task_set(QUICK)
     assert [s.raw for s in changed.scenarios] == [s.raw for s in quick.scenarios]
     assert changed.info.version != quick.info.version
 
 
 # ---- held out, per vehicle, subsets --------------------------------------------------------------------
-def test_city_seeds_are_held_out(full: Suite) -> None:
+def test_city_seeds_are_held_out(full: TaskSet) -> None:
     seeds = [_seed(sc) for sc in full.scenarios]
     assert len(set(seeds)) == len(seeds)
     test_pool = range(EVAL_SEEDS.start, EVAL_SEEDS.start + VALIDATION_OFFSET)
@@ -126,7 +127,7 @@ def test_city_seeds_are_held_out(full: Suite) -> None:
     assert sc.city.name == f"gen-{_seed(sc)}"
 
 
-def test_per_vehicle_sets_at_the_vehicles_scale(full: Suite) -> None:
+def test_per_vehicle_sets_at_the_vehicles_scale(full: TaskSet) -> None:
     per = _by_vehicle(full)
     for vb in DESIGN.vehicles:
         scenarios = per[vb.vehicle]
@@ -151,7 +152,7 @@ def test_per_vehicle_sets_at_the_vehicles_scale(full: Suite) -> None:
     assert {s.goal_radius_m for s in (e.task for e in per["uam_multicopter"][0].episodes)} == {10.0}
 
 
-def test_quick_is_a_subset_of_full(full: Suite, quick: Suite) -> None:
+def test_quick_is_a_subset_of_full(full: TaskSet, quick: TaskSet) -> None:
     named = {sc.name: sc for sc in full.scenarios}
     per = _by_vehicle(quick)
     assert all(len(per[v]) == DESIGN.quick_scenarios for v in VEHICLES)
@@ -166,10 +167,10 @@ def test_quick_is_a_subset_of_full(full: Suite, quick: Suite) -> None:
     assert quick.info.description.startswith("Held-out generated tasks per vehicle (the first of benchmark's)")
 
 
-def test_the_validation_twin_is_the_same_design_on_other_cities(full: Suite) -> None:
+def test_the_validation_twin_is_the_same_design_on_other_cities(full: TaskSet) -> None:
     """`benchmark-validation`: where a pilot's choices are tuned. Scenario i has the test set's levels, leg bins and
     time-limit rule in city seed + 200,000: disjoint from the test set and every learned pilot's pool."""
-    twin = build_suite(VALIDATION)
+    twin = build_task_set(VALIDATION)
     assert twin.info.name == VALIDATION and twin.info.version != full.info.version
     assert "validation twin of benchmark (city seeds +200,000)" in twin.info.description
     assert len(twin.scenarios) == len(full.scenarios)
@@ -187,11 +188,11 @@ def test_the_validation_twin_is_the_same_design_on_other_cities(full: Suite) -> 
     # the twin's seeds may not land on another vehicle's test cities
     crowded = dataclasses.replace(DESIGN.vehicles[1], first_seed=DESIGN.vehicles[0].first_seed + VALIDATION_SEED_OFFSET)
     with pytest.raises(ValueError, match="small_quad: city seeds 3200000-3200035 overlap the uam_multicopter bench"):
-        build_suite(VALIDATION, dataclasses.replace(DESIGN, vehicles=(DESIGN.vehicles[0], crowded)))
+        build_task_set(VALIDATION, dataclasses.replace(DESIGN, vehicles=(DESIGN.vehicles[0], crowded)))
 
 
 # ---- strict checks and the CLI -------------------------------------------------------------------------
-def test_every_scenario_passes_the_strict_checks_as_a_file(full: Suite, tmp_path: Path) -> None:
+def test_every_scenario_passes_the_strict_checks_as_a_file(full: TaskSet, tmp_path: Path) -> None:
     for sc in full.scenarios:  # built by the loader: again from its mapping, and the first few from a file
         assert scenario_fingerprint(scenario_from_dict(sc.raw, "again", Path("."))) == scenario_fingerprint(sc)
     for sc in full.scenarios[::27]:
@@ -204,40 +205,40 @@ def test_every_scenario_passes_the_strict_checks_as_a_file(full: Suite, tmp_path
         scenario_from_dict(bad, "benchmark:benchmark-quad-000", Path("."))
 
 
-def test_sets_resolve_and_validate(quick: Suite, capsys: pytest.CaptureFixture[str]) -> None:
+def test_sets_resolve_and_validate(quick: TaskSet, capsys: pytest.CaptureFixture[str]) -> None:
     assert {FULL, QUICK, VALIDATION} <= set(builtin_sets())
     resolved = resolve_scenarios(QUICK)
-    assert [s.name for s in resolved] == [s.name for s in quick.scenarios] and resolved[0].suite == quick.info
+    assert [s.name for s in resolved] == [s.name for s in quick.scenarios] and resolved[0].task_set == quick.info
     assert resolved[0].source == f"{QUICK}:{resolved[0].name}"
     assert main(["validate", QUICK]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == len(quick.scenarios) and all(": ok (benchmark-" in line for line in lines)
     with pytest.raises(ValueError, match="unknown benchmark set"):
-        build_suite("benchmark-huge")
+        build_task_set("benchmark-huge")
     leaky = dataclasses.replace(DESIGN.vehicles[0], first_seed=1_049_990)
     with pytest.raises(ValueError, match="small_quad: city seeds 1049990-1050025 overlap the test and validation"):
-        build_suite(QUICK, dataclasses.replace(DESIGN, vehicles=(leaky, DESIGN.vehicles[1])))
+        build_task_set(QUICK, dataclasses.replace(DESIGN, vehicles=(leaky, DESIGN.vehicles[1])))
     with pytest.raises(ValueError, match="must be a non-empty subset"):
-        build_suite(QUICK, dataclasses.replace(DESIGN, quick_legs=13))
+        build_task_set(QUICK, dataclasses.replace(DESIGN, quick_legs=13))
 
 
-def test_run_json_records_the_suite(quick: Suite, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from compare.cli import _print_suite
+def test_run_json_records_the_task_set(quick: TaskSet, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from compare.cli.printout import print_task_set
 
     scenarios = list(quick.scenarios)
-    opts = RunOptions(out_dir=tmp_path, methods=("apf",), progress=False)
+    opts = RunConfig(out_dir=tmp_path, methods=("apf",), progress=False)
     cells, notes = plan_cells(scenarios, opts, None)
     write_run_files(scenarios, opts, cells, notes, {})
     info = read_run_info(tmp_path)
-    assert info.suite == quick.info and info.scenarios[0].source == f"{QUICK}:benchmark-quad-000"
-    _print_suite(tmp_path)
+    assert info.task_set == quick.info and info.scenarios[0].source == f"{QUICK}:benchmark-quad-000"
+    print_task_set(tmp_path)
     assert capsys.readouterr().out == f"task set {QUICK}, version {quick.info.version}: {quick.info.description}\n"
-    mixed = [*scenarios[:1], dataclasses.replace(scenarios[1], suite=None)]
-    write_run_files(mixed, RunOptions(out_dir=tmp_path / "mixed"), plan_cells(mixed, opts, None)[0], [], {})
-    assert read_run_info(tmp_path / "mixed").suite is None
+    mixed = [*scenarios[:1], dataclasses.replace(scenarios[1], task_set=None)]
+    write_run_files(mixed, RunConfig(out_dir=tmp_path / "mixed"), plan_cells(mixed, opts, None)[0], [], {})
+    assert read_run_info(tmp_path / "mixed").task_set is None
 
 
-def test_the_report_names_the_suite_on_its_title_page(quick: Suite, tmp_path: Path) -> None:
+def test_the_report_names_the_task_set_on_its_title_page(quick: TaskSet, tmp_path: Path) -> None:
     from pypdf import PdfReader
 
     from compare.report.report import build_report
@@ -252,7 +253,7 @@ def test_the_report_names_the_suite_on_its_title_page(quick: Suite, tmp_path: Pa
 
 
 # ---- the difficulty axes -------------------------------------------------------------------------------
-def test_the_difficulty_axes_vary(full: Suite) -> None:
+def test_the_difficulty_axes_vary(full: TaskSet) -> None:
     for vehicle, scenarios in _by_vehicle(full).items():
         n = len(scenarios)
         turbulence = Counter(sc.wind.turbulence.value for sc in scenarios)
@@ -286,33 +287,33 @@ def test_the_levels_are_an_orthogonal_array() -> None:
     assert density_altitude_m(0.9091) == pytest.approx(3000.0, abs=5.0)  # ISA density at 3 km
 
 
-def test_a_benchmark_run_animates_nothing_unless_asked(quick: Suite) -> None:
-    from compare.cli import _videos
+def test_a_benchmark_run_animates_nothing_unless_asked(quick: TaskSet) -> None:
+    from compare.cli.run import resolve_videos
 
     tiny = load_scenario(Path(__file__).resolve().parents[2] / "data" / "tiny_scenario.yaml")
-    assert _videos(None, list(quick.scenarios)) == "none"
-    assert _videos(None, [tiny]) == "scenario"
-    assert _videos("all", list(quick.scenarios)) == "all"
+    assert resolve_videos(None, list(quick.scenarios)) == "none"
+    assert resolve_videos(None, [tiny]) == "scenario"
+    assert resolve_videos("all", list(quick.scenarios)) == "all"
 
 
 def test_the_quick_set_stays_the_version_reported() -> None:
     """The sets are made from fixed settings (not the learned pilots' current training tasks): retraining a pilot
     in other air or cities leaves the benchmark, and before-and-after figures, comparable."""
-    assert build_suite("benchmark-quick").info.version == "1+b27f29cc25"  # docs/benchmark.md
+    assert build_task_set("benchmark-quick").info.version == "1+b27f29cc25"  # docs/benchmark.md
 
 
 # ---- the rates per level ---------------------------------------------------------------------------------
-def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: Suite, tmp_path: Path,
+def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp_path: Path,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
     """Every scenario's levels are read from the air it flew; each level pools its scenarios' episodes, counted
     by outcome, with Wilson intervals; a benchmark run prints the table and its JSON carries it."""
-    from compare.cli import _print_suite
+    from compare.cli.printout import print_task_set
     from compare.results.level_rates import level_json, level_rates
     from compare.results.metrics import EpisodeMetrics, write_metrics_csv
     from uam_fdm.stats import wilson_interval
 
     scenarios = list(quick.scenarios)
-    opts = RunOptions(out_dir=tmp_path, methods=("apf", "ppo"), progress=False)
+    opts = RunConfig(out_dir=tmp_path, methods=("apf", "ppo"), progress=False)
     cells, notes = plan_cells(scenarios, opts, None)
     write_run_files(scenarios, opts, cells, notes, {})
     outcomes = ("success", "collision", "timeout", "out_of_bounds")
@@ -343,7 +344,7 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: Suite, tmp_p
         assert whole.episodes == 3 * len(mine) and whole.level == "all"
     data = level_json(rates)
     assert set(data) == set(VEHICLES) and set(data["small_quad"]) == {"all", "air", "turbulence"}
-    _print_suite(tmp_path)
+    print_task_set(tmp_path)
     out = capsys.readouterr().out
     assert "small_quad, per air and turbulence level (Wilson 95 % intervals):" in out
     assert "air hot-and-high" in out and "turbulence moderate" in out

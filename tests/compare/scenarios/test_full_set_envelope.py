@@ -1,5 +1,5 @@
 """Every scenario of the `full` set lies inside the envelope its vehicle's learned pilot is trained on
-(`rl.task.vehicles.task_for(vehicle, envelope=True)`, issue 28): its air, its legs (length, heights, clearance,
+(`rl.task.vehicles.task_for(vehicle, envelope=True)`): its air, its legs (length, heights, clearance,
 distance to the flight volume's side, goal radius) and its city's scale (the shipped map's generator parameters
 inside one city distribution of the task's).
 
@@ -18,7 +18,7 @@ from compare.scenarios.sets import resolve_scenarios
 from rl.task.cities import CityDistribution, CityMixture
 from rl.task.vehicles import task_for
 from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.city.generator import SHIPPED_MAPS, CityGenParams
+from uam_fdm.city.generator import SHIPPED_MAPS, CityGenConfig
 
 FULL = resolve_scenarios("full")
 
@@ -35,7 +35,7 @@ def _edge_m(city: BuildingMap, p: tuple[float, float, float]) -> float:
     return float(min(p[0] - lo[0], hi[0] - p[0], p[1] - lo[1], hi[1] - p[1]))
 
 
-def _outside(p: CityGenParams, city: BuildingMap, d: CityDistribution) -> tuple[str, ...]:
+def _outside(p: CityGenConfig, city: BuildingMap, d: CityDistribution) -> tuple[str, ...]:
     """What of a map made with generator parameters `p` lies outside distribution `d`'s ranges (one phrase each):
     extent, street width, block and lot sizes (per axis), lot occupancy, footprint fill, median height and the
     tallest roof."""

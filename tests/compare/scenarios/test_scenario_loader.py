@@ -5,13 +5,14 @@ import copy
 import math
 import pickle
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
 
-from compare.scenarios.scenario import DEFAULT_METHODS, Scenario, load_scenario, scenario_from_dict
+from compare.scenarios.scenario import DEFAULT_PILOTS, Scenario, load_scenario, scenario_from_dict
 from compare.scenarios.sets import SCENARIO_DIR, builtin_sets, resolve_scenarios
 from scenario_box import BASE
 from uam_fdm.air.wind import ShearLaw, TurbulenceLevel, WindShear
@@ -62,7 +63,7 @@ def test_every_shipped_scenario_loads(path: Path) -> None:
     s = load_scenario(path)
     assert s.name == path.stem
     assert s.source == str(path)
-    assert s.episodes and s.seeds and set(DEFAULT_METHODS) <= set(s.methods)  # both pilots on both vehicles
+    assert s.episodes and s.seeds and set(DEFAULT_PILOTS) <= set(s.methods)  # both pilots on both vehicles
     for ep in s.episodes:
         a, b = ep.task.start_m, ep.task.goal_m
         distance = math.dist(a, b)
@@ -81,10 +82,10 @@ def test_default_set_contents() -> None:
     quad = by_name["suburb-quad"]
     assert quad.city.name == "suburb" and quad.vehicle_name == "small_quad"
     assert quad.wind.steady_enu_m_s == (2.0, 1.0, 0.0) and quad.wind.turbulence is TurbulenceLevel.LIGHT
-    assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.methods == DEFAULT_METHODS
+    assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.methods == DEFAULT_PILOTS
     assert len(by_name["downtown-quad"].episodes) == 2 and by_name["downtown-quad"].city.name == "downtown"
     uam = by_name["suburb-uam"]
-    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == DEFAULT_METHODS
+    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == DEFAULT_PILOTS
 
 
 def test_full_set_contents() -> None:
@@ -135,7 +136,7 @@ def test_wind_shear_keys(tmp_path: Path, shear: dict, expected: WindShear) -> No
 
 
 def test_top_level_defaults_and_episode_overrides(tmp_path: Path) -> None:
-    data = _with({"goal_radius_m": 4.0, "timeout_s": 70.0, "seeds": [3, 1, 2], "methods": ["rrt_mpc", "ppo"],
+    data = _with({"goal_radius_m": 4.0, "timeout_s": 70.0, "seeds": [3, 1, 2], "pilots": ["rrt_mpc", "ppo"],
                   "physics_hz": 400, "control_hz": 25, "description": "two flights",
                   "atmosphere": {"elevation_m": 1500, "isa_offset_k": -10, "wind_mps": [3, -1, 0],
                                  "turbulence": "Moderate"}})
@@ -277,16 +278,17 @@ BAD_CASES: list[tuple[str, dict[str, Any], str, str]] = [
     ("timeout-huge", {"timeout_s": 1e6}, "timeout_s", "outside the accepted range"),
     ("episode-timeout-string", {"episodes[0].timeout_s": "fast"}, "episodes[0].timeout_s", "'fast'"),
     ("episode-timeout-null", {"episodes[0].timeout_s": None}, "episodes[0].timeout_s", "None"),
-    # seeds, methods, rates
+    # seeds, pilots, rates
     ("seeds-empty", {"seeds": []}, "seeds", "non-empty"),
     ("seeds-scalar", {"seeds": 3}, "seeds", "got 3"),
     ("seeds-duplicate", {"seeds": [0, 1, 0]}, "seeds[2]", "duplicate seed 0"),
     ("seeds-negative", {"seeds": [-1]}, "seeds[0]", "got -1"),
     ("seeds-float", {"seeds": [1.5]}, "seeds[0]", "got 1.5"),
     ("seeds-bool", {"seeds": [True]}, "seeds[0]", "got True"),
-    ("methods-empty", {"methods": []}, "methods", "non-empty"),
-    ("methods-unknown", {"methods": ["ppo", "astar"]}, "methods[1]", "unknown method 'astar'"),
-    ("methods-duplicate", {"methods": ["ppo", "ppo"]}, "methods[1]", "duplicate method 'ppo'"),
+    ("pilots-empty", {"pilots": []}, "pilots", "non-empty"),
+    ("pilots-unknown", {"pilots": ["ppo", "astar"]}, "pilots[1]", "unknown method 'astar'"),
+    ("pilots-duplicate", {"pilots": ["ppo", "ppo"]}, "pilots[1]", "duplicate pilot 'ppo'"),
+    ("pilots-not-a-name", {"pilots": ["ppo", 3]}, "pilots[1]", "a pilot is named by a string, got 3"),
     ("physics-zero", {"physics_hz": 0}, "physics_hz", "outside the accepted range"),
     ("physics-string", {"physics_hz": "500"}, "physics_hz", "must be a number"),
     ("physics-bool", {"physics_hz": True}, "physics_hz", "must be a number"),
@@ -304,6 +306,27 @@ def test_bad_input_names_file_key_and_reason(tmp_path: Path, changes: dict, key:
     assert exc.value.key == key
     assert reason in exc.value.reason
     assert str(path) in str(exc.value) and key in str(exc.value) and reason in str(exc.value)
+
+
+def test_the_old_key_methods_still_reads_with_a_warning_and_both_keys_are_refused(tmp_path: Path) -> None:
+    """`methods:`, the key `pilots:` before its rename, reads the same (until the next release) with a
+    DeprecationWarning naming the file and the new key, and its errors name the key as written; a file that gives
+    both is refused, naming the file. The new key reads without a warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        new = load_scenario(_write(tmp_path, _with({"pilots": ["apf", "ppo"]}), "new.yaml"))
+    old_path = _write(tmp_path, _with({"methods": ["apf", "ppo"]}), "old.yaml")
+    with pytest.warns(DeprecationWarning, match=rf"^{re.escape(str(old_path))}: the key 'methods' is now 'pilots'"):
+        old = load_scenario(old_path)
+    assert old.methods == new.methods == ("ppo", "apf")
+    bad = _write(tmp_path, _with({"methods": ["ppo", "astar"]}), "old-bad.yaml")
+    with pytest.warns(DeprecationWarning), pytest.raises(ConfigError) as exc:
+        load_scenario(bad)
+    assert (exc.value.source, exc.value.key) == (str(bad), "methods[1]") and "unknown method 'astar'" in str(exc.value)
+    both = _write(tmp_path, _with({"methods": ["ppo"], "pilots": ["ppo"]}), "both.yaml")
+    with pytest.raises(ConfigError) as exc:
+        load_scenario(both)
+    assert (exc.value.source, exc.value.key) == (str(both), "methods") and "keep only 'pilots'" in exc.value.reason
 
 
 def test_bad_vehicle_file_is_reported_through_the_scenario(tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from compare.results.episodes import open_episodes
 from compare.results.run_info import AirEnvelope
-from compare.run.campaign import RunOptions, plan_cells, policy_facts
+from compare.run.campaign import RunConfig, plan_cells, policy_facts
 from compare.run.trained_air import outside_trained_air, scenario_outside
 from compare.scenarios import sweep
 from compare.scenarios.benchmark import LEARNED_PILOT_POOLS, city_seed_ranges
@@ -115,13 +115,13 @@ def test_a_shipped_policy_is_warned_in_thin_air_not_at_sea_level(quick) -> None:
     assert scenario_outside(sea, env) == () and scenario_outside(inside, env) == ()
     assert scenario_outside(thin, env) == ("density altitude 4497 m",)
     assert scenario_outside(windy, env) == ("steady wind 10.0 m/s",)
-    cells, _ = plan_cells(quad, RunOptions(Path("unused")), None)
+    cells, _ = plan_cells(quad, RunConfig(Path("unused")), None)
     notes = outside_trained_air(quad, cells, {facts.vehicle_fingerprint: env})
     # past the envelope: 4.5 km, and wind 10 and 12 m/s
     assert len(notes) == 1 and notes[0].startswith("ppo flies 3 of 13 small_quad scenarios outside")
     assert thin.name in notes[0] and windy.name in notes[0] and sea.name not in notes[0]
     assert inside.name not in notes[0]
-    assert outside_trained_air([sea], plan_cells([sea], RunOptions(Path("unused")), None)[0],
+    assert outside_trained_air([sea], plan_cells([sea], RunConfig(Path("unused")), None)[0],
                                {facts.vehicle_fingerprint: env}) == []
 
 
@@ -141,7 +141,7 @@ def test_a_run_warns_and_still_flies_outside_the_envelope(quick, tmp_path: Path,
 
     thin = next(sc for sc in quick.scenarios if sc.name == "sweep-quad-00-da4500-w020")
     thin = sweep.dataclasses.replace(thin, episodes=thin.episodes[:1])
-    opts = RunOptions(tmp_path / "run", methods=("ppo",), progress=False, report=False, videos="none")
+    opts = RunConfig(tmp_path / "run", methods=("ppo",), progress=False, report=False, videos="none")
     with caplog.at_level(logging.WARNING, logger="compare.run.campaign"):
         run_comparison([thin], opts)
     assert any("ppo flies 1 of 1 small_quad scenarios outside" in r.getMessage() for r in caplog.records)

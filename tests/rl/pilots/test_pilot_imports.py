@@ -12,10 +12,10 @@ from rl.policies.folder import SHIPPED_POLICIES
 
 _BUILD = """
 import json, sys
-from rl.pilots.learned import PolicyAgent, load_policy
+from rl.pilots.learned import PolicyPilot, load_policy
 from rl.policies.folder import SHIPPED_POLICIES
 from uam_fdm.vehicle.params import load_vehicle
-agent = PolicyAgent(load_policy(SHIPPED_POLICIES[sys.argv[1]], load_vehicle(sys.argv[1])))
+pilot = PolicyPilot(load_policy(SHIPPED_POLICIES[sys.argv[1]], load_vehicle(sys.argv[1])))
 print(json.dumps(sorted(sys.modules)))
 """
 

@@ -1,5 +1,5 @@
-"""The potential-field pilot as an agent: the runner flies it exactly as the evaluation environment
-flies `rl.pilots.potential_field.PotentialFieldPilot` (same sensing, same command path, same low-level controller)."""
+"""The potential-field pilot as a `Pilot`: the runner flies it exactly as the evaluation environment
+flies `rl.pilots.potential_field.BatchedPotentialField` (same sensing, same command path, same low-level controller)."""
 from __future__ import annotations
 
 import json
@@ -11,35 +11,35 @@ import pytest
 from compare.flying.episode_loop import run_episode
 from rl.env.gym_env import UAMNavEnv
 from rl.env.world import NavWorld
-from rl.pilots.potential_field import PotentialField, PotentialFieldAgent, PotentialFieldPilot, gains_for
+from rl.pilots.potential_field import BatchedPotentialField, PotentialFieldConfig, PotentialFieldPilot, gains_for
 from rl.task.config import NavConfig
 from rl.training.evaluation import eval_config
-from uam_fdm.pilot import Agent, World
+from uam_fdm.pilot import Pilot, World
 from uam_fdm.vehicle.params import load_vehicle
 
 
 @pytest.mark.parametrize("seed", [3])
-def test_apf_agent_flies_exactly_like_the_evaluation_environment(seed):
+def test_apf_pilot_flies_exactly_like_the_evaluation_environment(seed):
     """One held-out episode (light turbulence), the field deciding every control period as in
     `rl.training.evaluation.evaluate_potential_field`: the same states at every decision, the same outcome."""
     nav = NavConfig()
     base = NavWorld(replace(eval_config(nav, 3), decision_hz=nav.control_hz))
     env = UAMNavEnv(world=base)
     obs, _ = env.reset(seed=seed)
-    pilot = PotentialFieldPilot(env.batch, gains_for(base.vehicle))  # the gains the agent flies (tuned)
+    field = BatchedPotentialField(env.batch, gains_for(base.vehicle))  # the gains the pilot flies (tuned)
     task, wind, city = env.batch.task(0), env.batch.wind_field(0), base.cities[int(env.batch.city[0])]
     env_states, outcome = [], None
     for _ in range(100_000):
-        obs, _, term, trunc, info = env.step(pilot(obs[None], env.batch)[0])
+        obs, _, term, trunc, info = env.step(field(obs[None], env.batch)[0])
         env_states.append(env.state)
         if term or trunc:
             outcome = info["outcome"]
             break
-    agent = PotentialFieldAgent()
-    assert isinstance(agent, Agent) and agent.name == "apf"
-    traj = run_episode(World(base.vehicle, base.dynamics, city, base.atmosphere), agent, task, wind, seed=0)
+    pilot = PotentialFieldPilot()
+    assert isinstance(pilot, Pilot) and pilot.name == "apf"
+    traj = run_episode(World(base.vehicle, base.dynamics, city, base.atmosphere), pilot, task, wind, seed=0)
     per_decision = base.dynamics.n_substeps
-    assert traj.outcome == outcome and agent.episode_report() is None
+    assert traj.outcome == outcome and pilot.episode_report() is None
     assert len(traj.decision_t_s) == len(env_states)
     np.testing.assert_array_equal(traj.states[per_decision::per_decision], np.array(env_states))
     assert traj.plan_time_s == 0.0
@@ -51,9 +51,9 @@ def test_gains_scale_with_the_vehicles_task():
     from rl.pilots.potential_field import gains_for_task, tuned_gains
     from rl.task.vehicles import task_for
 
-    assert gains_for_task(task_for("small_quad").scales) == PotentialField()
+    assert gains_for_task(task_for("small_quad").scales) == PotentialFieldConfig()
     uam = gains_for_task(task_for("uam_multicopter").scales)
-    assert uam.range_m == 4 * PotentialField().range_m and uam.k_buildings == PotentialField().k_buildings
+    assert uam.range_m == 4 * PotentialFieldConfig().range_m and uam.k_buildings == PotentialFieldConfig().k_buildings
     for vehicle in ("small_quad", "uam_multicopter"):
         assert gains_for(load_vehicle(vehicle)) == tuned_gains()[vehicle]
 

@@ -15,7 +15,7 @@ from rl.policies.folder import (
     DEFAULT_POLICY_DIR,
     FLYING_FILES,
     SHIPPED_POLICIES,
-    NetworkSpec,
+    NetworkConfig,
     PolicyFolder,
     Provenance,
     shipped_policy_dir,
@@ -32,7 +32,7 @@ def test_a_shipped_policy_reads_through_the_folder(vehicle: str) -> None:
         assert path.is_file(), path
     cfg = pf.config()
     assert cfg.nav.vehicle == vehicle and cfg.preset == "paper" and list(cfg.ppo["net_arch"]) == [128, 128]
-    assert cfg.network == NetworkSpec((128, 128), -1.0)  # the paper's network
+    assert cfg.network == NetworkConfig((128, 128), -1.0)  # the paper's network
     prov = pf.provenance()
     assert isinstance(prov, Provenance) and prov.method == "PPO from scratch"
     assert all(isinstance(v, int) for v in (prov.seed, prov.timesteps, prov.kept_timesteps))

@@ -1,4 +1,4 @@
-"""The space of a task (issue 28): cities from a mixture of distributions (`CityMixture`: a component per city
+"""The space of a task: cities from a mixture of distributions (`CityMixture`: a component per city
 seed, by the stated weights, read back from config.json, bad values named), the envelope tasks per vehicle (the
 small quad's space unchanged, the UAM's in two city scales with goals near the flight volume's side, observing
 it) and the start/goal margin from that side."""

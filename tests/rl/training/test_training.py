@@ -11,7 +11,7 @@ import pytest
 from rl.env.gym_env import UAMNavEnv
 from rl.env.world import NavWorld
 from rl.pilots.learned import load_policy
-from rl.pilots.potential_field import PotentialFieldPilot
+from rl.pilots.potential_field import BatchedPotentialField
 from rl.sensing.observation import obs_size
 from rl.task.air import AirDistribution
 from rl.task.config import FixedEpisodes, NavConfig
@@ -102,7 +102,7 @@ def test_potential_field_flies_past_a_building_in_the_way():
     fixed = FixedEpisodes((city,), ((0, Task((20.0, 50.0, 10.0), (100.0, 50.0, 10.0), 3.0, 60.0)),))
     env = UAMNavEnv(world=NavWorld(cfg, fixed=fixed))
     obs, _ = env.reset(seed=0)
-    pilot = PotentialFieldPilot(env.batch)
+    pilot = BatchedPotentialField(env.batch)
     min_clear = np.inf
     for _ in range(5000):
         obs, _, term, trunc, info = env.step(pilot(obs[None], env.batch)[0].astype(np.float32))
@@ -131,7 +131,7 @@ def test_a_policy_trained_in_drawn_air_observing_it_flies_in_the_runner(tmp_path
     """Training across fields, levels and wind with the air and a history in the observation: the folder
     records the envelope and the observation, and the runner's pilot flies the policy (the same layout)."""
     from compare.flying.episode_loop import run_episode
-    from rl.pilots.learned import PolicyAgent
+    from rl.pilots.learned import PolicyPilot
     from rl.sensing.observation import ObservedContext
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.air.wind import WindField
@@ -149,7 +149,7 @@ def test_a_policy_trained_in_drawn_air_observing_it_flies_in_the_runner(tmp_path
     world = World(policy_vehicle := load_vehicle(nav.vehicle), VehicleDynamics(policy_vehicle, nav.physics_hz,
                                                                                 nav.control_hz),
                   city, Atmosphere.from_jsbsim(AtmosphereConditions(2500.0, 25.0), z_max_m=100.0))
-    traj = run_episode(world, PolicyAgent(policy), Task((50, 50, 10), (80, 60, 12), 3.0, 5.0), WindField.calm(), seed=0)
+    traj = run_episode(world, PolicyPilot(policy), Task((50, 50, 10), (80, 60, 12), 3.0, 5.0), WindField.calm(), seed=0)
     assert traj.outcome in ("success", "timeout", "collision", "out_of_bounds")
 
 

@@ -1,5 +1,5 @@
 """One tiny training run (seconds), shared by the tests of what a run writes: the policy folder, its
-determinism from the seed, resuming from a checkpoint, and the checkpoints' recorded flights (issue 30: what is
+determinism from the seed, resuming from a checkpoint, and the checkpoints' recorded flights (what is
 recorded, the same bytes twice, and that recording does not change what is learned)."""
 from __future__ import annotations
 

@@ -26,7 +26,7 @@ ICAO_TABLE = {
 }
 R_AIR = 287.053  # J/(kg K), ICAO specific gas constant of dry air
 GAMMA_AIR = 1.4
-REL_TOL = 0.005  # the acceptance bound: 0.5 %
+REL_TOL = 0.005  # the acceptance bound: 0.5 %
 
 
 @pytest.fixture(scope="module")

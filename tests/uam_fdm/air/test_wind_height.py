@@ -1,5 +1,5 @@
 """Wind with height: the steady shear laws, and turbulence tabulated at a ladder of probe heights whose
-intensities and scale lengths follow MIL-F-8785C's low-altitude model (issue 13, item 2)."""
+intensities and scale lengths follow MIL-F-8785C's low-altitude model."""
 
 from __future__ import annotations
 

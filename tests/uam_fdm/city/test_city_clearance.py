@@ -9,7 +9,7 @@ import pytest
 
 from uam_fdm.city import distance
 from uam_fdm.city.buildings import Building, BuildingMap, NoFlyZone, Prism
-from uam_fdm.city.generator import CityGenParams, generate_city
+from uam_fdm.city.generator import CityGenConfig, generate_city
 
 
 def _one_box(yaw_deg: float = 0.0) -> BuildingMap:
@@ -28,7 +28,7 @@ def _all_paths(bmap: BuildingMap, pts: np.ndarray, r: float) -> tuple[np.ndarray
 @pytest.fixture(scope="module")
 def city() -> BuildingMap:
     """A generated, rotated-grid city of ~200 buildings plus two convex prisms and an L of boxes."""
-    params = CityGenParams(extent_m=(1000.0, 1000.0), block_size_m=(80.0, 70.0), street_width_m=20.0,
+    params = CityGenConfig(extent_m=(1000.0, 1000.0), block_size_m=(80.0, 70.0), street_width_m=20.0,
                            density=0.6, core_radius_m=200.0, core_height_factor=3.0, grid_yaw_deg=17.0,
                            yaw_jitter_deg=5.0)
     base = generate_city(params, seed=11)

@@ -10,7 +10,7 @@ from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.city.generator import (
     MAPS_DIR,
     SHIPPED_MAPS,
-    CityGenParams,
+    CityGenConfig,
     generate_city,
     params_from_config,
     shipped_map_text,
@@ -47,7 +47,7 @@ def test_generator_does_not_touch_global_numpy_random() -> None:
     np.random.seed(123)
     before = np.random.random(3)
     np.random.seed(123)
-    generate_city(CityGenParams(), 1)
+    generate_city(CityGenConfig(), 1)
     assert np.array_equal(np.random.random(3), before)
 
 

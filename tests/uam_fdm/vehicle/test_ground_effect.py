@@ -1,4 +1,4 @@
-"""Ground effect (issue 13, item 3): the model's thrust gain against Cheeseman-Bennett at several heights,
+"""Ground effect: the model's thrust gain against Cheeseman-Bennett at several heights,
 in hover and forward flight; the switch; the surface below a point; the one rule for the height input."""
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ import pytest
 
 from alley import alley_city
 from compare.flying.episode_loop import run_episode
-from planners.agent import ClassicalAgent, ClassicalConfig
+from planners.classical_pilot import ClassicalConfig, ClassicalPilot
 from planners.ladder import LADDER
 from planners.margins import SpeedBin, TrackingErrorRow, write_tracking_table
 from planners.mpc import MPCSolution
@@ -16,7 +16,7 @@ from planners.rrt_star import PlannerConfig, plan_path
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions, WindField
 from uam_fdm.city.buildings import Building, BuildingMap
-from uam_fdm.pilot import Agent, Observation, Task, World
+from uam_fdm.pilot import Observation, Pilot, Task, World
 from uam_fdm.vehicle.model import hover_state
 
 
@@ -38,13 +38,13 @@ def test_plan_and_track_reaches_goal_without_collision(name, scale, vehicles, co
                 goal_radius_m=2.0 + p.collision_radius_m, timeout_s=90.0)
     wind = WindField.from_conditions(WindConditions((1.5, 0.5, 0.0), TurbulenceLevel.LIGHT), seed=2,
                                      duration_s=task.timeout_s + 1.0, airspeed_m_s=5.0, heights_m=(20.0 * scale,))
-    agent = ClassicalAgent()
-    assert isinstance(agent, Agent)
-    traj = run_episode(world, agent, task, wind, seed=5)
+    pilot = ClassicalPilot()
+    assert isinstance(pilot, Pilot)
+    traj = run_episode(world, pilot, task, wind, seed=5)
     assert traj.outcome == "success", traj.detail
     assert traj.clearance_m.min() > 0.0
-    assert traj.plan_time_s > 0.0 and agent.plan.ok and agent.reference.ok
-    assert agent.stats.mpc_failures <= 0.02 * agent.stats.mpc_solves
+    assert traj.plan_time_s > 0.0 and pilot.plan.ok and pilot.reference.ok
+    assert pilot.stats.mpc_failures <= 0.02 * pilot.stats.mpc_solves
     # The planned path really goes around the first tower (a straight line would hit it).
     assert not city.segment_free(task.start_m, task.goal_m, p.collision_radius_m)
 
@@ -55,7 +55,7 @@ def test_unreachable_goal_is_a_planner_failure_not_an_exception(vehicles, compil
     world = World(p, compiled_dynamics["small_quad"], city,
                   Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0))
     task = Task(start_m=(5.0, 0.0, 10.0), goal_m=(50.0, 0.0, 20.0), timeout_s=10.0)   # goal inside the building
-    traj = run_episode(world, ClassicalAgent(), task, WindField.calm(), seed=1)
+    traj = run_episode(world, ClassicalPilot(), task, WindField.calm(), seed=1)
     assert traj.outcome == "planner_failure" and "invalid_goal" in traj.detail
     assert len(traj.t_s) == 1 and np.isfinite(traj.plan_time_s)
 
@@ -66,9 +66,9 @@ def _wall_world(p, dynamics) -> World:
     return World(p, dynamics, city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none")
 
 
-def _fake_prediction(agent: ClassicalAgent, start: np.ndarray, end: np.ndarray) -> MPCSolution:
+def _fake_prediction(pilot: ClassicalPilot, start: np.ndarray, end: np.ndarray) -> MPCSolution:
     """A last MPC solution whose predicted positions run in a straight line from `start` to `end`."""
-    n = agent._tracker.config.horizon_steps
+    n = pilot._tracker.config.horizon_steps
     pred = np.zeros((n + 1, 13))
     pred[:, 0:3] = np.linspace(start, end, n + 1)
     pred[:, 6] = 1.0
@@ -80,46 +80,46 @@ def test_a_predicted_clearance_violation_replans_from_the_current_state(vehicles
     world = _wall_world(p, compiled_dynamics["small_quad"])
     task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=30.0)
     cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, max_clearance_replans=2, replan_cooldown_s=1.0)
-    agent = ClassicalAgent(cfg)
-    assert agent.reset(world, task, seed=3).ok
-    assert (agent.margins.planner_m, agent.margins.mpc_m) == (1.0, 0.5)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    assert (pilot.margins.planner_m, pilot.margins.mpc_m) == (1.0, 0.5)
 
     def obs_at(t: float) -> Observation:
-        pos = agent.reference.sample(t - agent._t_ref0)[0]
+        pos = pilot.reference.sample(t - pilot._t_ref0)[0]
         return Observation(t, hover_state(p, pos))
 
     # a prediction that stays 3 m from the wall: tracked, no replan
     o = obs_at(1.0)
-    agent.last_solution = _fake_prediction(agent, o.x[0:3], o.x[0:3] + (8.0, 0.0, 0.0))
-    agent.act(o)
-    assert agent.stats.replans_by_cause == {"tracking": 0, "clearance": 0}
+    pilot.last_solution = _fake_prediction(pilot, o.x[0:3], o.x[0:3] + (8.0, 0.0, 0.0))
+    pilot.act(o)
+    assert pilot.stats.replans_by_cause == {"tracking": 0, "clearance": 0}
     # a prediction bending to 0.2 m from the wall's face (sphere clearance 0.2 - 0.42 < the MPC's 0.5 m)
-    plan_before, reference_before = agent.stats.plan_time_s, agent.reference
+    plan_before, reference_before = pilot.stats.plan_time_s, pilot.reference
     o = obs_at(1.2)
     o.x[3:6] = (3.0, 0.0, 0.0)                          # moving east at 3 m/s
-    agent.last_solution = _fake_prediction(agent, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
-    assert agent.predicted_clearance_m(agent.last_solution.predicted_states[1:, 0:3]) < 0.0
-    agent.act(o)
-    assert agent.stats.replans_by_cause == {"tracking": 0, "clearance": 1}
-    assert agent.reference is not reference_before and agent._t_ref0 == 1.2          # from the current state
-    assert np.allclose(agent.plan.path_m[0], o.x[0:3])
-    assert np.linalg.norm(agent.reference.vel_m_s[0]) == pytest.approx(3.0, abs=0.3)  # no stop to replan
-    assert agent.stats.plan_time_s > plan_before and agent.stats.replan_time_s > 0.0  # counted as planning
+    pilot.last_solution = _fake_prediction(pilot, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
+    assert pilot.predicted_clearance_m(pilot.last_solution.predicted_states[1:, 0:3]) < 0.0
+    pilot.act(o)
+    assert pilot.stats.replans_by_cause == {"tracking": 0, "clearance": 1}
+    assert pilot.reference is not reference_before and pilot._t_ref0 == 1.2          # from the current state
+    assert np.allclose(pilot.plan.path_m[0], o.x[0:3])
+    assert np.linalg.norm(pilot.reference.vel_m_s[0]) == pytest.approx(3.0, abs=0.3)  # no stop to replan
+    assert pilot.stats.plan_time_s > plan_before and pilot.stats.replan_time_s > 0.0  # counted as planning
     # within the cooldown: no second replan; after it: one more, then the budget (2) is spent
     for t, expected in ((1.7, 1), (2.3, 2), (3.5, 2)):
         o = obs_at(t)
-        agent.last_solution = _fake_prediction(agent, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
-        agent.act(o)
-        assert agent.stats.replans_by_cause["clearance"] == expected, t
-    report = agent.episode_report()
+        pilot.last_solution = _fake_prediction(pilot, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
+        pilot.act(o)
+        assert pilot.stats.replans_by_cause["clearance"] == expected, t
+    report = pilot.episode_report()
     assert (report.replans_clearance, report.replans_tracking, report.replans) == (2, 0, 2)
-    assert report.plan_time_s == agent.stats.plan_time_s and report.replan_time_s < report.plan_time_s
+    assert report.plan_time_s == pilot.stats.plan_time_s and report.replan_time_s < report.plan_time_s
     assert report.mpc_solves == 5 and report.planner_margin_m == 1.0 and report.mpc_margin_m == 0.5
     assert np.isfinite(report.mpc_solve_ms_median) and report.tracking_max_m >= report.tracking_rms_m >= 0.0
 
 
 def test_margins_follow_the_forecast_turbulence_and_density(vehicles, compiled_dynamics):
-    """The agent asks the shipped table for its vehicle, the world's forecast level and the field's density."""
+    """The pilot asks the shipped table for its vehicle, the world's forecast level and the field's density."""
     from planners.margins import MarginRule, load_tracking_table, margins_for
 
     p = vehicles["small_quad"]
@@ -130,7 +130,7 @@ def test_margins_follow_the_forecast_turbulence_and_density(vehicles, compiled_d
             atm = Atmosphere.from_jsbsim(cond, z_max_m=100.0)
             world = World(p, compiled_dynamics["small_quad"], city, atm, level)
             task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0))
-            got = ClassicalAgent().margins_for(world, task)
+            got = ClassicalPilot().margins_for(world, task)
             want = margins_for(table, rule, p, level, atm.density_ratio(0.0), 1.0, 0.5)
             assert (got.planner_m, got.mpc_m) == (want.planner_m, want.mpc_m) and got.planner_m >= rule.floor_m
 
@@ -153,24 +153,24 @@ def test_a_goal_inside_the_cruise_margin_but_reachable_is_reached(name, z, vehic
     world = World(p, compiled_dynamics[name], city, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0),
                   "none")
     task = Task(start_m=start, goal_m=goal, goal_radius_m=1.0 + 0.2 * p.collision_radius_m, timeout_s=90.0)
-    agent = ClassicalAgent(ClassicalConfig(tracking_table=_speed_table(tmp_path, p)))
-    margins = agent.margins_for(world, task)
+    pilot = ClassicalPilot(ClassicalConfig(tracking_table=_speed_table(tmp_path, p)))
+    margins = pilot.margins_for(world, task)
     assert (margins.floor_m, margins.planner_m) == (1.0, 4.0)
     # the old rule, one margin everywhere: no path into the alley
     old = plan_path(city, start, goal, p.collision_radius_m, PlannerConfig(safety_margin_m=margins.planner_m))
     assert not old.ok
-    traj = run_episode(world, agent, task, WindField.calm(), seed=4)
-    report = agent.episode_report()
+    traj = run_episode(world, pilot, task, WindField.calm(), seed=4)
+    report = pilot.episode_report()
     assert traj.outcome == "success", traj.detail
     assert report.planner_attempts == 3 and report.planner_step == LADDER[2].name
     assert report.planner_margin_floor_m == 1.0 and report.planner_margin_m == 4.0
     assert traj.clearance_m.min() >= 0.5 and report.clearance_over_margin_min >= 0.5
     # in the alley (3 m beyond the sphere) the reference keeps to the speed whose margin fits: 6 m/s
-    in_alley = agent.reference.pos_m[:, 0] > 2.0
-    assert np.linalg.norm(agent.reference.vel_m_s[in_alley], axis=1).max() <= 6.0 + 1e-6
+    in_alley = pilot.reference.pos_m[:, 0] > 2.0
+    assert np.linalg.norm(pilot.reference.vel_m_s[in_alley], axis=1).max() <= 6.0 + 1e-6
     # the MPC's margin per stage follows the stage's reference speed: at the last decision, slowing into the
     # goal, half of 2 m (<= 6 m/s) on the first stages, then half the margin at rest
-    stages = agent._stage_mpc_margins
+    stages = pilot._stage_mpc_margins
     assert set(stages) <= {0.5, 1.0} and stages[-1] == 0.5 and np.all(np.diff(stages) <= 0)
 
 
@@ -180,11 +180,11 @@ def test_a_walled_in_goal_is_a_planner_failure_with_its_reason(vehicles, compile
     world = World(p, compiled_dynamics["small_quad"], city,
                   Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none")
     cfg = ClassicalConfig(tracking_table=_speed_table(tmp_path, p), planner=PlannerConfig(max_iterations=2000))
-    agent = ClassicalAgent(cfg)
-    traj = run_episode(world, agent, Task(start_m=start, goal_m=goal, timeout_s=10.0), WindField.calm(), seed=1)
+    pilot = ClassicalPilot(cfg)
+    traj = run_episode(world, pilot, Task(start_m=start, goal_m=goal, timeout_s=10.0), WindField.calm(), seed=1)
     assert traj.outcome == "planner_failure" and "no path at the floor margin 1.00 m in 4 attempts" in traj.detail
     assert "unreachable: no connected free space joins start and goal at margin 1.00 m" in traj.detail
-    assert len(traj.t_s) == 1 and agent.episode_report().planner_attempts == 4
+    assert len(traj.t_s) == 1 and pilot.episode_report().planner_attempts == 4
 
 
 def test_the_fastest_candidate_plan_is_flown_and_a_late_one_climbs_the_ladder(vehicles, compiled_dynamics):
@@ -198,24 +198,24 @@ def test_the_fastest_candidate_plan_is_flown_and_a_late_one_climbs_the_ladder(ve
                   Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "light")
     steps = (dataclasses.replace(LADDER[0], candidates=3), *LADDER[1:])
     task = Task(start_m=(0.0, 0.0, 15.0), goal_m=(110.0, 0.0, 20.0), goal_radius_m=2.5, timeout_s=90.0)
-    agent = ClassicalAgent(ClassicalConfig(ladder=steps))
-    assert agent.reset(world, task, seed=5).ok
-    found = agent.ladder_result
+    pilot = ClassicalPilot(ClassicalConfig(ladder=steps))
+    assert pilot.reset(world, task, seed=5).ok
+    found = pilot.ladder_result
     assert found is not None and found.step == 1 and len(found.candidates) == 3
-    assert agent.plan is found.plan and agent.stats.planner_candidates == 3
-    assert agent.reference.duration_s == found.duration_s == min(found.durations_s)
+    assert pilot.plan is found.plan and pilot.stats.planner_candidates == 3
+    assert pilot.reference.duration_s == found.duration_s == min(found.durations_s)
     assert max(found.durations_s) > min(found.durations_s)  # the seeds found different paths
     # each is judged by the pilot's own timing: the first candidate (a third of the budget) flown alone
     alone = (dataclasses.replace(LADDER[0], candidates=1, max_iterations=-(-10_000 // 3)), *LADDER[1:])
-    single = ClassicalAgent(ClassicalConfig(ladder=alone))
+    single = ClassicalPilot(ClassicalConfig(ladder=alone))
     assert single.reset(world, task, seed=5).ok
-    assert single.reference.duration_s == found.durations_s[0] >= agent.reference.duration_s
+    assert single.reference.duration_s == found.durations_s[0] >= pilot.reference.duration_s
     # no time for any path (80 % of 5 s): every step is tried (3: at sea level in light turbulence the floor is
     # the cruise margin, so step 3 would repeat step 1), the fastest path of all flown
     late = dataclasses.replace(task, timeout_s=5.0)
-    assert agent.reset(world, late, seed=5).ok
-    tried = agent.ladder_result
-    assert agent.margins.floor_m == agent.margins.planner_m
+    assert pilot.reset(world, late, seed=5).ok
+    tried = pilot.ladder_result
+    assert pilot.margins.floor_m == pilot.margins.planner_m
     assert [a.algorithm for a in tried.attempts] == ["informed_rrtstar", "rrtconnect", "rrtconnect"]
     assert tried.duration_s == min(tried.durations_s) > 4.0 and len(tried.candidates) == sum(
         s.candidates for i, s in enumerate(steps) if i != 2)

@@ -1,0 +1,142 @@
+"""The `uam-compare` entry point: the parser of every command, `main`, its exit codes, and how an error becomes
+one line on stderr (the traceback of an unexpected one in a log file)."""
+from __future__ import annotations
+
+import argparse
+import errno
+import logging
+import os
+import signal
+import sys
+import tempfile
+import threading
+import traceback
+from datetime import datetime
+from pathlib import Path
+
+import compare.cli.demo as demo
+import compare.cli.evaluate as evaluate
+import compare.cli.playback as playback
+import compare.cli.report as report
+import compare.cli.run as run
+import compare.cli.train as train
+import compare.cli.validate as validate
+from compare.cli.common import CommandInterrupted, CommandParser
+from uam_fdm.files.atomic import TEMP_MARK
+
+DESCRIPTION = "The `uam-compare` command line."
+COMMAND_MODULES = (demo, run, report, playback, validate, train, evaluate)
+"""Each adds its commands (`add_parser`); `--help` lists them in this order."""
+
+BAD_INPUT_EXIT = 2  # bad input (a file, a key, an option): the one error line says which and why
+INTERNAL_ERROR_EXIT = 1  # anything else: a bug or a broken installation; the traceback is in a log file
+INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 + SIGINT)
+LOG_DIR_ENV = "UAM_COMPARE_LOG_DIR"
+"""Where the last-resort handler writes tracebacks (default: <temporary folder>/uam-compare-logs)."""
+MAX_MESSAGE_CHARS = 300
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole command line: the global options, and every command of `COMMAND_MODULES`."""
+    parser = argparse.ArgumentParser(prog="uam-compare", description=DESCRIPTION)
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=CommandParser)
+    for module in COMMAND_MODULES:
+        module.add_parser(sub)
+    return parser
+
+
+class _CliFormatter(logging.Formatter):
+    """Log records as the CLI's own lines: "uam-compare: warning: <message>"."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"uam-compare: {record.levelname.lower()}: {record.getMessage()}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command line (default: this process's); returns its exit code, and every error is one line on
+    stderr: 2 for bad input, 130 when interrupted, 1 for anything else (its traceback in a log file)."""
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
+    args.argv = argv
+    handler = logging.StreamHandler()  # a no-op where the caller configured logging already (basicConfig)
+    # without -v a user sees the same "uam-compare: warning: ..." lines as the CLI's own warnings
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s") if args.verbose else _CliFormatter())
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, handlers=[handler])
+    if args.command is None:
+        parser.print_help()
+        return 0
+    # SIGTERM stops a command the way Ctrl-C does (a run keeps its finished episodes and says how to resume);
+    # only the main thread may set handlers, and the previous one comes back for library callers.
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler) if in_main else None
+    try:
+        return _run_command(args)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    """The command's exit code; an exception said in one line on stderr."""
+    try:
+        return args.func(args)
+    except CommandInterrupted as stop:  # the command kept its work and says how to go on
+        print(f"uam-compare: interrupted: {stop}", file=sys.stderr)
+        return INTERRUPTED_EXIT
+    except KeyboardInterrupt:
+        print(f"uam-compare: interrupted ({args.command}); its outputs are written whole or not at all",
+              file=sys.stderr)
+        return INTERRUPTED_EXIT
+    except ValueError as exc:   # bad user input (ConfigError is a ValueError): one clear line, non-zero exit
+        print(f"uam-compare: error: {exc}", file=sys.stderr)
+        return BAD_INPUT_EXIT
+    except OSError as exc:      # the file system said no (disk full, permissions): which file, and why
+        print(f"uam-compare: error: {os_error_message(exc)}", file=sys.stderr)
+        return BAD_INPUT_EXIT
+    except (Exception, SystemExit) as exc:  # the last resort: one line, the traceback in a file
+        if isinstance(exc, SystemExit) and exc.code in (None, 0):
+            return 0
+        print(f"uam-compare: error: {args.command}: internal error {last_resort(exc, args.command)}",
+              file=sys.stderr)
+        return INTERNAL_ERROR_EXIT
+
+
+def last_resort(exc: BaseException, command: str) -> str:
+    """Log `exc`'s full traceback to a new file in the log folder; returns the rest of the one error line: the
+    exception, and where its traceback is (or why it could not be written)."""
+    what = f"({type(exc).__name__}: {one_line(str(exc))})"
+    folder = Path(os.environ.get(LOG_DIR_ENV) or Path(tempfile.gettempdir()) / "uam-compare-logs")
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f"{datetime.now().strftime('%Y%m%d-%H%M%S')}-{command}-",
+                                    suffix=".log", dir=folder)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(f"uam-compare {' '.join(sys.argv[1:])}\n{text}")
+    except OSError as log_exc:
+        return f"{what}; the traceback could not be logged in {folder} ({log_exc.strerror or log_exc})"
+    return f"{what}; full traceback in {name}"
+
+
+def one_line(text: str) -> str:
+    """`text` on one line, at most `MAX_MESSAGE_CHARS` characters."""
+    flat = " ".join(text.split())
+    return flat if len(flat) <= MAX_MESSAGE_CHARS else flat[:MAX_MESSAGE_CHARS] + "..."
+
+
+def os_error_message(exc: OSError) -> str:
+    """One line for a failed read or write: the file, the system's reason, and for a full disk what was kept.
+
+    A temporary of an atomic write (".<name>.partial-...") is named by the file it was to become: the user never
+    made it and will not find it.
+    """
+    filename = exc.filename
+    if filename is not None and TEMP_MARK in Path(str(filename)).name:
+        temp = Path(str(filename))
+        filename = temp.with_name(temp.name[1:].split(TEMP_MARK)[0])
+    text = f"{filename}: {exc.strerror or exc}" if filename is not None else str(exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        text += ": the disk is full; the file was not written (no partial file is left)"
+    return text

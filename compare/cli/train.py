@@ -1,0 +1,175 @@
+"""`train`: train the learned pilot with PPO. The options' defaults are `TrainConfig`'s (rl/training/config.py),
+read from it, never restated; the vehicle's task (`rl.task.vehicles`) gives the cities, air and observation."""
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from compare.cli.common import check_ranges, option, turbulence_levels
+from compare.results.outputs import check_output_dir
+from compare.scenarios.scenario import MAX_SEED
+from rl.sensing.observation import ObservedContext
+
+if TYPE_CHECKING:
+    from rl.task.config import NavConfig
+    from rl.training.config import TrainConfig
+
+MAX_TIMESTEPS = 10**12
+MAX_ENVS = 65_536  # vehicles stepped in one call: far beyond one machine's memory already
+MAX_EVAL_EPISODES = 1_000_000
+MAX_CITY_POOL = 1_000_000
+
+CONFIG_FIELDS = {"preset": "preset", "timesteps": "total_timesteps", "envs": "n_envs", "seed": "seed",
+                 "eval_every": "eval_every", "eval_episodes": "eval_episodes", "checkpoint_every": "checkpoint_every",
+                 "record_flights": "record_flights"}
+"""The options (by their `argparse` name) that set a `TrainConfig` field of their own (their default: the field's)."""
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add `train` to the command line; `{name}` in its help is filled by `_shown_defaults`."""
+    tr = sub.add_parser("train", help="train the learned pilot with PPO from scratch on the batched environment",
+                        help_values=_shown_defaults)
+    tr.add_argument("--preset", default=None, help="PPO preset (default {preset}; {presets})")
+    tr.add_argument("--timesteps", type=int, default=None, help="decisions, all vehicles (default {timesteps})")
+    tr.add_argument("--envs", type=int, default=None, help="vehicles stepped together (default {envs})")
+    tr.add_argument("--seed", type=int, default=None, help="the one seed of the run (default {seed})")
+    _add_task_options(tr)
+    tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
+                    help="full-length legs from the start (default: success-gated curriculum)")
+    tr.add_argument("--curriculum-level-steps", type=int, default=None, metavar="N",
+                    help="a curriculum level lasts at most N timesteps, then the legs lengthen even if training "
+                         "success is under the gate (0: until the gate is met; default {level_steps})")
+    tr.add_argument("--eval-every", type=int, default=None,
+                    help="timesteps between validation evaluations (default {eval_every})")
+    tr.add_argument("--eval-episodes", type=int, default=None,
+                    help="validation episodes per evaluation (default {eval_episodes})")
+    tr.add_argument("--checkpoint-every", type=int, default=None,
+                    help="timesteps between checkpoints (0: none; default {checkpoint_every})")
+    tr.add_argument("--record-flights", type=int, default=None, metavar="N",
+                    help="fixed validation tasks flown and recorded at step 0 and every evaluation, for "
+                         "view-training, the report and export (default {record_flights}; 0: none)")
+    tr.add_argument("--resume", type=Path, default=None, help="resume from a checkpoint or policy folder")
+    tr.add_argument("--out", type=Path, default=Path("runs/policy"),
+                    help="policy folder to write (default runs/policy); an existing non-empty one is refused "
+                         "unless --resume or --overwrite")
+    tr.add_argument("--overwrite", action="store_true", help="replace the policy in a non-empty --out")
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.set_defaults(func=train)
+
+
+def _add_task_options(tr: argparse.ArgumentParser) -> None:
+    """The options that change the vehicle's task: vehicle, cities, air, observation."""
+    tr.add_argument("--vehicle", default=None, help="the vehicle and its task (rl/task/vehicles.py): {vehicles}")
+    tr.add_argument("--city-pool", type=int, default=None, help="training cities (default: the task's, {city_pools})")
+    tr.add_argument("--turbulence", default=None, metavar="LEVELS",
+                    help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
+                         "(default: the vehicle's task's)")
+    tr.add_argument("--envelope", action="store_true",
+                    help="train in the air and space the vehicle will meet: fields from density altitude -0.6 to "
+                         "4.0 km, no to moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn "
+                         "per episode; the UAM also in cities at the shipped maps' scale (15-30 m streets), with goals "
+                         "down to 15 m from the flight volume's side, observing that side (geofence)")
+    tr.add_argument("--observe", default=None, metavar="WHAT",
+                    help="what the policy observes beyond the base observation, comma-separated: air (density "
+                         "ratio and forecast turbulence), geofence (the flight volume's edge), history=N (N past "
+                         "decisions), or none; replaces the task's own (default: the task's; the UAM's --envelope "
+                         "task observes geofence)")
+
+
+def _shown_defaults() -> dict[str, str]:
+    """`train --help`'s defaults, read from `TrainConfig` and the vehicles' tasks."""
+    from rl.task.vehicles import TASKS
+    from rl.training.config import TrainConfig  # PyTorch (through the PPO presets): only when help is printed
+    from rl.training.ppo import PRESETS
+
+    c = TrainConfig()
+    arch = {name: p.net_arch for name, p in PRESETS.items()}
+    layers = {name: f"{len(a)} x {a[0]}" if len(set(a)) == 1 else " x ".join(map(str, a)) for name, a in arch.items()}
+    others = [v for v in TASKS if v != c.nav.vehicle]
+    return {"preset": c.preset, "timesteps": _count(c.total_timesteps), "envs": str(c.n_envs), "seed": str(c.seed),
+            "presets": "; ".join(f"{n}: {layers[n]} units, clip {p.clip_range:g}" for n, p in PRESETS.items()),
+            "vehicles": f"{c.nav.vehicle} (default)" + "".join(f" or {v}" for v in others),
+            "city_pools": ", ".join(f"{task.city_pool_size} for {v}" for v, task in TASKS.items()),
+            "level_steps": str(c.curriculum.level_steps), "eval_every": _count(c.eval_every),
+            "eval_episodes": str(c.eval_episodes), "checkpoint_every": _count(c.checkpoint_every),
+            "record_flights": str(c.record_flights)}
+
+
+def _count(n: int) -> str:
+    """A count of timesteps as the help says it: 10M, 500k, 64."""
+    for unit, size in (("M", 10**6), ("k", 10**3)):
+        if n >= size and n % size == 0:
+            return f"{n // size}{unit}"
+    return str(n)
+
+
+def train(args: argparse.Namespace) -> int:
+    """`train`: every option checked by its own name before anything is built, then PPO; one line at the end."""
+    from rl.training.config import MAX_RECORDED_FLIGHTS, TrainConfig
+    from rl.training.loop import train as train_policy
+
+    defaults = TrainConfig()
+    given = {field: getattr(defaults, field) if getattr(args, dest) is None else getattr(args, dest)
+             for dest, field in CONFIG_FIELDS.items()}
+    # TrainConfig would name its fields, not the options
+    check_ranges({"--timesteps": (given["total_timesteps"], 1, MAX_TIMESTEPS), "--envs": (given["n_envs"], 1, MAX_ENVS),
+                  "--eval-every": (given["eval_every"], 1, MAX_TIMESTEPS),
+                  "--eval-episodes": (given["eval_episodes"], 1, MAX_EVAL_EPISODES),
+                  "--checkpoint-every": (given["checkpoint_every"], 0, MAX_TIMESTEPS),
+                  "--seed": (given["seed"], 0, MAX_SEED),
+                  "--record-flights": (given["record_flights"], 0, MAX_RECORDED_FLIGHTS),
+                  **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
+    nav = _task(args, defaults)
+    level_steps = (defaults.curriculum.level_steps if args.curriculum_level_steps is None
+                   else args.curriculum_level_steps)
+    check_ranges({"--curriculum-level-steps": (level_steps, 0, MAX_TIMESTEPS)})
+    curriculum = replace(defaults.curriculum, **({"level_steps": level_steps} if args.curriculum else {"start": 1.0}))
+
+    def config(preset: str) -> TrainConfig:  # the other fields are checked above: a refusal here is the preset's
+        return TrainConfig(**{**given, "preset": preset}, nav=nav, curriculum=curriculum)
+
+    cfg = option("--preset", config, given["preset"])
+    res = train_policy(cfg, args.out, resume=args.resume, progress=not args.no_progress,
+                       command="uam-compare " + " ".join(args.argv))
+    print(f"policy written to {args.out}: validation success {res.success_rate:.1%}, collisions "
+          f"{res.collision_rate:.1%} over {res.episodes} episodes")
+    return 0
+
+
+def _task(args: argparse.Namespace, defaults: TrainConfig) -> NavConfig:
+    """The vehicle's task with --city-pool, --turbulence and --observe applied; --out checked on the way (a
+    policy there is never replaced unasked)."""
+    from rl.task.vehicles import task_for
+
+    vehicle = defaults.nav.vehicle if args.vehicle is None else args.vehicle
+    task = option("--vehicle", lambda v: task_for(v, envelope=args.envelope), vehicle)
+    air = task.air if args.turbulence is None else replace(task.air, turbulence=turbulence_levels(args.turbulence))
+    observe = task.observe if args.observe is None else parse_observed(args.observe)
+    check_output_dir(args.out, "--out")
+    if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
+        raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
+                         f"give another --out, --resume to continue its training, or --overwrite to replace it)")
+    return replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
+
+
+def parse_observed(text: str) -> ObservedContext:
+    """--observe's items: "air", "geofence", "history=N" (comma-separated), or "none".
+
+    Raises:
+        ValueError: an unknown item or a bad count, naming the option.
+    """
+    air = geofence = False
+    history = 0
+    for item in (t.strip() for t in text.split(",")):
+        name, _, value = item.partition("=")
+        if item == "air":
+            air = True
+        elif item == "geofence":
+            geofence = True
+        elif name == "history" and value.isdigit() and 1 <= int(value) <= 50:
+            history = int(value)
+        elif item != "none":
+            raise ValueError(f"--observe {text}: {item!r} is not air, geofence, history=N (N 1 to 50) or none")
+    return ObservedContext(air=air, geofence=geofence, history=history)

@@ -1,0 +1,405 @@
+"""The classical pilot: plan once with OMPL RRT* (timed), time-parameterise, track with NMPC.
+
+Implements the `uam_fdm.pilot.Pilot` protocol and emits rotor-speed commands. Its clearance margins
+follow from the vehicle's measured tracking error in the forecast turbulence and the air density
+(`planners.margins`). It replans from the current position when the tracking error exceeds a
+threshold, or when the MPC's last prediction comes closer to an obstacle than the MPC's margin
+(each bounded per episode; replanning time counts as planning time). `episode_report()` gives
+what the tracker did, for the metrics.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from planners.clearance import MarginTaper, endpoint_allowance
+from planners.ladder import LADDER, LadderResult, PlanStep, plan_with_escalation
+from planners.margins import (
+    MarginRule,
+    Margins,
+    TrackingErrorTable,
+    forecast_gust_m_s,
+    load_tracking_table,
+    margins_for,
+)
+from planners.mpc import MPCConfig, MPCSolution, MPCTracker
+from planners.report import ClassicalReport
+from planners.rrt_star import PlannerConfig, PlanResult
+from planners.timing import Reference, TimingLimits, time_parameterize
+from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
+
+log = logging.getLogger(__name__)
+
+REPLAN_CAUSES = ("tracking", "clearance")
+
+
+@dataclass(frozen=True)
+class ClassicalConfig:
+    """Settings of the plan-and-track pilot.
+
+    Attributes:
+        planner: OMPL planner settings (algorithm, deterministic iteration budget; its
+            `safety_margin_m` is the fixed margin used when `margin_rule` is None or the table does
+            not know the vehicle).
+        mpc: NMPC settings (its `clearance_margin_m`: the fixed MPC margin, likewise).
+        speed_fraction: share of the vehicle's speed caps the reference may use.
+        accel_fraction: share of the vehicle's acceleration capability the reference may use.
+        margin_rule: how margins follow from the tracking-error table (`planners.margins`); None:
+            the fixed margins of `planner` and `mpc`.
+        tracking_table: the tracking-error table file (None: the shipped one).
+        replan_error_m: replan from the current position when the position error to the reference
+            exceeds this [m]; None disables it.
+        max_replans: at most this many tracking-error replans per episode.
+        replan_on_clearance: replan from the current position when the MPC's last predicted states
+            come closer to an obstacle (`World.city.planning_map()`) than the MPC's margin.
+        max_clearance_replans: at most this many clearance replans per episode.
+        replan_cooldown_s: no clearance replan within this time of the previous replan [s] (the new
+            reference needs a moment to pull the prediction out).
+        time_fraction: a plan fits the task's time when its reference takes at most this share of the time left
+            (the tracker lags the reference); the planning ladder climbs on past a step whose fastest plan does
+            not (`planners.ladder`).
+        ladder: the planning attempts, in order (`planners.ladder.LADDER`).
+    """
+
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    mpc: MPCConfig = field(default_factory=MPCConfig)
+    speed_fraction: float = 0.8
+    accel_fraction: float = 0.5
+    margin_rule: MarginRule | None = field(default_factory=MarginRule)
+    tracking_table: Path | None = None
+    replan_error_m: float | None = 5.0
+    max_replans: int = 3
+    replan_on_clearance: bool = True
+    max_clearance_replans: int = 3
+    replan_cooldown_s: float = 1.0
+    time_fraction: float = 0.8
+    ladder: tuple[PlanStep, ...] = LADDER
+
+
+@dataclass
+class ClassicalStats:
+    """Per-episode counters of the classical pilot (mutable, internal; `ClassicalReport` is the result)."""
+
+    plan_time_s: float = 0.0
+    replan_time_s: float = 0.0
+    replans_by_cause: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REPLAN_CAUSES, 0))
+    mpc_solves: int = 0
+    mpc_failures: int = 0
+    mpc_solve_times_s: list[float] = field(default_factory=list)
+    mpc_iterations: list[int] = field(default_factory=list)
+    mpc_statuses: dict[str, int] = field(default_factory=dict)
+    deviations_m: list[float] = field(default_factory=list)
+    # the reference's speed at each decision, paired with `deviations_m` (the margin table bins by it)
+    reference_speeds_m_s: list[float] = field(default_factory=list)
+    # the vehicle's clearance over the margin in force at its reference point, per decision (the promise)
+    clearance_over_margin: list[float] = field(default_factory=list)
+    planner_attempts: int = 0
+    planner_step: str = ""
+    planner_candidates: int = 0
+
+
+class ClassicalPilot:
+    """RRT* + time-parameterisation + NMPC, flying by rotor-speed commands.
+
+    Args:
+        config: pilot settings.
+        cache_dir: cache for the compiled MPC (default `uam_fdm.vehicle.codegen.default_cache_dir()`).
+    """
+
+    name = "rrt_mpc"
+
+    def __init__(self, config: ClassicalConfig | None = None, cache_dir: Path | None = None) -> None:
+        self.config = config if config is not None else ClassicalConfig()
+        self._cache_dir = cache_dir
+        self._trackers: dict[str, MPCTracker] = {}
+        self._world: World | None = None
+        self._table: TrackingErrorTable | None = None
+        if self.config.margin_rule is not None:
+            self._table = load_tracking_table(*(() if self.config.tracking_table is None
+                                                 else (self.config.tracking_table,)))
+        self.plan: PlanResult | None = None
+        self.ladder_result: LadderResult | None = None  # the last planning ladder's: every candidate, judged
+        self.reference: Reference | None = None
+        self.last_solution: MPCSolution | None = None
+        self.margins: Margins | None = None
+        self.stats = ClassicalStats()
+
+    # -- episode set-up -------------------------------------------------------------------------
+    def tracker_for(self, world: World) -> MPCTracker:
+        """The MPC for this world's vehicle (built and compiled once per vehicle)."""
+        key = world.vehicle.fingerprint()
+        if key not in self._trackers:
+            self._trackers[key] = MPCTracker(world.vehicle, self.config.mpc, self._cache_dir)
+        return self._trackers[key]
+
+    def margins_for(self, world: World, task: Task) -> Margins:
+        """The planner's and the MPC's margins for this vehicle, forecast turbulence and the field's air."""
+        cfg = self.config
+        if cfg.margin_rule is None:
+            return Margins(cfg.planner.safety_margin_m, cfg.mpc.clearance_margin_m, math.nan, "fixed (configured)")
+        # the table's airs are fields (density ratio at the ground), so look it up at the ground too
+        sigma = float(world.atmosphere.density_ratio(0.0))
+        return margins_for(self._table, cfg.margin_rule, world.vehicle, world.turbulence, sigma,
+                           cfg.planner.safety_margin_m, cfg.mpc.clearance_margin_m)
+
+    def reset(self, world: World, task: Task, seed: int) -> ResetInfo:
+        """Choose the margins, plan from the task's start to its goal (timed) and prepare the tracker."""
+        self._world, self._task, self._seed = world, task, int(seed)
+        self._tracker = self.tracker_for(world)
+        self._tracker.reset()
+        self.stats = ClassicalStats()
+        self.last_solution = None
+        self._last_t: float | None = None
+        self._last_replan_t = -math.inf
+        # the air the reference is timed for: density at the start, gusts of the forecast level there
+        self._sigma = float(world.atmosphere.density_ratio(float(task.start_m[2])))
+        self._gust_m_s = forecast_gust_m_s(world.turbulence, float(task.start_m[2]))
+        self.margins = self.margins_for(world, task)
+        self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
+        self._stage_mpc_margins = np.full(self._tracker.horizon_steps, self.margins.mpc_m)
+        self._relaxed_ends: list[tuple[np.ndarray, float]] = []
+        self._promise_ends: list[tuple[np.ndarray, float, float]] = []
+        log.debug("margins: planner %.2f m, MPC %.2f m (%s)", self.margins.planner_m, self.margins.mpc_m,
+                  self.margins.source)
+        ok, status, detail = self._plan(np.asarray(task.start_m, float), t_start=0.0)
+        return ResetInfo(ok=ok, status=status, plan_time_s=self.stats.plan_time_s, detail=detail)
+
+    def _plan(self, start: np.ndarray, t_start: float, velocity_m_s: np.ndarray | None = None
+              ) -> tuple[bool, str, str]:
+        world, margins = self._flying()
+        task, cfg = self._task, self.config
+        radius = world.vehicle.collision_radius_m
+        # the reference asks only for what the rotors can give in this air (thrust scales with density)
+        limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
+                                           self._gust_m_s)
+        by_speed = margins.by_speed
+        moving = 0.0 if velocity_m_s is None else float(np.linalg.norm(velocity_m_s))
+        # the reference changes speed by at most the horizontal and vertical limits together
+        accel = math.hypot(limits.max_accel_m_s2, limits.max_vertical_accel_m_s2)
+        tapers = tuple(MarginTaper((float(p[0]), float(p[1]), float(p[2])), *by_speed.taper(accel, v0))
+                       for p, v0 in ((start, moving), (np.asarray(task.goal_m, float), 0.0)))
+        references: dict[int, Reference] = {}
+
+        def judge(plan: PlanResult, margin_m: float, plan_tapers: tuple[MarginTaper, ...]) -> float:
+            """The plan's flight time: its reference timed as it would be flown [s]."""
+            ref = self._reference(plan, limits, margin_m, plan_tapers, velocity_m_s)
+            references[id(plan)] = ref
+            return ref.duration_s if ref.ok else math.inf
+
+        time_left = cfg.time_fraction * (task.timeout_s - t_start)
+        found = plan_with_escalation(world.city, start, task.goal_m, radius, self._planner_cfg,
+                                     seed=self._seed + sum(self.stats.replans_by_cause.values()),
+                                     floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=cfg.ladder, judge=judge,
+                                     time_available_s=time_left)
+        plan, self.ladder_result = found.plan, found
+        self.stats.plan_time_s += found.plan_time_s
+        if velocity_m_s is None:  # the plan at reset: which step of the ladder found it
+            self.stats.planner_attempts, self.stats.planner_step = len(found.attempts), found.step_name
+            self.stats.planner_candidates = len(found.candidates)
+        if not plan.ok:
+            return False, "planner_failure", f"{plan.status}: {plan.message}"
+        reference = references[id(plan)]
+        if not reference.ok:
+            return False, "planner_failure", f"time-parameterisation: {reference.status}"
+        self.plan, self.reference, self._t_ref0 = plan, reference, t_start
+        # near a start or goal closer than the margin at rest the requirement is relaxed (as in the planner)
+        self._relaxed_ends, self._promise_ends = [], []
+        for end in (np.asarray(plan.path_m[0], float), np.asarray(plan.path_m[-1], float)):
+            mpc_floor = by_speed.mpc_fraction * by_speed.floor_m
+            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, mpc_floor)
+            if zone > 0.0:
+                self._relaxed_ends.append((end, zone))
+            r_e, zone = endpoint_allowance(world.city.planning_map(), end, radius, by_speed.floor_m)
+            if zone > 0.0:
+                self._promise_ends.append((end, zone, r_e - radius))
+        return True, "ok", ""
+
+    def _reference(self, plan: PlanResult, limits: TimingLimits, margin_m: float,
+                   tapers: tuple[MarginTaper, ...], velocity_m_s: np.ndarray | None) -> Reference:
+        """A plan's reference, timed within `limits`, keeping `margin_m` (narrowed by `tapers`) and slowed where it
+        passes closer than the cruise margin; from a moving vehicle it starts at its speed along the path (not at
+        rest: no hard brake)."""
+        world, margins = self._flying()
+        start_speed = 0.0
+        if velocity_m_s is not None and len(plan.path_m) > 1:
+            tangent = plan.path_m[1] - plan.path_m[0]
+            start_speed = max(0.0, float(velocity_m_s @ tangent) / max(float(np.linalg.norm(tangent)), 1e-9))
+        return time_parameterize(plan.path_m, limits, world.city, world.vehicle.collision_radius_m, margin_m,
+                                 start_speed_m_s=start_speed, tapers=tapers,
+                                 speed_limit=margins.by_speed.speed_limit_m_s)
+
+    def episode_report(self) -> ClassicalReport:
+        """What the tracker did in the episode so far (see `ClassicalReport`)."""
+        s, m = self.stats, self.margins
+        ms = 1e3 * np.asarray(s.mpc_solve_times_s, float)
+        dev = np.asarray(s.deviations_m, float)
+        return ClassicalReport(
+            plan_time_s=s.plan_time_s, replan_time_s=s.replan_time_s,
+            replans_tracking=s.replans_by_cause["tracking"], replans_clearance=s.replans_by_cause["clearance"],
+            mpc_solves=s.mpc_solves, mpc_failures=s.mpc_failures,
+            mpc_solve_ms_median=float(np.median(ms)) if ms.size else math.nan,
+            mpc_solve_ms_p95=float(np.percentile(ms, 95)) if ms.size else math.nan,
+            mpc_statuses=dict(s.mpc_statuses),
+            tracking_rms_m=float(np.sqrt(np.mean(dev ** 2))) if dev.size else math.nan,
+            tracking_max_m=float(dev.max()) if dev.size else math.nan,
+            planner_margin_m=m.planner_m if m else math.nan, mpc_margin_m=m.mpc_m if m else math.nan,
+            margin_source=m.source if m else "", planner_margin_floor_m=m.floor_m if m else math.nan,
+            planner_attempts=s.planner_attempts, planner_step=s.planner_step,
+            clearance_over_margin_min=min(s.clearance_over_margin, default=math.nan))
+
+    # -- flying ---------------------------------------------------------------------------------
+    def act(self, obs: Observation) -> RotorCommand:
+        """Track the reference with one MPC solve; hover in place if there is no plan."""
+        world = self._world
+        if world is None:
+            raise RuntimeError("act() before reset()")
+        mpc = self._tracker
+        sigma = float(world.atmosphere.density_ratio_clamped(float(obs.x[2])))
+        if self.reference is None:
+            return RotorCommand(world.vehicle.hover_rotor_speeds_rad_s(sigma))
+        self._maybe_replan(obs, self.reference)
+        n_stages, h = mpc.horizon_steps, mpc.step_s
+        ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
+        # the MPC's margin at each stage follows the reference's speed there
+        by_speed = self._flying()[1].by_speed
+        self._stage_mpc_margins = by_speed.mpc_fraction * by_speed.margin_m(np.linalg.norm(ref_vel[1:], axis=1))
+        self._record_promise(obs, ref_pos[0], float(np.linalg.norm(ref_vel[0])))
+        normals, offsets = self._halfspaces(obs, ref_pos)
+        elapsed = 0.0 if self._last_t is None else obs.t_s - self._last_t
+        # the map is known to this pilot: its MPC predicts the ground effect of the surface below it now
+        height = float(obs.x[2] - world.city.surface_height_m(obs.x[None, 0:3])[0])
+        sol = mpc.solve(obs.x, ref_pos, ref_vel, self._task.start_yaw_rad, sigma, normals, offsets, elapsed,
+                        height_above_surface_m=height)
+        self._last_t = obs.t_s
+        self._record(sol)
+        return RotorCommand(sol.rotor_speeds_rad_s)
+
+    def _record_promise(self, obs: Observation, ref_pos: np.ndarray, ref_speed_m_s: float) -> None:
+        """Record the vehicle's sphere clearance (planning map) over the margin in force at its reference
+        point: M(reference speed), or a close start's or goal's own allowance inside its zone."""
+        world, margins = self._flying()
+        local = float(margins.by_speed.margin_m(ref_speed_m_s))
+        for end, zone, allowed in self._promise_ends:
+            if float(np.linalg.norm(ref_pos - end)) <= zone:
+                local = min(local, allowed)
+        clearance = world.city.planning_map().clearance_one(float(obs.x[0]), float(obs.x[1]), float(obs.x[2]),
+                                                            world.vehicle.collision_radius_m)
+        self.stats.clearance_over_margin.append(clearance / max(local, 0.05))
+
+    def _maybe_replan(self, obs: Observation, reference: Reference) -> None:
+        """Replan if `_replan_cause` says so; `reference` is the one flown now (`self.reference`)."""
+        t_ref = obs.t_s - self._t_ref0
+        self.stats.deviations_m.append(reference.deviation_m(obs.x[0:3], t_ref))
+        self.stats.reference_speeds_m_s.append(float(np.linalg.norm(reference.sample(t_ref)[1])))
+        cause = self._replan_cause(obs, reference)
+        if cause is None:
+            return
+        self.stats.replans_by_cause[cause] += 1
+        self._last_replan_t = obs.t_s
+        previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends)
+        before = self.stats.plan_time_s
+        ok, _, _ = self._plan(obs.x[0:3].copy(), t_start=obs.t_s, velocity_m_s=obs.x[3:6].copy())
+        self.stats.replan_time_s += self.stats.plan_time_s - before
+        if not ok:   # keep tracking the old reference rather than give up
+            self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends = previous
+        else:
+            self._tracker.reset()
+            self._last_t = None
+            self.last_solution = None   # its prediction belonged to the old reference
+
+    def _replan_cause(self, obs: Observation, reference: Reference) -> str | None:
+        """"tracking", "clearance" or None (no replan now)."""
+        cfg, s = self.config, self.stats
+        t_ref = obs.t_s - self._t_ref0
+        if cfg.replan_error_m is not None and s.replans_by_cause["tracking"] < cfg.max_replans:
+            ref_now, _, _ = reference.sample(t_ref)
+            error = float(np.linalg.norm(obs.x[0:3] - ref_now))
+            if error > cfg.replan_error_m:
+                log.info("tracking error %.1f m above %.1f m at t = %.2f s: replanning", error,
+                         cfg.replan_error_m, obs.t_s)
+                return "tracking"
+        if (cfg.replan_on_clearance and self.last_solution is not None
+                and s.replans_by_cause["clearance"] < cfg.max_clearance_replans
+                and obs.t_s - self._last_replan_t >= cfg.replan_cooldown_s):
+            points = self.last_solution.predicted_states[1:, 0:3]
+            clearances = self.predicted_clearances_m(points)
+            # each predicted stage against the MPC margin at its reference speed when it was solved
+            required = self._stage_mpc_margins[:len(points)]
+            short = clearances - required
+            if np.any(short < 0.0):
+                i = int(np.argmin(short))
+                log.info("predicted clearance %.2f m below the MPC margin %.2f m at t = %.2f s: replanning",
+                         clearances[i], required[i], obs.t_s)
+                return "clearance"
+        return None
+
+    def predicted_clearance_m(self, points_m: np.ndarray) -> float:
+        """Least sphere clearance [m] of predicted positions (M, 3) (`predicted_clearances_m`); +inf
+        when every point is left out."""
+        return float(np.min(self.predicted_clearances_m(points_m), initial=math.inf))
+
+    def predicted_clearances_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Sphere clearance [m] of each predicted position (M, 3) to the planning map (buildings, no-fly
+        volumes, ground); +inf for points inside a start's or goal's relaxed zone (closer than the
+        margin by the task itself)."""
+        keep = np.ones(len(points_m), dtype=bool)
+        for end, zone in self._relaxed_ends:
+            keep &= np.linalg.norm(points_m - end, axis=1) > zone
+        out = np.full(len(points_m), math.inf)
+        if np.any(keep):
+            world, _ = self._flying()
+            obstacles = world.city.planning_map()
+            out[keep] = obstacles.clearance(points_m[keep], world.vehicle.collision_radius_m).distance_m
+        return out
+
+    def _halfspaces(self, obs: Observation, ref_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Clearance half-spaces (N, K, 3), (N, K) around the last prediction (or the reference).
+
+        Rows: the K−1 nearest buildings or no-fly volumes, facing the vehicle through their nearest
+        points, and the ground; each offset by the collision radius plus the MPC's clearance margin.
+        """
+        (world, _), mpc = self._flying(), self._tracker
+        obstacles = world.city.planning_map()  # the no-fly volumes are kept at the same margin
+        n_stages, k = mpc.horizon_steps, mpc.config.n_halfspaces
+        if k == 0:
+            return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
+        pred = self.last_solution.predicted_states[1:, 0:3] if self.last_solution is not None else ref_pos[1:]
+        required = world.vehicle.collision_radius_m + self._stage_mpc_margins  # (N,): by the stage's speed
+        normals = np.zeros((n_stages, k, 3))
+        offsets = np.full((n_stages, k), -1.0)
+        normals[:, k - 1] = (0.0, 0.0, 1.0)
+        offsets[:, k - 1] = required
+        if k > 1 and len(obstacles.buildings) > 0:
+            pts, dist, ids = obstacles.nearest_obstacles_batch(pred, k - 1, 0.0)
+            for stage in range(n_stages):
+                for j in range(k - 1):
+                    if ids[stage, j] < 0:
+                        continue
+                    away = pred[stage] - pts[stage, j]
+                    norm = np.linalg.norm(away)
+                    if norm < 1e-9:
+                        continue
+                    normal = away / norm * (1.0 if dist[stage, j] >= 0 else -1.0)
+                    normals[stage, j] = normal
+                    offsets[stage, j] = normal @ pts[stage, j] + required[stage]
+        return normals, offsets
+
+    def _flying(self) -> tuple[World, Margins]:
+        """The episode's world and margins (both set by `reset`)."""
+        if self._world is None or self.margins is None:
+            raise RuntimeError("the classical pilot flies only after reset()")
+        return self._world, self.margins
+
+    def _record(self, sol: MPCSolution) -> None:
+        self.last_solution = sol
+        s = self.stats
+        s.mpc_solves += 1
+        s.mpc_failures += int(not sol.success)
+        s.mpc_solve_times_s.append(sol.solve_time_s)
+        s.mpc_iterations.append(sol.iterations)
+        s.mpc_statuses[sol.status] = s.mpc_statuses.get(sol.status, 0) + 1

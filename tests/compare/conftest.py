@@ -1,0 +1,28 @@
+"""Fixtures shared by the comparison's tests."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import compare.run.campaign
+import compare.run.cells
+from compare.results.store import part_path, write_part
+from compare.results.trajectory import EpisodeMeta
+from synthetic_run import trajectory
+
+
+@pytest.fixture
+def synthetic_flying(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`run` flies each cell as a short synthetic flight and scores it without report or viewer (fast)."""
+    def fly(self: compare.run.cells.CellRunner, c: compare.run.cells.Cell) -> Path:
+        sc = self.scenarios[c.scenario]
+        task, key = sc.episodes[c.episode].task, compare.run.cells.cell_key(self.scenarios, c)
+        meta = EpisodeMeta(key, sc.city.name or sc.name, sc.vehicle_name, tuple(task.start_m), tuple(task.goal_m),
+                           task.goal_radius_m, task.timeout_s, sc.vehicle.collision_radius_m, sc.vehicle.n_rotors,
+                           1e4, "success", 0.0, "synthetic")
+        return write_part(part_path(self.out_dir, key),
+                          self.stored(c, meta, trajectory(200, 10.0, 0.0, 1.0, "success", 0)))
+    finalize = compare.run.campaign.finalize
+    monkeypatch.setattr(compare.run.cells.CellRunner, "run", fly)
+    monkeypatch.setattr(compare.run.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))
