@@ -48,14 +48,14 @@ def main() -> None:
     args = ap.parse_args()
     scenarios = resolve_scenarios(args.set)
     seeds = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
-    methods = tuple(args.pilots.split(",")) if args.pilots else None
+    flown = tuple(args.pilots.split(",")) if args.pilots else None
     backends = {"local_jobs2": "local", "ray_2cpu": "ray"}
     walls: dict[str, list[float]] = {name: [] for name in backends}
     reference, cells = None, 0
     with tempfile.TemporaryDirectory(prefix="ray-overhead-") as tmp:
         for k in range(args.repeats):
             for name in (list(backends) if k % 2 == 0 else list(backends)[::-1]):
-                opts = RunConfig(out_dir=Path(tmp) / f"{name}-{k}", methods=methods, seeds=seeds, jobs=2,
+                opts = RunConfig(out_dir=Path(tmp) / f"{name}-{k}", pilots=flown, seeds=seeds, jobs=2,
                                  progress=False, report=False, videos="none", backend=backends[name],
                                  command=f"benchmark {name}")
                 cells = len(plan_cells(scenarios, opts, select_policies(scenarios, opts))[0])

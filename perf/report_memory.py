@@ -2,7 +2,7 @@
 before the run store and on the same episodes in the store by this code.
 
 Builds a synthetic run folder shaped like a benchmark run (`tests/synthetic_run.py`: 2 vehicles x `--scenarios`
-x `--episodes` x 1 seed x 3 methods) whose episodes have `--samples` rows each at the physics rate (10,000:
+x `--episodes` x 1 seed x 3 pilots) whose episodes have `--samples` rows each at the physics rate (10,000:
 20 s at 500 Hz, a typical quad leg of the benchmark), then a copy of it moved into the store (each episode
 scored and written as its cell's part, then compacted, as a run leaves it). `report` (score, summary, PDF
 report, viewer) then runs in a fresh process on each: the `.npz` folder with the code at `--before` (a
@@ -69,7 +69,7 @@ def main() -> None:
         for scale in (args.episodes, 2 * args.episodes):
             npz = Path(tmp) / f"npz-{scale}"
             rows = write_benchmark_run(npz, scenarios_per_vehicle=args.scenarios, episodes=scale, seeds=(0,),
-                                       methods=PILOT_LABELS, samples=args.samples)
+                                       pilots=PILOT_LABELS, samples=args.samples)
             store = Path(tmp) / f"store-{scale}"
             shutil.copytree(npz, store)
             to_store(store)

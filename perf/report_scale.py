@@ -1,7 +1,7 @@
 """How long a benchmark-sized run takes to summarise and report (reports that never pool vehicles).
 
 Builds a synthetic run folder shaped like a benchmark run (no simulation; `tests/synthetic_run.py`):
-by default 2 vehicles x 25 scenarios x 10 episodes x 3 seeds = 1500 tasks, each flown by 4 methods
+by default 2 vehicles x 25 scenarios x 10 episodes x 3 seeds = 1500 tasks, each flown by 4 pilots
 (one a plug-in named `module:Class` that cannot be imported here): 6000 episode files and metrics rows.
 Then times, in this process, the summary (`summarize_run` + `write_summary_json`, what `finalize` does
 after scoring) and `build_report` (every page, PDF and PNGs), and counts the pages.
@@ -47,7 +47,7 @@ def main() -> None:
     try:
         t0 = time.perf_counter()
         rows = write_benchmark_run(run_dir, scenarios_per_vehicle=args.scenarios, episodes=args.episodes,
-                                   seeds=tuple(range(args.seeds)), methods=PILOT_LABELS)
+                                   seeds=tuple(range(args.seeds)), pilots=PILOT_LABELS)
         t1 = time.perf_counter()
         write_summary_json(summarize_run(rows), run_dir / "summary.json")
         t2 = time.perf_counter()
@@ -58,12 +58,12 @@ def main() -> None:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
     tasks = len({(r.scenario, r.episode, r.seed) for r in rows})
-    figures = {"scenarios": 2 * args.scenarios, "tasks": tasks, "episodes": len(rows), "methods": len(PILOT_LABELS),
+    figures = {"scenarios": 2 * args.scenarios, "tasks": tasks, "episodes": len(rows), "pilots": len(PILOT_LABELS),
                "write_synthetic_run_s": round(t1 - t0, 1), "summary_s": round(t2 - t1, 1),
                "report_s": round(t3 - t2, 1), "report_pages": pages,
                "summary_json_kb": None if args.keep is None else round((run_dir / "summary.json").stat().st_size / 1e3)}
     print(f"{'synthetic run':<28}{figures['scenarios']} scenarios, {tasks} tasks, {len(rows)} episodes, "
-          f"{len(PILOT_LABELS)} methods ({t1 - t0:.1f} s to write)")
+          f"{len(PILOT_LABELS)} pilots ({t1 - t0:.1f} s to write)")
     print(f"{'summary (summarize_run)':<28}{t2 - t1:.1f} s")
     print(f"{'report (build_report)':<28}{t3 - t2:.1f} s, {pages} pages")
     print(json.dumps(figures))

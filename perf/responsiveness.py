@@ -148,7 +148,7 @@ def interrupt_seconds(folder: Path) -> float:
     """Seconds from Ctrl-C (SIGINT to the process group) to the exit of a 2-worker run, once an episode is saved."""
     out = folder / "run"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "compare", "run", str(TINY), "--methods", "ppo", "--seeds", "0,1,2,3", "--jobs", "2",
+        [sys.executable, "-m", "compare", "run", str(TINY), "--pilots", "ppo", "--seeds", "0,1,2,3", "--jobs", "2",
          "--out", str(out), "--no-progress", "--videos", "none"], cwd=ROOT,
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

@@ -2,7 +2,7 @@
 wrote before the store (one per episode, physics rate, float64) and as the store (each cell's part at the
 control rate, then compacted into the episode table and samples files), in this process.
 
-For each cell (in run order, the first `--tasks` tasks of each vehicle, every method): fly it
+For each cell (in run order, the first `--tasks` tasks of each vehicle, every pilot): fly it
 (`CellRunner.fly`, timed: the cell's wall time), then time and size its `.npz` (`episode_bytes`) and its part
 (`CellRunner.stored`: scoring, thinning, the Parquet bytes) and the part's write to disk. Then the parts are
 compacted (timed) and the store's files summed. The write overhead is the part (bytes and file) over the
@@ -83,7 +83,7 @@ def main() -> None:
         store_bytes = sum(p.stat().st_size for p in store_dir(run_dir).rglob("*.parquet"))
     n = sum(v["episodes"] for v in per.values())
     npz_total = sum(v["npz_bytes"] for v in per.values())
-    print(f"set {args.set}: {n} episodes ({args.tasks or 'all'} tasks per vehicle, every method), store {args.store}")
+    print(f"set {args.set}: {n} episodes ({args.tasks or 'all'} tasks per vehicle, every pilot), store {args.store}")
     print(f"{'vehicle':18s} {'episodes':>8s} {'npz kB/ep':>10s} {'part kB/ep':>11s} {'part/npz':>9s} "
           f"{'cell s/ep':>9s} {'npz ms/ep':>9s} {'part ms/ep':>10s} {'overhead':>9s}")
     for name, v in per.items():

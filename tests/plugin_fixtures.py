@@ -18,7 +18,7 @@ class NoAct:
 
 
 class NamedWrong(PotentialFieldPilot):
-    """The potential-field pilot under another class: its `name` attribute ("apf") is not the method's."""
+    """The potential-field pilot under another class: its `name` attribute ("apf") is not the name it flies under."""
 
 
 NOT_A_CLASS = 3

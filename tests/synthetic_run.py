@@ -1,6 +1,6 @@
 """A synthetic run folder (no simulation) for tests of what reads run folders: report, animation, viewer.
 
-Two methods x two episodes x one seed over a four-building map; PPO's episode 1 ends in a collision.
+Two pilots x two episodes x one seed over a four-building map; PPO's episode 1 ends in a collision.
 Episode 0's files carry the per-step shaft power (`synthetic_power_W`); episode 1's are in the format saved
 before it was recorded, and metrics.csv lacks the tracker columns (an older run's), so every reader is
 checked on old files too.
@@ -68,25 +68,25 @@ def trajectory(n: int, duration_s: float, bend_m: float, stop_frac: float, outco
 
 
 def write_run(run_dir: Path, policy_dir: Path | None) -> None:
-    """Two methods x two episodes x one seed; PPO's episode 1 ends in a collision (see the module docstring)."""
+    """Two pilots x two episodes x one seed; PPO's episode 1 ends in a collision (see the module docstring)."""
     (run_dir / "maps").mkdir(parents=True)
     (run_dir / "maps" / f"{SCENARIO}.yaml").write_text(map_yaml_text(toy_map()), encoding="utf-8")
-    # (episode, method): samples, duration [s], sideways bend [m], fraction of the way flown, outcome
+    # (episode, pilot): samples, duration [s], sideways bend [m], fraction of the way flown, outcome
     cells = {(0, "ppo"): (3000, 30.0, 25.0, 1.0, "success"),
              (0, "rrt_mpc"): (1500, 26.0, -10.0, 1.0, "success"),
              (1, "ppo"): (800, 12.0, 5.0, 0.45, "collision"),
              (1, "rrt_mpc"): (1200, 24.0, 15.0, 1.0, "success")}
     rows = []
-    for (ep, method), (n, dur, bend, stop, outcome) in cells.items():
-        key = EpisodeKey(SCENARIO, ep, method, 0)
+    for (ep, pilot), (n, dur, bend, stop, outcome) in cells.items():
+        key = EpisodeKey(SCENARIO, ep, pilot, 0)
         meta = EpisodeMeta(key, "toy", "small_quad", START, GOAL, 3.0, 60.0, 0.42, 4, 1000.0 * dur, outcome,
-                           0.3 if method == "rrt_mpc" else 0.0, f"synthetic {outcome}")
+                           0.3 if pilot == "rrt_mpc" else 0.0, f"synthetic {outcome}")
         traj = trajectory(n, dur, bend, stop, outcome, ep, shaft_power=ep == 0)
         save_episode(run_dir / "episodes" / f"{key.stem}.npz", meta, traj)
         ok = outcome == "success"
-        rows.append([SCENARIO, ep, method, 0, "toy", "small_quad", outcome, int(ok), int(not ok),
+        rows.append([SCENARIO, ep, pilot, 0, "toy", "small_quad", outcome, int(ok), int(not ok),
                      "" if ok else "collision", 4.1, 0.0, 1.5, dur, 230.0, 206.2, 0.85 if ok else 0.0,
-                     dur, 2.0, 3.5, 0.3 if method == "rrt_mpc" else "nan"])
+                     dur, 2.0, 3.5, 0.3 if pilot == "rrt_mpc" else "nan"])
     with (run_dir / "metrics.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(METRIC_COLUMNS)
@@ -164,7 +164,7 @@ def write_reward_curve(policy_dir: Path, updates: int = 240, seed: int = 0, eval
     return {"validation_rows": val_rows, "kept_timesteps": kept}
 
 
-# ---- a synthetic benchmark-sized run: several vehicles, many scenarios, any methods -----------------------
+# ---- a synthetic benchmark-sized run: several vehicles, many scenarios, any pilots -----------------------
 BENCH_VEHICLES = ("small_quad", "uam_multicopter")
 TURBULENCE = ("none", "light", "moderate", "severe")
 
@@ -179,18 +179,18 @@ def bench_map(name: str, buildings: int, seed: int) -> BuildingMap:
 
 
 def write_benchmark_run(run_dir: Path, *, scenarios_per_vehicle: int, episodes: int, seeds: tuple[int, ...],
-                        methods: dict[str, str], vehicles: tuple[str, ...] = BENCH_VEHICLES, samples: int = 200,
+                        pilots: dict[str, str], vehicles: tuple[str, ...] = BENCH_VEHICLES, samples: int = 200,
                         episode_files: bool = True, seed: int = 0) -> list:
     """A run folder shaped like a benchmark run (no simulation): run.json, maps, episode files, metrics.csv.
 
     Scenario k of each vehicle has a city of 10 + 8k buildings (up to 90), turbulence level k mod 4 and an
     air density falling with k (hot and high); each task (episode, seed) a leg of 120-380 m. Success is
     drawn per cell with a probability that falls with leg, coverage, turbulence and thinner air, at a
-    pace that differs per method, so the difficulty figures show where each "pilot" breaks. No summary.json
+    pace that differs per pilot, so the difficulty figures show where each "pilot" breaks. No summary.json
     (finalize's summary is what a test or benchmark computes from the rows returned).
 
     Args:
-        methods: method name -> label (run.json's methods, in table order).
+        pilots: pilot name -> label (run.json's "methods", in table order).
         samples: points per saved trajectory (small: the files are only drawn for a few tasks).
         episode_files: write an .npz per cell (False: metrics and run.json only).
 
@@ -202,7 +202,7 @@ def write_benchmark_run(run_dir: Path, *, scenarios_per_vehicle: int, episodes: 
     rng = np.random.default_rng(seed)
     (run_dir / "maps").mkdir(parents=True)
     scenario_json, rows = [], []
-    skill = {m: 1.0 - 0.15 * k for k, m in enumerate(methods)}  # the first method is the most robust
+    skill = {m: 1.0 - 0.15 * k for k, m in enumerate(pilots)}  # the first pilot is the most robust
     for v_index, vehicle in enumerate(vehicles):
         heavy = vehicle != "small_quad"
         for k in range(scenarios_per_vehicle):
@@ -218,11 +218,11 @@ def write_benchmark_run(run_dir: Path, *, scenarios_per_vehicle: int, episodes: 
                 "vehicle_summary": "900 kg, 8 rotors" if heavy else "1.5 kg, 4 rotors",
                 "atmosphere": {"elevation_m": 100.0 * k, "isa_offset_k": 0.0, "density_kg_m3": density},
                 "wind": {"steady_enu_m_s": [2, 1, 0], "turbulence": turbulence}, "episodes": episodes,
-                "seeds": list(seeds), "methods": list(methods), "physics_hz": 500, "control_hz": 50})
+                "seeds": list(seeds), "methods": list(pilots), "physics_hz": 500, "control_hz": 50})
             for ep in range(episodes):
                 leg = 120.0 + 260.0 * ep / max(episodes - 1, 1)
                 for s in seeds:
-                    for m in methods:
+                    for m in pilots:
                         hard = (0.5 * leg / 380.0 + 1.5 * coverage + 0.15 * TURBULENCE.index(turbulence)
                                 + 2.0 * (1.225 - density))  # 0.2 (easiest) to 1.5
                         ok = bool(rng.random() < 1.0 / (1.0 + np.exp(5.0 * (hard / skill[m] - 1.0))))
@@ -247,7 +247,7 @@ def write_benchmark_run(run_dir: Path, *, scenarios_per_vehicle: int, episodes: 
     write_metrics_csv(rows, run_dir / "metrics.csv")
     run = {"format_version": 1, "created_utc": "2026-11-21T08:00:00Z", "command": "uam-compare run benchmark",
            "scenarios": scenario_json,
-           "methods": {m: {"label": label, "description": f"{label} (synthetic)."} for m, label in methods.items()},
+           "methods": {m: {"label": label, "description": f"{label} (synthetic)."} for m, label in pilots.items()},
            "versions": {"uam-compare": "0.1.0"}, "fairness": "Synthetic."}
     (run_dir / "run.json").write_text(json.dumps(run), encoding="utf-8")
     return rows

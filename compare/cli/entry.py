@@ -1,9 +1,11 @@
 """The `uam-compare` entry point: the parser of every command, `main`, its exit codes, and how an error becomes
-one line on stderr (the traceback of an unexpected one in a log file)."""
+one line on stderr (the traceback of an unexpected one in a log file), as does a deprecation of our own."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
+import inspect
 import logging
 import os
 import signal
@@ -11,8 +13,11 @@ import sys
 import tempfile
 import threading
 import traceback
+import warnings
+from collections.abc import Iterator
 from datetime import datetime
 from pathlib import Path
+from typing import TextIO
 
 import compare.cli.demo as demo
 import compare.cli.evaluate as evaluate
@@ -34,6 +39,8 @@ INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 
 LOG_DIR_ENV = "UAM_COMPARE_LOG_DIR"
 """Where the last-resort handler writes tracebacks (default: <temporary folder>/uam-compare-logs)."""
 MAX_MESSAGE_CHARS = 300
+OWN_PACKAGES = ("uam_fdm", "planners", "rl", "compare")
+"""The packages whose DeprecationWarnings a command shows (`own_deprecations_on_stderr`)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler) if in_main else None
     try:
-        return _run_command(args)
+        with own_deprecations_on_stderr():
+            return _run_command(args)
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
@@ -101,6 +109,46 @@ def _run_command(args: argparse.Namespace) -> int:
         print(f"uam-compare: error: {args.command}: internal error {last_resort(exc, args.command)}",
               file=sys.stderr)
         return INTERNAL_ERROR_EXIT
+
+
+@contextlib.contextmanager
+def own_deprecations_on_stderr() -> Iterator[None]:
+    """While a command runs, every DeprecationWarning raised by our own packages (`OWN_PACKAGES`: an old key in a
+    scenario file, an old name a plug-in imports) is one line on stderr, "uam-compare: warning: <message>", once
+    per place: Python hides DeprecationWarnings outside `__main__`, yet the one who must act on ours (change the
+    file, update the plug-in) is the command's user. Other warnings are shown as before; another package's
+    DeprecationWarning only where the user asked for warnings (-W, PYTHONWARNINGS), whose filters then decide
+    for ours too. The warnings filters and `warnings.showwarning` are restored on exit."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: TextIO | None = None, line: str | None = None) -> None:
+            if not issubclass(category, DeprecationWarning):
+                shown(message, category, filename, lineno, file, line)
+            elif _raised_by_own_package():
+                print(f"uam-compare: warning: {' '.join(str(message).split())}", file=sys.stderr)
+            elif sys.warnoptions:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        if not sys.warnoptions:
+            warnings.simplefilter("default", DeprecationWarning)
+        yield
+
+
+def _raised_by_own_package() -> bool:
+    """The warning being shown was raised by code of `OWN_PACKAGES`: the first frame below `warnings.showwarning`
+    outside the warnings module is the one that called `warnings.warn` (its `stacklevel` only moves the place
+    the warning names, e.g. to the plug-in that imported an old name)."""
+    frame = inspect.currentframe()
+    try:
+        caller = frame.f_back.f_back if frame is not None and frame.f_back is not None else None  # past `show`
+        while caller is not None and caller.f_globals.get("__name__") in ("warnings", "_py_warnings"):
+            caller = caller.f_back
+        return caller is not None and str(caller.f_globals.get("__name__", "")).split(".")[0] in OWN_PACKAGES
+    finally:
+        del frame  # a frame held in a local keeps its whole stack alive
 
 
 def last_resort(exc: BaseException, command: str) -> str:

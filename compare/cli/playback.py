@@ -58,7 +58,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def _animation_defaults() -> dict[str, str]:
     """`animate --help`'s defaults, `AnimationConfig`'s."""
-    from compare.playback.animate import AnimationConfig  # matplotlib: only when the help is printed
+    from compare.playback.animation_config import AnimationConfig
 
     c = AnimationConfig()
     return {"fps": f"{c.fps:g}", "max_auto_duration": f"{c.max_auto_duration_s:g}",

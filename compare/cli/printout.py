@@ -11,7 +11,7 @@ from compare.results.failures import FAILED_DIR, describe_failures, read_failure
 from compare.results.level_rates import level_json, level_rates, level_table_lines
 from compare.results.metrics import read_metrics_csv
 from compare.results.run_info import read_run_info
-from compare.results.summary import PairedSummary, PowerConfig, Stat, Summary, methods_table, read_summary_json
+from compare.results.summary import PairedSummary, PowerConfig, Stat, Summary, pilots_table, read_summary_json
 from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lines
 from compare.scenarios.benchmark import BENCHMARK_SETS
 from compare.scenarios.sweep import SWEEP_SETS
@@ -19,9 +19,9 @@ from compare.scenarios.sweep import SWEEP_SETS
 SCENARIOS_PRINTED = 4
 """A vehicle's scenarios printed one by one at the end of a run when it has at most this many (else its table only)."""
 
-TABLE_COLUMNS = ("method", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy",
+TABLE_COLUMNS = ("pilot", "episodes", "success", "collision", "min clearance", "time", "SPL", "energy",
                  "compute mean")
-"""The columns of `methods_table` printed (by their name without unit or note); the report has them all."""
+"""The columns of `pilots_table` printed (by their name without unit or note); the report has them all."""
 
 
 def print_run_results(run_dir: Path) -> None:
@@ -56,7 +56,7 @@ def _table(blocks: list[tuple[str, Summary]]) -> list[str]:
     """The `TABLE_COLUMNS` of each block's pilots under the block's name, in aligned columns."""
     lines = []
     for name, part in blocks:
-        full = methods_table(part)
+        full = pilots_table(part)
         keep = [i for i, h in enumerate(full[0]) if h.split(" [")[0].split(" (")[0] in TABLE_COLUMNS]
         lines.append([name] + [""] * (len(keep) - 1))
         lines += [[row[i] for i in keep] for row in full]
@@ -131,7 +131,7 @@ def print_headline_json(run_dir: Path) -> None:
         "run_dir": str(run_dir),
         "suite": None if task_set is None else {"name": task_set.name, "version": task_set.version},
         "vehicles": {v: {m: {"episodes": ms.episodes, "success": rate(ms.stats.get("success")),
-                             "collision": rate(ms.stats.get("collision"))} for m, ms in part.methods.items()}
+                             "collision": rate(ms.stats.get("collision"))} for m, ms in part.pilots.items()}
                      for v, part in per_vehicle.items()},
         "failed_cells": len(read_failures(run_dir))}
     if task_set is not None and task_set.name in SWEEP_SETS:  # per vehicle, axis, step and pilot (printed above)

@@ -17,7 +17,7 @@ from compare.flying.pilots import PILOT_NAMES, pilot
 from compare.results.outputs import check_output_dir
 from compare.run.backends import BACKENDS
 from compare.run.campaign import RunConfig, RunInterrupted, check_empty_run_folder, estimate_run, run_comparison
-from compare.scenarios.scenario import Scenario, with_methods
+from compare.scenarios.scenario import Scenario, with_pilots
 from compare.scenarios.sets import resolve_scenarios
 from compare.scenarios.sweep import SWEEP_SETS, build_sweep
 
@@ -88,7 +88,7 @@ def _add_pilot_options(parser: argparse.ArgumentParser) -> None:
     one = parser.add_argument("--pilot", action="append", default=[], metavar="PILOT",
                               help="fly this pilot too, in every scenario: a registered pilot, a plug-in as "
                                    "module:Class or an installed plug-in's entry-point name; repeat for more")
-    some = parser.add_argument("--pilots", type=csv_list, default=RunConfig.methods,
+    some = parser.add_argument("--pilots", type=csv_list, default=RunConfig.pilots,
                                help=f"comma-separated pilots to fly, of each scenario's own and --pilot's "
                                     f"({','.join(PILOT_NAMES)}, plug-ins)")
     add_deprecated_alias(parser, "--method", one)
@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(out, "--out")
     if not args.resume:
         check_empty_run_folder(out)
-    scenarios = [with_methods(sc, tuple(args.pilot)) for sc in _scenarios(args)]  # every file checked here
+    scenarios = [with_pilots(sc, tuple(args.pilot)) for sc in _scenarios(args)]  # every file checked here
     opts = replace(opts, videos=resolve_videos(args.videos, scenarios))  # its default depends on the scenarios
     one_torch_thread()
     est = estimate_run(scenarios, opts)
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
 def _run_config(args: argparse.Namespace, out: Path) -> RunConfig:
     """The run's settings from the options (--videos' default is settled once the scenarios are read)."""
     videos = {} if args.videos is None else {"videos": args.videos}
-    return RunConfig(out_dir=out, methods=args.pilots, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
+    return RunConfig(out_dir=out, pilots=args.pilots, seeds=args.seeds, policies=tuple(args.policy), jobs=args.jobs,
                      resume=args.resume, progress=not args.no_progress, command="uam-compare " + " ".join(args.argv),
                      backend=args.backend, address=args.address, cell_timeout_s=args.cell_timeout, store=args.store,
                      **videos)

@@ -81,8 +81,8 @@ def _add_task_options(tr: argparse.ArgumentParser) -> None:
 def _shown_defaults() -> dict[str, str]:
     """`train --help`'s defaults, read from `TrainConfig` and the vehicles' tasks."""
     from rl.task.vehicles import TASKS
-    from rl.training.config import TrainConfig  # PyTorch (through the PPO presets): only when help is printed
-    from rl.training.ppo import PRESETS
+    from rl.training.config import TrainConfig  # the tasks and presets: only when help is printed
+    from rl.training.presets import PRESETS
 
     c = TrainConfig()
     arch = {name: p.net_arch for name, p in PRESETS.items()}

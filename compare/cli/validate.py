@@ -18,5 +18,5 @@ def validate(args: argparse.Namespace) -> int:
     for sc in resolve_scenarios(args.scenario):
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
               f"vehicle {sc.vehicle_name}, {len(sc.episodes)} episodes x {len(sc.seeds)} seeds, "
-              f"methods {', '.join(sc.methods)}, turbulence {sc.wind.turbulence.value})")
+              f"pilots {', '.join(sc.pilots)}, turbulence {sc.wind.turbulence.value})")
     return 0

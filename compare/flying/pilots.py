@@ -1,6 +1,6 @@
-"""The pilots a comparison can fly, by method name: how each is built, what it needs, how it is shown.
+"""The pilots a comparison can fly, by name: how each is built, what it needs, how it is shown.
 
-`PILOTS` is the one list of methods. Scenario files are checked against it, the campaign builds
+`PILOTS` is the one list of pilots. Scenario files are checked against it, the campaign builds
 pilots through it, and run.json, the metrics, the report and its figures take labels, colours,
 descriptions and the table order from it. Adding a pilot touches this file (one `PilotEntry`) and
 the pilot itself (a `uam_fdm.pilot.Pilot`).
@@ -61,17 +61,17 @@ Builder = Callable[[BuildRequest], Pilot]
 
 @dataclass(frozen=True)
 class PilotEntry:
-    """One method of the comparison.
+    """One pilot of the comparison.
 
     Attributes:
-        name: the method name (scenario files, --pilots, file names, metrics.csv).
+        name: the pilot's name (scenario files, --pilots, file names, metrics.csv).
         label: its display name in the report, the figures and the viewer.
         color: its matplotlib colour on every page.
-        description: what the pilot is (run.json, the report's Methods section).
+        description: what the pilot is (run.json, the report's Pilots section).
         given: what it is given and how it decides, one sentence for the run's fairness statement.
-        build: makes the pilot (`Builder`); one pilot flies every cell of its method in a process (one
+        build: makes the pilot (`Builder`); one built pilot flies all its cells in a process (one
             per vehicle when `needs_policy`).
-        default: flown when a scenario file does not list its methods.
+        default: flown when a scenario file does not list its pilots.
         needs_policy: flies a trained policy folder per vehicle (`--policy`, or the one shipped for the
             vehicle); its cells are left out for a vehicle without one, and it decides at the policy's
             rate. Other pilots decide at each scenario's control rate.
@@ -164,9 +164,9 @@ PILOTS: dict[str, PilotEntry] = {entry.name: entry for entry in (
 )}
 
 PILOT_NAMES: tuple[str, ...] = tuple(PILOTS)
-"""Every registered method, in table order."""
+"""Every registered pilot, in table order."""
 DEFAULT_PILOTS: tuple[str, ...] = tuple(name for name, entry in PILOTS.items() if entry.default)
-"""The methods a scenario flies when its file does not list them."""
+"""The pilots a scenario flies when its file does not list them."""
 PLUGIN_GROUP = "uam_compare.pilots"
 """The entry-point group of plug-in pilots (`[project.entry-points."uam_compare.pilots"]`)."""
 PLUGIN_WALL_S_PER_FLIGHT_S = 1.0  # run estimates for a plug-in that does not state its own
@@ -180,7 +180,7 @@ def is_reference(name: str) -> bool:
 
 
 def pilot(name: str) -> PilotEntry:
-    """The pilot `name`: a registered method, a plug-in `module:Class` or a plug-in entry point's name.
+    """The pilot `name`: a registered pilot, a plug-in `module:Class` or a plug-in entry point's name.
 
     Raises:
         ValueError: an unknown name (listing the registered ones and the plug-in forms), or a plug-in
@@ -196,14 +196,14 @@ def pilot(name: str) -> PilotEntry:
         return _plugin_from_entry_point(entry.name, entry.value)
     plugins = sorted(e.name for e in metadata.entry_points(group=PLUGIN_GROUP))
     listed = f"; installed plug-ins: {', '.join(plugins)}" if plugins else ""
-    raise ValueError(f"unknown method {name!r} (registered: {', '.join(PILOT_NAMES)}){listed}; a plug-in pilot is "
+    raise ValueError(f"unknown pilot {name!r} (registered: {', '.join(PILOT_NAMES)}){listed}; a plug-in pilot is "
                      f"named as module:Class")
 
 
 def registered(name: str) -> PilotEntry | None:
     """The registered pilot `name` (`PILOTS`), else None; never imports anything.
 
-    Readers of a run folder (metrics, report, viewer, animation) use this, never `pilot`: a method name read
+    Readers of a run folder (metrics, report, viewer, animation) use this, never `pilot`: a pilot name read
     from a data file may be `module:Class`, and resolving it would import (run) code the file names. What a
     reader needs of a plug-in (label, colour) comes from the run's own run.json (`compare.results.run_info`).
     """
@@ -221,14 +221,14 @@ def _plugin(reference: str) -> PilotEntry:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise ValueError(f"method {reference!r}: cannot import module {module_name!r} ({exc}); install its "
+        raise ValueError(f"pilot {reference!r}: cannot import module {module_name!r} ({exc}); install its "
                          f"package or put its folder on PYTHONPATH") from exc
     except (Exception, SystemExit) as exc:  # its own code failed (a syntax error, an exception, sys.exit)
-        raise ValueError(f"method {reference!r}: importing module {module_name!r} failed: {_failure(exc)}") from None
+        raise ValueError(f"pilot {reference!r}: importing module {module_name!r} failed: {_failure(exc)}") from None
     obj: object = module
     for part in attr.split("."):
         if not hasattr(obj, part):
-            raise ValueError(f"method {reference!r}: module {module_name!r} has no {attr!r}")
+            raise ValueError(f"pilot {reference!r}: module {module_name!r} has no {attr!r}")
         obj = getattr(obj, part)
     return _entry_of(reference, reference, obj)
 
@@ -236,14 +236,14 @@ def _plugin(reference: str) -> PilotEntry:
 @functools.cache
 def _plugin_from_entry_point(name: str, value: str) -> PilotEntry:
     if not _ENTRY_NAME.match(name) or "__" in name:
-        raise ValueError(f"plug-in entry point {name!r} ({PLUGIN_GROUP}): a method name may only hold letters, "
+        raise ValueError(f"plug-in entry point {name!r} ({PLUGIN_GROUP}): a pilot name may only hold letters, "
                          f"digits, '_', '.' and '-', without '__' (it names output files)")
     entry = _entry_point(name)
     assert entry is not None
     try:
         obj = entry.load()
     except (Exception, SystemExit) as exc:  # not installed, or its own code failed at import
-        raise ValueError(f"method {name!r}: cannot load entry point {value!r} of {PLUGIN_GROUP} "
+        raise ValueError(f"pilot {name!r}: cannot load entry point {value!r} of {PLUGIN_GROUP} "
                          f"({_failure(exc)})") from None
     return _entry_of(name, value, obj)
 
@@ -267,10 +267,10 @@ def _check_text(name: str, what: str, text: str, limit: int) -> str:
     """`text` unless it is too long or holds `$` (matplotlib reads `$...$` as mathematics, and a stray one
     fails the report after the flying); raises ValueError naming the plug-in and the attribute."""
     if len(text) > limit:
-        raise ValueError(f"method {name!r}: its {what} is {len(text)} characters long ({text[:20]!r}...); at most "
+        raise ValueError(f"pilot {name!r}: its {what} is {len(text)} characters long ({text[:20]!r}...); at most "
                          f"{limit}")
     if "$" in text:
-        raise ValueError(f"method {name!r}: its {what} {text[:60]!r} holds '$', which the report's figures would "
+        raise ValueError(f"pilot {name!r}: its {what} {text[:60]!r} holds '$', which the report's figures would "
                          f"read as mathematics; leave it out")
     return text
 
@@ -282,7 +282,7 @@ def _check_color(name: str, color: str) -> str:
     from matplotlib.colors import is_color_like  # matplotlib: only for a plug-in that gives a colour
 
     if len(color) > MAX_LABEL_CHARS or not is_color_like(color):
-        raise ValueError(f"method {name!r}: color {color[:40]!r} is not a matplotlib colour (e.g. 'tab:green', "
+        raise ValueError(f"pilot {name!r}: color {color[:40]!r} is not a matplotlib colour (e.g. 'tab:green', "
                          f"'#1f77b4')")
     return color
 
@@ -296,7 +296,7 @@ def _check_constructible(name: str, cls: type) -> None:
     needed = [p.name for p in signature.parameters.values()
               if p.default is p.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
     if needed:
-        raise ValueError(f"method {name!r}: {cls.__qualname__}() needs the argument(s) {', '.join(needed)}; a "
+        raise ValueError(f"pilot {name!r}: {cls.__qualname__}() needs the argument(s) {', '.join(needed)}; a "
                          f"plug-in Pilot class is made with no arguments (or name a PilotEntry instead)")
 
 
@@ -309,7 +309,7 @@ class _PluginBuilder:
     def __call__(self, request: BuildRequest) -> Pilot:
         built = self.cls()
         if not isinstance(built, Pilot):
-            raise ValueError(f"method {self.name!r}: {self.cls.__qualname__} is not a pilot: a Pilot has a name "
+            raise ValueError(f"pilot {self.name!r}: {self.cls.__qualname__} is not a pilot: a Pilot has a name "
                              f"and the methods reset, act and episode_report (uam_fdm.pilot.Pilot)")
         return built
 
@@ -321,10 +321,10 @@ def _entry_of(name: str, source: str, obj: object) -> PilotEntry:
         _check_text(name, "description", obj.description, MAX_DESCRIPTION_CHARS)
         return replace(obj, name=name, default=False, color=_check_color(name, obj.color))
     if not inspect.isclass(obj):
-        raise ValueError(f"method {name!r}: {source} is a {type(obj).__name__}, not a Pilot class or a PilotEntry")
+        raise ValueError(f"pilot {name!r}: {source} is a {type(obj).__name__}, not a Pilot class or a PilotEntry")
     missing = [m for m in ("reset", "act", "episode_report") if not callable(getattr(obj, m, None))]
     if missing:
-        raise ValueError(f"method {name!r}: {obj.__qualname__} is not a pilot: it lacks {', '.join(missing)} "
+        raise ValueError(f"pilot {name!r}: {obj.__qualname__} is not a pilot: it lacks {', '.join(missing)} "
                          f"(uam_fdm.pilot.Pilot)")
     _check_constructible(name, obj)
     label = _check_text(name, "label", str(getattr(obj, "label", obj.__name__)), MAX_LABEL_CHARS)
@@ -346,10 +346,10 @@ def _entry_of(name: str, source: str, obj: object) -> PilotEntry:
         wall_s_per_flight_s=float(getattr(obj, "wall_s_per_flight_s", PLUGIN_WALL_S_PER_FLIGHT_S)))
 
 
-def ordered(methods: Iterable[str]) -> list[str]:
-    """`methods` without repeats, registered ones in table order first, then any others by name."""
-    names = set(methods)
-    return [m for m in PILOT_NAMES if m in names] + sorted(names - set(PILOT_NAMES))
+def ordered(names: Iterable[str]) -> list[str]:
+    """Pilot `names` without repeats, registered ones in table order first, then any others by name."""
+    unique = set(names)
+    return [m for m in PILOT_NAMES if m in unique] + sorted(unique - set(PILOT_NAMES))
 
 
 def build(name: str, request: BuildRequest) -> Pilot:
@@ -357,11 +357,11 @@ def build(name: str, request: BuildRequest) -> Pilot:
     needs one).
 
     Raises:
-        ValueError: an unknown method, or a pilot that needs a policy and has none (naming the file).
+        ValueError: an unknown pilot, or one that needs a policy and has none (naming the file).
     """
     built = pilot(name).build(request)
     if name in PILOTS and built.name != name:  # the pilot's own name labels its errors in the runner
-        raise ValueError(f"the builder of method {name!r} made a pilot named {built.name!r}")
+        raise ValueError(f"the builder of pilot {name!r} made a pilot named {built.name!r}")
     return built
 
 

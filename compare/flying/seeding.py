@@ -1,7 +1,7 @@
 """One seed drives everything: derived seeds for each comparison cell.
 
 A cell (scenario, episode, seed) gets one derived integer from `numpy.random.SeedSequence`, which
-seeds the turbulence realisation (the same for every method: both pilots fly the same air) and
+seeds the turbulence realisation (the same for every pilot: all fly the same air) and
 the pilot (OMPL's RNG for the classical pilot; the learned pilot acts deterministically). The
 derivation depends only on the cell, never on the order or the process it runs in, so a run gives
 the same numbers with any number of parallel jobs.

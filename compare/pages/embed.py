@@ -1,6 +1,6 @@
 """Text put into an HTML page: the one place that makes it safe (the viewer, `compare.pages.viewer`).
 
-Data embedded in a page (run.json's command and descriptions, labels, method and vehicle names, anything a
+Data embedded in a page (run.json's command and descriptions, labels, pilot and vehicle names, anything a
 run folder or a scenario file holds) is JSON in which no character can end the element it is in or start
 markup: `<`, `>` and `&` are written as JSON escapes (`\\u003c`...), as are U+2028 and U+2029 (line
 terminators in older JavaScript). The browser's `JSON.parse` gives the text back unchanged. This is safe by

@@ -139,16 +139,16 @@ def group_payload(group: FlightGroup, opts: ViewerConfig) -> dict:
         fig.add_trace(go.Scatter3d(
             x=s.pos_m[:last, 0], y=s.pos_m[:last, 1], z=s.pos_m[:last, 2], mode="lines", name=f"{label} path",
             line={"color": color, "width": 4}, opacity=0.55, customdata=custom, hovertemplate=hover,
-            legendgroup=p.method, showlegend=False))
+            legendgroup=p.pilot, showlegend=False))
         fig.add_trace(go.Scatter3d(
             x=s.pos_m[:1, 0], y=s.pos_m[:1, 1], z=s.pos_m[:1, 2], mode="lines", name=label,
-            line={"color": color, "width": 8}, customdata=custom[:1], hovertemplate=hover, legendgroup=p.method))
+            line={"color": color, "width": 8}, customdata=custom[:1], hovertemplate=hover, legendgroup=p.pilot))
         fig.add_trace(go.Scatter3d(
             x=s.pos_m[:1, 0], y=s.pos_m[:1, 1], z=s.pos_m[:1, 2], mode="markers", name=f"{label} vehicle",
             marker={"size": 7, "color": color, "line": {"color": "black", "width": 2}}, customdata=custom[:1],
-            hovertemplate=hover, legendgroup=p.method, showlegend=False))
+            hovertemplate=hover, legendgroup=p.pilot, showlegend=False))
         pilots.append({
-            "method": p.method, "label": p.label, "color": color, "end_t_s": round(p.end_t_s, 3),
+            "method": p.pilot, "label": p.label, "color": color, "end_t_s": round(p.end_t_s, 3),
             "outcome": p.episode.meta.outcome, "outcome_words": p.outcome_words, "last": last,
             "x": rounded(s.pos_m[:, 0], opts.round_m), "y": rounded(s.pos_m[:, 1], opts.round_m),
             "z": rounded(s.pos_m[:, 2], opts.round_m), "speed": rounded(s.speed_m_s, 0.001),

@@ -35,6 +35,7 @@ from mpl_toolkits.mplot3d.art3d import Line3D
 from PIL import GifImagePlugin, Image
 from tqdm import tqdm
 
+from compare.playback.animation_config import AnimationConfig
 from compare.playback.flights import Flight, FlightGroup, sample_flight
 from compare.report.figures import GOAL_STYLE, START_STYLE, plain_text, trace_from_episode
 from compare.results.run_info import WindInfo
@@ -45,9 +46,6 @@ from uam_fdm.files.atomic import atomic_path
 
 _log = logging.getLogger(__name__)
 
-MIN_SIZE_PX, MAX_SIZE_PX = 160, 3840
-MAX_FPS = 120.0
-MAX_DURATION_S = 600.0  # video length: 12,000 frames at 20 fps already take minutes to render
 FORMATS = ("mp4", "gif")
 VIDEO_CHOICES = ("scenario", "all", "none")  # which cells of a run `render_videos` animates
 # The layout is in inches on a figure at least 12.8 x 7.2 in (scaled to the frame by the dpi): fonts are in
@@ -57,48 +55,6 @@ _SIDE_IN = 3.85   # width of the side column (top-down map and readouts), from t
 _HEAD_IN = 0.86   # height of the title lines [in]
 _ELEV_DEG, _AZIM_DEG = 35.0, -60.0  # draw_map_3d's view
 _MARKER: dict[str, Any] = {"linestyle": "none", "markersize": 9, "markeredgecolor": "k", "markeredgewidth": 1.0}
-
-
-@dataclass(frozen=True)
-class AnimationConfig:
-    """How to render a clip.
-
-    Attributes:
-        fps: frames per second of the video [1/s].
-        duration_s: video length [s], at most MAX_DURATION_S; None: the flight's own length (real
-            time), capped at `max_auto_duration_s` (longer flights play faster).
-        max_auto_duration_s: cap of the automatic video length [s].
-        width_px, height_px: frame size [px]; even (H.264 with yuv420p needs even sizes).
-        orbit_deg: camera azimuth swept over the clip [deg] (0: fixed camera, much faster to render).
-    """
-
-    fps: float = 20.0
-    duration_s: float | None = None
-    max_auto_duration_s: float = 30.0
-    width_px: int = 1280
-    height_px: int = 720
-    orbit_deg: float = 0.0
-
-    def validate(self) -> None:
-        """Raise ValueError naming the option as the command line spells it (`--fps`, `--size`, ...)."""
-        if not (math.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"--fps {self.fps:g}: must be > 0")
-        if self.fps > MAX_FPS:
-            raise ValueError(f"--fps {self.fps:g}: must be at most {MAX_FPS:g}")
-        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
-            raise ValueError(f"--duration {self.duration_s:g}: must be > 0 seconds")
-        if self.duration_s is not None and self.duration_s > MAX_DURATION_S:
-            raise ValueError(f"--duration {self.duration_s:g}: must be at most {MAX_DURATION_S:g} seconds")
-        if not (math.isfinite(self.max_auto_duration_s) and 0 < self.max_auto_duration_s <= MAX_DURATION_S):
-            raise ValueError(f"max_auto_duration_s {self.max_auto_duration_s:g}: must be in (0, {MAX_DURATION_S:g}] "
-                             f"seconds")
-        size = f"--size {self.width_px}x{self.height_px}"
-        if not all(MIN_SIZE_PX <= s <= MAX_SIZE_PX for s in (self.width_px, self.height_px)):
-            raise ValueError(f"{size}: width and height must be between {MIN_SIZE_PX} and {MAX_SIZE_PX} px")
-        if self.width_px % 2 or self.height_px % 2:
-            raise ValueError(f"{size}: width and height must be even (H.264 video)")
-        if not math.isfinite(self.orbit_deg):
-            raise ValueError(f"--orbit {self.orbit_deg:g}: must be a finite angle in degrees")
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.report.figures import crop_map, flight_region, method_colors, trace_from_episode
+from compare.report.figures import crop_map, flight_region, pilot_colors, trace_from_episode
 from compare.results.episodes import EpisodeEntry, RunEpisodes, open_episodes
 from compare.results.run_info import WindInfo, read_run_info
 from compare.results.trajectory import SavedEpisode
@@ -58,7 +58,7 @@ class Flight:
         return self.source.load_recent(self.entry)
 
     @property
-    def method(self) -> str:
+    def pilot(self) -> str:
         return self.entry.key.method
 
     @property
@@ -68,11 +68,11 @@ class Flight:
 
 @dataclass(frozen=True)
 class FlightGroup:
-    """The flights of one comparison cell, one per pilot that flew it, in the run's method order.
+    """The flights of one comparison cell, one per pilot that flew it, in the run's pilot order.
 
     Attributes:
         scenario, episode, seed: the cell.
-        flights: one per method that flew it.
+        flights: one per pilot that flew it.
         city: the scenario's map (from the run folder's `maps/<scenario>.yaml`).
         description: the scenario's one-line description (may be empty).
         wind: the scenario's wind as run.json records it (None when it does not).
@@ -131,7 +131,7 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
     if not episodes.entries and not episodes.unreadable:
         raise ValueError(f"{run_dir}: no saved episodes (store/ or episodes/*.npz) to show")
     scen_order = {s.name: i for i, s in enumerate(info.scenarios)}
-    method_order = {m: i for i, m in enumerate(info.methods)}
+    pilot_order = {m: i for i, m in enumerate(info.pilots)}
     by_cell: dict[tuple[str, int, int], list[Flight]] = {}
     level = logging.WARNING if warn_unreadable else logging.INFO
     unreadable = []
@@ -151,17 +151,17 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
             Flight(entry, episodes, "", "", float(t[-1]) if len(t) else 0.0, ep.meta.outcome))
     if not by_cell:
         raise ValueError(f"{run_dir}: no readable saved episodes to show (unreadable: {', '.join(unreadable)})")
-    all_methods = sorted({p.method for found in by_cell.values() for p in found},
-                         key=lambda m: (method_order.get(m, len(method_order)), m))
-    colors = method_colors(all_methods, info.colors())
+    all_pilots = sorted({p.pilot for found in by_cell.values() for p in found},
+                        key=lambda m: (pilot_order.get(m, len(pilot_order)), m))
+    colors = pilot_colors(all_pilots, info.colors())
     maps: dict[str, BuildingMap] = {}
     groups = []
     for (scenario, episode, seed) in sorted(by_cell, key=lambda c: (scen_order.get(c[0], len(scen_order)), c)):
         if scenario not in maps:
             maps[scenario] = load_map_file(run_dir / "maps" / f"{scenario}.yaml")
         found = sorted(by_cell[(scenario, episode, seed)],
-                       key=lambda p: (method_order.get(p.method, len(method_order)), p.method))
-        flights = tuple(replace(p, label=info.label(p.method), color=colors[p.method]) for p in found)
+                       key=lambda p: (pilot_order.get(p.pilot, len(pilot_order)), p.pilot))
+        flights = tuple(replace(p, label=info.label(p.pilot), color=colors[p.pilot]) for p in found)
         sc = info.scenario(scenario)
         groups.append(FlightGroup(scenario, episode, seed, flights, maps[scenario],
                                   description=sc.description if sc else "", wind=sc.wind if sc else None))

@@ -8,9 +8,9 @@ flight's start. Entities:
 ```
 run:      cells/<scenario>__ep<episode>__s<seed>/city            Boxes3D (prism parts: Mesh3D city_prisms), static
           cells/<cell>/start, goal                               Points3D, static
-          cells/<cell>/<method>/path                             LineStrips3D, static
-          cells/<cell>/<method>/vehicle                          Points3D over t
-          cells/<cell>/<method>/clearance_m, speed_m_s           Scalars over t
+          cells/<cell>/<pilot>/path                             LineStrips3D, static
+          cells/<cell>/<pilot>/vehicle                          Points3D over t
+          cells/<cell>/<pilot>/clearance_m, speed_m_s           Scalars over t
 training: tasks/task_<k>/city, start, goal                       static
           tasks/task_<k>/step_<timesteps>/path, vehicle, clearance_m, speed_m_s   (as above)
 ```
@@ -142,7 +142,7 @@ def run_recording(run_dir: Path, out: Path) -> Path:
                     t = np.r_[t, p.end_t_s]
                 s = sample_flight(p.episode, t)
                 rgba = tuple(int(round(255 * v)) for v in to_rgba(p.color))
-                _flight(rr, rec, f"{cell}/{rr.escape_entity_path_part(p.method)}", t, s.pos_m, s.speed_m_s,
+                _flight(rr, rec, f"{cell}/{rr.escape_entity_path_part(p.pilot)}", t, s.pos_m, s.speed_m_s,
                         s.clearance_m, rgba)  # type: ignore[arg-type]
 
     return _write(Path(out), f"run-{Path(run_dir).resolve().name}", log)

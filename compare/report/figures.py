@@ -5,8 +5,8 @@ Builders take data already loaded from a run folder (`FlightTrace`, tables of st
 never read files, never simulate and never touch pyplot's global state.  `compare.report.report` loads
 the run, calls these builders in order and writes the PDF and PNGs.
 
-Colours are fixed per method (`METHOD_COLORS`, from `compare.flying.pilots`, with a fallback cycle for
-unknown methods) so a method looks the same on every page.
+Colours are fixed per pilot (`PILOT_COLORS`, from `compare.flying.pilots`, with a fallback cycle for
+unknown pilots) so a pilot looks the same on every page.
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ from uam_fdm.city.buildings import BuildingMap, Prism
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
 from uam_fdm.episode import Outcome
 
-METHOD_COLORS: dict[str, str] = {name: entry.color for name, entry in PILOTS.items()}
+PILOT_COLORS: dict[str, str] = {name: entry.color for name, entry in PILOTS.items()}
 FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",
                                     "tab:olive", "tab:cyan", "tab:gray")
 PAGE_SIZE_IN = (11.69, 8.27)  # A4 landscape
@@ -60,20 +60,20 @@ def plain_text(func: Callable[P, R]) -> Callable[P, R]:
     return wrapper
 
 
-def method_colors(methods: Iterable[str], recorded: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Colour of each method: `METHOD_COLORS` for registered ones, then the colour the run recorded for it
+def pilot_colors(pilots: Iterable[str], recorded: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Colour of each pilot: `PILOT_COLORS` for registered ones, then the colour the run recorded for it
     (`recorded`, from run.json: a plug-in's own) when matplotlib knows it, then `FALLBACK_COLORS` in order.
 
-    Nothing is imported by name: a method read from a run folder may be `module:Class`, which a reader must not
+    Nothing is imported by name: a pilot read from a run folder may be `module:Class`, which a reader must not
     run (the run recorded the plug-in's colour when it flew).
     """
     out: dict[str, str] = {}
-    spare = iter(c for c in FALLBACK_COLORS if c not in METHOD_COLORS.values())
-    for m in methods:
+    spare = iter(c for c in FALLBACK_COLORS if c not in PILOT_COLORS.values())
+    for m in pilots:
         if m in out:
             continue
         own = (recorded or {}).get(m, "")
-        out[m] = METHOD_COLORS.get(m) or (own if own and is_color_like(own) else "") or next(spare, "0.3")
+        out[m] = PILOT_COLORS.get(m) or (own if own and is_color_like(own) else "") or next(spare, "0.3")
     return out
 
 
@@ -84,7 +84,7 @@ class FlightTrace:
 
     Attributes:
         episode: the saved episode's metadata (`compare.results.trajectory.EpisodeMeta`).
-        label: the method's display label; color: its matplotlib colour.
+        label: the pilot's display label; color: its matplotlib colour.
         t_s: (K,) time [s]; pos_m: (K, 3) position, world ENU [m]; speed_m_s: (K,) ground speed [m/s].
         clearance_m: (K,) signed clearance of the collision sphere [m] (the minimum sample is kept).
         rotor_kw: (K,) total rotor shaft power Σ Q_i·Ω_i [kW], the model's at each step as the episode file
@@ -106,7 +106,7 @@ class FlightTrace:
     bbox_max_m: np.ndarray
 
     @property
-    def method(self) -> str:
+    def pilot(self) -> str:
         return self.episode.key.method
 
     @property
@@ -410,11 +410,11 @@ def _trace_legend(t: FlightTrace) -> str:
 
 
 def episode_paths_figure(title: str, traces: Sequence[FlightTrace], bmap: BuildingMap | None) -> Figure:
-    """3D view of the city around the flights (left) and a top-down view (right), both methods' paths.
+    """3D view of the city around the flights (left) and a top-down view (right), every pilot's path.
 
     Args:
         title: page title, e.g. "Episode suburb-quad #0 seed 0".
-        traces: one per method, all of the same task.
+        traces: one per pilot, all of the same task.
         bmap: the scenario's city (None: draw the paths alone).
     """
     lo, hi = flight_region(traces)

@@ -1,12 +1,12 @@
 """The report's metrics pages for one vehicle: tables and figures from its summary and metrics rows.
 
 A run may fly several vehicles; nothing here pools them. For each vehicle `vehicle_pages` gives, in
-order: the per-method table (mean [95 % CI]), the forest plot of the main metrics, the paired
+order: the per-pilot table (mean [95 % CI]), the forest plot of the main metrics, the paired
 differences (forest plot and table, each metric's minimum detectable difference beside it), success
 along task difficulty, the scenarios' conditions and the per-scenario table. `episode_table_pages`
 lists its episodes (bounded: every row is in metrics.csv).
 
-Builders take loaded data (`Summary`, `EpisodeMetrics`, `ScenarioConditions`) and a `MethodStyle`;
+Builders take loaded data (`Summary`, `EpisodeMetrics`, `ScenarioConditions`) and a `PilotStyle`;
 they return figures and never read files.
 """
 from __future__ import annotations
@@ -77,27 +77,27 @@ EPISODE_ROWS_PER_VEHICLE = 104
 
 
 @dataclass(frozen=True)
-class MethodStyle:
-    """How methods show: table order, display labels and colours (by method name)."""
+class PilotStyle:
+    """How pilots show: table order, display labels and colours (by pilot name)."""
 
     order: tuple[str, ...]
     labels: Mapping[str, str]
     colors: Mapping[str, str]
 
-    def label(self, method: str) -> str:
-        return self.labels.get(method, method)
+    def label(self, pilot: str) -> str:
+        return self.labels.get(pilot, pilot)
 
-    def color(self, method: str) -> str:
-        return self.colors.get(method, "0.3")
+    def color(self, pilot: str) -> str:
+        return self.colors.get(pilot, "0.3")
 
-    def rank(self, method: str) -> int:
-        """The method's place in table order (after every known one when unknown)."""
-        return self.order.index(method) if method in self.order else len(self.order)
+    def rank(self, pilot: str) -> int:
+        """The pilot's place in table order (after every known one when unknown)."""
+        return self.order.index(pilot) if pilot in self.order else len(self.order)
 
-    def sorted(self, methods: Sequence[str]) -> list[str]:
-        """`methods` in table order (those the style does not know last, in the order given)."""
-        known = [m for m in self.order if m in methods]
-        return known + [m for m in methods if m not in known]
+    def sorted(self, pilots: Sequence[str]) -> list[str]:
+        """`pilots` in table order (those the style does not know last, in the order given)."""
+        known = [m for m in self.order if m in pilots]
+        return known + [m for m in pilots if m not in known]
 
     def pair_label(self, pair: PairedSummary) -> str:
         return f"{self.label(pair.first)} − {self.label(pair.second)}"
@@ -136,7 +136,7 @@ def interval_words(summary: Summary) -> str:
 
 # ---- one vehicle ---------------------------------------------------------------------------------------
 def vehicle_pages(vehicle: str, summary: Summary, scenarios: Mapping[str, Summary], rows: Sequence[EpisodeMetrics],
-                  conditions: Mapping[str, ScenarioConditions], style: MethodStyle,
+                  conditions: Mapping[str, ScenarioConditions], style: PilotStyle,
                   source: str) -> list[tuple[str, list[Figure]]]:
     """The metrics pages of one vehicle, as (page name, figures) in report order.
 
@@ -146,61 +146,62 @@ def vehicle_pages(vehicle: str, summary: Summary, scenarios: Mapping[str, Summar
         scenarios: the summaries of its scenarios, by name, in run order.
         rows: its metrics rows.
         conditions: its scenarios' conditions, by name.
-        style: the methods' order, labels and colours.
+        style: the pilots' order, labels and colours.
         source: where the numbers come from (a sentence for the notes).
     """
-    methods = style.sorted(list(summary.methods))
+    pilots = style.sorted(list(summary.pilots))
     where = f"{len(scenarios)} scenario{'s' if len(scenarios) != 1 else ''} of vehicle {vehicle}"
     slug = f"vehicle_{vehicle}"
-    out = [(f"{slug}_methods", _methods_pages(vehicle, summary, methods, style, where, source)),
-           (f"{slug}_forest", [_forest_page(vehicle, summary, methods, style, where)])]
+    # the first page keeps its first file name, figures/vehicle_<vehicle>_methods.png
+    out = [(f"{slug}_methods", _pilots_pages(vehicle, summary, pilots, style, where, source)),
+           (f"{slug}_forest", [_forest_page(vehicle, summary, pilots, style, where)])]
     if summary.paired:
         out.append((f"{slug}_paired", _paired_pages(vehicle, summary, style)))
-    axes = success_by_difficulty(rows, conditions, methods)
+    axes = success_by_difficulty(rows, conditions, pilots)
     subtitle = ("Success rate per bin with its 95 % Wilson interval (wide where a bin holds few episodes); bins "
                 "shared by the pilots, easier conditions on the left. Leg: straight-line start-goal distance; "
                 "coverage: share of the map under building footprints (maps/*.yaml); turbulence and air density "
                 "at the field from run.json.")
     out.append((f"{slug}_difficulty", [difficulty_figure(f"{vehicle}: where does each pilot break?", axes,
-                                                         {m: style.label(m) for m in methods}, style.colors,
+                                                         {m: style.label(m) for m in pilots}, style.colors,
                                                          subtitle=subtitle)]))
     out.append((f"{slug}_scenarios", _conditions_pages(vehicle, scenarios, rows, conditions)
                 + _scenario_pages(vehicle, scenarios, style)))
     return out
 
 
-def _methods_pages(vehicle: str, summary: Summary, methods: list[str], style: MethodStyle, where: str,
+def _pilots_pages(vehicle: str, summary: Summary, pilots: list[str], style: PilotStyle, where: str,
                    source: str) -> list[Figure]:
-    stats = summary.methods
+    stats = summary.pilots
     keys = [k for k, *_ in SUMMARY_ROWS]
     spec = list(SUMMARY_ROWS) + [(k, k, 1.0, 3) for k in summary.metrics if k not in keys]
-    table = [["episodes"] + [str(stats[m].episodes) for m in methods]]
+    table = [["episodes"] + [str(stats[m].episodes) for m in pilots]]
     for key, label, scale, digits in spec:
-        if any(key in stats[m].stats for m in methods):
-            table.append([label] + [format_ci(stats[m].stats.get(key), scale, digits) for m in methods])
-    reasons = [", ".join(f"{k}: {v}" for k, v in stats[m].failure_reasons.items()) or "none" for m in methods]
+        if any(key in stats[m].stats for m in pilots):
+            table.append([label] + [format_ci(stats[m].stats.get(key), scale, digits) for m in pilots])
+    reasons = [", ".join(f"{k}: {v}" for k, v in stats[m].failure_reasons.items()) or "none" for m in pilots]
     table.append(["failure reasons"] + reasons)
     notes = [f"Over the {where}, never pooled with another vehicle; {source}",
              "Cells: mean [95 % confidence interval] over episodes (flight time, path length and energy: successful "
              "ones only). " + interval_words(summary)]
-    return F.table_pages(f"{vehicle}: per method, mean [95 % CI]", ["metric"] + [style.label(m) for m in methods],
+    return F.table_pages(f"{vehicle}: per pilot, mean [95 % CI]", ["metric"] + [style.label(m) for m in pilots],
                          table, rows_per_page=30, notes=wrapped(notes), font_size=8.5)
 
 
-def _forest_page(vehicle: str, summary: Summary, methods: list[str], style: MethodStyle, where: str) -> Figure:
+def _forest_page(vehicle: str, summary: Summary, pilots: list[str], style: PilotStyle, where: str) -> Figure:
     panels = []
     for key, title, scale, _ in FOREST_METRICS:
         rows = []
-        for m in methods:
-            st = summary.methods[m].stats.get(key)
+        for m in pilots:
+            st = summary.pilots[m].stats.get(key)
             ok = st is not None and st.mean is not None
             rows.append(ForestRow(style.label(m), style.color(m), _scaled(st, "mean", scale),
                                   _scaled(st, "ci_low", scale), _scaled(st, "ci_high", scale),
                                   note=f"n {st.n}" if ok and st is not None else "n/a"))
         panels.append(ForestPanel(title, tuple(rows), limits=(-4.0, 104.0) if key in RATE_METRICS else None))
-    subtitle = (f"Per method over the {where}: mean and 95 % interval (rates: Wilson; the rest: bootstrap); "
+    subtitle = (f"Per pilot over the {where}: mean and 95 % interval (rates: Wilson; the rest: bootstrap); "
                 f"n = episodes used (time and energy: successful ones).")
-    return forest_figure(f"{vehicle}: summary per method", panels, subtitle=subtitle)
+    return forest_figure(f"{vehicle}: summary per pilot", panels, subtitle=subtitle)
 
 
 def _scaled(st: Stat | None, name: str, scale: float) -> float | None:
@@ -220,7 +221,7 @@ def mdd_words(summary: Summary) -> str:
             f"outcomes independent. A smaller true difference is likely to go unseen.")
 
 
-def _paired_pages(vehicle: str, summary: Summary, style: MethodStyle) -> list[Figure]:
+def _paired_pages(vehicle: str, summary: Summary, style: PilotStyle) -> list[Figure]:
     """The paired differences of one vehicle: a forest plot (MDD beside each) and the full table."""
     pairs = summary.paired
     panels = []
@@ -300,21 +301,21 @@ def _conditions_pages(vehicle: str, scenarios: Mapping[str, Summary], rows: Sequ
                          notes=wrapped(notes), font_size=8)
 
 
-def _scenario_pages(vehicle: str, scenarios: Mapping[str, Summary], style: MethodStyle) -> list[Figure]:
+def _scenario_pages(vehicle: str, scenarios: Mapping[str, Summary], style: PilotStyle) -> list[Figure]:
     table = []
     for name, part in scenarios.items():
-        for m in style.sorted(list(part.methods)):
-            ms = part.methods[m]
+        for m in style.sorted(list(part.pilots)):
+            ms = part.pilots[m]
             reasons = ", ".join(f"{k} {v}" for k, v in ms.failure_reasons.items()) or "none"
             table.append([name, style.label(m), str(ms.episodes)]
                          + [format_ci(ms.stats.get(k), scale, digits) for k, _, scale, digits in SCENARIO_COLUMNS]
                          + [reasons])
-    header = ["scenario", "method", "episodes"] + [h for _, h, *_ in SCENARIO_COLUMNS] + ["failures"]
+    header = ["scenario", "pilot", "episodes"] + [h for _, h, *_ in SCENARIO_COLUMNS] + ["failures"]
     notes = ["Cells: mean [95 % CI] within the scenario (rates: Wilson; the rest: bootstrap)."]
     return F.table_pages(f"{vehicle}: per scenario", header, table, rows_per_page=24, notes=notes, font_size=7)
 
 
-def episode_table_pages(vehicle: str, rows: Sequence[EpisodeMetrics], style: MethodStyle,
+def episode_table_pages(vehicle: str, rows: Sequence[EpisodeMetrics], style: PilotStyle,
                         scenario_order: Sequence[str], max_rows: int = EPISODE_ROWS_PER_VEHICLE) -> list[Figure]:
     """One vehicle's episodes, one row per metrics.csv row in run order, at most `max_rows` (a note says so)."""
     def order(r: EpisodeMetrics) -> tuple:
@@ -326,7 +327,7 @@ def episode_table_pages(vehicle: str, rows: Sequence[EpisodeMetrics], style: Met
     table = [[r.scenario, str(r.episode), str(r.seed), style.label(r.method), r.outcome,
               _number(r.min_clearance_m, 1.0, 2), _number(r.time_s, 1.0, 1), _number(r.energy_kj, 1.0, 2)]
              for r in shown]
-    header = ["scenario", "episode", "seed", "method", "outcome", "min clearance [m]", "time [s]", "energy [kJ]"]
+    header = ["scenario", "episode", "seed", "pilot", "outcome", "min clearance [m]", "time [s]", "energy [kJ]"]
     note = (f"{len(rows)} rows of metrics.csv." if len(shown) == len(rows) else
             f"The first {len(shown)} of {len(rows)} rows of metrics.csv (run order); every row is in metrics.csv.")
     return F.table_pages(f"{vehicle}: per episode", header, table, rows_per_page=26, notes=[note])

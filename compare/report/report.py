@@ -4,9 +4,9 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes
 `episodes/*.npz` in a folder saved before the store: `compare.results.episodes`), `metrics.csv` and
 `summary.json`.  `build_report` writes, in order:
 
-1. title page(s) "uam-compare report": task set and version (a benchmark run), scenarios, methods, software
+1. title page(s) "uam-compare report": task set and version (a benchmark run), scenarios, pilots, software
    versions, command, date, fairness;
-2. per vehicle, never pooled across vehicles (`compare.report.metrics_pages`): per-method mean [95 % CI]
+2. per vehicle, never pooled across vehicles (`compare.report.metrics_pages`): per-pilot mean [95 % CI]
    table, summary forest plot, paired differences with their minimum detectable differences, success
    along task difficulty, the scenarios' conditions, per-scenario and per-episode tables (bounded);
    then the classical pilot's tracker per scenario; a robustness-sweep run's rates against density altitude
@@ -22,7 +22,7 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes
 
 The per-vehicle numbers are summary.json's; a summary.json written before per-vehicle summaries (whose
 run-wide numbers may pool vehicles), or none, is replaced by the same summary computed from metrics.csv,
-and the pages say so. A method shows with run.json's label (a plug-in that cannot be imported where the
+and the pages say so. A pilot shows with run.json's label (a plug-in that cannot be imported where the
 report is built too) and its own colour. It works on an interrupted run (the episodes and metric rows
 present are used; a missing `metrics.csv` is noted instead of failing). The PDF is written under a
 temporary name and renamed; every page is also saved as a PNG under `RUN_DIR/figures/`.
@@ -45,7 +45,7 @@ from matplotlib.figure import Figure
 from compare.flying import pilots
 from compare.report import figures as F
 from compare.report.learning_pages import learning_figures
-from compare.report.metrics_pages import SUMMARY_ROWS, MethodStyle, episode_table_pages, format_ci, vehicle_pages
+from compare.report.metrics_pages import SUMMARY_ROWS, PilotStyle, episode_table_pages, format_ci, vehicle_pages
 from compare.report.sweep_pages import sweep_pages
 from compare.results.difficulty import scenario_conditions
 from compare.results.episodes import EpisodeEntry, RunEpisodes, open_episodes
@@ -74,11 +74,11 @@ PNG_DPI = 130
 
 @dataclass
 class _Run:
-    """What every page needs: the folder, its provenance and the per-method labels and colours."""
+    """What every page needs: the folder, its provenance and the per-pilot labels and colours."""
 
     run_dir: Path
     info: RunInfo
-    methods: list[str]
+    pilots: list[str]
     labels: dict[str, str]
     colors: dict[str, str]
     scenarios: list[str]
@@ -94,18 +94,18 @@ class _Run:
         if name not in self.unreadable:
             self.unreadable.append(name)
 
-    def label(self, method: str) -> str:
-        return self.labels.get(method, method)
+    def label(self, pilot: str) -> str:
+        return self.labels.get(pilot, pilot)
 
-    def add_method(self, method: str) -> None:
-        """A method run.json does not list (found in the episode files or metrics.csv): its label and own colour."""
-        self.methods.append(method)
-        self.labels.setdefault(method, _registry_label(method))
-        self.colors = F.method_colors(self.methods, self.info.colors())
+    def add_pilot(self, pilot: str) -> None:
+        """A pilot run.json does not list (found in the episode files or metrics.csv): its label and own colour."""
+        self.pilots.append(pilot)
+        self.labels.setdefault(pilot, _registry_label(pilot))
+        self.colors = F.pilot_colors(self.pilots, self.info.colors())
 
-    def style(self) -> MethodStyle:
-        """The methods' order, labels and colours, for the metrics pages."""
-        return MethodStyle(tuple(self.methods), dict(self.labels), dict(self.colors))
+    def style(self) -> PilotStyle:
+        """The pilots' order, labels and colours, for the metrics pages."""
+        return PilotStyle(tuple(self.pilots), dict(self.labels), dict(self.colors))
 
     def map_of(self, scenario: str) -> BuildingMap | None:
         if scenario not in self.maps:
@@ -218,19 +218,19 @@ class _PageWriter:
 
 
 def _make_run(run_dir: Path, info: RunInfo) -> _Run:
-    methods = list(info.methods)
+    names = list(info.pilots)
     for s in info.scenarios:
-        methods += [m for m in s.methods if m not in methods]
-    labels = {m: info.methods[m].label if m in info.methods else _registry_label(m) for m in methods}
-    return _Run(run_dir, info, methods, labels, F.method_colors(methods, info.colors()),
+        names += [m for m in s.pilots if m not in names]
+    labels = {m: info.pilots[m].label if m in info.pilots else _registry_label(m) for m in names}
+    return _Run(run_dir, info, names, labels, F.pilot_colors(names, info.colors()),
                 [s.name for s in info.scenarios])
 
 
-def _registry_label(method: str) -> str:
-    """The label of a method run.json does not describe: the registry's, else its name (a plug-in is never
+def _registry_label(pilot: str) -> str:
+    """The label of a pilot run.json does not describe: the registry's, else its name (a plug-in is never
     imported to ask: the name comes from a data file)."""
-    entry = pilots.registered(method)
-    return entry.label if entry is not None else method
+    entry = pilots.registered(pilot)
+    return entry.label if entry is not None else pilot
 
 
 def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[EpisodeEntry]]:
@@ -241,8 +241,8 @@ def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[EpisodeEntry]]
         run.skip(bad.path.name, ValueError(bad.reason))
     for entry in run.episodes.entries:
         k = entry.key
-        if k.method not in run.methods:  # a method run.json does not list still gets its own colour
-            run.add_method(k.method)
+        if k.method not in run.pilots:  # a pilot run.json does not list still gets its own colour
+            run.add_pilot(k.method)
         groups.setdefault((k.scenario, k.episode, k.seed), []).append(entry)
         run.files[(k.scenario, k.episode, k.method, k.seed)] = entry
     for s in sorted({k[0] for k in groups}):
@@ -251,8 +251,8 @@ def _episode_groups(run: _Run) -> dict[tuple[str, int, int], list[EpisodeEntry]]
     return dict(sorted(groups.items(), key=lambda kv: (run.scenarios.index(kv[0][0]), kv[0][1], kv[0][2])))
 
 
-def _method_rank(run: _Run, method: str) -> int:
-    return run.methods.index(method) if method in run.methods else len(run.methods)
+def _pilot_rank(run: _Run, pilot: str) -> int:
+    return run.pilots.index(pilot) if pilot in run.pilots else len(run.pilots)
 
 
 def _slug(name: str) -> str:
@@ -278,7 +278,7 @@ def _num(v: float | None) -> str:
 
 # ---- 1. title -------------------------------------------------------------------------------------------
 def _planned_episodes(run: _Run) -> int:
-    return sum((s.episodes or 0) * len(s.seeds or [0]) * len(s.methods or run.methods) for s in run.info.scenarios)
+    return sum((s.episodes or 0) * len(s.seeds or [0]) * len(s.pilots or run.pilots) for s in run.info.scenarios)
 
 
 def _shear_words(shear: WindShear | None) -> str:
@@ -304,8 +304,8 @@ def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
         blocks.insert(1, ("p", f"Task set {ts.name}, version {ts.version}: {ts.description}"))
     for s in info.scenarios:
         blocks += _scenario_blocks(run, s)
-    blocks.append(("h", "Methods"))
-    for m, cfg in info.methods.items():
+    blocks.append(("h", "Pilots"))
+    for m, cfg in info.pilots.items():
         blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.description}"))
         for pol in ppo_policies(info, m):  # a pilot that flies policies: one per vehicle
             rate = f"; decides at {pol.decision_hz:g} Hz" if pol.decision_hz else ""
@@ -330,8 +330,8 @@ def _scenario_blocks(run: _Run, s: ScenarioInfo) -> list[tuple[str, str]]:
                f"density {_fmt(atm.density_kg_m3, 3)} kg/m³")),
         ("p", (f"    wind: steady {steady} m/s (ENU), {_shear_words(wind.shear)}, "
                f"turbulence {wind.turbulence or 'n/a'}")),
-        ("p", (f"    {_num(s.episodes)} episodes × seeds {list(s.seeds)}; methods "
-               f"{', '.join(run.label(m) for m in s.methods)}; "
+        ("p", (f"    {_num(s.episodes)} episodes × seeds {list(s.seeds)}; pilots "
+               f"{', '.join(run.label(m) for m in s.pilots)}; "
                f"physics {_num(s.physics_hz)} Hz, control {_num(s.control_hz)} Hz; "
                f"source {s.source or 'n/a'}"))]
 
@@ -364,9 +364,9 @@ def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> li
         note = (f"{why}: the metrics tables are skipped. "
                 "The uam-compare CLI recomputes metrics from the saved episodes before building the report.")
         return [("metrics", F.text_pages("Metrics", [("p", note)]))]
-    for m in dict.fromkeys(r.method for r in rows):  # a method only metrics.csv names still gets a label and colour
-        if m not in run.methods:
-            run.add_method(m)
+    for m in dict.fromkeys(r.method for r in rows):  # a pilot only metrics.csv names still gets a label and colour
+        if m not in run.pilots:
+            run.add_pilot(m)
     try:
         parts, source = _vehicle_parts(run, rows)
     except ValueError as exc:  # e.g. a hand-edited metrics.csv with a cell twice
@@ -378,7 +378,7 @@ def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> li
     for vehicle, part in parts.items():
         out += vehicle_pages(vehicle, part.summary, part.scenarios, part.rows, conditions, style, source)
         out.append((f"vehicle_{vehicle}_episodes", episode_table_pages(vehicle, part.rows, style, run.scenarios)))
-    tracker = [fig for m in run.methods for fig in _tracker_pages(run, rows, m)]
+    tracker = [fig for m in run.pilots for fig in _tracker_pages(run, rows, m)]
     if tracker:
         out.append(("metrics_tracker", tracker))
     return out
@@ -425,11 +425,11 @@ def _column(rows: Sequence[EpisodeMetrics], name: str) -> np.ndarray:
     return np.array([float(getattr(r, name)) for r in rows])
 
 
-def _tracker_pages(run: _Run, rows: list[EpisodeMetrics], method: str) -> list[Figure]:
+def _tracker_pages(run: _Run, rows: list[EpisodeMetrics], pilot: str) -> list[Figure]:
     """A pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from metrics.csv;
     nothing for a pilot without tracker columns (e.g. the learned pilot), one that did not fly, or a file
     that predates the tracker columns."""
-    mine = [r for r in rows if r.method == method]
+    mine = [r for r in rows if r.method == pilot]
     if not mine or all(not math.isfinite(r.planner_margin_m) for r in mine):
         return []
     table = [_tracker_row(scenario, [r for r in mine if r.scenario == scenario])
@@ -446,7 +446,7 @@ def _tracker_pages(run: _Run, rows: list[EpisodeMetrics], method: str) -> list[F
               "episodes; max: over all)."),
              ("Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
               "episodes.")]
-    return F.table_pages(f"Metrics: the {run.label(method)} tracker per scenario", header, table,
+    return F.table_pages(f"Metrics: the {run.label(pilot)} tracker per scenario", header, table,
                          rows_per_page=26, notes=notes, font_size=7)
 
 
@@ -524,7 +524,7 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Episode
         traces = [t for path in paths if (t := _trace(run, path)) is not None]
         if not traces:
             continue
-        traces.sort(key=lambda t: _method_rank(run, t.method))
+        traces.sort(key=lambda t: _pilot_rank(run, t.pilot))
         failures += [t for t in traces if t.episode.outcome != Outcome.SUCCESS]
         bmap = run.map_of(scenario)
         title = f"Episode {scenario} #{ep} seed {seed}" + ("" if bmap is not None else " (map file missing)")
@@ -538,11 +538,11 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Episode
 
 
 # ---- 4. training ----------------------------------------------------------------------------------------
-def ppo_policies(info: RunInfo, method: str | None = None) -> list[PolicyRecord]:
-    """The policies run.json records (vehicle, policy_dir, decision_hz), one per vehicle, of `method`
-    (None: of every method that flies policies); a run written before policies per vehicle has one,
+def ppo_policies(info: RunInfo, pilot: str | None = None) -> list[PolicyRecord]:
+    """The policies run.json records (vehicle, policy_dir, decision_hz), one per vehicle, of `pilot`
+    (None: of every pilot that flies policies); a run written before policies per vehicle has one,
     without its vehicle."""
-    return [pol for m in ([method] if method is not None else list(info.methods)) for pol in info.policies(m)]
+    return [pol for m in ([pilot] if pilot is not None else list(info.pilots)) for pol in info.policies(m)]
 
 
 def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:
@@ -638,7 +638,7 @@ def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeM
     if len(entries) > MAX_FAILURE_ROWS:
         notes.insert(0, f"The first {MAX_FAILURE_ROWS} of {len(entries)} failures (run order); every one is in "
                         f"metrics.csv.")
-    header = ["scenario", "episode", "seed", "method", "failure reason", "detail", "time [s]"]
+    header = ["scenario", "episode", "seed", "pilot", "failure reason", "detail", "time [s]"]
     pages.add_all(F.table_pages("Failures", header, [e for _, e in entries[:MAX_FAILURE_ROWS]], notes=notes),
                   "failures_table")
     shown = list(failures[:MAX_FAILURE_PLOTS])
@@ -666,19 +666,19 @@ def _failed_cell_pages(run: _Run, pages: _PageWriter) -> None:
               _short(f.reason, 90), f"{f.elapsed_s:.1f}", f"{f.backend} {f.worker}".strip()]
              for f in failed[:MAX_FAILURE_ROWS]]
     notes = [f"{describe_failures(failed)}: these cells produced no episode, so they are in no rate, mean or paired "
-             f"difference of this report (each method's counts above are of the episodes it flew). The records, "
+             f"difference of this report (each pilot's counts above are of the episodes it flew). The records, "
              f"with full tracebacks, are in {FAILED_DIR}/; `uam-compare run ... --resume` flies them again."]
     if len(failed) > MAX_FAILURE_ROWS:
         notes.append(f"The first {MAX_FAILURE_ROWS} of {len(failed)} (run order).")
-    header = ["scenario", "episode", "seed", "method", "kind", "reason", "after [s]", "where"]
+    header = ["scenario", "episode", "seed", "pilot", "kind", "reason", "after [s]", "where"]
     pages.add_all(F.table_pages("Failed cells: no episode", header, table, notes=notes), "failed_cells")
 
 
 def _cell_rank(run: _Run, cell: tuple[str, int, str, int]) -> tuple:
-    """A cell's place in run order: scenario, episode, seed, method."""
-    scenario, episode, method, seed = cell
+    """A cell's place in run order: scenario, episode, seed, pilot."""
+    scenario, episode, pilot, seed = cell
     k = run.scenarios.index(scenario) if scenario in run.scenarios else len(run.scenarios)
-    return (k, scenario, episode, seed, _method_rank(run, method), method)
+    return (k, scenario, episode, seed, _pilot_rank(run, pilot), pilot)
 
 
 def _trace(run: _Run, entry: EpisodeEntry) -> F.FlightTrace | None:

@@ -29,7 +29,7 @@ class ForestRow:
     """One row of a forest panel: a mean with its interval, already in the panel's unit.
 
     Attributes:
-        label: the row's name (a method, or a pair "A − B"). color: its marker colour.
+        label: the row's name (a pilot, or a pair "A − B"). color: its marker colour.
         mean, low, high: the value and its interval (None: nothing to draw, the note says why).
         note: text printed at the right of the row (e.g. "n 120" or "MDD 0.8").
         hollow: draw the marker open (a difference whose interval includes zero).
@@ -110,24 +110,24 @@ def _forest_panel(ax: Axes, panel: ForestPanel) -> None:
 
 def difficulty_figure(title: str, axes: Sequence[DifficultyAxis], labels: Mapping[str, str],
                       colors: Mapping[str, str], *, subtitle: str = "") -> Figure:
-    """Success rate [%] per bin of each difficulty axis, one panel per axis, per method with its Wilson interval.
+    """Success rate [%] per bin of each difficulty axis, one panel per axis, per pilot with its Wilson interval.
 
     Args:
         title: page title. subtitle: a line under it.
         axes: the axes (`compare.results.difficulty.success_by_difficulty`), up to four.
-        labels, colors: each method's label and colour (by method name; the methods drawn are the axes').
+        labels, colors: each pilot's label and colour (by pilot name; the pilots drawn are the axes').
     """
     fig = Figure(figsize=PAGE_SIZE_IN)
     fig.suptitle(title, fontsize=15, fontweight="bold", y=0.97)
     if subtitle:
         fig.text(0.5, 0.925, subtitle, ha="center", va="top", fontsize=8.5, style="italic", wrap=True)
     grid = fig.add_gridspec(2, 2, left=0.07, right=0.98, top=0.84, bottom=0.14, wspace=0.18, hspace=0.6)
-    methods: list[str] = []
+    pilots: list[str] = []
     for k, axis in enumerate(axes[:4]):
         ax = fig.add_subplot(grid[k // 2, k % 2])
         _difficulty_panel(ax, axis, colors)
-        methods += [m for m in axis.rates if m not in methods]
-    handles = [Line2D([], [], marker="o", color=colors.get(m, "0.3"), label=labels.get(m, m)) for m in methods]
+        pilots += [m for m in axis.rates if m not in pilots]
+    handles = [Line2D([], [], marker="o", color=colors.get(m, "0.3"), label=labels.get(m, m)) for m in pilots]
     if handles:
         fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 5), fontsize=9, frameon=False)
     return fig
@@ -143,12 +143,12 @@ def _difficulty_panel(ax: Axes, axis: DifficultyAxis, colors: Mapping[str, str])
         ax.text(0.5, 0.5, "not recorded in this run", ha="center", va="center", transform=ax.transAxes)
         ax.set_xticks([])
         return
-    methods = list(axis.rates)
-    width = 0.5 / max(len(methods), 1)
+    pilots = list(axis.rates)
+    width = 0.5 / max(len(pilots), 1)
     x = np.arange(len(axis.bins), dtype=float)
-    for i, m in enumerate(methods):
+    for i, m in enumerate(pilots):
         bins = axis.rates[m]
-        xs = x + (i - (len(methods) - 1) / 2) * width
+        xs = x + (i - (len(pilots) - 1) / 2) * width
         have = [k for k, b in enumerate(bins) if b.n]
         if not have:
             continue
@@ -162,6 +162,6 @@ def _difficulty_panel(ax: Axes, axis: DifficultyAxis, colors: Mapping[str, str])
 
 
 def _counts(axis: DifficultyAxis, k: int) -> str:
-    """The episodes in bin k: "n 40", or "n 40/38" where the methods flew different numbers."""
+    """The episodes in bin k: "n 40", or "n 40/38" where the pilots flew different numbers."""
     ns = [axis.rates[m][k].n for m in axis.rates]
     return f"n {ns[0]}" if len(set(ns)) == 1 else "n " + "/".join(str(n) for n in ns)

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from compare.report.metrics_pages import MethodStyle
+from compare.report.metrics_pages import PilotStyle
 from compare.results.metrics import EpisodeMetrics
 from compare.results.run_info import RunInfo
 from compare.results.sweep_rates import AXES, SweepRate, sweep_rates
@@ -22,25 +22,25 @@ DODGE = 0.012
 """Pilots are drawn this fraction of the axis span apart around each step, so equal rates stay visible."""
 
 
-def sweep_pages(info: RunInfo, rows: Sequence[EpisodeMetrics], style: MethodStyle) -> list[tuple[str, Figure]]:
+def sweep_pages(info: RunInfo, rows: Sequence[EpisodeMetrics], style: PilotStyle) -> list[tuple[str, Figure]]:
     """The sweep pages of a run, (name, figure) per vehicle; none unless the run flew a sweep set."""
     if info.task_set is None or info.task_set.name not in SWEEP_SETS:
         return []
     rates = sweep_rates(info, rows)
     vehicles = list(dict.fromkeys(r.vehicle for r in rates))
-    envelopes = {(p.vehicle, m): p.envelope for m in info.methods for p in info.policies(m) if p.envelope}
+    envelopes = {(p.vehicle, m): p.envelope for m in info.pilots for p in info.policies(m) if p.envelope}
     out = []
     for v in vehicles:
         notes = [f"{style.label(m)}: shaded steps lie outside the air its policy was trained in "
                  f"({env.describe()}); they were flown all the same."
                  for (vehicle, m), env in envelopes.items() if vehicle == v and any(
-                     r.outside for r in rates if r.vehicle == v and r.method == m)]
+                     r.outside for r in rates if r.vehicle == v and r.pilot == m)]
         out.append((f"sweep_{v}", sweep_figure(v, [r for r in rates if r.vehicle == v], style, notes,
                                                f"{info.task_set.name} {info.task_set.version}")))
     return out
 
 
-def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: MethodStyle, notes: Sequence[str] = (),
+def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: PilotStyle, notes: Sequence[str] = (),
                  subtitle: str = "") -> Figure:
     """One vehicle's sweep: rows success and collision rate, columns the axes (`AXES`), a line and Wilson band
     per pilot (each `DODGE` of the span aside of the step, so that equal rates stay visible); steps outside a
@@ -55,7 +55,7 @@ def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: MethodStyle, n
     """
     fig = Figure(figsize=(11.0, 8.5))
     grid = fig.subplots(2, len(AXES), squeeze=False)
-    methods = sorted(dict.fromkeys(r.method for r in rates), key=style.rank)
+    pilots = sorted(dict.fromkeys(r.pilot for r in rates), key=style.rank)
     tasks = sorted({r.episodes for r in rates})
     n_text = f"{tasks[0]}" if len(tasks) == 1 else f"{tasks[0]}-{tasks[-1]}"
     fig.suptitle(f"Robustness sweep: {vehicle}\n{subtitle} · {n_text} episodes per step and pilot, the same tasks "
@@ -74,9 +74,9 @@ def sweep_figure(vehicle: str, rates: Sequence[SweepRate], style: MethodStyle, n
             steps = sorted({r.x * _X_SCALE[axis] for r in mine})
             # pilots with equal rates would hide each other: each is drawn a little aside (1.2 % of the span)
             span = (steps[-1] - steps[0]) or 1.0
-            for k, m in enumerate(methods):
-                _draw_pilot(ax, [r for r in mine if r.method == m], what, axis, style.color(m), style.label(m),
-                            (k - (len(methods) - 1) / 2.0) * DODGE * span)
+            for k, m in enumerate(pilots):
+                _draw_pilot(ax, [r for r in mine if r.pilot == m], what, axis, style.color(m), style.label(m),
+                            (k - (len(pilots) - 1) / 2.0) * DODGE * span)
             ax.set_xticks(steps)
             ax.set_xticklabels([f"{x:g}" if axis == "wind" else f"{x:.2f}".rstrip("0").rstrip(".")
                                 for x in steps], fontsize=8)

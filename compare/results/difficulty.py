@@ -8,8 +8,8 @@ The axes along which the report asks where each pilot breaks:
 * air density at the field (run.json) [kg/m³], also given as a density altitude (the ISA altitude where
   the standard atmosphere has that density) [m].
 
-`success_by_difficulty` bins one vehicle's episodes along each axis (the same bins for every method)
-and gives each method's success rate per bin with its Wilson interval: a bin of 3 episodes shows as
+`success_by_difficulty` bins one vehicle's episodes along each axis (the same bins for every pilot)
+and gives each pilot's success rate per bin with its Wilson interval: a bin of 3 episodes shows as
 what it is, an interval most of [0, 1] wide.
 """
 from __future__ import annotations
@@ -73,7 +73,7 @@ def scenario_conditions(info: ScenarioInfo, bmap: BuildingMap | None) -> Scenari
 
 @dataclass(frozen=True)
 class RateBin:
-    """One method's success in one bin: successes of n episodes, the rate and its Wilson interval (None for n = 0)."""
+    """One pilot's success in one bin: successes of n episodes, the rate and its Wilson interval (None for n = 0)."""
 
     successes: int
     n: int
@@ -89,7 +89,7 @@ class DifficultyAxis:
     Attributes:
         name: the axis with its unit, e.g. "leg length [m]".
         bins: the bins' labels, easiest first where the axis has an order.
-        rates: per method (in the order asked), one `RateBin` per bin.
+        rates: per pilot (in the order asked), one `RateBin` per bin.
         left_out: episodes without a value on this axis (the scenario did not record it).
     """
 
@@ -100,17 +100,17 @@ class DifficultyAxis:
 
 
 def success_by_difficulty(rows: Sequence[EpisodeMetrics], conditions: Mapping[str, ScenarioConditions],
-                          methods: Sequence[str], confidence: float = 0.95) -> tuple[DifficultyAxis, ...]:
-    """Each method's success rate binned along each difficulty axis (leg length, building coverage, turbulence,
+                          pilots: Sequence[str], confidence: float = 0.95) -> tuple[DifficultyAxis, ...]:
+    """Each pilot's success rate binned along each difficulty axis (leg length, building coverage, turbulence,
     air density), from one vehicle's rows.
 
-    Bins are shared by the methods: they are made over the distinct cells (scenario, episode, seed), at most
+    Bins are shared by the pilots: they are made over the distinct cells (scenario, episode, seed), at most
     `MAX_BINS` per axis (one per value where there are that few, else about equal counts of cells).
 
     Args:
         rows: one vehicle's metrics rows.
         conditions: the scenarios' conditions, by scenario name (a scenario absent: its values are unknown).
-        methods: the methods to give rates for, in order.
+        pilots: the pilots to give rates for, in order.
         confidence: the Wilson intervals' level.
     """
     def cond(r: EpisodeMetrics) -> ScenarioConditions | None:
@@ -131,11 +131,11 @@ def success_by_difficulty(rows: Sequence[EpisodeMetrics], conditions: Mapping[st
     def leg(r: EpisodeMetrics) -> float | None:
         return r.straight_line_m if math.isfinite(r.straight_line_m) else None
 
-    return (_numeric_axis("leg length [m]", rows, methods, leg, lambda v: f"{v:.0f}", confidence),
-            _numeric_axis("building coverage of the map [%]", rows, methods, coverage,
+    return (_numeric_axis("leg length [m]", rows, pilots, leg, lambda v: f"{v:.0f}", confidence),
+            _numeric_axis("building coverage of the map [%]", rows, pilots, coverage,
                           lambda v: f"{100.0 * v:.0f}", confidence),
-            _category_axis("turbulence", rows, methods, turbulence, confidence),
-            _numeric_axis("air density at the field [kg/m³] (DA: density altitude)", rows, methods, density,
+            _category_axis("turbulence", rows, pilots, turbulence, confidence),
+            _numeric_axis("air density at the field [kg/m³] (DA: density altitude)", rows, pilots, density,
                           lambda v: f"{v:.3f} (DA {density_altitude_m(v):.0f} m)", confidence, harder_when_low=True,
                           fmt_range=lambda lo, hi: (f"{lo:.3f}–{hi:.3f} (DA {density_altitude_m(hi):.0f}–"
                                                     f"{density_altitude_m(lo):.0f} m)")))
@@ -145,7 +145,7 @@ def _cell(r: EpisodeMetrics) -> tuple[str, int, int]:
     return (r.scenario, r.episode, r.seed)
 
 
-def _numeric_axis(name: str, rows: Sequence[EpisodeMetrics], methods: Sequence[str],
+def _numeric_axis(name: str, rows: Sequence[EpisodeMetrics], pilots: Sequence[str],
                   value: Callable[[EpisodeMetrics], float | None], fmt: Callable[[float], str], confidence: float,
                   harder_when_low: bool = False, fmt_range: Callable[[float, float], str] | None = None
                   ) -> DifficultyAxis:
@@ -178,24 +178,24 @@ def _numeric_axis(name: str, rows: Sequence[EpisodeMetrics], methods: Sequence[s
 
         def which(v: float) -> int:
             return slot[int(np.searchsorted(inner, v, side="left"))]
-    return _axis(name, labels, rows, methods, lambda r: None if (v := value(r)) is None else which(v), confidence)
+    return _axis(name, labels, rows, pilots, lambda r: None if (v := value(r)) is None else which(v), confidence)
 
 
-def _category_axis(name: str, rows: Sequence[EpisodeMetrics], methods: Sequence[str],
+def _category_axis(name: str, rows: Sequence[EpisodeMetrics], pilots: Sequence[str],
                    value: Callable[[EpisodeMetrics], str | None], confidence: float) -> DifficultyAxis:
     """Bins of a named level (turbulence): one per level present, in the levels' order (unknown names last)."""
     order = [level.value for level in TurbulenceLevel]
     present = {v for r in rows if (v := value(r)) is not None}
     labels = tuple(sorted(present, key=lambda v: (order.index(v) if v in order else len(order), v)))
-    return _axis(name, labels, rows, methods, lambda r: None if (v := value(r)) is None else labels.index(v),
+    return _axis(name, labels, rows, pilots, lambda r: None if (v := value(r)) is None else labels.index(v),
                  confidence)
 
 
-def _axis(name: str, labels: tuple[str, ...], rows: Sequence[EpisodeMetrics], methods: Sequence[str],
+def _axis(name: str, labels: tuple[str, ...], rows: Sequence[EpisodeMetrics], pilots: Sequence[str],
           which: Callable[[EpisodeMetrics], int | None], confidence: float) -> DifficultyAxis:
-    """Count each method's successes per bin (`which` gives a row's bin, None: left out) into `RateBin`s."""
-    wins = {m: [0] * len(labels) for m in methods}
-    total = {m: [0] * len(labels) for m in methods}
+    """Count each pilot's successes per bin (`which` gives a row's bin, None: left out) into `RateBin`s."""
+    wins = {m: [0] * len(labels) for m in pilots}
+    total = {m: [0] * len(labels) for m in pilots}
     left_out: set[tuple[str, int, int]] = set()
     for r in rows:
         k = which(r)
@@ -205,7 +205,7 @@ def _axis(name: str, labels: tuple[str, ...], rows: Sequence[EpisodeMetrics], me
             total[r.method][k] += 1
             wins[r.method][k] += int(r.success)
     return DifficultyAxis(name, labels, {m: tuple(_rate(wins[m][k], total[m][k], confidence)
-                                                  for k in range(len(labels))) for m in methods}, len(left_out))
+                                                  for k in range(len(labels))) for m in pilots}, len(left_out))
 
 
 def _rate(successes: int, n: int, confidence: float) -> RateBin:

@@ -103,7 +103,7 @@ class RunEpisodes:
 
     Attributes:
         run_dir: the run folder.
-        entries: one per cell held, in cell order (scenario, episode, method, seed).
+        entries: one per cell held, in cell order (scenario, episode, pilot, seed).
         unreadable: files found that do not read (each also logged by whoever acts on it).
     """
 

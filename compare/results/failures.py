@@ -148,13 +148,13 @@ def read_failures(run_dir: Path) -> list[FailedCell]:
 
 
 def describe_failures(failures: Sequence[FailedCell]) -> str:
-    """How many cells failed, by kind and by method, in one phrase: "3 cells failed (error 2, hang 1; apf 3)"."""
+    """How many cells failed, by kind and by pilot, in one phrase: "3 cells failed (error 2, hang 1; apf 3)"."""
     kinds = Counter(f.kind.value for f in failures)
-    methods = Counter(f.key.method for f in failures)
+    per_pilot = Counter(f.key.method for f in failures)
     by_kind = ", ".join(f"{k.value} {kinds[k.value]}" for k in FailureKind if kinds[k.value])
-    by_method = ", ".join(f"{m} {n}" for m, n in sorted(methods.items()))
+    by_pilot = ", ".join(f"{m} {n}" for m, n in sorted(per_pilot.items()))
     noun = "cell" if len(failures) == 1 else "cells"
-    return f"{len(failures)} {noun} failed ({by_kind}; {by_method})"
+    return f"{len(failures)} {noun} failed ({by_kind}; {by_pilot})"
 
 
 def remove_failure(run_dir: Path, key: EpisodeKey) -> bool:

@@ -36,7 +36,7 @@ class LevelRate(OutcomeRates):
 
     Attributes:
         vehicle: the vehicle preset. axis: one of `AXES`. level: the level's name ("all" on the "all" axis).
-        method: the pilot. episodes: episodes flown (all seeds).
+        pilot: the pilot's name. episodes: episodes flown (all seeds).
         successes, collisions, timeouts: their counts; other: the remaining outcomes, (name, count), by count.
         success_ci95, collision_ci95, timeout_ci95: 95 % Wilson intervals of the rates.
     """
@@ -44,7 +44,7 @@ class LevelRate(OutcomeRates):
     vehicle: str
     axis: str
     level: str
-    method: str
+    pilot: str
     episodes: int
     successes: int
     collisions: int
@@ -92,28 +92,28 @@ def level_rates(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[LevelRate
         info: the run's run.json (the scenarios' air and turbulence, the pilots).
         rows: its metrics rows.
     """
-    vehicles, methods = info.run_order(r.method for r in rows)
+    vehicles, flown = info.run_order(r.method for r in rows)
     out = []
     for vehicle in vehicles:
         mine = [s for s in info.scenarios if s.vehicle == vehicle]
         for axis in AXES:
             for level, names in _levels(axis, mine):
                 wanted = set(names)
-                for method in methods:
-                    cells = [r for r in rows if r.method == method and r.scenario in wanted]
+                for pilot in flown:
+                    cells = [r for r in rows if r.method == pilot and r.scenario in wanted]
                     if cells:
-                        out.append(_rate(vehicle, axis, level, method, cells))
+                        out.append(_rate(vehicle, axis, level, pilot, cells))
     return out
 
 
-def _rate(vehicle: str, axis: str, level: str, method: str, cells: Sequence[EpisodeMetrics]) -> LevelRate:
+def _rate(vehicle: str, axis: str, level: str, pilot: str, cells: Sequence[EpisodeMetrics]) -> LevelRate:
     n = len(cells)
     ok = sum(bool(r.success) for r in cells)
     hit = sum(bool(r.collision) for r in cells)
     late = sum(1 for r in cells if not r.success and not r.collision and r.outcome == Outcome.TIMEOUT.value)
     rest = Counter(r.failure_reason or r.outcome for r in cells
                    if not r.success and not r.collision and r.outcome != Outcome.TIMEOUT.value)
-    return LevelRate(vehicle, axis, level, method, n, ok, hit, late, tuple(rest.most_common()),
+    return LevelRate(vehicle, axis, level, pilot, n, ok, hit, late, tuple(rest.most_common()),
                      wilson_interval(ok, n), wilson_interval(hit, n), wilson_interval(late, n))
 
 
@@ -131,7 +131,7 @@ def level_table_lines(rates: Sequence[LevelRate]) -> list[str]:
             lines.append(f"{vehicle}, per air and turbulence level (Wilson 95 % intervals):")
         level = "all" if r.axis == "all" else f"{r.axis} {r.level}"
         rest = ", ".join(f"{name} {count}" for name, count in r.other)
-        lines.append(f"  {level:<26} {r.method:<10} n {r.episodes:>4}  success {_pct(r.success, r.success_ci95)}  "
+        lines.append(f"  {level:<26} {r.pilot:<10} n {r.episodes:>4}  success {_pct(r.success, r.success_ci95)}  "
                      f"collision {_pct(r.collision, r.collision_ci95)}  time-out {_pct(r.timeout, r.timeout_ci95)}"
                      + (f"  other: {rest}" if rest else ""))
     return lines
@@ -141,7 +141,7 @@ def level_json(rates: Sequence[LevelRate]) -> dict[str, dict[str, dict[str, dict
     """The rates as plain data: vehicle -> axis -> level -> pilot -> episodes, rates with intervals, other."""
     out: dict[str, dict[str, dict[str, dict[str, dict]]]] = {}
     for r in rates:
-        out.setdefault(r.vehicle, {}).setdefault(r.axis, {}).setdefault(r.level, {})[r.method] = {
+        out.setdefault(r.vehicle, {}).setdefault(r.axis, {}).setdefault(r.level, {})[r.pilot] = {
             "episodes": r.episodes,
             "success": {"rate": r.success, "ci95": list(r.success_ci95)},
             "collision": {"rate": r.collision, "ci95": list(r.collision_ci95)},

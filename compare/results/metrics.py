@@ -1,6 +1,6 @@
 """Per-episode metrics and `metrics.csv`.
 
-One `EpisodeMetrics` row per saved episode (scenario, episode, method, seed) is computed from the
+One `EpisodeMetrics` row per saved episode (scenario, episode, pilot, seed) is computed from the
 episode file alone, so metrics never need the world that produced the flight. `metrics.csv` is written
 by `write_metrics_csv` and read by `read_metrics_csv`, nowhere else; it is written atomically (a
 temporary file in the same folder, then `os.replace`), so a reader sees the old file or the new one,
@@ -33,7 +33,7 @@ TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "r
                    "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
                    "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min")
 """The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
-method like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
+pilot like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
 
 
@@ -42,7 +42,8 @@ class EpisodeMetrics:
     """The scores of one episode; the field order is the `metrics.csv` column order.
 
     Attributes:
-        scenario, episode, method, seed: the comparison cell.
+        scenario, episode, method, seed: the comparison cell; `method` is the pilot's name (the column keeps its
+            first name: scripts read metrics.csv and the store by it).
         map: the city's name. vehicle: the vehicle preset name.
         outcome: how the episode ended (an `uam_fdm.episode.Outcome`'s name).
         success: reached the goal radius before the timeout without collision.
@@ -183,7 +184,7 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
     straight_m = float(np.linalg.norm(np.subtract(meta.goal_m, meta.start_m, dtype=float)))
     below = {below_field(th): _time_below_s(t, clearance, th) for th in CLEARANCE_THRESHOLDS_M}
     finite_clearance = clearance[~np.isnan(clearance)]
-    # a method the registry does not hold (a plug-in) is not imported to ask whether it plans: the file names it.
+    # a pilot the registry does not hold (a plug-in) is not imported to ask whether it plans: the file names it.
     entry = pilots.registered(key.method)
     does_not_plan = (entry is None or not entry.plans) and meta.plan_time_s == 0
     return EpisodeMetrics(

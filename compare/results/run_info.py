@@ -5,7 +5,8 @@
 lack reads as empty (None, "", no entries), and a run that recorded the learned pilot's one policy as
 `methods.ppo.policy_dir` (before policies per vehicle) reads as one `PolicyRecord` without a vehicle.
 Optional keys (`fingerprints`, `suite`, a policy's `trained_air`) are written only when set, so rewriting an
-older file gives it back byte for byte.
+older file gives it back byte for byte. The pilots stand under the key `methods` and the task set under `suite`,
+their first names (`RunInfo.pilots`, `RunInfo.task_set` here): older readers and scripts look for them.
 """
 from __future__ import annotations
 
@@ -50,7 +51,8 @@ class ScenarioInfo:
         name, source, description: the scenario's name, file and free text.
         map_name: the city's name. vehicle: the vehicle's preset name; vehicle_summary: mass, rotors, radius.
         atmosphere, wind: the conditions flown.
-        episodes: episode count; seeds: the seeds flown; methods: the pilots flown (method names).
+        episodes: episode count; seeds: the seeds flown; pilots: the pilots flown, by name (the key "methods"
+            in the file).
         physics_hz, control_hz: physics and control rates [Hz].
     """
 
@@ -64,7 +66,7 @@ class ScenarioInfo:
     wind: WindInfo = WindInfo()
     episodes: int | None = None
     seeds: tuple[int, ...] = ()
-    methods: tuple[str, ...] = ()
+    pilots: tuple[str, ...] = ()
     physics_hz: float | None = None
     control_hz: float | None = None
 
@@ -129,7 +131,7 @@ class PolicyRecord:
 
 
 @dataclass(frozen=True)
-class MethodInfo:
+class PilotInfo:
     """A pilot as the run describes it: display label, description, (the learned pilot) its policies, and its
     own matplotlib colour ("" where not recorded: a registered pilot's is the registry's). Readers take a
     plug-in's label and colour from here and never import the plug-in."""
@@ -165,7 +167,7 @@ class RunInfo:
         command: the command line that made the run.
         scenarios: the scenarios, in run order.
         notes: remarks for the report (cells left out, the pilots' decision rates).
-        methods: the pilots by method name, in run order.
+        pilots: the pilots by name, in run order (the key "methods" in the file).
         versions: software versions by package name.
         fairness: the fairness statement.
         fingerprints: hashes of the inputs (`compare.scenarios.fingerprint.run_fingerprints`; None in runs saved before
@@ -179,35 +181,35 @@ class RunInfo:
     command: str = ""
     scenarios: tuple[ScenarioInfo, ...] = ()
     notes: tuple[str, ...] = ()
-    methods: Mapping[str, MethodInfo] = field(default_factory=dict)
+    pilots: Mapping[str, PilotInfo] = field(default_factory=dict)
     versions: Mapping[str, str] = field(default_factory=dict)
     fairness: str = ""
     fingerprints: Mapping[str, Any] | None = None
     task_set: TaskSetInfo | None = None
     format_version: int = FORMAT_VERSION
 
-    def label(self, method: str) -> str:
-        """The method's display label (its name when the run does not describe it)."""
-        m = self.methods.get(method)
-        return m.label if m is not None else method
+    def label(self, pilot: str) -> str:
+        """The pilot's display label (its name when the run does not describe it)."""
+        m = self.pilots.get(pilot)
+        return m.label if m is not None else pilot
 
     def colors(self) -> dict[str, str]:
-        """The colours the run recorded, by method (plug-ins that stated one)."""
-        return {name: m.color for name, m in self.methods.items() if m.color}
+        """The colours the run recorded, by pilot (plug-ins that stated one)."""
+        return {name: m.color for name, m in self.pilots.items() if m.color}
 
-    def run_order(self, more_methods: Iterable[str] = ()) -> tuple[list[str], list[str]]:
-        """The vehicles of its scenarios and its methods, then `more_methods` (e.g. those of metrics rows), each
+    def run_order(self, more_pilots: Iterable[str] = ()) -> tuple[list[str], list[str]]:
+        """The vehicles of its scenarios and its pilots, then `more_pilots` (e.g. those of metrics rows), each
         once, in run order."""
         return (list(dict.fromkeys(s.vehicle for s in self.scenarios)),
-                list(dict.fromkeys([*self.methods, *more_methods])))
+                list(dict.fromkeys([*self.pilots, *more_pilots])))
 
     def scenario(self, name: str) -> ScenarioInfo | None:
         """The scenario named `name`, or None."""
         return next((s for s in self.scenarios if s.name == name), None)
 
-    def policies(self, method: str = "ppo") -> tuple[PolicyRecord, ...]:
-        """The policies the run records for `method` (none for a pilot without one)."""
-        m = self.methods.get(method)
+    def policies(self, pilot: str = "ppo") -> tuple[PolicyRecord, ...]:
+        """The policies the run records for `pilot` (none for a pilot without one)."""
+        m = self.pilots.get(pilot)
         return m.policies if m is not None else ()
 
 
@@ -222,7 +224,7 @@ def run_info_to_json(info: RunInfo) -> dict[str, Any]:
     out: dict[str, Any] = {
         "format_version": info.format_version, "created_utc": info.created_utc, "command": info.command,
         "scenarios": [_scenario_json(s) for s in info.scenarios], "notes": list(info.notes),
-        "methods": {m: _method_json(c) for m, c in info.methods.items()},
+        "methods": {m: _pilot_json(c) for m, c in info.pilots.items()},  # the key keeps its first name
         "versions": dict(info.versions), "fairness": info.fairness,
     }
     if info.fingerprints is not None:
@@ -244,12 +246,12 @@ def _scenario_json(s: ScenarioInfo) -> dict[str, Any]:
         "vehicle": s.vehicle, "vehicle_summary": s.vehicle_summary,
         "atmosphere": {"elevation_m": atm.elevation_m, "isa_offset_k": atm.isa_offset_k,
                        "density_kg_m3": atm.density_kg_m3},
-        "wind": wind_json, "episodes": s.episodes, "seeds": list(s.seeds), "methods": list(s.methods),
+        "wind": wind_json, "episodes": s.episodes, "seeds": list(s.seeds), "methods": list(s.pilots),
         "physics_hz": s.physics_hz, "control_hz": s.control_hz,
     }
 
 
-def _method_json(m: MethodInfo) -> dict[str, Any]:
+def _pilot_json(m: PilotInfo) -> dict[str, Any]:
     out: dict[str, Any] = {"label": m.label, "description": m.description}
     if m.color:  # written only when set: an older file rewrites byte for byte
         out["color"] = m.color
@@ -297,7 +299,7 @@ def run_info_from_json(data: Any, where: str) -> RunInfo:
         scenarios=tuple(_scenario_info(r, s, f"scenarios[{i}]")
                         for i, s in enumerate(r.sequence(top, "scenarios", "scenarios"))),
         notes=tuple(str(n) for n in r.sequence(top, "notes", "notes")),
-        methods={str(m): _method_info(r, c, str(m), f"methods.{m}")
+        pilots={str(m): _pilot_info(r, c, str(m), f"methods.{m}")
                  for m, c in r.mapping(top.get("methods"), "methods").items()},
         versions={str(k): str(v) for k, v in r.mapping(top.get("versions"), "versions").items()},
         fairness=r.text(top, "fairness", "fairness"),
@@ -333,13 +335,13 @@ def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:
         episodes=r.integer(s, "episodes", f"{key}.episodes"),
         seeds=tuple(r.entry_integer(v, f"{key}.seeds[{i}]")
                     for i, v in enumerate(r.sequence(s, "seeds", f"{key}.seeds"))),
-        methods=tuple(str(m) for m in r.sequence(s, "methods", f"{key}.methods")),
+        pilots=tuple(str(m) for m in r.sequence(s, "methods", f"{key}.methods")),
         physics_hz=r.number(s, "physics_hz", f"{key}.physics_hz"),
         control_hz=r.number(s, "control_hz", f"{key}.control_hz"),
     )
 
 
-def _method_info(r: _Reader, value: Any, method: str, key: str) -> MethodInfo:
+def _pilot_info(r: _Reader, value: Any, pilot: str, key: str) -> PilotInfo:
     c = r.mapping(value, key)
     if c.get("policies") is not None:
         policies = tuple(_policy(r, p, f"{key}.policies[{i}]")
@@ -349,7 +351,7 @@ def _method_info(r: _Reader, value: Any, method: str, key: str) -> MethodInfo:
                                  r.number(c, "decision_hz", f"{key}.decision_hz")),)
     else:
         policies = ()
-    return MethodInfo(r.text(c, "label", f"{key}.label") or method, r.text(c, "description", f"{key}.description"),
+    return PilotInfo(r.text(c, "label", f"{key}.label") or pilot, r.text(c, "description", f"{key}.description"),
                       policies, r.text(c, "color", f"{key}.color"))
 
 

@@ -182,10 +182,10 @@ def _checked_samples(table: pa.Table, row: Mapping[str, Any], where: Path) -> pa
 
 def key_of(row: Mapping[str, Any]) -> EpisodeKey:
     """The cell of an episode-table row."""
-    scenario, method = row["scenario"], row["method"]
-    if not isinstance(scenario, str) or not isinstance(method, str):
-        raise TypeError("scenario and method must be text")
-    return EpisodeKey(scenario, int(row["episode"]), method, int(row["seed"]))
+    scenario, pilot = row["scenario"], row["method"]
+    if not isinstance(scenario, str) or not isinstance(pilot, str):
+        raise TypeError("the columns scenario and method must be text")
+    return EpisodeKey(scenario, int(row["episode"]), pilot, int(row["seed"]))
 
 
 def cell_rank(row: Mapping[str, Any]) -> tuple[str, int, str, int]:

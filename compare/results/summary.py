@@ -1,9 +1,9 @@
-"""The summary of a run's metrics, `summary.json`: per vehicle, per method and per pair of methods, with intervals.
+"""The summary of a run's metrics, `summary.json`: per vehicle, per pilot and per pair of pilots, with intervals.
 
 A summary never pools vehicles (a small quadrotor's and a passenger multicopter's energies, times and
-even success rates are different quantities). `summarize` takes the rows of one vehicle: per method
+even success rates are different quantities). `summarize` takes the rows of one vehicle: per pilot
 each metric's mean with a 95 % interval (Wilson for the rates `RATE_METRICS`, the percentile bootstrap
-for the rest), and per pair of methods the paired differences on the episodes both flew, with their
+for the rest), and per pair of pilots the paired differences on the episodes both flew, with their
 interval (Newcombe's for rates, the bootstrap for the rest) and the minimum detectable difference (MDD)
 at that many pairs (`compare.results.stats`). `summarize_run` summarises each vehicle and each scenario
 alike; its run-wide block holds statistics only when the run flew one vehicle.
@@ -12,7 +12,7 @@ A `Summary` is written by `write_summary_json` and read by `read_summary_json`, 
 written before the per-vehicle summaries still read: their keys are unchanged (NaN and infinities as
 null, a paired difference under "mean_diff", pairs keyed "a - b"); what they lack reads as empty (no
 vehicles, no per-vehicle part, intervals and power not recorded). A nested summary (per vehicle, per
-scenario) leaves out the settings it shares with the summary it sits in. `methods_table` formats a
+scenario) leaves out the settings it shares with the summary it sits in. `pilots_table` formats a
 summary as text cells.
 """
 from __future__ import annotations
@@ -104,8 +104,8 @@ class PairedStat(Stat):
 
 
 @dataclass(frozen=True)
-class MethodSummary:
-    """One method: its episode count, failures by reason, and a `Stat` per metric (by name, report order)."""
+class PilotSummary:
+    """One pilot: its episode count, failures by reason, and a `Stat` per metric (by name, report order)."""
 
     episodes: int
     failure_reasons: Mapping[str, int] = field(default_factory=dict)
@@ -114,7 +114,7 @@ class MethodSummary:
 
 @dataclass(frozen=True)
 class PairedSummary:
-    """Two methods on the episodes both flew: `first` − `second` per metric (`Stat.mean` is the mean difference)."""
+    """Two pilots on the episodes both flew: `first` − `second` per metric (`Stat.mean` is the mean difference)."""
 
     first: str
     second: str
@@ -172,9 +172,9 @@ class Summary:
     Attributes:
         bootstrap: the bootstrap settings.
         metrics: the summarised metrics, in report order.
-        methods: per method, in table order (`compare.flying.pilots.ordered`); empty in a run-wide summary of
-            several vehicles.
-        paired: per pair of methods (first < second by name); empty where `methods` is.
+        pilots: per pilot, in table order (`compare.flying.pilots.ordered`); empty in a run-wide summary of
+            several vehicles (the key "methods" in summary.json).
+        paired: per pair of pilots (first < second by name); empty where `pilots` is.
         by_scenario: the same per scenario, by scenario name; None for a summary that is itself one
             scenario's or one vehicle's, or one written without them.
         vehicles: the vehicles whose rows were summarised, sorted (empty in files written before they were
@@ -185,7 +185,7 @@ class Summary:
 
     bootstrap: BootstrapConfig
     metrics: tuple[str, ...]
-    methods: Mapping[str, MethodSummary]
+    pilots: Mapping[str, PilotSummary]
     paired: tuple[PairedSummary, ...] = ()
     by_scenario: Mapping[str, Summary] | None = None
     vehicles: tuple[str, ...] = ()
@@ -264,25 +264,25 @@ def _stats_config(resamples: int, confidence: float, seed: int, alpha: float, po
 
 def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confidence: float = 0.95,
               seed: int = 0, alpha: float = 0.05, power: float = 0.8) -> Summary:
-    """Aggregate one vehicle's episode rows per method and per pair of methods, with intervals and MDDs.
+    """Aggregate one vehicle's episode rows per pilot and per pair of pilots, with intervals and MDDs.
 
-    Per method and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and its
+    Per pilot and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and its
     CI: Wilson's for the rates (`RATE_METRICS`), else a percentile bootstrap (episodes resampled with
     replacement; with n == 1 the CI is the mean); `n` is the count used, with n == 0 every number is None.
     `time_s`, `path_length_m` and `energy_kj` are over successful episodes only (`over` "successes"), the
     rest over all episodes (`over` "all").
 
-    Paired: for each pair of methods a before b in table order (`compare.flying.pilots.ordered`), the episodes both
+    Paired: for each pair of pilots a before b in table order (`compare.flying.pilots.ordered`), the episodes both
     flew with the same (scenario, episode, seed); per metric (not the tracker's) the mean of the differences
     a − b and its CI (Newcombe's for rates, else the bootstrap's, pairs resampled), the standard deviation of the
     differences, the MDD at that many pairs (two-sided `alpha`, `power`) and, for rates, the design MDD.
     For the success-only metrics only pairs where both succeeded.
 
-    Each bootstrap draws from a fresh `numpy.random.default_rng(seed)`, so a method's numbers depend only
+    Each bootstrap draws from a fresh `numpy.random.default_rng(seed)`, so a pilot's numbers depend only
     on its own episodes, and the same rows (in any order) give the same summary.
 
     Args:
-        rows: episode metrics of one vehicle, one per (scenario, episode, method, seed).
+        rows: episode metrics of one vehicle, one per (scenario, episode, pilot, seed).
         resamples: bootstrap resamples (≥ 1).
         confidence: CI level in (0, 1).
         seed: bootstrap seed.
@@ -301,14 +301,14 @@ def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confiden
     if len(vehicles) > 1:
         raise ValueError(f"rows of {len(vehicles)} vehicles ({', '.join(vehicles)}): a summary never pools "
                          f"vehicles; summarize each vehicle's rows (summarize_run does)")
-    by_method = _group_by_method(rows)
-    methods = pilots.ordered(by_method)  # table order: ours first, then plug-ins by name
-    paired = tuple(_paired_summary(a, b, by_method[a], by_method[b], settings)
-                   for i, a in enumerate(methods) for b in methods[i + 1:])
+    by_pilot = _group_by_pilot(rows)
+    flown = pilots.ordered(by_pilot)  # table order: ours first, then plug-ins by name
+    paired = tuple(_paired_summary(a, b, by_pilot[a], by_pilot[b], settings)
+                   for i, a in enumerate(flown) for b in flown[i + 1:])
     boot, intervals, pw = settings.describe()
     return Summary(
         bootstrap=boot, metrics=SUMMARY_METRICS,
-        methods={m: _method_summary(by_method[m], settings) for m in methods},
+        pilots={m: _pilot_summary(by_pilot[m], settings) for m in flown},
         paired=paired, vehicles=vehicles, intervals=intervals, power=pw,
     )
 
@@ -317,7 +317,7 @@ def summarize_run(rows: Sequence[EpisodeMetrics], *, resamples: int = 2000, conf
                   seed: int = 0, alpha: float = 0.05, power: float = 0.8) -> Summary:
     """A run's summary, as it is saved: `summarize` per vehicle (`by_vehicle`) and per scenario (`by_scenario`).
 
-    The run-wide `methods` and `paired` are the one vehicle's when the run flew one, else empty: nothing
+    The run-wide `pilots` and `paired` are the one vehicle's when the run flew one, else empty: nothing
     is pooled across vehicles. Settings as for `summarize`.
 
     Raises:
@@ -332,22 +332,22 @@ def summarize_run(rows: Sequence[EpisodeMetrics], *, resamples: int = 2000, conf
                    for name in sorted({r.scenario for r in rows})}
     boot, intervals, pw = _stats_config(resamples, confidence, seed, alpha, power).describe()
     one = by_vehicle[vehicles[0]] if len(vehicles) == 1 else None
-    return Summary(boot, SUMMARY_METRICS, one.methods if one else {}, one.paired if one else (), by_scenario,
+    return Summary(boot, SUMMARY_METRICS, one.pilots if one else {}, one.paired if one else (), by_scenario,
                    vehicles=vehicles, by_vehicle=by_vehicle, intervals=intervals, power=pw)
 
 
-def _group_by_method(rows: Iterable[EpisodeMetrics]) -> dict[str, list[EpisodeMetrics]]:
-    """Rows per method, each list sorted by cell; rejects duplicate cells."""
-    by_method: dict[str, list[EpisodeMetrics]] = {}
+def _group_by_pilot(rows: Iterable[EpisodeMetrics]) -> dict[str, list[EpisodeMetrics]]:
+    """Rows per pilot, each list sorted by cell; rejects duplicate cells."""
+    by_pilot: dict[str, list[EpisodeMetrics]] = {}
     seen: set[tuple[str, int, str, int]] = set()
     for row in sorted(rows, key=cell_order):
         cell = cell_order(row)
         if cell in seen:
             raise ValueError(f"two rows for scenario {row.scenario!r}, episode {row.episode}, "
-                             f"method {row.method!r}, seed {row.seed}")
+                             f"pilot {row.method!r}, seed {row.seed}")
         seen.add(cell)
-        by_method.setdefault(row.method, []).append(row)
-    return by_method
+        by_pilot.setdefault(row.method, []).append(row)
+    return by_pilot
 
 
 def _over(metric: str) -> str:
@@ -358,13 +358,13 @@ def _values(rows: Sequence[EpisodeMetrics], metric: str) -> np.ndarray:
     return np.array([float(getattr(r, metric)) for r in rows], dtype=float)
 
 
-def _method_summary(rows: list[EpisodeMetrics], settings: _StatsConfig) -> MethodSummary:
+def _pilot_summary(rows: list[EpisodeMetrics], settings: _StatsConfig) -> PilotSummary:
     reasons = Counter(r.failure_reason for r in rows if r.failure_reason)
     stats = {}
     for metric in SUMMARY_METRICS:
         used = [r for r in rows if r.success] if metric in SUCCESS_ONLY_METRICS else rows
         stats[metric] = settings.stat(_values(used, metric), metric)
-    return MethodSummary(len(rows), dict(sorted(reasons.items())), stats)
+    return PilotSummary(len(rows), dict(sorted(reasons.items())), stats)
 
 
 def _paired_summary(first: str, second: str, rows_a: list[EpisodeMetrics], rows_b: list[EpisodeMetrics],
@@ -415,10 +415,10 @@ def summary_to_json(summary: Summary, within: Summary | None = None) -> dict[str
     if within is None or s.metrics != within.metrics:
         out["metrics"] = list(s.metrics)
     out["vehicles"] = list(s.vehicles)
-    if s.methods or s.paired or len(s.vehicles) <= 1:  # a run-wide block of several vehicles holds none
+    if s.pilots or s.paired or len(s.vehicles) <= 1:  # a run-wide block of several vehicles holds none
         out["methods"] = {m: {"episodes": ms.episodes, "failure_reasons": dict(ms.failure_reasons),
                               **{k: _stat_json(v) for k, v in ms.stats.items()}}
-                          for m, ms in s.methods.items()}
+                          for m, ms in s.pilots.items()}
         out["paired"] = {p.name: {"episodes": p.episodes, **{k: _paired_json(v) for k, v in p.stats.items()}}
                          for p in s.paired}
     if s.by_vehicle is not None:
@@ -463,14 +463,14 @@ def read_summary_json(path: Path) -> Summary:
 def _summary_from_json(data: Any, where: str, prefix: str, within: Summary | None) -> Summary:
     """A summary from its plain data; `within`: the summary it is nested in (settings it leaves out are those)."""
     top = _mapping(data, where, prefix or "<root>")
-    methods = _mapping(top.get("methods"), where, f"{prefix}methods")
+    flown = _mapping(top.get("methods"), where, f"{prefix}methods")
     paired = _mapping(top.get("paired"), where, f"{prefix}paired")
     own = Summary(
         bootstrap=within.bootstrap if within is not None and "bootstrap" not in top else _bootstrap_from_json(
             top.get("bootstrap"), where, f"{prefix}bootstrap"),
         metrics=within.metrics if within is not None and "metrics" not in top else tuple(
             str(m) for m in _list(top.get("metrics"), where, f"{prefix}metrics")),
-        methods={str(m): _method_from_json(v, where, f"{prefix}methods.{m}") for m, v in methods.items()},
+        pilots={str(m): _pilot_from_json(v, where, f"{prefix}methods.{m}") for m, v in flown.items()},
         paired=tuple(_paired_from_json(str(k), v, where, f"{prefix}paired.{k}") for k, v in paired.items()),
         vehicles=tuple(str(v) for v in _list(top.get("vehicles"), where, f"{prefix}vehicles")),
         intervals=within.intervals if within is not None and "intervals" not in top else _intervals_from_json(
@@ -484,7 +484,7 @@ def _summary_from_json(data: Any, where: str, prefix: str, within: Summary | Non
         parts[key] = None if value is None else {
             str(name): _summary_from_json(part, where, f"{prefix}{key}.{name}.", own)
             for name, part in _mapping(value, where, f"{prefix}{key}").items()}
-    return Summary(own.bootstrap, own.metrics, own.methods, own.paired, parts["by_scenario"], own.vehicles,
+    return Summary(own.bootstrap, own.metrics, own.pilots, own.paired, parts["by_scenario"], own.vehicles,
                    parts["by_vehicle"], own.intervals, own.power)
 
 
@@ -507,10 +507,10 @@ def _power_from_json(data: Any, where: str, key: str) -> PowerConfig:
     return PowerConfig(*(_number(d.get(k), where, f"{key}.{k}") for k in ("alpha", "power", "design_rate")))
 
 
-def _method_from_json(data: Any, where: str, key: str) -> MethodSummary:
+def _pilot_from_json(data: Any, where: str, key: str) -> PilotSummary:
     d = _mapping(data, where, key)
     reasons = _mapping(d.get("failure_reasons"), where, f"{key}.failure_reasons")
-    return MethodSummary(
+    return PilotSummary(
         episodes=_integer(d.get("episodes"), where, f"{key}.episodes") or 0,
         failure_reasons={str(r): _integer(n, where, f"{key}.failure_reasons.{r}") or 0 for r, n in reasons.items()},
         stats={str(k): _stat_from_json(v, where, f"{key}.{k}") for k, v in d.items()
@@ -578,7 +578,7 @@ def _integer(value: Any, where: str, key: str) -> int | None:
     return value
 
 
-# ---- the methods table ------------------------------------------------------------------------------------
+# ---- the pilots table -------------------------------------------------------------------------------------
 def _percent(v: float) -> str:
     return f"{100.0 * v:.0f}%"
 
@@ -615,21 +615,21 @@ _TABLE_COLUMNS: dict[str, tuple[str, Callable[[float], str]]] = {
 }
 
 
-def methods_table(summary: Summary) -> list[list[str]]:
-    """The per-method table of a summary as text cells, "mean [ci_low, ci_high]" per metric.
+def pilots_table(summary: Summary) -> list[list[str]]:
+    """The per-pilot table of a summary as text cells, "mean [ci_low, ci_high]" per metric.
 
     Args:
         summary: as returned by `summarize` (or read back from `summary.json`).
 
     Returns:
-        A header row, then one row per method: name, episode count, one cell per summarised metric
+        A header row, then one row per pilot: name, episode count, one cell per summarised metric
         ("n/a" where no episode counted, e.g. the planning time of a pilot that does not plan).
     """
     metrics = list(summary.metrics)
-    header = ["method", "episodes"] + [_TABLE_COLUMNS.get(m, (m, None))[0] for m in metrics]
+    header = ["pilot", "episodes"] + [_TABLE_COLUMNS.get(m, (m, None))[0] for m in metrics]
     table = [header]
-    for method, s in summary.methods.items():
-        row = [method, str(s.episodes)]
+    for name, s in summary.pilots.items():
+        row = [name, str(s.episodes)]
         for m in metrics:
             fmt = _TABLE_COLUMNS.get(m, (m, lambda v: f"{v:.3g}"))[1]
             row.append(_format_stat(s.stats.get(m), fmt))

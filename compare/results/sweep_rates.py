@@ -30,7 +30,7 @@ class SweepRate(OutcomeRates):
     """One pilot's rates at one step of one axis of a vehicle's sweep.
 
     Attributes:
-        vehicle: the vehicle preset. axis: one of `AXES`. method: the pilot.
+        vehicle: the vehicle preset. axis: one of `AXES`. pilot: the pilot's name.
         x: the step: density altitude [m] (the mean of its fields') or steady wind speed [m/s].
         episodes: episodes flown (all seeds). successes, collisions: their counts.
         success_ci95, collision_ci95: 95 % Wilson intervals of the rates.
@@ -41,7 +41,7 @@ class SweepRate(OutcomeRates):
     vehicle: str
     axis: str
     x: float
-    method: str
+    pilot: str
     episodes: int
     successes: int
     collisions: int
@@ -96,32 +96,32 @@ def sweep_rates(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[SweepRate
         info: the run's run.json (scenarios' air, pilots, policies' trained air).
         rows: its metrics rows.
     """
-    vehicles, methods = info.run_order(r.method for r in rows)
+    vehicles, flown = info.run_order(r.method for r in rows)
     out = []
     for vehicle in vehicles:
         mine = [s for s in info.scenarios if s.vehicle == vehicle]
-        envelopes = {m: env for m in methods for p in info.policies(m)
+        envelopes = {m: env for m in flown for p in info.policies(m)
                      if p.vehicle == vehicle and (env := p.envelope) is not None}
         axes = sweep_axes(mine)
         for axis, steps in ((a, axes[a]) for a in AXES if a in axes):
-            for method in methods:
+            for pilot in flown:
                 for x, names in steps:
-                    cells = [r for r in rows if r.method == method and r.scenario in names]
+                    cells = [r for r in rows if r.method == pilot and r.scenario in names]
                     if not cells:
                         continue
-                    out.append(_rate(vehicle, axis, x, method, cells, envelopes.get(method),
+                    out.append(_rate(vehicle, axis, x, pilot, cells, envelopes.get(pilot),
                                      info.scenario(names[0])))
     return out
 
 
-def _rate(vehicle: str, axis: str, x: float, method: str, cells: Sequence[EpisodeMetrics],
+def _rate(vehicle: str, axis: str, x: float, pilot: str, cells: Sequence[EpisodeMetrics],
           envelope: AirEnvelope | None, scenario: ScenarioInfo | None) -> SweepRate:
     n = len(cells)
     ok, hit = sum(bool(r.success) for r in cells), sum(bool(r.collision) for r in cells)
     outside: tuple[str, ...] = ()
     if envelope is not None and scenario is not None:
         outside = envelope.outside(_density_altitude(scenario), _wind(scenario), scenario.wind.turbulence)
-    return SweepRate(vehicle, axis, x, method, n, ok, hit, wilson_interval(ok, n), wilson_interval(hit, n), outside)
+    return SweepRate(vehicle, axis, x, pilot, n, ok, hit, wilson_interval(ok, n), wilson_interval(hit, n), outside)
 
 
 def format_step(axis: str, x: float) -> str:
@@ -140,7 +140,7 @@ def sweep_table_lines(rates: Sequence[SweepRate]) -> list[str]:
             lines.append(f"{r.vehicle}, sweep over {r.axis} (Wilson 95 % intervals; * outside the pilot's trained "
                          f"air):")
         mark = "*" if r.outside else " "
-        lines.append(f"  {format_step(r.axis, r.x):>9} {mark} {r.method:<10} n {r.episodes:>4}  success "
+        lines.append(f"  {format_step(r.axis, r.x):>9} {mark} {r.pilot:<10} n {r.episodes:>4}  success "
                      f"{r.success:6.1%} [{r.success_ci95[0]:.0%}, {r.success_ci95[1]:.0%}]  collision "
                      f"{r.collision:6.1%} [{r.collision_ci95[0]:.0%}, {r.collision_ci95[1]:.0%}]")
     return lines
@@ -151,7 +151,7 @@ def sweep_json(rates: Sequence[SweepRate]) -> dict[str, dict[str, list[dict]]]:
     out: dict[str, dict[str, list[dict]]] = {}
     for r in rates:
         out.setdefault(r.vehicle, {}).setdefault(r.axis, []).append({
-            "x": round(r.x, 1), "unit": "m" if r.axis == "density altitude" else "m/s", "method": r.method,
+            "x": round(r.x, 1), "unit": "m" if r.axis == "density altitude" else "m/s", "method": r.pilot,
             "episodes": r.episodes, "success": {"rate": r.success, "ci95": list(r.success_ci95)},
             "collision": {"rate": r.collision, "ci95": list(r.collision_ci95)},
             "outside_trained_air": list(r.outside)})

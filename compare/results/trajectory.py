@@ -2,7 +2,7 @@
 
 A run now keeps its episodes in the store (`compare.results.store`, `compare.results.tables`), whose
 episode table holds this module's metadata JSON; a run folder of the store's predecessors holds one `.npz`
-per (scenario, episode, method, seed) at the physics rate, which `load_episode` reads (and `save_episode`
+per (scenario, episode, pilot, seed) at the physics rate, which `load_episode` reads (and `save_episode`
 still writes, for tests and the storage benchmark). A saved episode holds the runner's `Trajectory` arrays
 plus what the metrics and the report need to read it without the world that produced it (task, vehicle,
 map name, outcome, the pilot's end-of-episode report). Files are written under a temporary name in the same
@@ -38,12 +38,16 @@ _ARRAYS = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m", "de
 # Arrays added after format 1 was fixed: absent from older files (None when loaded), so files of either age
 # read with either code.
 _OPTIONAL_ARRAYS = ("shaft_power_W",)
-_STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<method>.+)__s(?P<seed>-?\d+)$")
+_STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<pilot>.+)__s(?P<seed>-?\d+)$")
 
 
 @dataclass(frozen=True)
 class EpisodeKey:
-    """Which cell of the comparison an episode is: scenario, episode index, method and seed."""
+    """Which cell of the comparison an episode is: scenario, episode index, pilot and seed.
+
+    `method` is the pilot's name: the field keeps the name it is written under (the key of an episode file's
+    meta, of a failed cell's record, the store's and metrics.csv's column), which scripts read.
+    """
 
     scenario: str
     episode: int
@@ -61,7 +65,7 @@ class EpisodeKey:
         m = _STEM.match(stem)
         if m is None:
             return None
-        key = cls(m["scenario"], int(m["episode"]), m["method"], int(m["seed"]))
+        key = cls(m["scenario"], int(m["episode"]), m["pilot"], int(m["seed"]))
         return key if key.stem == stem else None  # e.g. "ep7" is not written by `stem` (it pads to "ep007")
 
 
@@ -89,7 +93,7 @@ class EpisodeMeta:
         vehicle_fingerprint: the vehicle's parameters' fingerprint (`VehicleParams.fingerprint`; "" in files saved
             before it was recorded): two vehicles that share a name are told apart by it.
         report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
-            method's `compare.flying.pilots.PilotEntry.report_type`), None when it gives none.
+            pilot's `compare.flying.pilots.PilotEntry.report_type`), None when it gives none.
     """
 
     key: EpisodeKey
@@ -237,7 +241,7 @@ def meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
     extra = m.get("extra") or {}
     if not isinstance(extra, Mapping):
         raise TypeError(f"extra must be a mapping, got {type(extra).__name__}")
-    entry = pilots.registered(key.method)  # never a plug-in's import: the file names the method
+    entry = pilots.registered(key.method)  # never a plug-in's import: the file names the pilot
     report_type = entry.report_type if entry is not None else None
     report = None
     if report_type is not None:

@@ -1,9 +1,9 @@
-"""A comparison run: every (scenario, episode, seed, method) cell flown, saved, scored and reported.
+"""A comparison run: every (scenario, episode, seed, pilot) cell flown, saved, scored and reported.
 
 `run_comparison(scenarios, options)` writes a run folder:
 
 ```
-RUN_DIR/run.json        provenance: scenarios, methods, software versions, fairness statement, command
+RUN_DIR/run.json        provenance: scenarios, pilots, software versions, fairness statement, command
 RUN_DIR/maps/*.yaml     the city of each scenario (reports never need the scenario files again)
 RUN_DIR/store/          the episodes (`compare.results.store`): each cell's part written atomically as it
                         finishes, compacted into an episode table and samples files when the run is scored
@@ -55,7 +55,7 @@ from compare.results.run_info import (
     RUN_INFO_NAME,
     AirEnvelope,
     AtmosphereInfo,
-    MethodInfo,
+    PilotInfo,
     PolicyRecord,
     RunInfo,
     ScenarioInfo,
@@ -104,7 +104,7 @@ class RunConfig:
 
     Attributes:
         out_dir: the run folder.
-        methods: only these methods (None: each scenario's own list).
+        pilots: only these pilots (None: each scenario's own list).
         seeds: override every scenario's seeds (None: the scenarios' own).
         policies: the learned pilot's policy folders, at most one per vehicle (each records the
             vehicle it was trained for); a vehicle without one flies its shipped policy, if any.
@@ -129,7 +129,7 @@ class RunConfig:
     """
 
     out_dir: Path
-    methods: tuple[str, ...] | None = None
+    pilots: tuple[str, ...] | None = None
     seeds: tuple[int, ...] | None = None
     policies: tuple[Path, ...] = ()
     jobs: int = 1
@@ -207,15 +207,15 @@ def plan_cells(scenarios: Sequence[Scenario], opts: RunConfig,
     """
     cells, notes = [], []
     for si, sc in enumerate(scenarios):
-        methods = [m for m in sc.methods if opts.methods is None or m in opts.methods]
+        flown = [m for m in sc.pilots if opts.pilots is None or m in opts.pilots]
         policy = policies.get(sc.vehicle.fingerprint()) if policies is not None else None
-        for m in [name for name in methods if pilots.pilot(name).needs_policy]:
+        for m in [name for name in flown if pilots.pilot(name).needs_policy]:
             if policies is not None and policy is None:
-                methods.remove(m)
+                flown.remove(m)
                 notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} (none shipped, none "
                              f"given with --policy); {m} not flown")
             elif policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
-                others = ",".join(o for o in methods if o != m)
+                others = ",".join(o for o in flown if o != m)
                 raise ValueError(
                     f"{sc.source}: control_hz {sc.control_hz:g}: the policy {policy.folder} was trained with a "
                     f"{policy.control_hz:g} Hz controller (its config.json, nav.control_hz); fly this scenario at "
@@ -224,7 +224,7 @@ def plan_cells(scenarios: Sequence[Scenario], opts: RunConfig,
         seeds = opts.seeds if opts.seeds is not None else sc.seeds
         for ep in sc.episodes:
             for seed in seeds:
-                for m in methods:
+                for m in flown:
                     cells.append(Cell(si, ep.index, int(seed), m))
     return cells, notes
 
@@ -234,7 +234,7 @@ class RunEstimate:
     """Upper bounds of what a run costs, every episode flown to its timeout.
 
     Attributes:
-        cells: episodes to fly (scenario x episode x seed x method).
+        cells: episodes to fly (scenario x episode x seed x pilot).
         flight_s: simulated flight time of all cells [s].
         wall_h: wall time with `jobs` processes [h] (each pilot's `wall_s_per_flight_s` per simulated second).
         disk_gb: the run store, uncompressed [GB] (float64 time and position, float32 rest of the state, rotor
@@ -260,7 +260,7 @@ def estimate_run(scenarios: Sequence[Scenario], opts: RunConfig) -> RunEstimate:
         sc = scenarios[c.scenario]
         t = sc.episodes[c.episode].task.timeout_s
         flight_s += t
-        wall_s += t * pilots.pilot(c.method).wall_s_per_flight_s
+        wall_s += t * pilots.pilot(c.pilot).wall_s_per_flight_s
         n = sc.vehicle.n_rotors
         rate_hz = sc.physics_hz if opts.store == "full" else sc.control_hz
         n_bytes += t * rate_hz * (8 * 4 + 4 * ((10 + n) + n + 3 + 1 + 1))  # t and position, state, commands, ...
@@ -277,7 +277,7 @@ def cell_limit_s(scenarios: Sequence[Scenario], c: Cell, opts: RunConfig) -> flo
     if opts.cell_timeout_s is not None:
         return float(opts.cell_timeout_s)
     timeout_s = scenarios[c.scenario].episodes[c.episode].task.timeout_s
-    return CELL_LIMIT_BASE_S + CELL_LIMIT_FACTOR * timeout_s * pilots.pilot(c.method).wall_s_per_flight_s
+    return CELL_LIMIT_BASE_S + CELL_LIMIT_FACTOR * timeout_s * pilots.pilot(c.pilot).wall_s_per_flight_s
 
 
 class RunInterrupted(Exception):
@@ -316,12 +316,12 @@ def versions() -> dict[str, str]:
 def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Sequence[Cell], notes: Sequence[str],
                     fingerprints: dict, policies: Sequence[PolicyFacts] = ()) -> None:
     """run.json (with the inputs' `fingerprints`, see `compare.scenarios.fingerprint`, the policy folders of the pilots
-    that fly one, their vehicles and decision rates, the methods in table order) and maps/*.yaml."""
+    that fly one, their vehicles and decision rates, the pilots in table order) and maps/*.yaml."""
     out = opts.out_dir
     for sc in scenarios:
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
-    methods = pilots.ordered(c.method for c in cells)
-    entries = [pilots.pilot(m) for m in methods]
+    flown = pilots.ordered(c.pilot for c in cells)
+    entries = [pilots.pilot(m) for m in flown]
     at_control_rate = [s.name for s in entries if not s.needs_policy]
     if policies:
         rates = "; ".join(f"for {p.vehicle} at {p.decision_hz:g} Hz (each command held for "
@@ -333,9 +333,9 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Seque
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
         notes=tuple(notes),
-        methods={s.name: MethodInfo(s.label, s.description, records if s.needs_policy else (),
-                                   "" if s.name in pilots.PILOTS else s.color) for s in entries},
-        versions=versions(), fairness=fairness(methods), fingerprints=fingerprints, task_set=run_task_set(scenarios))
+        pilots={s.name: PilotInfo(s.label, s.description, records if s.needs_policy else (),
+                                 "" if s.name in pilots.PILOTS else s.color) for s in entries},
+        versions=versions(), fairness=fairness(flown), fingerprints=fingerprints, task_set=run_task_set(scenarios))
     write_run_info(info, out)
 
 
@@ -356,14 +356,14 @@ def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
         atmosphere=AtmosphereInfo(sc.atmosphere.elevation_m, sc.atmosphere.isa_offset_k, round(float(rho), 4)),
         wind=WindInfo(sc.wind.steady_enu_m_s, sc.wind.turbulence.value, sc.wind.shear),
         episodes=len(sc.episodes), seeds=tuple(sorted({c.seed for c in cells})),
-        methods=tuple(pilots.ordered(c.method for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
+        pilots=tuple(pilots.ordered(c.pilot for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
 
 
-def fairness(methods: Sequence[str]) -> str:
-    """The run's fairness statement for the methods flown: what every pilot shares, then what each is given."""
-    every, none, all_ = ("Both", "Neither", "both") if len(methods) <= 2 else ("All", "None", "all")
+def fairness(flown: Sequence[str]) -> str:
+    """The run's fairness statement for the pilots flown: what every pilot shares, then what each is given."""
+    every, none, all_ = ("Both", "Neither", "both") if len(flown) <= 2 else ("All", "None", "all")
     common = FAIRNESS_COMMON.format(every=every, none=none, all=all_)
-    return " ".join([common, *(pilots.pilot(m).given for m in pilots.ordered(methods)), FAIRNESS_CLEARANCE])
+    return " ".join([common, *(pilots.pilot(m).given for m in pilots.ordered(flown)), FAIRNESS_CLEARANCE])
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:
@@ -380,16 +380,16 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:
     if not cells:
         raise ValueError("nothing to fly: no (scenario, pilot) left after --pilots")
     out = Path(opts.out_dir)
-    flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if pilots.pilot(c.method).needs_policy}
+    flown = {scenarios[c.scenario].vehicle.fingerprint() for c in cells if pilots.pilot(c.pilot).needs_policy}
     used = [f for fp, f in policies.items() if fp in flown]
     # air outside a policy's training is flown all the same (where it breaks is the finding), warned and noted
     notes += outside_trained_air(scenarios, cells, {f.vehicle_fingerprint: f.envelope for f in used
                                                     if f.envelope is not None})
     fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
-        # the seeds and methods of each scenario as run.json records them (`scenario_info`)
+        # the seeds and pilots of each scenario as run.json records them (`scenario_info`)
         asked = {sc.name: (tuple(sorted({c.seed for c in cells if c.scenario == i})),
-                           tuple(pilots.ordered(c.method for c in cells if c.scenario == i)))
+                           tuple(pilots.ordered(c.pilot for c in cells if c.scenario == i)))
                  for i, sc in enumerate(scenarios)}
         fingerprints = check_resume(out, fingerprints, asked)
     setup = WorkerSetup(tuple(scenarios), out, {f.vehicle_fingerprint: f.folder for f in used}, opts.store)
@@ -474,10 +474,10 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunConfig) -> dict[str,
     Raises:
         ValueError: two --policy folders for the same vehicle, or a broken policy folder (naming it).
     """
-    def flies_policy(methods: Sequence[str]) -> bool:
-        return any(pilots.pilot(m).needs_policy for m in methods)
+    def flies_policy(names: Sequence[str]) -> bool:
+        return any(pilots.pilot(m).needs_policy for m in names)
 
-    if opts.methods is not None and not flies_policy(opts.methods):
+    if opts.pilots is not None and not flies_policy(opts.pilots):
         return {}
     chosen: dict[str, PolicyFacts] = {}
     for folder in opts.policies:
@@ -489,7 +489,7 @@ def select_policies(scenarios: Sequence[Scenario], opts: RunConfig) -> dict[str,
         chosen[facts.vehicle_fingerprint] = facts
     for sc in scenarios:
         fp = sc.vehicle.fingerprint()
-        if not flies_policy(sc.methods) or fp in chosen:
+        if not flies_policy(sc.pilots) or fp in chosen:
             continue
         shipped = shipped_policy_dir(sc.vehicle.name)
         if shipped is not None:

@@ -1,6 +1,6 @@
 """A run's cells and how one is flown: the part of a run every backend's worker shares.
 
-A `Cell` is one episode to fly (scenario, episode, seed, method); `CellRunner` flies cells in one process
+A `Cell` is one episode to fly (scenario, episode, seed, pilot); `CellRunner` flies cells in one process
 and writes (or returns) each one's part of the run store (`compare.results.store`), seeded from the cell alone
 (`compare.flying.seeding`), so a cell flies the same wherever it flies. The cell scores its episode from the
 physics-rate flight before the store thins it to the control rate: the metrics never depend on what is kept.
@@ -32,21 +32,21 @@ from uam_fdm.vehicle.dynamics import VehicleDynamics
 
 @dataclass(frozen=True)
 class Cell:
-    """One episode to fly: scenario (index into the run's list), episode index, seed and method."""
+    """One episode to fly: scenario (index into the run's list), episode index, seed and pilot (its name)."""
 
     scenario: int
     episode: int
     seed: int
-    method: str
+    pilot: str
 
 
 def cell_key(scenarios: Sequence[Scenario], c: Cell) -> EpisodeKey:
     """The episode key (and so the episode file's name) of cell `c` of a run of `scenarios`."""
-    return EpisodeKey(scenarios[c.scenario].name, c.episode, c.method, c.seed)
+    return EpisodeKey(scenarios[c.scenario].name, c.episode, c.pilot, c.seed)
 
 
 class CellRunner:
-    """Flies cells; holds per-process caches (worlds per scenario, one pilot per method, or per method and
+    """Flies cells; holds per-process caches (worlds per scenario, one pilot per name, or per name and
     vehicle for a pilot that flies a policy)."""
 
     def __init__(self, scenarios: Sequence[Scenario], out_dir: Path, policies: Mapping[str, Path],
@@ -71,13 +71,13 @@ class CellRunner:
             self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
         return self._worlds[si]
 
-    def pilot(self, method: str, sc: Scenario) -> Pilot:
-        """The pilot flying `method` in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
-        fp = sc.vehicle.fingerprint() if pilots.pilot(method).needs_policy else ""
-        if (method, fp) not in self._pilots:
+    def pilot(self, name: str, sc: Scenario) -> Pilot:
+        """The pilot `name` flying in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
+        fp = sc.vehicle.fingerprint() if pilots.pilot(name).needs_policy else ""
+        if (name, fp) not in self._pilots:
             request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source, self.policies.get(fp) if fp else None)
-            self._pilots[method, fp] = pilots.build(method, request)
-        return self._pilots[method, fp]
+            self._pilots[name, fp] = pilots.build(name, request)
+        return self._pilots[name, fp]
 
     def conditions(self, si: int) -> EpisodeConditions:
         """The air and city of scenario `si` (the episode table's condition columns; the density rounded as
@@ -123,10 +123,10 @@ class CellRunner:
         airspeed = turbulence_airspeed_m_s(p.controller.max_speed_m_s, wind_speed)
         heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
-        pilot = self.pilot(c.method, sc)
-        traj = run_episode(world, pilot, task, wind, agent_seed, pilot_name=c.method)
+        pilot = self.pilot(c.pilot, sc)
+        traj = run_episode(world, pilot, task, wind, agent_seed, pilot_name=c.pilot)
         report = pilot.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
-        key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
+        key = EpisodeKey(sc.name, c.episode, c.pilot, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
                            vehicle_fingerprint=sc.vehicle.fingerprint(),
                            start_m=xyz(task.start_m), goal_m=xyz(task.goal_m), goal_radius_m=task.goal_radius_m,

@@ -54,14 +54,14 @@ def outside_trained_air(scenarios: Sequence[Scenario], cells: Sequence[Cell],
         cells: the cells to fly.
         envelopes: the trained air of each policy flown, by vehicle fingerprint (`VehicleParams.fingerprint`).
     """
-    flown: dict[tuple[str, str], list[int]] = {}  # (method, vehicle fingerprint) -> its scenarios, in run order
+    flown: dict[tuple[str, str], list[int]] = {}  # (pilot, vehicle fingerprint) -> its scenarios, in run order
     for c in cells:
-        if pilots.pilot(c.method).needs_policy:
-            mine = flown.setdefault((c.method, scenarios[c.scenario].vehicle.fingerprint()), [])
+        if pilots.pilot(c.pilot).needs_policy:
+            mine = flown.setdefault((c.pilot, scenarios[c.scenario].vehicle.fingerprint()), [])
             if c.scenario not in mine:
                 mine.append(c.scenario)
     notes = []
-    for (method, fp), indices in flown.items():
+    for (pilot, fp), indices in flown.items():
         env = envelopes.get(fp)
         if env is None:
             continue
@@ -70,7 +70,7 @@ def outside_trained_air(scenarios: Sequence[Scenario], cells: Sequence[Cell],
             continue
         named = "; ".join(f"{name} ({', '.join(why)})" for name, why in out[:NAMED_PER_NOTE])
         more = f"; and {len(out) - NAMED_PER_NOTE} more" if len(out) > NAMED_PER_NOTE else ""
-        notes.append(f"{method} flies {len(out)} of {len(indices)} {scenarios[indices[0]].vehicle_name} scenarios "
+        notes.append(f"{pilot} flies {len(out)} of {len(indices)} {scenarios[indices[0]].vehicle_name} scenarios "
                      f"outside the air its policy was trained in ({env.describe()}); they are flown all the same "
                      f"and marked in the report: {named}{more}")
     return notes

@@ -57,7 +57,7 @@ def _digest(value: Any) -> str:
 def scenario_fingerprint(sc: Scenario) -> dict[str, str]:
     """Hashes of what a scenario's cells are flown from, one per part (keys of SCENARIO_PARTS).
 
-    Names, descriptions and file paths are left out (they do not change a flight); seeds and methods
+    Names, descriptions and file paths are left out (they do not change a flight); seeds and pilots
     too: they name cells (the episode files), so a resume with more seeds only adds cells.
     """
     city = sc.city
@@ -122,7 +122,7 @@ def _code_words(code: Mapping) -> str:
 def check_resume(out: Path, now: dict, flown: Mapping[str, tuple[tuple[int, ...], tuple[str, ...]]] | None = None
                  ) -> dict:
     """Refuse to resume into `out` unless it is a run of this tool saved from the inputs in `now`, flying the
-    same seeds and methods per scenario as the saved run (`flown`: scenario name -> (seeds, methods); run.json
+    same seeds and pilots per scenario as the saved run (`flown`: scenario name -> (seeds, pilots); run.json
     describes one command's cells, so a resume may not mix in another's).
 
     Reads only: a refused folder is left byte for byte as it was. A missing or empty folder is a fresh start.
@@ -160,11 +160,11 @@ def check_resume(out: Path, now: dict, flown: Mapping[str, tuple[tuple[int, ...]
     diffs = fingerprint_differences(fps, now)
     asked = flown or {}
     for info in saved.scenarios if asked else ():
-        seeds, methods = asked.get(info.name, (info.seeds, info.methods))
+        seeds, names = asked.get(info.name, (info.seeds, info.pilots))
         if tuple(seeds) != tuple(info.seeds):
             diffs.append(f"scenario {info.name}: seeds saved {list(info.seeds)}, now {list(seeds)} (--seeds)")
-        if tuple(methods) != tuple(info.methods):
-            diffs.append(f"scenario {info.name}: pilots saved {', '.join(info.methods)}, now {', '.join(methods)} "
+        if tuple(names) != tuple(info.pilots):
+            diffs.append(f"scenario {info.name}: pilots saved {', '.join(info.pilots)}, now {', '.join(names)} "
                          f"(--pilots, --pilot)")
     if diffs:
         raise ValueError(f"{out}: cannot resume: the inputs differ from the saved run's: {'; '.join(diffs)}; "

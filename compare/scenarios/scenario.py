@@ -110,7 +110,7 @@ class Scenario:
         wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
         episodes: the tasks, in file order.
         seeds: the seeds each episode is flown with.
-        methods: the pilots to fly, in `compare.flying.pilots.PILOT_NAMES` order.
+        pilots: the pilots to fly, in `compare.flying.pilots.PILOT_NAMES` order.
         physics_hz: physics rate [Hz].
         control_hz: decision rate [Hz]; physics_hz is an integer multiple of it.
         raw: a copy of the parsed YAML mapping, for provenance.
@@ -127,7 +127,7 @@ class Scenario:
     wind: WindConditions
     episodes: tuple[ScenarioEpisode, ...]
     seeds: tuple[int, ...]
-    methods: tuple[str, ...]
+    pilots: tuple[str, ...]
     physics_hz: float
     control_hz: float
     air: Atmosphere
@@ -136,16 +136,16 @@ class Scenario:
 
     def __repr__(self) -> str:
         return (f"Scenario({self.name!r}, {len(self.episodes)} episodes x {len(self.seeds)} seeds, "
-                f"vehicle={self.vehicle_name!r}, map={self.city.name!r}, methods={self.methods}, "
+                f"vehicle={self.vehicle_name!r}, map={self.city.name!r}, pilots={self.pilots}, "
                 f"source={self.source!r})")
 
 
 # ---- public entry points -----------------------------------------------------------------------------
-def with_methods(scenario: Scenario, added: tuple[str, ...]) -> Scenario:
+def with_pilots(scenario: Scenario, added: tuple[str, ...]) -> Scenario:
     """`scenario` flying `added` pilots (registered or plug-ins, already checked) beside its own."""
     if not added:
         return scenario
-    return dataclasses.replace(scenario, methods=tuple(pilots.ordered((*scenario.methods, *added))))
+    return dataclasses.replace(scenario, pilots=tuple(pilots.ordered((*scenario.pilots, *added))))
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -187,14 +187,14 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     goal_radius = _optional(data, "goal_radius_m", DEFAULT_GOAL_RADIUS_M, source, _goal_radius)
     timeout = None if data.get("timeout_s") is None else _timeout(data["timeout_s"], source, "timeout_s")
     seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
-    methods = _optional(data, pilots_key, DEFAULT_PILOTS, source, _pilots)
+    flown = _optional(data, pilots_key, DEFAULT_PILOTS, source, _pilots)
     physics_hz, control_hz = _rates(data, source, vehicle)
     episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
     air = flight_atmosphere(atmosphere, city)
     _check_hover(episodes, vehicle, air, source)
     return Scenario(name=name, description=description, source=source, vehicle=vehicle,
                     vehicle_name=vehicle_name, city=city, atmosphere=atmosphere, wind=wind,
-                    episodes=episodes, seeds=seeds, methods=methods, physics_hz=physics_hz,
+                    episodes=episodes, seeds=seeds, pilots=flown, physics_hz=physics_hz,
                     control_hz=control_hz, air=air, raw=copy.deepcopy(dict(data)))
 
 
@@ -332,7 +332,7 @@ def _pilots_key(data: Mapping, source: str) -> str:
     if "pilots" in data:
         raise ConfigError(source, OLD_PILOTS_KEY, "the old name of the key 'pilots', which is also given; keep only "
                                                   "'pilots'")
-    warnings.warn(f"{source}: the key {OLD_PILOTS_KEY!r} is now 'pilots'; the old key is read until the next "
+    warnings.warn(f"{source}: the key {OLD_PILOTS_KEY!r} is renamed 'pilots'; the old key is read until the next "
                   f"release", DeprecationWarning, stacklevel=2)
     return OLD_PILOTS_KEY
 

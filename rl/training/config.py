@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from rl.task.config import NavConfig
-from rl.training.ppo import PRESETS
+from rl.training.presets import PRESETS
 
 MAX_RECORDED_FLIGHTS = 64  # the recorded tasks are meant to be looked at, one by one
 

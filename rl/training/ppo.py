@@ -2,7 +2,6 @@
 normalised environment. The network is the paper's (shape `NetworkConfig`; flown by `rl.policies.network`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 from stable_baselines3 import PPO
@@ -10,7 +9,10 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from torch import nn
 
-from rl.policies.folder import NetworkConfig
+from rl.training.presets import PRESETS, LinearSchedule, PPOPreset
+
+__all__ = ["PRESETS", "LinearSchedule", "PPOPreset", "TanhMeanPolicy", "make_model", "normalized_env"]
+# LinearSchedule stays importable here: the shipped policies' model.zip pickle it as rl.training.ppo.LinearSchedule
 
 
 class TanhMeanPolicy(ActorCriticPolicy):
@@ -27,57 +29,6 @@ class TanhMeanPolicy(ActorCriticPolicy):
         super()._build(lr_schedule)
         # Same Linear (and parameters, already in the optimizer), followed by tanh.
         self.action_net = nn.Sequential(self.action_net, nn.Tanh())
-
-
-@dataclass(frozen=True)
-class PPOPreset:
-    """PPO settings. `paper`: the original demo's network (two dense layers of 128 units) and clip 0.2;
-    the rest chosen by measurement at 10 Hz decisions (docs/learned_pilot.md)."""
-
-    net_arch: tuple[int, ...] = NetworkConfig.net_arch
-    clip_range: float = 0.2
-    learning_rate: float = 3e-4
-    learning_rate_end: float | None = 0.0  # linear decay to this over the run (None: constant)
-    n_steps: int = 64
-    batch_size: int = 4096
-    n_epochs: int = 5
-    horizon_s: float = 10.0  # the discount's horizon in flight seconds: γ = 1 - 1 / (horizon_s x decision_hz)
-    gae_lambda: float = 0.95
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    log_std_init: float = NetworkConfig.log_std_init
-    target_kl: float | None = None
-
-    @property
-    def network(self) -> NetworkConfig:
-        """The policy network's shape (written into config.json with the other settings)."""
-        return NetworkConfig(self.net_arch, self.log_std_init)
-
-    def learning_rate_schedule(self) -> float | LinearSchedule:
-        """The learning rate SB3 gets: constant, or falling linearly to `learning_rate_end` over the run."""
-        return self.learning_rate if self.learning_rate_end is None else \
-            LinearSchedule(self.learning_rate, self.learning_rate_end)
-
-    def gamma(self, decision_hz: float) -> float:
-        """The discount per decision at `decision_hz` [Hz] (0.99 at 10 Hz): the same horizon in
-        seconds at any decision rate, as the reward is per second."""
-        return 1.0 - 1.0 / (self.horizon_s * decision_hz)
-
-
-PRESETS: dict[str, PPOPreset] = {"paper": PPOPreset()}
-
-
-
-
-class LinearSchedule:
-    """Learning rate falling linearly from `start` to `end` over the run (SB3 passes the fraction left)."""
-
-    def __init__(self, start: float, end: float) -> None:
-        self.start, self.end = float(start), float(end)
-
-    def __call__(self, progress_remaining: float) -> float:
-        return self.end + (self.start - self.end) * progress_remaining
 
 
 def normalized_env(base: VecEnv, preset: PPOPreset, decision_hz: float) -> VecNormalize:

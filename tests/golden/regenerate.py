@@ -30,11 +30,11 @@ def main() -> int:
             return 1
         with open(out / "metrics.csv", newline="") as f:
             rows = list(csv.DictReader(f))
-    methods = {}
+    per_pilot = {}
     for r in rows:
-        methods[r["method"]] = {c: (r[c] if c in ("outcome", "success", "collision") else round(float(r[c]), 4))
-                                for c in COLUMNS}
-    data = {"scenario": "tests/data/tiny_scenario.yaml", "tolerances": TOLERANCES, "methods": methods}
+        per_pilot[r["method"]] = {c: (r[c] if c in ("outcome", "success", "collision") else round(float(r[c]), 4))
+                                  for c in COLUMNS}
+    data = {"scenario": "tests/data/tiny_scenario.yaml", "tolerances": TOLERANCES, "methods": per_pilot}
     (HERE / "tiny_metrics.json").write_text(json.dumps(data, indent=2) + "\n")
     print(json.dumps(data, indent=2))
     return 0

@@ -159,7 +159,7 @@ def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
 def worker_pythonpath(setup: WorkerSetup) -> str:
     """PYTHONPATH for the workers: the folders this process imports `compare` and each plug-in pilot's module
     from, then this process's own PYTHONPATH (a folder that does not exist on a node is skipped there)."""
-    modules = ["compare"] + sorted({m.partition(":")[0] for sc in setup.scenarios for m in sc.methods
+    modules = ["compare"] + sorted({m.partition(":")[0] for sc in setup.scenarios for m in sc.pilots
                                     if pilots.is_reference(m)})
     roots: list[str] = []
     for name in modules:

@@ -42,7 +42,7 @@ def prepare_process(setup: WorkerSetup) -> None:
     """Settings of a process that only flies cells: one OpenMP and one torch thread (the pilots evaluate small
     networks one observation at a time, and the run's parallelism is its workers)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    if any(pilots.pilot(m).uses_torch for sc in setup.scenarios for m in sc.methods):
+    if any(pilots.pilot(m).uses_torch for sc in setup.scenarios for m in sc.pilots):
         import torch  # only in a process that flies a torch pilot: PyTorch takes seconds to import
 
         torch.set_num_threads(1)

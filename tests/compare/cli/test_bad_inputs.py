@@ -469,15 +469,15 @@ def test_resume_refuses_a_changed_scenario(tmp_path: Path, capsys: pytest.Captur
            f"scenario tiny: {part} changed", "nothing was written")
 
 
-@pytest.mark.parametrize(("methods", "seeds", "why"), [
+@pytest.mark.parametrize(("pilots", "seeds", "why"), [
     ("rrt_mpc", "0,1", "scenario tiny: seeds saved [0], now [0, 1] (--seeds)"),
     ("ppo,rrt_mpc", None, "scenario tiny: pilots saved rrt_mpc, now ppo, rrt_mpc (--pilots, --pilot)"),
 ])
 def test_resume_refuses_other_seeds_or_pilots(tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_flying: None,
-                                              methods: str, seeds: str | None, why: str) -> None:
+                                              pilots: str, seeds: str | None, why: str) -> None:
     """run.json describes one command's cells: a resume that would mix in another's is refused, folder untouched."""
     _, argv = _tiny_run(tmp_path)
-    argv = [methods if a == "rrt_mpc" else a for a in argv] + (["--seeds", seeds] if seeds else [])
+    argv = [pilots if a == "rrt_mpc" else a for a in argv] + (["--seeds", seeds] if seeds else [])
     fails([*argv, "--resume"], capsys, tmp_path, f"{tmp_path / 'run'}: cannot resume: the inputs differ", why,
            "nothing was written")
 

@@ -46,12 +46,12 @@ def run_copy(base_run: Path, tmp_path: Path) -> Path:
 EVIL = "import pathlib\npathlib.Path(__file__).with_name('RAN').write_text('imported')\n"
 
 
-def _rename_method(run: Path, method: str) -> None:
-    """Give one episode file of `run` the method `method` (as a shared, hostile run folder could)."""
+def _rename_pilot(run: Path, pilot: str) -> None:
+    """Give one episode file of `run` the pilot `pilot` (as a shared, hostile run folder could)."""
     path = sorted((run / "episodes").glob("*rrt_mpc*.npz"))[0]
     saved = load_episode(path)
     meta = saved.meta
-    key = type(meta.key)(meta.key.scenario, meta.key.episode, method, meta.key.seed)
+    key = type(meta.key)(meta.key.scenario, meta.key.episode, pilot, meta.key.seed)
     path.unlink()
     save_episode(run / "episodes" / f"{key.stem}.npz", type(meta)(**{**vars(meta), "key": key}), saved.trajectory)
 
@@ -63,7 +63,7 @@ def test_reading_a_run_folder_imports_nothing_it_names(run_copy: Path, monkeypat
     (run_copy / "evilpilot_i32.py").write_text(EVIL)  # shipped in the folder, started from inside it
     monkeypatch.chdir(run_copy)
     monkeypatch.syspath_prepend(str(run_copy))
-    _rename_method(run_copy, "evilpilot_i32:P")
+    _rename_pilot(run_copy, "evilpilot_i32:P")
     code = main([command[0], str(run_copy), *command[1:], *(["--no-progress"] if command[0] == "animate" else [])])
     assert code == 0, capsys.readouterr().err
     assert not (run_copy / "RAN").exists()
@@ -73,11 +73,11 @@ def test_reading_a_run_folder_imports_nothing_it_names(run_copy: Path, monkeypat
 def test_a_plugin_label_and_colour_come_from_run_json(run_copy: Path) -> None:
     from compare.playback.flights import flight_groups
 
-    _rename_method(run_copy, "someone.pilots:Mine")
+    _rename_pilot(run_copy, "someone.pilots:Mine")
     info = json.loads((run_copy / "run.json").read_text())
     info["methods"]["someone.pilots:Mine"] = {"label": "Their pilot", "description": "x", "color": "tab:brown"}
     (run_copy / "run.json").write_text(json.dumps(info))
-    pilots = {p.method: p for g in flight_groups(run_copy) for p in g.flights}
+    pilots = {p.pilot: p for g in flight_groups(run_copy) for p in g.flights}
     assert pilots["someone.pilots:Mine"].label == "Their pilot"
     assert pilots["someone.pilots:Mine"].color == "tab:brown"
 
@@ -328,16 +328,16 @@ def test_an_unflyable_command_fails_the_cell_as_a_pilot_error(tmp_path: Path, mo
     (tmp_path / "nan_pilots_i32.py").write_text(NAN_PILOTS)
     monkeypatch.syspath_prepend(str(tmp_path))
     out = tmp_path / "run"
-    methods = ["nan_pilots_i32:NaNRotors", "nan_pilots_i32:ShortVelocity", "nan_pilots_i32:InfVelocity"]
-    argv = ["run", str(TINY), "--pilots", ",".join(["apf", *methods]), "--out", str(out), "--no-progress",
+    plugins = ["nan_pilots_i32:NaNRotors", "nan_pilots_i32:ShortVelocity", "nan_pilots_i32:InfVelocity"]
+    argv = ["run", str(TINY), "--pilots", ",".join(["apf", *plugins]), "--out", str(out), "--no-progress",
             "--videos", "none"]
-    for m in ["apf", *methods]:
+    for m in ["apf", *plugins]:
         argv += ["--pilot", m]
     assert main(argv) == 0, capsys.readouterr().err
     records = {json.loads(p.read_text())["key"]["method"]: json.loads(p.read_text())
                for p in (out / "failed").glob("*.json")}
-    assert set(records) == set(methods)
-    for m, expected in zip(methods, ["[nan nan nan nan]: not finite", "of shape (2,)", "not finite"]):
+    assert set(records) == set(plugins)
+    for m, expected in zip(plugins, ["[nan nan nan nan]: not finite", "of shape (2,)", "not finite"]):
         assert records[m]["kind"] == "pilot error"
         assert f"pilot '{m}'" in records[m]["reason"] and expected in records[m]["reason"], records[m]["reason"]
     rows = (out / "metrics.csv").read_text().splitlines()[1:]

@@ -109,7 +109,7 @@ def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path, cap
     out2 = tmp_path / "tiny-jobs2"
     assert main(["run", str(TINY), "--out", str(out2), "--jobs", "2", "--no-progress", "--videos", "none",
                  "--store", "full"]) == 0
-    # the last line: the headline figures as one JSON object, per vehicle and method, rates with Wilson intervals
+    # the last line: the headline figures as one JSON object, per vehicle and pilot, rates with Wilson intervals
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert last["run_dir"] == str(out2) and last["suite"] is None and last["failed_cells"] == 0
     ppo = last["vehicles"]["small_quad"]["ppo"]
@@ -143,14 +143,14 @@ def test_golden_metrics(tiny_run):
     """Physics, planner or policy changes that move these numbers must be deliberate (update the file)."""
     golden = json.loads(GOLDEN.read_text())
     rows = {r["method"]: r for r in _rows(tiny_run / "metrics.csv")}
-    for method, expected in golden["methods"].items():
+    for pilot, expected in golden["methods"].items():
         for column, value in expected.items():
             tol = golden["tolerances"].get(column, 0.0)
-            got = rows[method][column]
+            got = rows[pilot][column]
             if isinstance(value, str):
-                assert got == value, (method, column)
+                assert got == value, (pilot, column)
             else:
-                assert float(got) == pytest.approx(value, abs=tol), (method, column)
+                assert float(got) == pytest.approx(value, abs=tol), (pilot, column)
 
 
 def test_bad_inputs_exit_non_zero_before_flying(tmp_path, capsys):

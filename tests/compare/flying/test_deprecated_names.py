@@ -86,9 +86,9 @@ def test_a_plugin_written_against_the_old_names_flies_through_the_registry(tmp_p
     assert isinstance(entry, pilots.PilotEntry) and entry.label == "Old entry"
     sc = load_scenario(TINY)
     flown = {}
-    for method in ("apf", "old_names_plugin:OldField", "old_names_plugin:OLD_ENTRY"):
-        flown[method] = SavedEpisode(*CellRunner([sc], tmp_path / "run", {}).fly(Cell(0, 0, 0, method)))
+    for name in ("apf", "old_names_plugin:OldField", "old_names_plugin:OLD_ENTRY"):
+        flown[name] = SavedEpisode(*CellRunner([sc], tmp_path / "run", {}).fly(Cell(0, 0, 0, name)))
     apf = flown.pop("apf")
-    for method, saved in flown.items():  # the potential field under its old names flies exactly as apf
-        assert saved.meta.key.method == method and saved.meta.outcome is apf.meta.outcome
-        np.testing.assert_array_equal(saved.trajectory.states, apf.trajectory.states, err_msg=method)
+    for name, saved in flown.items():  # the potential field under its old names flies exactly as apf
+        assert saved.meta.key.method == name and saved.meta.outcome is apf.meta.outcome
+        np.testing.assert_array_equal(saved.trajectory.states, apf.trajectory.states, err_msg=name)

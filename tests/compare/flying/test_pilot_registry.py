@@ -1,6 +1,6 @@
 """The pilot registry: the existing pilots keep their names, labels and colours; a third pilot (apf)
 flies the tiny scenario through the same runner, deterministically, and shows up in metrics.csv,
-summary.json, run.json and the report; an unknown method is refused naming the registered ones.
+summary.json, run.json and the report; an unknown pilot is refused naming the registered ones.
 Also the outcome names (one enum) and the classical pilot's typed report."""
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from pypdf import PdfReader
 
 from compare.cli import main
 from compare.flying import pilots
-from compare.report.figures import METHOD_COLORS
+from compare.report.figures import PILOT_COLORS
 from compare.results.trajectory import SavedEpisode
 from compare.run.campaign import fairness
 from compare.run.cells import Cell, CellRunner
@@ -28,9 +28,9 @@ from uam_fdm.errors import ConfigError
 from uam_fdm.pilot import Pilot
 
 
-def _tiny_with(tmp_path: Path, methods: list[str]) -> Path:
+def _tiny_with(tmp_path: Path, names: list[str]) -> Path:
     data = yaml.safe_load(TINY.read_text())
-    data["pilots"] = methods
+    data["pilots"] = names
     path = tmp_path / "tiny-apf.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
@@ -41,11 +41,11 @@ def test_the_registry_keeps_the_existing_pilots_and_adds_apf():
     assert {m: (s.label, s.color) for m, s in pilots.PILOTS.items()} == {
         "ppo": ("PPO policy", "tab:orange"), "rrt_mpc": ("RRT* + MPC", "tab:blue"),
         "apf": ("Potential field", "tab:purple")}
-    assert METHOD_COLORS == {m: s.color for m, s in pilots.PILOTS.items()}
+    assert PILOT_COLORS == {m: s.color for m, s in pilots.PILOTS.items()}
     assert [s.name for s in pilots.PILOTS.values() if s.needs_policy] == ["ppo"]
     assert pilots.PILOTS["rrt_mpc"].report_type is ClassicalReport and pilots.PILOTS["apf"].report_type is None
     assert pilots.ordered(["apf", "x", "rrt_mpc", "apf"]) == ["rrt_mpc", "apf", "x"]
-    with pytest.raises(ValueError, match=r"unknown method 'astar' \(registered: ppo, rrt_mpc, apf\)"):
+    with pytest.raises(ValueError, match=r"unknown pilot 'astar' \(registered: ppo, rrt_mpc, apf\)"):
         pilots.pilot("astar")
     sc = load_scenario(TINY)
     pilot = pilots.build("apf", pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source))
@@ -54,10 +54,10 @@ def test_the_registry_keeps_the_existing_pilots_and_adds_apf():
 
 def test_a_scenario_naming_an_unknown_pilot_is_refused_listing_the_registered_ones(tmp_path):
     data = yaml.safe_load(TINY.read_text())
-    with pytest.raises(ConfigError, match=r"pilots\[1\].*unknown method 'astar' \(registered: ppo, rrt_mpc, apf\)"):
+    with pytest.raises(ConfigError, match=r"pilots\[1\].*unknown pilot 'astar' \(registered: ppo, rrt_mpc, apf\)"):
         scenario_from_dict({**data, "pilots": ["apf", "astar"]}, "x.yaml", TINY.parent)
-    assert scenario_from_dict({**data, "pilots": ["apf", "ppo"]}, "x.yaml", TINY.parent).methods == ("ppo", "apf")
-    assert scenario_from_dict(data, "x.yaml", TINY.parent).methods == ("ppo", "rrt_mpc")  # apf is off by default
+    assert scenario_from_dict({**data, "pilots": ["apf", "ppo"]}, "x.yaml", TINY.parent).pilots == ("ppo", "apf")
+    assert scenario_from_dict(data, "x.yaml", TINY.parent).pilots == ("ppo", "rrt_mpc")  # apf is off by default
 
 
 def test_apf_flies_the_tiny_scenario_deterministically(tmp_path):

@@ -12,7 +12,7 @@ from pypdf import PdfReader
 from compare.cli import main
 from compare.flying import pilots
 from compare.results.episodes import open_episodes
-from compare.scenarios.scenario import load_scenario, with_methods
+from compare.scenarios.scenario import load_scenario, with_pilots
 from uam_fdm.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -52,20 +52,20 @@ def test_a_plugin_entry_is_taken_as_given_under_its_reference(on_path):
     ("plugin_fixtures:Missing", r"module 'plugin_fixtures' has no 'Missing'"),
     ("plugin_fixtures:NOT_A_CLASS", r"is a int, not a Pilot class or a PilotEntry"),
     ("plugin_fixtures:NoAct", r"NoAct is not a pilot: it lacks act"),
-    ("astar", r"unknown method 'astar' \(registered: ppo, rrt_mpc, apf\).*module:Class"),
+    ("astar", r"unknown pilot 'astar' \(registered: ppo, rrt_mpc, apf\).*module:Class"),
 ])
 def test_a_broken_plugin_is_a_clear_error(on_path, name, reason):
     with pytest.raises(ValueError, match=reason):
         pilots.pilot(name)
-    assert pilots.registered(name) is None  # readers never import a method named in a data file
+    assert pilots.registered(name) is None  # readers never import a pilot named in a data file
 
 
-def test_a_plugin_pilots_own_name_need_not_be_its_method_name(on_path):
+def test_a_plugin_pilots_own_name_need_not_be_the_name_it_flies_under(on_path):
     sc = load_scenario(TINY)
     request = pilots.BuildRequest(sc.vehicle, sc.vehicle_name, sc.source)
     pilot = pilots.build("plugin_fixtures:NamedWrong", request)
     assert pilot.name == "apf"
-    with pytest.raises(ValueError, match="unknown method"):  # a registered name still must match
+    with pytest.raises(ValueError, match="unknown pilot"):  # a registered name still must match
         pilots.build("no_such", request)
 
 
@@ -89,10 +89,10 @@ def test_a_scenario_file_may_name_a_plugin_and_a_broken_one_names_the_key(on_pat
     good, bad = tmp_path / "good.yaml", tmp_path / "bad.yaml"
     good.write_text(text + f"pilots: [{CLIMB}, ppo]\n")
     bad.write_text(text + "pilots: [ppo, nowhere_module:Pilot]\n")
-    assert load_scenario(good).methods == ("ppo", CLIMB)
+    assert load_scenario(good).pilots == ("ppo", CLIMB)
     with pytest.raises(ConfigError, match=r"bad.yaml: pilots\[1\]: .*cannot import module 'nowhere_module'"):
         load_scenario(bad)
-    assert with_methods(load_scenario(TINY), (CLIMB, "apf")).methods == ("ppo", "rrt_mpc", "apf", CLIMB)
+    assert with_pilots(load_scenario(TINY), (CLIMB, "apf")).pilots == ("ppo", "rrt_mpc", "apf", CLIMB)
 
 
 def test_cli_flies_a_plugin_beside_ours_in_worker_processes(on_path, tmp_path):
@@ -122,5 +122,5 @@ def test_cli_flies_a_plugin_beside_ours_in_worker_processes(on_path, tmp_path):
 def test_cli_rejects_an_unknown_plugin_before_flying(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["run", str(TINY), "--pilot", "nowhere_module:Pilot", "--out", str(out), "--no-progress"]) == 2
-    assert "--pilot: method 'nowhere_module:Pilot': cannot import module" in capsys.readouterr().err
+    assert "--pilot: pilot 'nowhere_module:Pilot': cannot import module" in capsys.readouterr().err
     assert not out.exists()

@@ -61,7 +61,7 @@ def test_run_flights_read_back(tmp_path, capsys):
     for g in flight_groups(run_dir):
         assert f"/cells/{g.stem}/city" in chunks
         for p in g.flights:
-            base = f"/cells/{g.stem}/{p.method}"
+            base = f"/cells/{g.stem}/{p.pilot}"
             pos = np.array([v[0] for v in _column(chunks[f"{base}/vehicle"], "Points3D:positions")])
             last = np.asarray(p.episode.trajectory.states, float)[-1, 0:3]
             assert np.allclose(pos[-1], last, atol=1e-3) and len(pos) >= 2

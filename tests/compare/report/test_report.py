@@ -14,7 +14,7 @@ from compare.flying.episode_loop import Trajectory
 from compare.report.figures import (
     CURVE_FIELDS,
     MAX_PLOT_POINTS,
-    METHOD_COLORS,
+    PILOT_COLORS,
     RewardCurve,
     crop_map,
     curriculum_stages,
@@ -22,8 +22,8 @@ from compare.report.figures import (
     episode_paths_figure,
     episode_snapshots_figure,
     episode_timeseries_figure,
-    method_colors,
     moving_average,
+    pilot_colors,
     reward_curve_figure,
     seed_curves_figure,
     smoothing_window,
@@ -46,7 +46,7 @@ from synthetic_run import (
     write_run,
 )
 
-# 1 title + 8 metrics of the one vehicle (per method, forest, paired forest and table, difficulty, conditions,
+# 1 title + 8 metrics of the one vehicle (per pilot, forest, paired forest and table, difficulty, conditions,
 # per scenario, per episode) + 2 episodes x 3 + 1 training + 2 failures (table, paths)
 METRICS_PAGES = 8
 EPISODES = 1 + METRICS_PAGES  # the first episode page
@@ -82,7 +82,7 @@ def test_full_report_pages_text_and_pngs(full_run: tuple[Path, Path]) -> None:
         assert needle in texts[0], needle
     assert all("small_quad: " in t for t in texts[1:EPISODES])  # the run's one vehicle
     # its summary.json predates per-vehicle summaries (it may pool vehicles): recomputed from metrics.csv
-    assert "per method, mean [95 % CI]" in texts[1] and "predates per-vehicle summaries" in texts[1]
+    assert "per pilot, mean [95 % CI]" in texts[1] and "predates per-vehicle summaries" in texts[1]
     assert "50 [9, 91]" in texts[1] and "30.0" in texts[1]  # PPO: 1 of 2 (Wilson), time of its one success
     assert "paired differences" in texts[3] and "4.0 [4.0, 4.0]" in texts[4] and "MDD" in texts[4]
     assert "where does each pilot break?" in texts[5] and "leg length [m]" in texts[5]
@@ -181,7 +181,7 @@ def test_power_is_the_saved_per_step_column(tmp_path: Path) -> None:
     saved = load_episode(run_dir / "episodes" / f"{EpisodeKey(SCENARIO, 0, 'ppo', 0).stem}.npz")
     t = np.asarray(saved.trajectory.t_s)
     np.testing.assert_array_equal(saved.trajectory.shaft_power_W, synthetic_power_W(t))
-    trace = trace_from_episode(saved, LABELS["ppo"], METHOD_COLORS["ppo"])
+    trace = trace_from_episode(saved, LABELS["ppo"], PILOT_COLORS["ppo"])
     assert len(trace.t_s) < len(t)  # reduced for drawing: the samples kept are the saved ones
     np.testing.assert_array_equal(trace.rotor_kw, synthetic_power_W(trace.t_s) / 1e3)
     fig = episode_timeseries_figure("Episode x", [trace])
@@ -191,7 +191,7 @@ def test_power_is_the_saved_per_step_column(tmp_path: Path) -> None:
     assert ax_p.get_ylabel() == "rotor power [kW]"
     # an episode file without the column (saved before it was recorded): mean rotor speed, and the panel says why
     old = load_episode(run_dir / "episodes" / f"{EpisodeKey(SCENARIO, 1, 'ppo', 0).stem}.npz")
-    old_trace = trace_from_episode(old, LABELS["ppo"], METHOD_COLORS["ppo"])
+    old_trace = trace_from_episode(old, LABELS["ppo"], PILOT_COLORS["ppo"])
     assert old_trace.rotor_kw is None
     fig = episode_timeseries_figure("Episode x", [trace, old_trace])
     assert fig.axes[2].get_ylabel() == "mean rotor speed [rad/s]"
@@ -211,8 +211,8 @@ def test_plot_helpers() -> None:
     assert len(idx) <= MAX_PLOT_POINTS and idx[0] == 0 and idx[-1] == 10_000 and 7777 in idx
     assert np.all(np.diff(idx) > 0)
     assert np.array_equal(downsample_indices(50), np.arange(50))
-    colors = method_colors(["rrt_mpc", "new_a", "ppo", "new_b"])
-    assert colors["ppo"] == METHOD_COLORS["ppo"] and colors["rrt_mpc"] == METHOD_COLORS["rrt_mpc"]
+    colors = pilot_colors(["rrt_mpc", "new_a", "ppo", "new_b"])
+    assert colors["ppo"] == PILOT_COLORS["ppo"] and colors["rrt_mpc"] == PILOT_COLORS["rrt_mpc"]
     assert len({colors["new_a"], colors["new_b"], colors["ppo"], colors["rrt_mpc"]}) == 4
     cropped = crop_map(toy_map(), np.array([50.0, 50.0, 0.0]), np.array([125.0, 100.0, 50.0]))
     assert sorted(p.id for p in cropped.buildings) == [0, 1]  # 1 is cut by the box edge, 2 and 3 are outside
@@ -233,10 +233,10 @@ def test_nonfinite_and_planner_failure_episodes_draw(tmp_path: Path) -> None:
     first = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m")
     stub = Trajectory(**{**two.__dict__, **{k: getattr(two, k)[:1] for k in first}})
     traces = []
-    for method, traj in (("ppo", broken), ("rrt_mpc", stub)):
-        meta = EpisodeMeta(EpisodeKey(SCENARIO, 0, method, 0), "toy", "small_quad", START, GOAL, 3.0, 60.0,
+    for pilot, traj in (("ppo", broken), ("rrt_mpc", stub)):
+        meta = EpisodeMeta(EpisodeKey(SCENARIO, 0, pilot, 0), "toy", "small_quad", START, GOAL, 3.0, 60.0,
                            0.42, 4, 0.0, traj.outcome, 0.0, "", None)
-        traces.append(trace_from_episode(SavedEpisode(meta, traj), LABELS[method], METHOD_COLORS[method]))
+        traces.append(trace_from_episode(SavedEpisode(meta, traj), LABELS[pilot], PILOT_COLORS[pilot]))
     assert len(traces[0].t_s) == 400 and np.all(np.isfinite(traces[0].pos_m))
     assert len(traces[1].t_s) == 1
     for fig in (episode_paths_figure("Episode x", traces, toy_map()),

@@ -11,8 +11,8 @@ from matplotlib.lines import Line2D
 from pypdf import PdfReader
 
 from compare.report import report as R
-from compare.report.figures import METHOD_COLORS, method_colors
-from compare.report.metrics_pages import MethodStyle, vehicle_pages
+from compare.report.figures import PILOT_COLORS, pilot_colors
+from compare.report.metrics_pages import PilotStyle, vehicle_pages
 from compare.results.difficulty import ScenarioConditions
 from compare.results.metrics import read_metrics_csv
 from compare.results.summary import read_summary_json, summarize_run, write_summary_json
@@ -31,7 +31,7 @@ def _page(texts: list[str], title: str) -> str:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
     run_dir = tmp_path_factory.mktemp("vehicles") / "run"
-    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=3, episodes=3, seeds=(0,), methods=PILOT_LABELS,
+    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=3, episodes=3, seeds=(0,), pilots=PILOT_LABELS,
                                samples=60)
     write_summary_json(summarize_run(rows, resamples=200), run_dir / "summary.json")
     with pytest.MonkeyPatch.context() as mp:  # draw few flights: the bound is what is tested, not the drawing
@@ -57,13 +57,13 @@ def test_report_has_a_section_per_vehicle_and_no_pooled_table(run):
     run_dir, texts = run
     whole = "\n".join(texts)
     for vehicle in VEHICLES:
-        for title in (f"{vehicle}: per method, mean [95 % CI]", f"{vehicle}: summary per method",
+        for title in (f"{vehicle}: per pilot, mean [95 % CI]", f"{vehicle}: summary per pilot",
                       f"{vehicle}: paired differences", f"{vehicle}: paired differences and minimum detectable",
                       f"{vehicle}: where does each pilot break?", f"{vehicle}: scenarios and their conditions",
                       f"{vehicle}: per scenario", f"{vehicle}: per episode"):
             assert title in whole, title
         assert f"Over the 3 scenarios of vehicle {vehicle}, never pooled with another vehicle" in whole
-    assert "Metrics: per method" not in whole  # the old table over every vehicle at once
+    assert "Metrics: per pilot" not in whole  # the old table over every vehicle at once
     assert "numbers from summary.json" in whole and "Wilson" in whole and "Newcombe" in whole
     assert "minimum detectable difference" in whole and "excludes 0" in whole
     names = {p.name for p in (run_dir / "figures").glob("*.png")}
@@ -105,14 +105,14 @@ def test_plug_in_pilot_keeps_its_label_and_own_colour(run):
     run_dir, texts = run
     whole = "\n".join(texts)
     assert whole.count("Ghost pilot") >= 6  # run.json's label: the plug-in cannot be imported here
-    colors = method_colors(list(PILOT_LABELS))
-    assert colors["ppo"] == METHOD_COLORS["ppo"] and colors["rrt_mpc"] == METHOD_COLORS["rrt_mpc"]
+    colors = pilot_colors(list(PILOT_LABELS))
+    assert colors["ppo"] == PILOT_COLORS["ppo"] and colors["rrt_mpc"] == PILOT_COLORS["rrt_mpc"]
     assert colors[GHOST] not in (colors["ppo"], colors["rrt_mpc"])
     # the summary figure draws it in that colour under that label
     summary = read_summary_json(run_dir / "summary.json")
     quad = summary.by_vehicle["small_quad"]
     rows = [r for r in read_metrics_csv(run_dir / "metrics.csv") if r.vehicle == "small_quad"]
-    style = MethodStyle(tuple(PILOT_LABELS), PILOT_LABELS, colors)
+    style = PilotStyle(tuple(PILOT_LABELS), PILOT_LABELS, colors)
     scenarios = {n: s for n, s in summary.by_scenario.items() if s.vehicle == "small_quad"}
     conditions = {n: ScenarioConditions(n, "small_quad", 0.1, "none", 1.2) for n in scenarios}
     pages = dict(vehicle_pages("small_quad", quad, scenarios, rows, conditions, style, "test."))

@@ -12,8 +12,8 @@ from matplotlib.lines import Line2D
 from pypdf import PdfReader
 
 from compare.cli import main
-from compare.report.figures import method_colors
-from compare.report.metrics_pages import MethodStyle
+from compare.report.figures import pilot_colors
+from compare.report.metrics_pages import PilotStyle
 from compare.report.sweep_pages import sweep_figure
 from compare.results.metrics import read_metrics_csv
 from compare.results.run_info import AirEnvelope, read_run_info
@@ -26,11 +26,11 @@ from synthetic_run import trajectory
 ENVELOPE = AirEnvelope((0.0, 0.0), 3.0, ("light",))  # the shipped quad's: sea level, light, wind to 3 m/s
 
 
-def _outcome(method: str, da_m: float, wind_m_s: float, episode: int) -> str:
+def _outcome(pilot: str, da_m: float, wind_m_s: float, episode: int) -> str:
     """The learned pilot breaks in thin air and strong wind (collisions), the classical one in wind only."""
-    if method == "ppo" and (da_m > 2000.0 or wind_m_s > 7.0):
+    if pilot == "ppo" and (da_m > 2000.0 or wind_m_s > 7.0):
         return "collision" if episode == 0 else "timeout"
-    if method == "rrt_mpc" and wind_m_s > 11.0 and episode == 1:
+    if pilot == "rrt_mpc" and wind_m_s > 11.0 and episode == 1:
         return "timeout"
     return "success"
 
@@ -40,7 +40,7 @@ def sweep_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     run_dir = tmp_path_factory.mktemp("sweep") / "run"
     task_set = build_sweep("sweep-quick", vehicles=("small_quad",))
     scenarios = list(task_set.scenarios)
-    opts = RunConfig(run_dir, methods=("ppo", "rrt_mpc"), command="uam-compare sweep --quick")
+    opts = RunConfig(run_dir, pilots=("ppo", "rrt_mpc"), command="uam-compare sweep --quick")
     cells, notes = plan_cells(scenarios, opts, None)
     policy = PolicyFacts(Path("/nonexistent/policy"), "small_quad", scenarios[0].vehicle.fingerprint(), 50.0, 10.0,
                          ENVELOPE)
@@ -48,8 +48,8 @@ def sweep_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for c in cells:
         sc = scenarios[c.scenario]
         ep = sc.episodes[c.episode]
-        outcome = _outcome(c.method, sc.atmosphere.elevation_m, math.hypot(*sc.wind.steady_enu_m_s), c.episode)
-        key = EpisodeKey(sc.name, c.episode, c.method, c.seed)
+        outcome = _outcome(c.pilot, sc.atmosphere.elevation_m, math.hypot(*sc.wind.steady_enu_m_s), c.episode)
+        key = EpisodeKey(sc.name, c.episode, c.pilot, c.seed)
         meta = EpisodeMeta(key, sc.city.name or sc.name, "small_quad", tuple(ep.task.start_m), tuple(ep.task.goal_m),
                            3.0, ep.task.timeout_s, 0.42, 4, 1000.0, outcome, 0.0, f"synthetic {outcome}")
         save_episode(run_dir / "episodes" / f"{key.stem}.npz", meta,
@@ -89,8 +89,8 @@ def test_the_report_has_a_sweep_page_per_vehicle(sweep_run: Path) -> None:
 def test_the_sweep_figure_draws_each_pilot_in_its_colour_and_marks_outside_steps(sweep_run: Path) -> None:
     info = read_run_info(sweep_run)
     rates = sweep_rates(info, read_metrics_csv(sweep_run / "metrics.csv"))
-    colors = method_colors(["ppo", "rrt_mpc"])
-    style = MethodStyle(("ppo", "rrt_mpc"), {"ppo": "PPO", "rrt_mpc": "RRT* + MPC"}, colors)
+    colors = pilot_colors(["ppo", "rrt_mpc"])
+    style = PilotStyle(("ppo", "rrt_mpc"), {"ppo": "PPO", "rrt_mpc": "RRT* + MPC"}, colors)
     fig = sweep_figure("small_quad", rates, style)
     success_da, success_wind = fig.axes[0], fig.axes[1]
     lines = [ln for ln in success_da.get_lines() if isinstance(ln, Line2D) and ln.get_linestyle() == "-"]

@@ -25,7 +25,7 @@ from compare.results.summary import (
     BootstrapConfig,
     Stat,
     Summary,
-    methods_table,
+    pilots_table,
     read_summary_json,
     summarize,
     summarize_run,
@@ -44,7 +44,7 @@ POLYLINE = [(0.0, 0.0, 10.0), (3.0, 0.0, 10.0), (3.0, 4.0, 10.0), (3.0, 4.0, 22.
 
 
 def make_episode(positions=POLYLINE, clearance=(0.5, 1.5, 4.0, 1.0), compute_s=(0.001, 0.003, 0.002),
-                 outcome="success", method="rrt_mpc", plan_time_s=0.7, energy_J=1234.5,
+                 outcome="success", pilot="rrt_mpc", plan_time_s=0.7, energy_J=1234.5,
                  start=(0.0, 0.0, 10.0), goal=(3.0, 4.0, 22.0), scenario="town", episode=0, seed=0,
                  t_s=None, report=None) -> SavedEpisode:
     pos = np.asarray(positions, float)
@@ -58,23 +58,23 @@ def make_episode(positions=POLYLINE, clearance=(0.5, 1.5, 4.0, 1.0), compute_s=(
                       wind_enu_m_s=np.zeros((m, 3)), clearance_m=np.asarray(clearance, float),
                       decision_t_s=0.02 * np.arange(compute.size), compute_s=compute, energy_J=energy_J,
                       outcome=outcome, plan_time_s=plan_time_s, detail="hand-made")
-    meta = EpisodeMeta(key=EpisodeKey(scenario, episode, method, seed), map_name="town-map",
+    meta = EpisodeMeta(key=EpisodeKey(scenario, episode, pilot, seed), map_name="town-map",
                        vehicle="small_quad", start_m=tuple(start), goal_m=tuple(goal), goal_radius_m=1.0,
                        timeout_s=60.0, collision_radius_m=0.3, n_rotors=N_ROTORS, energy_J=energy_J,
                        outcome=outcome, plan_time_s=plan_time_s, detail="hand-made", report=report)
     return SavedEpisode(meta, traj)
 
 
-def row(method="ppo", episode=0, seed=0, scenario="town", success=True, **values) -> EpisodeMetrics:
+def row(pilot="ppo", episode=0, seed=0, scenario="town", success=True, **values) -> EpisodeMetrics:
     """A metrics row with defaults; `values` override numeric fields."""
     outcome = values.pop("outcome", "success" if success else "timeout")
-    base = {"scenario": scenario, "episode": episode, "method": method, "seed": seed, "map": "town-map",
+    base = {"scenario": scenario, "episode": episode, "method": pilot, "seed": seed, "map": "town-map",
             "vehicle": "small_quad", "outcome": outcome, "success": success,
             "collision": outcome == "collision", "failure_reason": "" if success else outcome,
             "min_clearance_m": 3.0, "time_below_2m_s": 0.0, "time_below_5m_s": 1.0, "time_s": 20.0,
             "path_length_m": 100.0, "straight_line_m": 90.0, "spl": 0.9 if success else 0.0,
             "energy_kj": 50.0, "compute_ms_mean": 1.0, "compute_ms_max": 2.0,
-            "plan_time_s": math.nan if method == "ppo" else 0.5}
+            "plan_time_s": math.nan if pilot == "ppo" else 0.5}
     base.update(values)
     return EpisodeMetrics(**base)
 
@@ -114,9 +114,9 @@ TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures":
            "clearance_over_margin_min": 0.625}
 
 
-def _save_with_extra(tmp_path, extra: dict, method: str = "rrt_mpc") -> SavedEpisode:
+def _save_with_extra(tmp_path, extra: dict, pilot: str = "rrt_mpc") -> SavedEpisode:
     """An episode file whose metadata's "extra" is `extra`, as written on disk, read back."""
-    saved = make_episode(method=method)
+    saved = make_episode(pilot=pilot)
     path = save_episode(tmp_path / "ep.npz", saved.meta, saved.trajectory)
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files}
@@ -132,7 +132,7 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
     m = episode_metrics(make_episode(report=report))
     assert {k: getattr(m, k) for k in M.TRACKER_METRICS} == {k: float(TRACKER[k]) for k in M.TRACKER_METRICS}
     # a pilot without a tracker (ppo): NaN in every tracker column, finite elsewhere
-    ppo = episode_metrics(make_episode(method="ppo", plan_time_s=0.0))
+    ppo = episode_metrics(make_episode(pilot="ppo", plan_time_s=0.0))
     assert all(math.isnan(getattr(ppo, k)) for k in M.TRACKER_METRICS)
     # the report is saved in the episode file and read back as the same typed report
     saved = make_episode(report=report)
@@ -166,9 +166,9 @@ def test_tracker_metrics_are_summarised_but_not_paired():
     rows = [row("rrt_mpc", episode=e, planner_margin_m=1.0 + e, replans_clearance=float(e)) for e in range(2)]
     rows += [row("ppo", episode=e) for e in range(2)]
     s = summarize(rows, resamples=50)
-    assert s.methods["rrt_mpc"].stats["planner_margin_m"].mean == 1.5
-    assert s.methods["rrt_mpc"].stats["replans_clearance"].n == 2
-    assert s.methods["ppo"].stats["planner_margin_m"].n == 0 and s.methods["ppo"].stats["planner_margin_m"].mean is None
+    assert s.pilots["rrt_mpc"].stats["planner_margin_m"].mean == 1.5
+    assert s.pilots["rrt_mpc"].stats["replans_clearance"].n == 2
+    assert s.pilots["ppo"].stats["planner_margin_m"].n == 0 and s.pilots["ppo"].stats["planner_margin_m"].mean is None
     (pair,) = s.paired
     assert pair.name == "ppo - rrt_mpc" and not set(M.TRACKER_METRICS) & set(pair.stats)
 
@@ -223,15 +223,15 @@ def test_nonfinite_flight_ignores_nan_samples():
     assert math.isnan(all_nan.min_clearance_m) and all_nan.time_below_5m_s == 0.0
 
 
-def test_no_decisions_and_plan_time_by_method():
+def test_no_decisions_and_plan_time_by_pilot():
     pf = episode_metrics(make_episode(positions=[(0.0, 0.0, 10.0)], clearance=(8.0,), compute_s=(),
                                       outcome="planner_failure", plan_time_s=2.5))
     assert math.isnan(pf.compute_ms_mean) and math.isnan(pf.compute_ms_max)
     assert pf.time_s == 0.0 and pf.path_length_m == 0.0 and pf.time_below_5m_s == 0.0
     assert pf.plan_time_s == 2.5
-    assert math.isnan(episode_metrics(make_episode(method="ppo", plan_time_s=0.0)).plan_time_s)
-    assert episode_metrics(make_episode(method="ppo", plan_time_s=0.1)).plan_time_s == 0.1
-    assert episode_metrics(make_episode(method="rrt_mpc", plan_time_s=0.0)).plan_time_s == 0.0
+    assert math.isnan(episode_metrics(make_episode(pilot="ppo", plan_time_s=0.0)).plan_time_s)
+    assert episode_metrics(make_episode(pilot="ppo", plan_time_s=0.1)).plan_time_s == 0.1
+    assert episode_metrics(make_episode(pilot="rrt_mpc", plan_time_s=0.0)).plan_time_s == 0.0
 
 
 def test_inconsistent_arrays_are_an_error():
@@ -240,7 +240,7 @@ def test_inconsistent_arrays_are_an_error():
 
 
 def test_saved_episode_round_trip_scores_the_same(tmp_path):
-    saved = make_episode(method="ppo", plan_time_s=0.0, clearance=(0.5, 1.5, np.nan, 1.0))
+    saved = make_episode(pilot="ppo", plan_time_s=0.0, clearance=(0.5, 1.5, np.nan, 1.0))
     path = save_episode(tmp_path / "episodes" / f"{saved.meta.key.stem}.npz", saved.meta, saved.trajectory)
     loaded = load_episode(path)
     assert same(episode_metrics(loaded), episode_metrics(saved))
@@ -385,8 +385,8 @@ def test_summary_per_method_on_known_data():
     s = summarize(rows, resamples=500, seed=3)
     assert s.bootstrap == BootstrapConfig(resamples=500, confidence=0.95, seed=3, method="percentile")
     assert s.metrics == S.SUMMARY_METRICS and s.by_scenario is None
-    assert list(s.methods) == ["ppo", "rrt_mpc"]
-    ppo, mpc = s.methods["ppo"], s.methods["rrt_mpc"]
+    assert list(s.pilots) == ["ppo", "rrt_mpc"]
+    ppo, mpc = s.pilots["ppo"], s.pilots["rrt_mpc"]
     assert ppo.episodes == 10 and ppo.failure_reasons == {"timeout": 1}
     assert mpc.episodes == 8 and mpc.failure_reasons == {"collision": 1, "timeout": 1}
     assert ppo.stats["success"].mean == pytest.approx(0.9) and ppo.stats["success"].n == 10
@@ -413,11 +413,11 @@ def test_summary_per_method_on_known_data():
 
 def test_ci_edge_cases_and_confidence():
     s = summarize([row("ppo", 0, compute_ms_max=7.0), row("ppo", 1, success=False)], resamples=200)
-    ppo = s.methods["ppo"]
+    ppo = s.pilots["ppo"]
     assert ppo.stats["time_s"] == Stat(mean=20.0, ci_low=20.0, ci_high=20.0, n=1, over="successes")
     rows = [row("ppo", ep, min_clearance_m=float(ep % 7)) for ep in range(40)]
-    wide = summarize(rows, resamples=1000, confidence=0.99).methods["ppo"].stats["min_clearance_m"]
-    narrow = summarize(rows, resamples=1000, confidence=0.5).methods["ppo"].stats["min_clearance_m"]
+    wide = summarize(rows, resamples=1000, confidence=0.99).pilots["ppo"].stats["min_clearance_m"]
+    narrow = summarize(rows, resamples=1000, confidence=0.5).pilots["ppo"].stats["min_clearance_m"]
     assert wide.ci_high - wide.ci_low > narrow.ci_high - narrow.ci_low > 0
     with pytest.raises(ValueError, match="confidence"):
         summarize(rows, confidence=1.0)
@@ -461,7 +461,7 @@ def test_summary_json_is_deterministic_and_nan_free(tmp_path):
     assert list(loaded["paired"]) == ["ppo - rrt_mpc", "ppo - a_star", "rrt_mpc - a_star"]  # table order
     assert loaded["methods"]["ppo"]["plan_time_s"]["mean"] is None
     assert loaded["paired"]["ppo - rrt_mpc"]["success"]["mean_diff"] is not None  # the file's name for it
-    assert summarize(rows, seed=1).methods != summarize(rows, seed=0).methods   # the seed drives the CIs
+    assert summarize(rows, seed=1).pilots != summarize(rows, seed=0).pilots   # the seed drives the CIs
 
 
 def test_summary_json_round_trip(tmp_path):
@@ -481,8 +481,8 @@ def test_summary_json_round_trip(tmp_path):
         "methods": {"ppo": {"episodes": 2, "success": {"mean": 0.5, "ci_low": None, "ci_high": None, "n": 2}}}}))
     old = read_summary_json(tmp_path / "old.json")
     assert old.by_scenario is None and old.paired == () and old.bootstrap == BootstrapConfig(resamples=10)
-    assert old.methods["ppo"].stats["success"] == Stat(0.5, None, None, 2) and old.methods["ppo"].failure_reasons == {}
-    assert isinstance(old, Summary) and methods_table(old)[1] == ["ppo", "2", "50%"]
+    assert old.pilots["ppo"].stats["success"] == Stat(0.5, None, None, 2) and old.pilots["ppo"].failure_reasons == {}
+    assert isinstance(old, Summary) and pilots_table(old)[1] == ["ppo", "2", "50%"]
 
 
 def test_bad_summary_json_names_the_file_and_key(tmp_path):
@@ -495,10 +495,10 @@ def test_bad_summary_json_names_the_file_and_key(tmp_path):
         read_summary_json(bad)
 
 
-def test_methods_table():
-    table = methods_table(summarize(comparison_rows(), resamples=300))
+def test_pilots_table():
+    table = pilots_table(summarize(comparison_rows(), resamples=300))
     header = table[0]
-    assert header[:4] == ["method", "episodes", "success", "collision"]
+    assert header[:4] == ["pilot", "episodes", "success", "collision"]
     assert len(header) == 2 + len(S.SUMMARY_METRICS)
     assert [r[0] for r in table[1:]] == ["ppo", "rrt_mpc"] and all(len(r) == len(header) for r in table)
     ppo = dict(zip(header, table[1]))

@@ -39,7 +39,7 @@ def test_an_npz_run_folder_reports_as_before(old_run: Path) -> None:
 
 def test_an_npz_run_folder_views_and_animates(old_run: Path, tmp_path: Path) -> None:
     [group] = flight_groups(old_run)
-    assert [p.method for p in group.flights] == ["ppo", "rrt_mpc"] and group.duration_s > 1.0
+    assert [p.pilot for p in group.flights] == ["ppo", "rrt_mpc"] and group.duration_s > 1.0
     assert main(["view", str(old_run), "--out", str(tmp_path / "v.html")]) == 0
     assert main(["animate", str(old_run), "--format", "gif", "--fps", "2", "--duration", "1", "--size", "320x240",
                  "--out", str(tmp_path / "a.gif")]) == 0

@@ -10,7 +10,7 @@ import pytest
 from compare.results.run_info import (
     AirEnvelope,
     AtmosphereInfo,
-    MethodInfo,
+    PilotInfo,
     PolicyRecord,
     RunInfo,
     ScenarioInfo,
@@ -30,12 +30,12 @@ def full_info() -> RunInfo:
         vehicle_summary="1.5 kg, 4 rotors, collision radius 0.42 m",
         atmosphere=AtmosphereInfo(1500.0, 15.0, 0.9987),
         wind=WindInfo((2.0, 1.0, 0.0), "light", WindShear("power", 10.0, exponent=0.28)),
-        episodes=3, seeds=(0, 7), methods=("ppo", "rrt_mpc"), physics_hz=500.0, control_hz=50.0)
+        episodes=3, seeds=(0, 7), pilots=("ppo", "rrt_mpc"), physics_hz=500.0, control_hz=50.0)
     return RunInfo(
         created_utc="2026-11-21T08:00:00Z", command="uam-compare run hot-high", scenarios=(scenario,),
         notes=("ppo decides at its policy's rate",),
-        methods={"ppo": MethodInfo("PPO policy", "Learned pilot.", (PolicyRecord("small_quad", "/p/quad", 10.0),)),
-                 "rrt_mpc": MethodInfo("RRT* + MPC", "Classical pilot.")},
+        pilots={"ppo": PilotInfo("PPO policy", "Learned pilot.", (PolicyRecord("small_quad", "/p/quad", 10.0),)),
+                "rrt_mpc": PilotInfo("RRT* + MPC", "Classical pilot.")},
         versions={"python": "3.11.7", "numpy": "2.1.0"}, fairness="Both fly the same model.",
         fingerprints={"code": {"uam-compare": "0.1.0"}, "scenarios": {"hot-high": {"map": "abc"}}})
 
@@ -131,8 +131,8 @@ def test_missing_run_json_names_the_folder(tmp_path: Path) -> None:
 def test_a_policys_trained_air_round_trips(tmp_path: Path) -> None:
     """The envelope a policy was trained in is written with it (only when known) and read back exactly."""
     env = AirEnvelope((-612.5, 4100.0), 8.0, ("none", "light", "moderate"))
-    info = replace(full_info(), methods={"ppo": MethodInfo("PPO policy", "", (PolicyRecord("small_quad", "/p", 10.0,
-                                                                                           env),))})
+    info = replace(full_info(), pilots={"ppo": PilotInfo("PPO policy", "", (PolicyRecord("small_quad", "/p", 10.0,
+                                                                                         env),))})
     data = json.loads(write_run_info(info, tmp_path).read_text())
     assert data["methods"]["ppo"]["policies"][0]["trained_air"] == {
         "density_altitude_m": [-612.5, 4100.0], "steady_wind_max_m_s": 8.0, "turbulence": ["none", "light", "moderate"]}

@@ -42,7 +42,7 @@ CONDITIONS = EpisodeConditions(1.0581, 1000.0, "light", (3.0, 4.0, 0.0), 0.25)
 PERIOD = 10  # physics steps per control period (500 Hz / 50 Hz)
 
 
-def _episode(episode: int = 0, method: str = "ppo", n: int = 1201, outcome: str = "success",
+def _episode(episode: int = 0, pilot: str = "ppo", n: int = 1201, outcome: str = "success",
              scenario: str = "toy-quad") -> SavedEpisode:
     """A synthetic flight on the runner's grid (2 ms), decisions every control period but the last row."""
     traj = trajectory(n, (n - 1) * 0.002, 10.0, 1.0, outcome, episode, shaft_power=True)
@@ -50,9 +50,9 @@ def _episode(episode: int = 0, method: str = "ppo", n: int = 1201, outcome: str 
     decisions = t[:-1:PERIOD] + 1e-15 * (np.arange(len(t[:-1:PERIOD])) % 3)  # the runner's clock: off in the last bit
     compute = 1e-3 * (1.0 + np.sin(np.arange(len(decisions))))
     traj = replace(traj, decision_t_s=decisions, compute_s=compute)
-    key = EpisodeKey(scenario, episode, method, 0)
+    key = EpisodeKey(scenario, episode, pilot, 0)
     meta = EpisodeMeta(key, "toy", "small_quad", START, GOAL, 3.0, 60.0, 0.42, 4, 1234.5, outcome,
-                       0.3 if method == "rrt_mpc" else 0.0, f"synthetic {outcome}", wind_seed=7, agent_seed=8,
+                       0.3 if pilot == "rrt_mpc" else 0.0, f"synthetic {outcome}", wind_seed=7, agent_seed=8,
                        mean_decision_ms=1.0, vehicle_fingerprint="0123456789abcdef")
     return SavedEpisode(meta, traj)
 
@@ -100,7 +100,7 @@ def test_part_round_trip_full_rate_is_exact_where_float64_and_float32_elsewhere(
 
 
 def test_control_rate_part_is_rounded_to_the_stated_quanta_and_keeps_every_decision(tmp_path):
-    saved = _episode(method="rrt_mpc")
+    saved = _episode(pilot="rrt_mpc")
     row, samples = read_part(write_part(tmp_path / "p.parquet", _part(saved)))
     back = episode_from_tables(meta_from_row(row), samples).trajectory
     rows = kept_rows(saved.trajectory, "control", PERIOD)

@@ -34,9 +34,9 @@ from uam_fdm.stats import wilson_interval
 Z_SUM = 1.959963984540054 + 0.8416212335729143  # z_0.975 + z_0.8
 
 
-def row(method: str, episode: int, *, vehicle: str = "small_quad", scenario: str = "town", seed: int = 0,
+def row(pilot: str, episode: int, *, vehicle: str = "small_quad", scenario: str = "town", seed: int = 0,
         success: bool = True, **values) -> EpisodeMetrics:
-    base = {"scenario": scenario, "episode": episode, "method": method, "seed": seed, "map": "m", "vehicle": vehicle,
+    base = {"scenario": scenario, "episode": episode, "method": pilot, "seed": seed, "map": "m", "vehicle": vehicle,
             "outcome": "success" if success else "collision", "success": success, "collision": not success,
             "failure_reason": "" if success else "collision", "min_clearance_m": 3.0, "time_below_2m_s": 0.0,
             "time_below_5m_s": 1.0, "time_s": 20.0, "path_length_m": 100.0, "straight_line_m": 90.0,
@@ -93,7 +93,7 @@ def test_paired_differences_and_mdd_on_hand_made_numbers():
     assert s.vehicles == ("small_quad",) and s.vehicle == "small_quad"
     assert s.intervals == IntervalMethods("wilson", "newcombe-hybrid-score", ("success", "collision"))
     assert s.power == PowerConfig(0.05, 0.8, 0.5)
-    ppo = s.methods["ppo"].stats["success"]
+    ppo = s.pilots["ppo"].stats["success"]
     assert (ppo.mean, ppo.n) == (0.8, 5) and (ppo.ci_low, ppo.ci_high) == wilson_interval(4, 5)
     (p,) = s.paired
     clear = p.stats["min_clearance_m"]
@@ -121,7 +121,7 @@ def two_vehicle_rows() -> list[EpisodeMetrics]:
 
 
 def _blocks_with_statistics(data: dict, where: str = "") -> list[tuple[str, list]]:
-    """Every (key path, vehicles) of a summary.json block that holds per-method statistics."""
+    """Every (key path, vehicles) of a summary.json block that holds per-pilot statistics."""
     found = [(where or "<root>", data.get("vehicles"))] if data.get("methods") else []
     for key in ("by_vehicle", "by_scenario"):
         for name, part in (data.get(key) or {}).items():
@@ -134,11 +134,11 @@ def test_summary_json_never_pools_vehicles(tmp_path):
     with pytest.raises(ValueError, match=r"2 vehicles \(small_quad, uam_multicopter\).*never pools"):
         summarize(rows)
     s = summarize_run(rows, resamples=200)
-    assert s.vehicles == ("small_quad", "uam_multicopter") and s.methods == {} and s.paired == ()
+    assert s.vehicles == ("small_quad", "uam_multicopter") and s.pilots == {} and s.paired == ()
     assert list(s.by_vehicle) == ["small_quad", "uam_multicopter"]
     assert s.by_vehicle["uam_multicopter"] == summarize([r for r in rows if r.vehicle == "uam_multicopter"],
                                                         resamples=200)
-    assert s.by_vehicle["small_quad"].methods["ppo"].episodes == 10  # its two scenarios, and only its own
+    assert s.by_vehicle["small_quad"].pilots["ppo"].episodes == 10  # its two scenarios, and only its own
     assert s.by_scenario["city-uam"].vehicle == "uam_multicopter"
     data = json.loads(write_summary_json(s, tmp_path / "summary.json").read_text())
     assert "methods" not in data and "paired" not in data
@@ -152,9 +152,9 @@ def test_summary_json_never_pools_vehicles(tmp_path):
     back = read_summary_json(tmp_path / "summary.json")
     assert back == s and back.per_vehicle() == s.by_vehicle
     assert write_summary_json(back, tmp_path / "again.json").read_bytes() == (tmp_path / "summary.json").read_bytes()
-    # one vehicle: the run-wide block is that vehicle's (files read by older tools keep their top-level methods)
+    # one vehicle: the run-wide block is that vehicle's (files read by older tools keep their top-level "methods")
     one = summarize_run(hand_rows(), resamples=200)
-    assert one.methods == one.by_vehicle["small_quad"].methods and one.per_vehicle() == one.by_vehicle
+    assert one.pilots == one.by_vehicle["small_quad"].pilots and one.per_vehicle() == one.by_vehicle
     assert "methods" in summary_to_json(one)
 
 

@@ -131,7 +131,7 @@ def test_resume_flies_only_the_missing_cells_and_keeps_the_saved_episodes(
     assert main([*argv, "--resume"]) == 0  # the fault is spent: the failed cell flies now
     printed = capsys.readouterr().out
     assert "failed (" not in printed and json.loads(printed.splitlines()[-1])["failed_cells"] == 0
-    assert [(c.method, c.seed) for c in flown] == [(failed.key.method, failed.key.seed)]
+    assert [(c.pilot, c.seed) for c in flown] == [(failed.key.method, failed.key.seed)]
     assert read_failures(out) == [] and not failure_path(out, failed.key).exists()  # its record went with it
     after = {f"{r['scenario']}__ep{r['episode']:03d}__{r['method']}__s{r['seed']}": r for r in read_episode_table(out)}
     assert repr({k: v for k, v in after.items() if k in saved}) == repr(saved)  # rows (NaN and all) and samples:

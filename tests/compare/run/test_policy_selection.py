@@ -23,9 +23,9 @@ def test_shipped_sets_fly_both_pilots_on_both_vehicles(tmp_path: Path, name: str
         assert p.folder == SHIPPED_POLICIES[p.vehicle].resolve()
     cells, notes = plan_cells(scenarios, opts, policies)
     assert notes == []
-    flown = {(scenarios[c.scenario].vehicle.name, c.method) for c in cells}
-    methods = ("ppo", "rrt_mpc") + (("apf",) if name == "full" else ())  # the full set adds the potential field
-    assert flown == {(v, m) for v in ("small_quad", "uam_multicopter") for m in methods}
+    flown = {(scenarios[c.scenario].vehicle.name, c.pilot) for c in cells}
+    names = ("ppo", "rrt_mpc") + (("apf",) if name == "full" else ())  # the full set adds the potential field
+    assert flown == {(v, m) for v in ("small_quad", "uam_multicopter") for m in names}
 
 
 def test_a_given_policy_replaces_the_shipped_one_for_its_vehicle_only(tmp_path: Path) -> None:
@@ -54,6 +54,6 @@ def test_a_vehicle_without_a_policy_flies_only_the_classical_pilot(tmp_path: Pat
     scenarios = resolve_scenarios("default")
     opts = RunConfig(out_dir=tmp_path)
     cells, notes = plan_cells(scenarios, opts, select_policies(scenarios, opts))
-    flown = {(scenarios[c.scenario].vehicle.name, c.method) for c in cells if c.method == "ppo"}
+    flown = {(scenarios[c.scenario].vehicle.name, c.pilot) for c in cells if c.pilot == "ppo"}
     assert flown == {("small_quad", "ppo")}
     assert len(notes) == 1 and "no learned policy for vehicle 'uam_multicopter'" in notes[0]

@@ -135,7 +135,7 @@ def test_per_vehicle_sets_at_the_vehicles_scale(full: TaskSet) -> None:
         assert sum(len(s.episodes) for s in scenarios) == DESIGN.scenarios_per_vehicle * DESIGN.legs_per_scenario
         nav = task_for(vb.vehicle)
         for sc in scenarios:
-            assert sc.name.startswith(f"benchmark-{vb.tag}-") and sc.methods == ("ppo", "rrt_mpc", "apf")
+            assert sc.name.startswith(f"benchmark-{vb.tag}-") and sc.pilots == ("ppo", "rrt_mpc", "apf")
             assert sc.seeds == DESIGN.seeds
             for ep in sc.episodes:
                 task = ep.task
@@ -226,7 +226,7 @@ def test_run_json_records_the_task_set(quick: TaskSet, tmp_path: Path, capsys: p
     from compare.cli.printout import print_task_set
 
     scenarios = list(quick.scenarios)
-    opts = RunConfig(out_dir=tmp_path, methods=("apf",), progress=False)
+    opts = RunConfig(out_dir=tmp_path, pilots=("apf",), progress=False)
     cells, notes = plan_cells(scenarios, opts, None)
     write_run_files(scenarios, opts, cells, notes, {})
     info = read_run_info(tmp_path)
@@ -313,7 +313,7 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp
     from uam_fdm.stats import wilson_interval
 
     scenarios = list(quick.scenarios)
-    opts = RunConfig(out_dir=tmp_path, methods=("apf", "ppo"), progress=False)
+    opts = RunConfig(out_dir=tmp_path, pilots=("apf", "ppo"), progress=False)
     cells, notes = plan_cells(scenarios, opts, None)
     write_run_files(scenarios, opts, cells, notes, {})
     outcomes = ("success", "collision", "timeout", "out_of_bounds")
@@ -329,10 +329,10 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp
         for axis, names, key in (("air", list(bench.LEVELS_OF_AIR), lambda i: levels(i).air),
                                  ("turbulence", list(TURBULENCE_LEVELS), lambda i: levels(i).turbulence)):
             got = [r for r in rates if r.vehicle == vehicle and r.axis == axis]
-            assert [r.level for r in got if r.method == "apf"] == [n for n in names if any(
+            assert [r.level for r in got if r.pilot == "apf"] == [n for n in names if any(
                 key(i) == names.index(n) for i in index.values())]
             for r in got:
-                mine_rows = [x for x in rows if x.method == r.method and x.vehicle == vehicle
+                mine_rows = [x for x in rows if x.method == r.pilot and x.vehicle == vehicle
                              and key(index[x.scenario]) == names.index(r.level)]
                 assert r.episodes == len(mine_rows)
                 assert r.successes == sum(x.success for x in mine_rows)
@@ -340,7 +340,7 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp
                 assert r.timeouts == sum(x.outcome == "timeout" for x in mine_rows)
                 assert dict(r.other) == dict(Counter(x.outcome for x in mine_rows if x.outcome == "out_of_bounds"))
                 assert r.success_ci95 == wilson_interval(r.successes, r.episodes)
-        (whole,) = [r for r in rates if r.vehicle == vehicle and r.axis == "all" and r.method == "ppo"]
+        (whole,) = [r for r in rates if r.vehicle == vehicle and r.axis == "all" and r.pilot == "ppo"]
         assert whole.episodes == 3 * len(mine) and whole.level == "all"
     data = level_json(rates)
     assert set(data) == set(VEHICLES) and set(data["small_quad"]) == {"all", "air", "turbulence"}

@@ -63,7 +63,7 @@ def test_every_shipped_scenario_loads(path: Path) -> None:
     s = load_scenario(path)
     assert s.name == path.stem
     assert s.source == str(path)
-    assert s.episodes and s.seeds and set(DEFAULT_PILOTS) <= set(s.methods)  # both pilots on both vehicles
+    assert s.episodes and s.seeds and set(DEFAULT_PILOTS) <= set(s.pilots)  # both pilots on both vehicles
     for ep in s.episodes:
         a, b = ep.task.start_m, ep.task.goal_m
         distance = math.dist(a, b)
@@ -82,10 +82,10 @@ def test_default_set_contents() -> None:
     quad = by_name["suburb-quad"]
     assert quad.city.name == "suburb" and quad.vehicle_name == "small_quad"
     assert quad.wind.steady_enu_m_s == (2.0, 1.0, 0.0) and quad.wind.turbulence is TurbulenceLevel.LIGHT
-    assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.methods == DEFAULT_PILOTS
+    assert len(quad.episodes) == 3 and quad.seeds == (0,) and quad.pilots == DEFAULT_PILOTS
     assert len(by_name["downtown-quad"].episodes) == 2 and by_name["downtown-quad"].city.name == "downtown"
     uam = by_name["suburb-uam"]
-    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.methods == DEFAULT_PILOTS
+    assert uam.vehicle_name == "uam_multicopter" and len(uam.episodes) == 1 and uam.pilots == DEFAULT_PILOTS
 
 
 def test_full_set_contents() -> None:
@@ -94,15 +94,15 @@ def test_full_set_contents() -> None:
         for level in ("none", "light", "moderate"):
             s = full[f"{city}-quad-{level}"]
             assert s.city.name == city and s.wind.turbulence is TurbulenceLevel.parse(level)
-            assert len(s.episodes) == 4 and s.seeds == (0, 1, 2) and s.methods == ("ppo", "rrt_mpc", "apf")
+            assert len(s.episodes) == 4 and s.seeds == (0, 1, 2) and s.pilots == ("ppo", "rrt_mpc", "apf")
         uam = full[f"{city}-uam"]
-        assert uam.methods == ("ppo", "rrt_mpc", "apf") and len(uam.episodes) == 2
+        assert uam.pilots == ("ppo", "rrt_mpc", "apf") and len(uam.episodes) == 2
         assert uam.episodes[0].task.goal_radius_m == 10.0
     for name, level in (("hot-high-quad", "light"), ("hot-high-quad-moderate", "moderate")):
         hot = full[name]
         assert (hot.atmosphere.elevation_m, hot.atmosphere.isa_offset_k) == (2500.0, 25.0)
         assert hot.wind.turbulence is TurbulenceLevel.parse(level)
-        assert hot.episodes == full["suburb-quad-light"].episodes and hot.methods == ("ppo", "rrt_mpc", "apf")
+        assert hot.episodes == full["suburb-quad-light"].episodes and hot.pilots == ("ppo", "rrt_mpc", "apf")
     assert len(full) == 14
 
 
@@ -113,7 +113,7 @@ def test_defaults_are_applied(tmp_path: Path) -> None:
     assert s.vehicle.name == "small_quad" and s.vehicle.collision_radius_m == QUAD_RADIUS_M
     assert (s.atmosphere.elevation_m, s.atmosphere.isa_offset_k) == (0.0, 0.0)
     assert s.wind.steady_enu_m_s == (0.0, 0.0, 0.0) and s.wind.turbulence is TurbulenceLevel.NONE
-    assert s.seeds == (0,) and s.methods == ("ppo", "rrt_mpc")
+    assert s.seeds == (0,) and s.pilots == ("ppo", "rrt_mpc")
     assert (s.physics_hz, s.control_hz) == (500.0, 50.0)
     (ep,) = s.episodes
     assert ep.index == 0
@@ -145,7 +145,7 @@ def test_top_level_defaults_and_episode_overrides(tmp_path: Path) -> None:
     s = load_scenario(_write(tmp_path, data))
     assert s.description == "two flights"
     assert s.seeds == (3, 1, 2)
-    assert s.methods == ("ppo", "rrt_mpc")  # canonical order
+    assert s.pilots == ("ppo", "rrt_mpc")  # canonical order
     assert (s.physics_hz, s.control_hz) == (400.0, 25.0)
     assert (s.atmosphere.elevation_m, s.atmosphere.isa_offset_k) == (1500.0, -10.0)
     assert s.wind.steady_enu_m_s == (3.0, -1.0, 0.0) and s.wind.turbulence is TurbulenceLevel.MODERATE
@@ -286,7 +286,7 @@ BAD_CASES: list[tuple[str, dict[str, Any], str, str]] = [
     ("seeds-float", {"seeds": [1.5]}, "seeds[0]", "got 1.5"),
     ("seeds-bool", {"seeds": [True]}, "seeds[0]", "got True"),
     ("pilots-empty", {"pilots": []}, "pilots", "non-empty"),
-    ("pilots-unknown", {"pilots": ["ppo", "astar"]}, "pilots[1]", "unknown method 'astar'"),
+    ("pilots-unknown", {"pilots": ["ppo", "astar"]}, "pilots[1]", "unknown pilot 'astar'"),
     ("pilots-duplicate", {"pilots": ["ppo", "ppo"]}, "pilots[1]", "duplicate pilot 'ppo'"),
     ("pilots-not-a-name", {"pilots": ["ppo", 3]}, "pilots[1]", "a pilot is named by a string, got 3"),
     ("physics-zero", {"physics_hz": 0}, "physics_hz", "outside the accepted range"),
@@ -316,13 +316,13 @@ def test_the_old_key_methods_still_reads_with_a_warning_and_both_keys_are_refuse
         warnings.simplefilter("error")
         new = load_scenario(_write(tmp_path, _with({"pilots": ["apf", "ppo"]}), "new.yaml"))
     old_path = _write(tmp_path, _with({"methods": ["apf", "ppo"]}), "old.yaml")
-    with pytest.warns(DeprecationWarning, match=rf"^{re.escape(str(old_path))}: the key 'methods' is now 'pilots'"):
+    with pytest.warns(DeprecationWarning, match=rf"^{re.escape(str(old_path))}: the key 'methods' is renamed 'pilots'"):
         old = load_scenario(old_path)
-    assert old.methods == new.methods == ("ppo", "apf")
+    assert old.pilots == new.pilots == ("ppo", "apf")
     bad = _write(tmp_path, _with({"methods": ["ppo", "astar"]}), "old-bad.yaml")
     with pytest.warns(DeprecationWarning), pytest.raises(ConfigError) as exc:
         load_scenario(bad)
-    assert (exc.value.source, exc.value.key) == (str(bad), "methods[1]") and "unknown method 'astar'" in str(exc.value)
+    assert (exc.value.source, exc.value.key) == (str(bad), "methods[1]") and "unknown pilot 'astar'" in str(exc.value)
     both = _write(tmp_path, _with({"methods": ["ppo"], "pilots": ["ppo"]}), "both.yaml")
     with pytest.raises(ConfigError) as exc:
         load_scenario(both)

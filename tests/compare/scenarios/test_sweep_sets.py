@@ -40,7 +40,7 @@ def test_the_same_tasks_at_every_step(quick) -> None:
         legs = {tuple((tuple(e.task.start_m), tuple(e.task.goal_m)) for e in sc.episodes) for sc in scenarios}
         assert len(legs) == 1 and len(next(iter(legs))) == DESIGN.quick_legs
         assert len({sc.city.buildings for sc in scenarios}) == 1
-        assert {tuple(sc.methods) for sc in scenarios} == {("ppo", "rrt_mpc", "apf")}
+        assert {tuple(sc.pilots) for sc in scenarios} == {("ppo", "rrt_mpc", "apf")}
         # one axis at a time: raised fields fly one wind; winds vary at sea level only
         raised = [sc for sc in scenarios if sc.atmosphere.elevation_m > 0.0]
         assert len({round(math.hypot(*sc.wind.steady_enu_m_s), 1) for sc in raised}) == 1
@@ -141,7 +141,7 @@ def test_a_run_warns_and_still_flies_outside_the_envelope(quick, tmp_path: Path,
 
     thin = next(sc for sc in quick.scenarios if sc.name == "sweep-quad-00-da4500-w020")
     thin = sweep.dataclasses.replace(thin, episodes=thin.episodes[:1])
-    opts = RunConfig(tmp_path / "run", methods=("ppo",), progress=False, report=False, videos="none")
+    opts = RunConfig(tmp_path / "run", pilots=("ppo",), progress=False, report=False, videos="none")
     with caplog.at_level(logging.WARNING, logger="compare.run.campaign"):
         run_comparison([thin], opts)
     assert any("ppo flies 1 of 1 small_quad scenarios outside" in r.getMessage() for r in caplog.records)
