@@ -3,10 +3,11 @@
 The tests prove what these commands do (one error line, exit 2, nothing written; the report's pages; a run that
 stops with its workers and says what it kept); this script measures how long each takes, which no test asserts.
 
-* Refusals: each bad input of the tests' catalogue that once hung or was slow (an alias bomb, a generated city
-  too large, a 600-vertex star footprint, a self-crossing footprint, a motor too fast for the physics rate, a
-  flight volume of 1e13 m, the maps written over a file), through `compare.cli.main` in this process, against
-  the baseline of validating the smallest valid scenario in the same run. Median of `--repeats`.
+* Inputs: each input of the tests' catalogue that once hung or was slow (an alias bomb, a generated city too
+  large, a 600-vertex star footprint (valid), a self-crossing footprint of one vertex over the limit, a motor
+  too fast for the physics rate, a flight volume of 1e13 m, the maps written over a file), through
+  `compare.cli.main` in this process, against the baseline of validating the smallest valid scenario in the
+  same run. Median of `--repeats`.
 * The star footprint's decomposition at 600 and 4,000 vertices (near-linear: the time ratio against the
   vertex ratio, 6.7).
 * The report of the tests' synthetic run folder (`tests/synthetic_run.py`, every page kind) against the report
@@ -47,7 +48,7 @@ from compare.report.report import build_report  # noqa: E402
 from compare.results.store import part_files  # noqa: E402
 from scenario_box import BASE  # noqa: E402
 from synthetic_run import write_run  # noqa: E402
-from uam_fdm.city.geojson import footprint_parts  # noqa: E402
+from uam_fdm.city.geojson import MAX_FOOTPRINT_VERTICES, footprint_parts  # noqa: E402
 from uam_fdm.vehicle.params import PRESET_DIR  # noqa: E402
 
 TINY = ROOT / "tests" / "data" / "tiny_scenario.yaml"
@@ -85,8 +86,9 @@ def _geojson(folder: Path, ring: np.ndarray) -> Path:
 def _cases(folder: Path) -> dict[str, tuple[list[str], int]]:
     """Name -> (argv, expected exit code)."""
     box = {k: v for k, v in BASE.items() if k != "bounds"}
-    crossing = _star(40)
-    crossing[[1, 2]] = crossing[[2, 1]]
+    ang = np.linspace(0.0, 2.0 * np.pi, MAX_FOOTPRINT_VERTICES + 1, endpoint=False)  # one vertex too many
+    crossing = np.column_stack([150 + 60 * np.cos(ang), 150 + 60 * np.sin(ang)])
+    crossing[[1, 2]] = crossing[[2, 1]]  # and self-crossing: refused for its size before any other check
     (folder / "crossing").mkdir()
     (folder / "star").mkdir()
     return {
@@ -96,7 +98,7 @@ def _cases(folder: Path) -> dict[str, tuple[list[str], int]]:
         "city too large": (["validate", str(_write(folder, "city.yaml", yaml.safe_dump(
             {**box, "map": {"generator": {"seed": 1, "extent_m": [6000, 6000]}}})))], 2),
         "600-vertex star": (["validate", str(_geojson(folder / "star", _star(600)))], 0),
-        "self-crossing footprint": (["validate", str(_geojson(folder / "crossing", crossing))], 2),
+        "footprint over the vertex limit": (["validate", str(_geojson(folder / "crossing", crossing))], 2),
         "motor too fast": (["demo", str(_write(folder, "vehicle.yaml", QUAD_YAML.replace(
             "motor_time_constant_s: 0.0125", "motor_time_constant_s: 0.0005")))], 2),
         "flight volume 1e13 m": (["validate", str(_write(folder, "huge.yaml", yaml.safe_dump(
@@ -121,7 +123,7 @@ def _quiet_cli(argv: list[str], code: int) -> None:
         raise SystemExit(f"{' '.join(argv)}: exit {got}, expected {code}")
 
 
-def refusals(folder: Path, repeats: int) -> dict[str, float]:
+def input_times(folder: Path, repeats: int) -> dict[str, float]:
     """Median seconds of each case, the baseline first."""
     out = {}
     for name, (argv, code) in _cases(folder).items():
@@ -168,22 +170,22 @@ def interrupt_seconds(folder: Path) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5, help="timings per refusal (median)")
+    parser.add_argument("--repeats", type=int, default=5, help="timings per input (median)")
     parser.add_argument("--no-interrupt", action="store_true", help="skip the interrupted run")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        for name in ("refusals", "report", "interrupt"):
+        for name in ("inputs", "report", "interrupt"):
             (root / name).mkdir()
-        times = refusals(root / "refusals", args.repeats)
+        times = input_times(root / "inputs", args.repeats)
         star = {n: _median_s(lambda n=n: footprint_parts(_star(n), 20.0, 0), args.repeats) for n in (600, 4000)}
         report_s, report_small_s = report_seconds(root / "report")
         stop_s = None if args.no_interrupt else interrupt_seconds(root / "interrupt")
 
     base = times["valid scenario (baseline)"]
-    print(f"{'refusal':<28}{'median [ms]':>12}{'x baseline':>12}")
+    print(f"{'input':<34}{'median [ms]':>12}{'x baseline':>12}")
     for name, s in times.items():
-        print(f"{name:<28}{1e3 * s:>12.1f}{s / base:>12.2f}")
+        print(f"{name:<34}{1e3 * s:>12.1f}{s / base:>12.2f}")
     scaling = star[4000] / star[600]
     print(f"\nstar footprint decomposition: 600 vertices {1e3 * star[600]:.1f} ms, 4,000 vertices "
           f"{1e3 * star[4000]:.1f} ms: x{scaling:.1f} for x{4000 / 600:.1f} the vertices")
@@ -191,12 +193,12 @@ def main() -> None:
           f"(x{report_s / report_small_s:.2f})")
     if stop_s is not None:
         print(f"interrupted 2-worker run: exit {stop_s:.2f} s after Ctrl-C")
-    refused = {k: v for k, v in times.items() if k != "valid scenario (baseline)"}
+    cases = {k: v for k, v in times.items() if k != "valid scenario (baseline)"}
     print(json.dumps({
-        "refusal_ms": {k: round(1e3 * v, 2) for k, v in refused.items()},
+        "input_ms": {k: round(1e3 * v, 2) for k, v in cases.items()},
         "valid_ms": round(1e3 * base, 2),
-        "refusal_ms_max": round(1e3 * max(refused.values()), 2),
-        "refusal_ratio_max": round(max(refused.values()) / base, 2),
+        "input_ms_max": round(1e3 * max(cases.values()), 2),
+        "input_ratio_max": round(max(cases.values()) / base, 2),
         "star_600_ms": round(1e3 * star[600], 2), "star_4000_ms": round(1e3 * star[4000], 2),
         "star_time_ratio": round(scaling, 2), "star_vertex_ratio": round(4000 / 600, 2),
         "report_s": round(report_s, 2), "report_small_s": round(report_small_s, 2),

@@ -17,7 +17,7 @@ corrupt) is left where it is, named, and flown again by `run --resume`.
 
 Every file is written with the same pinned settings (`WRITE_OPTIONS`: zstd at a fixed level, byte-stream-split
 floats, dictionary-encoded names, fixed row-group and page sizes), so the same episodes give the same bytes.
-pandas, polars or DuckDB read the two tables directly (README, "The comparison").
+pandas, polars or DuckDB read the two tables directly (docs/comparison.md, "The run store").
 """
 from __future__ import annotations
 

@@ -190,7 +190,7 @@ def test_pandas_and_duckdb_read_the_store(tmp_path):
                 for e in range(2) for m in ("ppo", "rrt_mpc")]
     _compacted(tmp_path, episodes)
     store = store_dir(tmp_path)
-    # the README's queries, as written there
+    # queries of the kind docs/comparison.md shows ("The run store")
     episodes = pd.read_parquet(store / "episodes.parquet")
     rates = episodes.groupby(["vehicle", "method", "density_altitude_m"]).success.mean()
     assert rates.to_dict() == {("small_quad", "ppo", 1000.0): 0.5, ("small_quad", "rrt_mpc", 1000.0): 1.0}
