@@ -109,7 +109,7 @@ class PolicyConfig:
 
     Attributes:
         nav: the task it was trained on (vehicle, rates, perception, route field, ...).
-        ppo: the PPO settings it was trained with (`rl.training.ppo.PPOPreset`'s fields, and gamma).
+        ppo: the PPO settings it was trained with (`rl.training.ppo.PPOConfig`'s fields, and gamma).
         network: the network's shape, read from `ppo`.
         preset: the PPO preset's name.
     """

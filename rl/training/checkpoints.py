@@ -18,7 +18,7 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from rl.policies.reader import OBS_NORM_KEYS, ObsNorm, load_arrays, zip_entry
-from rl.training.ppo import PPOPreset, TanhMeanPolicy
+from rl.training.ppo import PPOConfig, TanhMeanPolicy
 from uam_fdm.files.atomic import atomic_open
 
 VEC_NORM_KEYS = OBS_NORM_KEYS + ("ret_mean", "ret_var", "ret_count", "clip_reward", "gamma")
@@ -60,7 +60,7 @@ def restore_vec_normalize(path: Path, base_venv: VecEnv) -> VecNormalize:
     return venv
 
 
-def load_model_for_resume(path: Path, venv: VecNormalize, preset: PPOPreset, tb: Path | None = None) -> PPO:
+def load_model_for_resume(path: Path, venv: VecNormalize, preset: PPOConfig, tb: Path | None = None) -> PPO:
     """`PPO.load` of `model.zip` with every pickled entry replaced (none is unpickled).
 
     Raises:

@@ -9,9 +9,9 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from torch import nn
 
-from rl.training.presets import PRESETS, LinearSchedule, PPOPreset
+from rl.training.presets import PRESETS, LinearSchedule, PPOConfig
 
-__all__ = ["PRESETS", "LinearSchedule", "PPOPreset", "TanhMeanPolicy", "make_model", "normalized_env"]
+__all__ = ["PRESETS", "LinearSchedule", "PPOConfig", "TanhMeanPolicy", "make_model", "normalized_env"]
 # LinearSchedule stays importable here: the shipped policies' model.zip pickle it as rl.training.ppo.LinearSchedule
 
 
@@ -31,12 +31,12 @@ class TanhMeanPolicy(ActorCriticPolicy):
         self.action_net = nn.Sequential(self.action_net, nn.Tanh())
 
 
-def normalized_env(base: VecEnv, preset: PPOPreset, decision_hz: float) -> VecNormalize:
+def normalized_env(base: VecEnv, preset: PPOConfig, decision_hz: float) -> VecNormalize:
     """`base` (a VecEnv) behind SB3's VecNormalize: observations and rewards, as training uses it."""
     return VecNormalize(base, norm_obs=True, norm_reward=True, clip_obs=10.0, gamma=preset.gamma(decision_hz))
 
 
-def make_model(preset: PPOPreset, venv: VecEnv, seed: int, decision_hz: float, tb: Path | None = None) -> PPO:
+def make_model(preset: PPOConfig, venv: VecEnv, seed: int, decision_hz: float, tb: Path | None = None) -> PPO:
     """A fresh PPO model of `preset` (tanh-bounded mean, separate 2-layer actor and critic) on `venv`."""
     return PPO(
         TanhMeanPolicy, venv, learning_rate=preset.learning_rate_schedule(), n_steps=preset.n_steps,

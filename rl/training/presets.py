@@ -8,7 +8,7 @@ from rl.policies.folder import NetworkConfig
 
 
 @dataclass(frozen=True)
-class PPOPreset:
+class PPOConfig:
     """PPO settings. `paper`: the original demo's network (two dense layers of 128 units) and clip 0.2;
     the rest chosen by measurement at 10 Hz decisions (docs/learned_pilot.md)."""
 
@@ -43,7 +43,7 @@ class PPOPreset:
         return 1.0 - 1.0 / (self.horizon_s * decision_hz)
 
 
-PRESETS: dict[str, PPOPreset] = {"paper": PPOPreset()}
+PRESETS: dict[str, PPOConfig] = {"paper": PPOConfig()}
 
 
 class LinearSchedule:
