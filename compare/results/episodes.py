@@ -29,6 +29,7 @@ from compare.results.store import (
     part_row,
     read_episode_table,
     read_part,
+    samples_path,
     store_dir,
 )
 from compare.results.tables import episode_from_tables, meta_from_row, metrics_from_row
@@ -184,16 +185,21 @@ def open_episodes(run_dir: Path) -> RunEpisodes:
     except ValueError as exc:
         bad.append(Unreadable(store_dir(run_dir) / "episodes.parquet", str(exc)))
         rows = []
-    for row in rows:
-        key = key_of(row)
-        found[key] = EpisodeEntry(key, store_dir(run_dir) / str(row["samples_file"]), row)
+    table = store_dir(run_dir) / "episodes.parquet"
+    for i, row in enumerate(rows):
+        try:
+            key, samples = key_of(row), samples_path(run_dir, row)
+        except (ValueError, TypeError) as exc:  # a row names a cell or a file this tool never writes: skipped
+            bad.append(Unreadable(table, f"row {i}: {exc}"))
+            continue
+        found[key] = EpisodeEntry(key, samples, row)
     for p in part_files(run_dir):
         try:
             row = part_row(p)
-        except ValueError as exc:
+            key = key_of(row)
+        except (ValueError, TypeError) as exc:
             bad.append(Unreadable(p, str(exc)))
             continue
-        key = key_of(row)
         found[key] = EpisodeEntry(key, p, row, part=True)
     order = sorted(found, key=lambda k: (k.scenario, k.episode, k.method, k.seed))
     return RunEpisodes(run_dir, tuple(found[k] for k in order), tuple(bad))

@@ -211,6 +211,20 @@ def read_episode_table(run_dir: Path) -> list[dict[str, Any]]:
     return table.to_pylist()
 
 
+def samples_path(run_dir: Path, row: Mapping[str, Any]) -> Path:
+    """The samples file an episode-table row names, inside the run's store.
+
+    Raises:
+        ValueError: the row names anything but a samples file of this store (another folder, a path, a link's
+            way out): what a file says never chooses where the readers look.
+    """
+    name = row["samples_file"]
+    if not isinstance(name, str) or not _SAMPLES.match(name):
+        raise ValueError(f"samples_file {str(name)[:80]!r}: not a samples file of this store "
+                         f"(samples-GGGG-NNN.parquet)")
+    return store_dir(run_dir) / name
+
+
 def samples_files(run_dir: Path) -> list[Path]:
     """The store's samples files, by name (generation, then number)."""
     return sorted(p for p in store_dir(run_dir).glob("samples-*.parquet") if _SAMPLES.match(p.name))

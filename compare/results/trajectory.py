@@ -39,6 +39,8 @@ _ARRAYS = ("t_s", "states", "rotor_commands", "wind_enu_m_s", "clearance_m", "de
 # read with either code.
 _OPTIONAL_ARRAYS = ("shaft_power_W",)
 _STEM = re.compile(r"^(?P<scenario>.+)__ep(?P<episode>\d+)__(?P<pilot>.+)__s(?P<seed>-?\d+)$")
+_COMPONENT = re.compile(r"[A-Za-z0-9_.:-]+")  # scenario names (the loader's rule) and pilot names (plug-ins too)
+MAX_STEM_BYTES = 200  # an episode's file name, with its suffixes, within the 255 bytes a file system allows
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,17 @@ class EpisodeKey:
     episode: int
     method: str
     seed: int
+
+    def __post_init__(self) -> None:
+        # the key names files (episode parts, videos, maps/<scenario>.yaml): whatever a file says, it stays one
+        # plain component inside the run folder
+        for field, value in (("scenario", self.scenario), ("method", self.method)):
+            if not (isinstance(value, str) and _COMPONENT.fullmatch(value) and not value.startswith(".")):
+                raise ValueError(f"{field} {str(value)[:80]!r}: not a name this tool writes (letters, digits and "
+                                 f"_ . : - only, not starting with a dot)")
+        if len(self.stem.encode()) > MAX_STEM_BYTES:
+            raise ValueError(f"episode {self.stem[:80]!r}...: its file name would be longer than "
+                             f"{MAX_STEM_BYTES} bytes")
 
     @property
     def stem(self) -> str:

@@ -6,9 +6,11 @@ finds the folder held stops at once with an error naming the holder, before it w
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
+import stat
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -36,7 +38,7 @@ def folder_lock(folder: Path | str, command: str) -> Iterator[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / LOCK_NAME
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = _open_lock_file(path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -60,6 +62,27 @@ def folder_lock(folder: Path | str, command: str) -> Iterator[Path]:
     finally:
         path.unlink(missing_ok=True)  # before the unlock: a waiter then finds the file gone and opens a new one
         os.close(fd)
+
+
+def _open_lock_file(path: Path) -> int:
+    """Open (or create) the lock file itself: never a link planted in its place (whose target would be
+    overwritten), never a FIFO or device (which could block or be written).
+
+    Raises:
+        ValueError: something other than a regular file stands at `path` (a ValueError: the CLI prints it as one
+            line, exit 2); it is left as it is.
+    """
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ValueError(f"{path}: a symbolic link stands where this tool keeps its lock; it is not followed "
+                             "(remove it to use the folder)") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ValueError(f"{path}: not a regular file where this tool keeps its lock (remove it to use the folder)")
+    return fd
 
 
 def _holder(fd: int) -> str:

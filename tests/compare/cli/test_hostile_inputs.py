@@ -17,12 +17,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cli_checks import error_line, fails
+from cli_checks import error_line, fails, snapshot
 from compare.cli import main
 from compare.results.trajectory import load_episode, save_episode
 from run_data import TINY
 from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
 from synthetic_run import write_run
+from uam_fdm.files.lock import LOCK_NAME
 
 # ---- helpers (as in test_bad_inputs.py) ------------------------------------------------------------------
 
@@ -472,3 +473,94 @@ def test_a_killed_holder_leaves_no_lock_behind(tmp_path: Path) -> None:
     assert (tmp_path / LOCK_NAME).exists()  # the file stays, the lock died with its process
     with folder_lock(tmp_path, "uam-compare report"):
         pass
+
+
+# ---- a run folder's data never chooses a path; a lock never follows a link ---------------------------------------
+@pytest.fixture(scope="module")
+def flown_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real run of the tiny scenario by the potential field (quick), its episodes in the run store."""
+    out = tmp_path_factory.mktemp("flown") / "run"
+    assert main([*FLY_APF, "--out", str(out)]) == 0
+    assert (out / "store" / "episodes.parquet").exists()
+    return out
+
+
+@pytest.fixture
+def flown_copy(flown_run: Path, tmp_path: Path) -> Path:
+    out = tmp_path / "shared" / "run"
+    shutil.copytree(flown_run, out)
+    return out
+
+
+def _rewrite_episode_table(run: Path, column: str, value: str) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = run / "store" / "episodes.parquet"
+    table = pq.read_table(path)
+    i = table.schema.get_field_index(column)
+    table = table.set_column(i, table.schema.field(i), pa.array([value] * table.num_rows, pa.string()))
+    pq.write_table(table, path)
+
+
+@pytest.mark.parametrize("command", [["report"], ["run", "--resume"]])
+def test_a_lock_never_follows_a_link_planted_in_the_folder(flown_copy: Path, capsys: pytest.CaptureFixture,
+                                                           command: list[str]) -> None:
+    """`ln -s ~/notes.txt RUN/.uam-compare.lock; uam-compare report RUN`: refused, naming the lock; the file the
+    link points to and the link itself are left as they were."""
+    notes = flown_copy.parent / "notes.txt"
+    notes.write_text("my notes")
+    (flown_copy / LOCK_NAME).symlink_to(notes)
+    argv = ["report", str(flown_copy)] if command == ["report"] else [*FLY_APF, "--out", str(flown_copy), "--resume"]
+    fails(argv, capsys, flown_copy.parent, str(flown_copy / LOCK_NAME), "symbolic link")
+    assert notes.read_text() == "my notes" and (flown_copy / LOCK_NAME).is_symlink()
+
+
+def test_a_fifo_in_place_of_the_lock_is_refused(flown_copy: Path, capsys: pytest.CaptureFixture) -> None:
+    import os
+
+    os.mkfifo(flown_copy / LOCK_NAME)
+    before = (flown_copy / "metrics.csv").read_bytes()
+    assert main(["report", str(flown_copy)]) == 2  # (the folder is not hashed: reading the FIFO would block)
+    line = error_line(capsys.readouterr().err)
+    assert str(flown_copy / LOCK_NAME) in line and "not a regular file" in line
+    assert (flown_copy / "metrics.csv").read_bytes() == before and (flown_copy / LOCK_NAME).is_fifo()
+
+
+@pytest.mark.parametrize("command", [["animate", "--all", "--format", "gif", "--fps", "2", "--duration", "1",
+                                      "--size", "320x240", "--no-progress"], ["view"], ["report"]])
+def test_a_scenario_name_in_the_store_never_chooses_where_files_go(flown_copy: Path, capsys: pytest.CaptureFixture,
+                                                                   command: list[str]) -> None:
+    """The store's scenario column reads `zz/../../../ESCAPED`: no reader writes or opens anything outside the
+    run folder because of it; every row is skipped by name."""
+    _rewrite_episode_table(flown_copy, "scenario", "zz/../../../ESCAPED")
+    outside = snapshot(flown_copy.parent.parent)
+    code = main([command[0], str(flown_copy), *command[1:]])
+    err = capsys.readouterr().err
+    assert code in (0, 2), err
+    assert "Traceback" not in err and "episodes.parquet" in err, err  # the rows skipped, the table named
+    after = snapshot(flown_copy.parent.parent)
+    assert {k for k in after if "ESCAPED" in k} == set()
+    assert {k for k in set(after) ^ set(outside) if not k.startswith("shared/run/")} == set()
+
+
+def test_a_samples_file_outside_the_store_is_never_read(flown_copy: Path, capsys: pytest.CaptureFixture,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """`samples_file = ../../victim/store/...`: the rows are skipped by name; no file outside the run is read."""
+    victim = flown_copy.parent / "victim"
+    shutil.copytree(flown_copy, victim)
+    name = next((flown_copy / "store").glob("samples-*.parquet")).name
+    _rewrite_episode_table(flown_copy, "samples_file", f"../../victim/store/{name}")
+    import pyarrow.parquet as pq
+
+    opened: list[str] = []
+    real_open = pq.ParquetFile
+
+    def spy(source, *args, **kwargs):
+        opened.append(str(source))
+        return real_open(source, *args, **kwargs)
+    monkeypatch.setattr("pyarrow.parquet.ParquetFile", spy)
+    assert main(["report", str(flown_copy)]) in (0, 2)
+    err = capsys.readouterr().err
+    assert "samples_file" in err and "episodes.parquet" in err, err
+    assert not [p for p in opened if "victim" in p]
