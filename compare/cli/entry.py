@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
-import inspect
 import logging
 import os
 import signal
@@ -28,6 +27,7 @@ import compare.cli.train as train
 import compare.cli.validate as validate
 from compare.cli.common import CommandInterrupted, CommandParser
 from uam_fdm.files.atomic import TEMP_MARK
+from uam_fdm.renamed import RenamedWarning
 
 DESCRIPTION = "The `uam-compare` command line."
 COMMAND_MODULES = (demo, run, report, playback, validate, train, evaluate)
@@ -39,8 +39,6 @@ INTERRUPTED_EXIT = 130  # the shell's code for a command stopped by Ctrl-C (128 
 LOG_DIR_ENV = "UAM_COMPARE_LOG_DIR"
 """Where the last-resort handler writes tracebacks (default: <temporary folder>/uam-compare-logs)."""
 MAX_MESSAGE_CHARS = 300
-OWN_PACKAGES = ("uam_fdm", "planners", "rl", "compare")
-"""The packages whose DeprecationWarnings a command shows (`own_deprecations_on_stderr`)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -113,42 +111,25 @@ def _run_command(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def own_deprecations_on_stderr() -> Iterator[None]:
-    """While a command runs, every DeprecationWarning raised by our own packages (`OWN_PACKAGES`: an old key in a
-    scenario file, an old name a plug-in imports) is one line on stderr, "uam-compare: warning: <message>", once
-    per place: Python hides DeprecationWarnings outside `__main__`, yet the one who must act on ours (change the
-    file, update the plug-in) is the command's user. Other warnings are shown as before; another package's
-    DeprecationWarning only where the user asked for warnings (-W, PYTHONWARNINGS), whose filters then decide
-    for ours too. The warnings filters and `warnings.showwarning` are restored on exit."""
+    """While a command runs, each of our `RenamedWarning`s (an old key in a scenario file, an old name a plug-in
+    imports) is one line on stderr, "uam-compare: warning: <message>", once per place: Python hides
+    DeprecationWarnings outside `__main__`, yet the one who must act on ours (change the file, update the
+    plug-in) is the command's user. Every other warning is left to Python's filters (-W, PYTHONWARNINGS), which
+    then decide for ours too. The warnings filters and `warnings.showwarning` are restored on exit."""
     with warnings.catch_warnings():
         shown = warnings.showwarning
 
         def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                  file: TextIO | None = None, line: str | None = None) -> None:
-            if not issubclass(category, DeprecationWarning):
-                shown(message, category, filename, lineno, file, line)
-            elif _raised_by_own_package():
+            if issubclass(category, RenamedWarning):
                 print(f"uam-compare: warning: {' '.join(str(message).split())}", file=sys.stderr)
-            elif sys.warnoptions:
+            else:
                 shown(message, category, filename, lineno, file, line)
 
         warnings.showwarning = show
         if not sys.warnoptions:
-            warnings.simplefilter("default", DeprecationWarning)
+            warnings.simplefilter("default", RenamedWarning)
         yield
-
-
-def _raised_by_own_package() -> bool:
-    """The warning being shown was raised by code of `OWN_PACKAGES`: the first frame below `warnings.showwarning`
-    outside the warnings module is the one that called `warnings.warn` (its `stacklevel` only moves the place
-    the warning names, e.g. to the plug-in that imported an old name)."""
-    frame = inspect.currentframe()
-    try:
-        caller = frame.f_back.f_back if frame is not None and frame.f_back is not None else None  # past `show`
-        while caller is not None and caller.f_globals.get("__name__") in ("warnings", "_py_warnings"):
-            caller = caller.f_back
-        return caller is not None and str(caller.f_globals.get("__name__", "")).split(".")[0] in OWN_PACKAGES
-    finally:
-        del frame  # a frame held in a local keeps its whole stack alive
 
 
 def last_resort(exc: BaseException, command: str) -> str:

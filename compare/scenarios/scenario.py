@@ -58,6 +58,7 @@ from uam_fdm.files.strict import (
 )
 from uam_fdm.files.yamlfile import load_yaml_file
 from uam_fdm.pilot import Task
+from uam_fdm.renamed import RenamedWarning
 from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 
@@ -326,14 +327,15 @@ def _seeds(value: Any, source: str, key: str) -> tuple[int, ...]:
 
 def _pilots_key(data: Mapping, source: str) -> str:
     """The key the file lists its pilots under: `pilots`, or its old name (`OLD_PILOTS_KEY`, read with a
-    `DeprecationWarning` naming the file and the new key). Both at once are refused, naming the file."""
+    `RenamedWarning`, a DeprecationWarning naming the file and the new key). Both at once are refused, naming the
+    file."""
     if OLD_PILOTS_KEY not in data:
         return "pilots"
     if "pilots" in data:
         raise ConfigError(source, OLD_PILOTS_KEY, "the old name of the key 'pilots', which is also given; keep only "
                                                   "'pilots'")
     warnings.warn(f"{source}: the key {OLD_PILOTS_KEY!r} is renamed 'pilots'; the old key is read until the next "
-                  f"release", DeprecationWarning, stacklevel=2)
+                  f"release", RenamedWarning, stacklevel=2)
     return OLD_PILOTS_KEY
 
 
