@@ -47,41 +47,17 @@ from compare.cli import main as cli_main  # noqa: E402
 from compare.report.report import build_report  # noqa: E402
 from compare.results.store import part_files  # noqa: E402
 from scenario_box import BASE  # noqa: E402
+from slow_inputs import alias_bomb, geojson_scenario, star  # noqa: E402
 from synthetic_run import write_run  # noqa: E402
 from uam_fdm.city.geojson import MAX_FOOTPRINT_VERTICES, footprint_parts  # noqa: E402
 from uam_fdm.vehicle.params import PRESET_DIR  # noqa: E402
 
 TINY = ROOT / "tests" / "data" / "tiny_scenario.yaml"
 QUAD_YAML = (PRESET_DIR / "small_quad.yaml").read_text()
-
-
-def _alias_bomb(levels: int) -> str:
-    lines = ["  l0: &l0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
-    lines += [f"  l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, levels)]
-    return "\n".join(lines) + "\n"
-
-
-def _star(n: int) -> np.ndarray:
-    ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    rad = np.where(np.arange(n) % 2 == 0, 60.0, 20.0)
-    return np.column_stack([150 + rad * np.cos(ang), 150 + rad * np.sin(ang)])
-
-
 def _write(folder: Path, name: str, text: str) -> Path:
     path = folder / name
     path.write_text(text)
     return path
-
-
-def _geojson(folder: Path, ring: np.ndarray) -> Path:
-    coords = ring.tolist() + [ring[0].tolist()]
-    doc = {"type": "FeatureCollection", "features": [
-        {"type": "Feature", "properties": {"height": 20.0}, "geometry": {"type": "Polygon", "coordinates": [coords]}}]}
-    (folder / "fp.geojson").write_text(json.dumps(doc))
-    return _write(folder, "geo.yaml", yaml.safe_dump(
-        {**BASE, "map": {"geojson": "fp.geojson"}, "bounds": {"min": [0, 0, 0], "max": [300, 300, 100]},
-         "episodes": [{"start": [10.0, 10.0, 10.0], "goal": [290.0, 20.0, 10.0]}]}, sort_keys=False))
-
 
 def _cases(folder: Path) -> dict[str, tuple[list[str], int]]:
     """Name -> (argv, expected exit code)."""
@@ -94,11 +70,11 @@ def _cases(folder: Path) -> dict[str, tuple[list[str], int]]:
     return {
         "valid scenario (baseline)": (["validate", str(_write(folder, "ok.yaml", yaml.safe_dump(BASE)))], 0),
         "alias bomb": (["validate", str(_write(folder, "bomb.yaml", yaml.safe_dump(BASE, sort_keys=False)
-                                               + "extra:\n" + _alias_bomb(7)))], 2),
+                                               + "extra:\n" + alias_bomb(7)))], 2),
         "city too large": (["validate", str(_write(folder, "city.yaml", yaml.safe_dump(
             {**box, "map": {"generator": {"seed": 1, "extent_m": [6000, 6000]}}})))], 2),
-        "600-vertex star": (["validate", str(_geojson(folder / "star", _star(600)))], 0),
-        "footprint over the vertex limit": (["validate", str(_geojson(folder / "crossing", crossing))], 2),
+        "600-vertex star": (["validate", str(geojson_scenario(folder / "star", star(600)))], 0),
+        "footprint over the vertex limit": (["validate", str(geojson_scenario(folder / "crossing", crossing))], 2),
         "motor too fast": (["demo", str(_write(folder, "vehicle.yaml", QUAD_YAML.replace(
             "motor_time_constant_s: 0.0125", "motor_time_constant_s: 0.0005")))], 2),
         "flight volume 1e13 m": (["validate", str(_write(folder, "huge.yaml", yaml.safe_dump(
@@ -178,7 +154,7 @@ def main() -> None:
         for name in ("inputs", "report", "interrupt"):
             (root / name).mkdir()
         times = input_times(root / "inputs", args.repeats)
-        star = {n: _median_s(lambda n=n: footprint_parts(_star(n), 20.0, 0), args.repeats) for n in (600, 4000)}
+        star_s = {n: _median_s(lambda n=n: footprint_parts(star(n), 20.0, 0), args.repeats) for n in (600, 4000)}
         report_s, report_small_s = report_seconds(root / "report")
         stop_s = None if args.no_interrupt else interrupt_seconds(root / "interrupt")
 
@@ -186,9 +162,9 @@ def main() -> None:
     print(f"{'input':<34}{'median [ms]':>12}{'x baseline':>12}")
     for name, s in times.items():
         print(f"{name:<34}{1e3 * s:>12.1f}{s / base:>12.2f}")
-    scaling = star[4000] / star[600]
-    print(f"\nstar footprint decomposition: 600 vertices {1e3 * star[600]:.1f} ms, 4,000 vertices "
-          f"{1e3 * star[4000]:.1f} ms: x{scaling:.1f} for x{4000 / 600:.1f} the vertices")
+    scaling = star_s[4000] / star_s[600]
+    print(f"\nstar footprint decomposition: 600 vertices {1e3 * star_s[600]:.1f} ms, 4,000 vertices "
+          f"{1e3 * star_s[4000]:.1f} ms: x{scaling:.1f} for x{4000 / 600:.1f} the vertices")
     print(f"report of the synthetic run: {report_s:.1f} s; without the policy's pages {report_small_s:.1f} s "
           f"(x{report_s / report_small_s:.2f})")
     if stop_s is not None:
@@ -199,7 +175,7 @@ def main() -> None:
         "valid_ms": round(1e3 * base, 2),
         "input_ms_max": round(1e3 * max(cases.values()), 2),
         "input_ratio_max": round(max(cases.values()) / base, 2),
-        "star_600_ms": round(1e3 * star[600], 2), "star_4000_ms": round(1e3 * star[4000], 2),
+        "star_600_ms": round(1e3 * star_s[600], 2), "star_4000_ms": round(1e3 * star_s[4000], 2),
         "star_time_ratio": round(scaling, 2), "star_vertex_ratio": round(4000 / 600, 2),
         "report_s": round(report_s, 2), "report_small_s": round(report_small_s, 2),
         "report_ratio": round(report_s / report_small_s, 2),

@@ -12,7 +12,12 @@ WALL_CLOCK_COLUMNS = frozenset({"compute_ms_mean", "compute_ms_max", "plan_time_
                                 "mpc_solve_ms_p95"})
 
 
-def deterministic_rows(path: Path, leave_out: frozenset[str] = frozenset()) -> list[dict[str, str]]:
-    """The rows of a metrics.csv without the wall-clock columns (and `leave_out`): equal for equal runs."""
+def without_wall_clock(rows: list[dict[str, str]]) -> list[dict[str, str]]:
+    """Rows of metrics.csv without the wall-clock columns: equal for equal runs."""
+    return [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in rows]
+
+
+def deterministic_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of the metrics.csv at `path` without the wall-clock columns."""
     with open(path, newline="") as f:
-        return [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS | leave_out} for r in csv.DictReader(f)]
+        return without_wall_clock(list(csv.DictReader(f)))

@@ -34,6 +34,7 @@ from compare.results.episodes import open_episodes
 from compare.scenarios.scenario import MAX_NAME_CHARS, MAX_SEED
 from run_data import TINY
 from scenario_box import BASE  # a 100 x 100 x 50 m box with one building in the middle
+from slow_inputs import alias_bomb, geojson_scenario, star
 from synthetic_run import write_run
 from uam_fdm.city.geojson import MAX_FOOTPRINT_VERTICES, footprint_parts
 from uam_fdm.errors import MAX_REASON_CHARS, ConfigError
@@ -64,36 +65,9 @@ def _vehicle_file(tmp_path: Path, text: str, name: str = "vehicle.yaml") -> Path
     path = tmp_path / name
     path.write_text(text)
     return path
-
-
-def _alias_bomb(levels: int) -> str:
-    """A list of nine aliases to a list of nine aliases ... : 9**levels strings from a few hundred bytes."""
-    lines = ["  l0: &l0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
-    for i in range(1, levels):
-        lines.append(f"  l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]")
-    return "\n".join(lines) + "\n"
-
-
-def _star(n: int, center: tuple[float, float] = (150.0, 150.0)) -> np.ndarray:
-    ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    rad = np.where(np.arange(n) % 2 == 0, 60.0, 20.0)
-    return np.column_stack([center[0] + rad * np.cos(ang), center[1] + rad * np.sin(ang)])
-
-
 def _area(v: np.ndarray) -> float:
     w = np.roll(v, -1, axis=0)
     return 0.5 * abs(float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1])))
-
-
-def _geojson_scenario(tmp_path: Path, ring: np.ndarray) -> Path:
-    coords = ring.tolist() + [ring[0].tolist()]
-    doc = {"type": "FeatureCollection", "features": [
-        {"type": "Feature", "properties": {"height": 20.0}, "geometry": {"type": "Polygon", "coordinates": [coords]}}]}
-    (tmp_path / "fp.geojson").write_text(json.dumps(doc))
-    return _scenario(tmp_path, {**BASE, "map": {"geojson": "fp.geojson"},
-                                "bounds": {"min": [0, 0, 0], "max": [300, 300, 100]},
-                                "episodes": [{"start": [10.0, 10.0, 10.0], "goal": [290.0, 20.0, 10.0]}]})
-
 
 @pytest.fixture
 def no_flying(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -117,12 +91,12 @@ def test_yaml_alias_bomb_is_rejected_quickly(tmp_path: Path, capsys: pytest.Capt
     # while printing the value in an error message; this smaller one keeps a regression bounded)
     if kind == "scenario":
         path = tmp_path / "bomb.yaml"
-        path.write_text(yaml.safe_dump(BASE, sort_keys=False) + "description:\n" + _alias_bomb(7))
+        path.write_text(yaml.safe_dump(BASE, sort_keys=False) + "description:\n" + alias_bomb(7))
         argv = ["validate", str(path)]
     else:
-        path = _vehicle_file(tmp_path, QUAD_YAML + "\nextra:\n" + _alias_bomb(7))
+        path = _vehicle_file(tmp_path, QUAD_YAML + "\nextra:\n" + alias_bomb(7))
         argv = ["demo", str(path)]
-    assert len(_alias_bomb(7).encode()) < 600
+    assert len(alias_bomb(7).encode()) < 600
     line = fails(argv, capsys, tmp_path, str(path), "<yaml>", f"more than {MAX_YAML_VALUES:,} values", "alias")
     assert len(line) < 300
 
@@ -162,15 +136,15 @@ def test_generator_parameters_are_bounded(tmp_path: Path, capsys: pytest.Capture
     fails(["validate", str(path)], capsys, tmp_path, str(path), key, reason)
 
 
-def test_geojson_star_decomposes_in_near_linear_time(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    ring = _star(600)  # took ~10 s before (a star of 800: 21 s); now a few tens of ms
-    path = _geojson_scenario(tmp_path, ring)
+def test_a_geojson_star_validates_and_its_pieces_tile_it(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    ring = star(600)  # took ~10 s before (a star of 800: 21 s); its time now: perf/responsiveness.py
+    path = geojson_scenario(tmp_path, ring)
     assert main(["validate", str(path)]) == 0
     assert "ok" in capsys.readouterr().out
     # and the pieces of a larger one tile it exactly
-    star = _star(4000)
-    parts = footprint_parts(star, 20.0, 0)
-    assert math.isclose(sum(_area(p.footprint_xy_m()) for p in parts), _area(star), rel_tol=1e-9)
+    big = star(4000)
+    parts = footprint_parts(big, 20.0, 0)
+    assert math.isclose(sum(_area(p.footprint_xy_m()) for p in parts), _area(big), rel_tol=1e-9)
 
 
 def test_geojson_vertex_limit_is_stated(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -178,7 +152,7 @@ def test_geojson_vertex_limit_is_stated(tmp_path: Path, capsys: pytest.CaptureFi
     ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     ring = np.column_stack([150 + 60 * np.cos(ang), 150 + 60 * np.sin(ang)])
     ring[[1, 2]] = ring[[2, 1]]  # edges 0 and 2 cross: the old code stopped there, quickly, with another error
-    path = _geojson_scenario(tmp_path, ring)
+    path = geojson_scenario(tmp_path, ring)
     fails(["validate", str(path)], capsys, tmp_path, str(tmp_path / "fp.geojson"),
            "features[0].geometry.coordinates[0]", f"{n + 1:,} positions",
            f"at most {MAX_FOOTPRINT_VERTICES:,} vertices")

@@ -18,7 +18,7 @@ from compare.results.episodes import open_episodes
 from compare.results.metrics import COLUMNS, TRACKER_METRICS
 from compare.results.store import EPISODE_TABLE, read_episode_table, store_dir, write_episode_table
 from rl.policies.folder import DEFAULT_POLICY_DIR
-from run_data import GOLDEN, TINY, WALL_CLOCK_COLUMNS
+from run_data import GOLDEN, TINY, without_wall_clock
 
 
 @pytest.fixture(scope="module")
@@ -31,10 +31,6 @@ def tiny_run(tmp_path_factory) -> Path:
 def _rows(path: Path) -> list[dict]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
-
-
-def _deterministic(rows: list[dict]) -> list[dict]:
-    return [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in rows]
 
 
 def test_run_writes_every_output(tiny_run):
@@ -116,7 +112,7 @@ def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path, cap
     assert set(last["vehicles"]["small_quad"]) == {"ppo", "rrt_mpc"} and ppo["episodes"] == 1
     assert ppo["success"]["rate"] == 1.0 and ppo["success"]["ci95"] == pytest.approx([0.2065, 1.0], abs=1e-4)
     a, b = _rows(tiny_run / "metrics.csv"), _rows(out2 / "metrics.csv")
-    assert _deterministic(a) == _deterministic(b)  # every physics step kept (--store full): the same metrics
+    assert without_wall_clock(a) == without_wall_clock(b)  # every physics step kept (--store full): the same metrics
     episodes = open_episodes(out2)
     for entry in episodes.entries:
         ep = episodes.load(entry)
@@ -132,11 +128,11 @@ def test_jobs_give_identical_metrics_and_report_rebuilds(tiny_run, tmp_path, cap
     assert main(["report", str(out2)]) == 0
     rows = _rows(out2 / "metrics.csv")
     assert [r["method"] for r in rows] == ["rrt_mpc"]
-    assert _deterministic(rows) == _deterministic([r for r in a if r["method"] == "rrt_mpc"])
+    assert without_wall_clock(rows) == without_wall_clock([r for r in a if r["method"] == "rrt_mpc"])
     assert (out2 / "report.pdf").is_file()
     # --resume flies only the missing cell
     assert main(["run", str(TINY), "--out", str(out2), "--resume", "--no-progress", "--videos", "none"]) == 0
-    assert _deterministic(_rows(out2 / "metrics.csv")) == _deterministic(a)
+    assert without_wall_clock(_rows(out2 / "metrics.csv")) == without_wall_clock(a)
 
 
 def test_golden_metrics(tiny_run):
