@@ -20,7 +20,7 @@ MAY_IMPORT = {"uam_fdm": {"uam_fdm"}, "planners": {"uam_fdm", "planners"}, "rl":
 # OMPL), so that printing help, checking a scenario or reading a run folder needs none of them.
 DEFERRED_IMPORTS = ("torch", "ray", "compare.run.backends.ray", "compare.report",
                     "compare.playback", "compare.pages", "uam_fdm.city.plot", "rl", "planners",
-                    "matplotlib", "rerun")
+                    "matplotlib", "rerun", "uam_fdm.sensing")  # the sensors: Embree and the filter, only when sensing
 # What `rl` may import inside a function or for the type checker only: PyTorch (the network's module included,
 # so reading a policy folder's settings needs none) and matplotlib (the env's rgb_array frames).
 RL_DEFERRED_IMPORTS = ("torch", "rl.policies.network", "matplotlib", "uam_fdm.city.plot")

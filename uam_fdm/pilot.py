@@ -12,11 +12,21 @@ Either way the simulator applies rotor-speed commands at every physics step and 
 An actuation may be held for several control periods (`hold_periods`): the learned pilot decides
 at 10 Hz over a 50 Hz low-level controller. The runner then flies the held command period by
 period, checking the episode's end rules after each, and counts one decision.
-What both pilots know (the fairness statement): the vehicle's parameters, the building map, the
-air density, the forecast turbulence level (the scenario's category: none, light, moderate, severe),
-and the full vehicle state at each decision (perfect state estimation). Neither knows the wind or
-its gusts: the steady wind and the turbulence realisation are the simulator's alone. (The classical
-pilot sizes its clearance margins from the forecast level; the learned pilot does not use it.)
+What every pilot knows (the fairness statement), at every sensing level: the vehicle's parameters, its sensors'
+specifications (`World.sensing`), the prior map (`World.city`: the survey, which may miss buildings and cranes or
+have them wrong; the scenario's `map_error`/`unmapped` keys), the air density, the forecast turbulence level (a
+category: none, light, moderate, severe) and, each decision, an `Observation`:
+
+* `perfect`: the exact vehicle state (the estimate is the truth, its covariance None) and no readings: the
+  privileged reference, every figure before sensing existed;
+* `nominal` / `degraded`: the navigation filter's estimate (`uam_fdm.sensing.nav_filter`: IMU, barometer, GNSS,
+  heading aid) in the vehicle-state layout with its error-state covariance, as of `latency_s` ago, and the
+  readings since the previous decision (lidar scans, GNSS fixes, barometer and heading readings; raw IMU for a
+  pilot with its own filter). The velocity controller under a `VelocityCommand` flies on the current estimate.
+
+No pilot knows the true city, the true state, the wind or its gusts: they are the simulator's (`Truth`), and
+every metric is scored on them. (The classical pilot sizes its clearance margins from the forecast level; the
+learned pilot does not use it.)
 
 At the end of an episode the runner's caller asks the pilot for its `episode_report()`: a typed
 `PilotReport` of what it did (the classical pilot: planning, replans, its MPC), saved with the
@@ -37,8 +47,15 @@ from uam_fdm.renamed import renamed
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 from uam_fdm.vehicle.params import VehicleParams
 
-if TYPE_CHECKING:  # the city module is imported lazily by its users; only its type is named here
+if TYPE_CHECKING:  # the city and sensor modules are imported lazily by their users; only their types are named here
     from uam_fdm.city.buildings import BuildingMap
+    from uam_fdm.sensing.baro import BaroReading
+    from uam_fdm.sensing.gnss import GnssFix
+    from uam_fdm.sensing.heading import HeadingReading
+    from uam_fdm.sensing.imu import ImuSamples
+    from uam_fdm.sensing.lidar import LidarScan
+    from uam_fdm.sensing.raycast import RayCaster
+    from uam_fdm.sensing.specs import SensingConfig
 
 
 @dataclass(frozen=True)
@@ -54,9 +71,10 @@ class Task:
 
 @dataclass(frozen=True)
 class World:
-    """What a pilot may know about the world it flies in (no wind: see the module docstring).
+    """What a pilot may know about the world it flies in (see the module docstring).
 
-    `turbulence` is the forecast level, a category, not the gusts the vehicle will meet.
+    `city` is the prior map, not the city as it stands; `turbulence` is the forecast level, a category, not the
+    gusts the vehicle will meet; `sensing` the specifications of the vehicle's sensors (None: perfect sensing).
     """
 
     vehicle: VehicleParams
@@ -64,17 +82,81 @@ class World:
     city: BuildingMap
     atmosphere: Atmosphere
     turbulence: TurbulenceLevel = TurbulenceLevel.NONE
+    sensing: SensingConfig | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "turbulence", TurbulenceLevel.parse(self.turbulence))  # "light" accepted
 
 
 @dataclass(frozen=True)
+class SensorData:
+    """The readings a pilot receives at a decision: those since the previous decision, each in time order, as old as
+    the sensing latency. Empty at `perfect` sensing."""
+
+    lidar: tuple[LidarScan, ...] = ()
+    imu: tuple[ImuSamples, ...] = ()
+    gnss: tuple[GnssFix, ...] = ()
+    baro: tuple[BaroReading, ...] = ()
+    heading: tuple[HeadingReading, ...] = ()
+
+
+NO_READINGS = SensorData()
+
+
+@dataclass(frozen=True)
 class Observation:
-    """What the pilot sees at a decision: time [s] and the full vehicle state (13 + n,)."""
+    """What the pilot sees at a decision.
+
+    Attributes:
+        t_s: the decision's time [s].
+        x: the vehicle state as the pilot knows it (13 + n,): at `perfect` sensing the true state, else the
+            navigation estimate (position, velocity, attitude; body rates from the gyro less its estimated bias;
+            rotor speeds from the motor controllers' telemetry).
+        covariance: the estimate's error-state covariance (16, 16) [δp m, δv m/s ENU, δθ rad body, accelerometer
+            bias m/s², gyro bias rad/s, barometer offset m]; None at `perfect` sensing (exact).
+        sensors: the readings since the previous decision.
+        estimate_t_s: the time the estimate is of [s] (earlier than `t_s` by the sensing latency).
+    """
 
     t_s: float
     x: np.ndarray
+    covariance: np.ndarray | None = None
+    sensors: SensorData = NO_READINGS
+    estimate_t_s: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """What the simulator holds and no pilot is given: the city as it stands, how the vehicle senses, and the
+    obstacles the prior map lacks.
+
+    Attributes:
+        city: the true city (the prior map plus what the survey missed, errors undone).
+        sensing: the sensing level flown.
+        sensing_seed: the seed of every sensor's noise in the episode.
+        unmapped: the true obstacles absent from the prior map, as a map of their own (for their clearance), or None.
+        caster: a ray caster over `city` when the caller keeps one per city (else built on first use).
+    """
+
+    city: BuildingMap
+    sensing: SensingConfig | None = None
+    sensing_seed: int = 0
+    unmapped: BuildingMap | None = None
+    caster: RayCaster | None = None
+
+    @property
+    def perfect(self) -> bool:
+        """True: the pilot flies on the truth (no sensors simulated)."""
+        return self.sensing is None or self.sensing.perfect
+
+    def ray_caster(self) -> RayCaster:
+        """The ray caster over the true city (built on first use, then kept)."""
+        if self.caster is None:
+            from uam_fdm.sensing.raycast import RayCaster  # Embree is loaded only when something senses
+
+            object.__setattr__(self, "caster", RayCaster(self.city))
+        assert self.caster is not None
+        return self.caster
 
 
 @dataclass(frozen=True)

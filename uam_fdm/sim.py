@@ -97,10 +97,15 @@ class Simulator:
         return self.dynamics.period_rotor(x, u, self._period_env(x, t_s, height_above_surface_m, env))
 
     def step_velocity(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, t_s: float,
-                      height_above_surface_m: float | None = None, *, env: np.ndarray | None = None) -> PeriodResult:
+                      height_above_surface_m: float | None = None, *, env: np.ndarray | None = None,
+                      seen_offset: np.ndarray | None = None) -> PeriodResult:
         """One control period under the low-level controller; cmd = [v_e, v_n, v_u (m/s), yaw (rad)]; `env` as
-        in `step`."""
-        return self.dynamics.period_velocity(x, ctrl_state, cmd, self._period_env(x, t_s, height_above_surface_m, env))
+        in `step`; `seen_offset`: the navigation estimate's error the controller flies on
+        (`VehicleDynamics.period_velocity_seen`), None: it flies on the true state."""
+        env = self._period_env(x, t_s, height_above_surface_m, env)
+        if seen_offset is None:
+            return self.dynamics.period_velocity(x, ctrl_state, cmd, env)
+        return self.dynamics.period_velocity_seen(x, ctrl_state, cmd, env, seen_offset)
 
     def _period_env(self, x: np.ndarray, t_s: float, height_above_surface_m: float | None,
                     env: np.ndarray | None) -> np.ndarray:
@@ -131,10 +136,11 @@ class Simulator:
         return r
 
     def advance_velocity(self, cmd: np.ndarray, height_above_surface_m: float | None = None, *,
-                         env: np.ndarray | None = None) -> PeriodResult:
-        """Advance the held state one control period under the velocity controller; `env` as in `step`."""
+                         env: np.ndarray | None = None, seen_offset: np.ndarray | None = None) -> PeriodResult:
+        """Advance the held state one control period under the velocity controller; `env` and `seen_offset` as in
+        `step_velocity`."""
         s = self.state
-        r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s, height_above_surface_m, env=env)
+        r = self.step_velocity(s.x, s.ctrl_state, cmd, s.t_s, height_above_surface_m, env=env, seen_offset=seen_offset)
         self._state = SimState(s.t_s + self.control_period_s, r.final_state, r.ctrl_state,
                                s.energy_J + float(r.energy_J))
         return r

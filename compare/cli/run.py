@@ -17,6 +17,7 @@ from compare.flying.pilots import PILOT_NAMES, pilot
 from compare.results.outputs import check_output_dir
 from compare.run.backends import BACKENDS
 from compare.run.campaign import RunConfig, RunInterrupted, check_empty_run_folder, estimate_run, run_comparison
+from compare.scenarios.levels import MAP_ERROR_LEVELS, SENSING_LEVELS, with_levels
 from compare.scenarios.scenario import Scenario, with_pilots
 from compare.scenarios.sets import resolve_scenarios
 from compare.scenarios.sweep import SWEEP_SETS, build_sweep
@@ -81,6 +82,12 @@ def _add_run_options(parser: argparse.ArgumentParser) -> None:
                              "(everything the report, viewer and animation draw) or every physics step; the "
                              "metrics are the same")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--sensing", choices=SENSING_LEVELS, default=None,
+                        help="fly every scenario at this sensing level, in place of its own `sensing:` "
+                             "(docs/sensing.md)")
+    parser.add_argument("--map-error", choices=MAP_ERROR_LEVELS, default=None,
+                        help="fly every scenario with this map error, in place of its own `map_error:` "
+                             "(docs/sensing.md)")
 
 
 def _add_pilot_options(parser: argparse.ArgumentParser) -> None:
@@ -120,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(out, "--out")
     if not args.resume:
         check_empty_run_folder(out)
-    scenarios = [with_pilots(sc, tuple(args.pilot)) for sc in _scenarios(args)]  # every file checked here
+    scenarios = [with_levels(with_pilots(sc, tuple(args.pilot)), args.sensing, args.map_error)
+                 for sc in _scenarios(args)]  # every file checked here
     opts = replace(opts, videos=resolve_videos(args.videos, scenarios))  # its default depends on the scenarios
     one_torch_thread()
     est = estimate_run(scenarios, opts)

@@ -14,9 +14,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def validate(args: argparse.Namespace) -> int:
-    """`validate`: one line per scenario: its file, map, vehicle, episodes, seeds, pilots and turbulence."""
+    """`validate`: one line per scenario: its file, map, vehicle, episodes, seeds, pilots, turbulence, and its sensing
+    and map-error levels where they are not perfect and exact."""
     for sc in resolve_scenarios(args.scenario):
+        levels = "" if sc.sensing.perfect else f", sensing {sc.sensing.label}"
+        if not sc.map_error.exact or sc.unmapped_ids:
+            levels += f", map error {sc.map_error.label} ({len(sc.unmapped_ids)} obstacles not in the prior map)"
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
               f"vehicle {sc.vehicle_name}, {len(sc.episodes)} episodes x {len(sc.seeds)} seeds, "
-              f"pilots {', '.join(sc.pilots)}, turbulence {sc.wind.turbulence.value})")
+              f"pilots {', '.join(sc.pilots)}, turbulence {sc.wind.turbulence.value}{levels})")
     return 0

@@ -8,21 +8,30 @@ clearance (the same geometry FCL holds). The episode ends on success (inside the
 collision, leaving the flight volume, a non-finite state or the timeout; a pilot that cannot fly
 the task (e.g. no path found) ends it before the first step. The end rules are `uam_fdm.episode`'s,
 the same the learned pilot's training environment applies.
+
+Truth and belief: the loop flies and scores against `Truth` (the city as it stands); the pilot gets the
+`World` (the prior map) and, at `perfect` sensing, the true state; otherwise the vehicle's sensors and navigation
+filter (`uam_fdm.sensing.onboard.Onboard`) turn each flown period into readings and an estimate, the decision acts on
+the estimate of the latency ago, and a velocity command's controller flies on the current estimate.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from uam_fdm import episode
 from uam_fdm.air.wind import WindField
 from uam_fdm.episode import Outcome
-from uam_fdm.pilot import Observation, Pilot, RotorCommand, Task, VelocityCommand, World
+from uam_fdm.pilot import Observation, Pilot, RotorCommand, Task, Truth, VelocityCommand, World
 from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.model import hover_state
+
+if TYPE_CHECKING:  # the sensors (Embree, the filter) load only when a vehicle senses
+    from uam_fdm.sensing.onboard import NavRecord
 
 
 @dataclass(frozen=True)
@@ -47,6 +56,13 @@ class Trajectory:
         shaft_power_W: (M,) total rotor shaft power Σ Q_i·Ω_i of the model at each row's state, in the air
             density held over the control period that produced it (row 0: the first period's) [W]; the
             integrand of `energy_J`. None in an episode file saved before it was recorded.
+        estimate_m: (M, 3) the navigation estimate's position at each row (held between the filter's outputs at
+            the control periods' ends), world ENU [m]; None at perfect sensing (the estimate is the truth).
+        unmapped_clearance_m: (M,) signed clearance of the collision sphere to the obstacles the prior map lacks
+            [m]; None when it lacks none.
+        nav: the onboard estimation's record (errors, GNSS epochs); None at perfect sensing or read from a file.
+        lidar_hits_m: (H, 4) [t_s, x, y, z] a thinned set of the lidar's true hit points, world ENU [m] (the
+            viewer's layer); None at perfect sensing.
     """
 
     t_s: np.ndarray
@@ -61,6 +77,10 @@ class Trajectory:
     plan_time_s: float
     detail: str = ""
     shaft_power_W: np.ndarray | None = None
+    estimate_m: np.ndarray | None = None
+    unmapped_clearance_m: np.ndarray | None = None
+    nav: NavRecord | None = None
+    lidar_hits_m: np.ndarray | None = None
 
     @property
     def success(self) -> bool:
@@ -68,18 +88,30 @@ class Trajectory:
 
 
 def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: int, *,
-                pilot_name: str | None = None) -> Trajectory:
+                pilot_name: str | None = None, truth: Truth | None = None) -> Trajectory:
     """Fly `pilot` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period).
+
+    `truth`: the city as it stands and the sensing level; None: the world's map is the truth and the pilot flies
+    on the true state (perfect sensing).
 
     Raises:
         PilotError: the pilot commanded what cannot be flown, naming it (`pilot_name`, default `pilot.name`).
     """
-    p, dyn, city = world.vehicle, world.dynamics, world.city
+    truth = Truth(world.city) if truth is None else truth
+    p, dyn, city = world.vehicle, world.dynamics, truth.city
     radius = p.collision_radius_m
     sim = Simulator(dyn, world.atmosphere, wind)
     start = np.asarray(task.start_m, float)
     x0 = hover_state(p, start, task.start_yaw_rad, density_ratio=world.atmosphere.density_ratio(start[2]))
     sim.reset(x0)
+    onboard = None
+    if not truth.perfect and truth.sensing is not None:
+        from uam_fdm.sensing.onboard import Onboard
+
+        onboard = Onboard(truth.sensing, city, truth.ray_caster(), world.atmosphere, x0, dyn.dt_s, truth.sensing_seed)
+    estimates = None if onboard is None else [onboard.estimated_position_m()[None]]
+    unmapped = truth.unmapped
+    near_unmapped = None if unmapped is None else [unmapped.obstacle_clearance_m(x0[None, 0:3], radius)]
     info = pilot.reset(world, task, seed)
     hover = x0[dyn.layout.rotor]
     times, states, cmds, winds, clear = [np.zeros(1)], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
@@ -95,7 +127,7 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
     while info.ok and not episode.timed_out(sim.state.t_s, task.timeout_s):
         s = sim.state
         if held <= 0:  # a decision (else the previous actuation is still held)
-            obs = Observation(s.t_s, s.x.copy())
+            obs = Observation(s.t_s, s.x.copy()) if onboard is None else onboard.observation(s.t_s)
             t0 = time.perf_counter()
             act = pilot.act(obs)
             compute.append(time.perf_counter() - t0)
@@ -109,7 +141,8 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
         if isinstance(act, RotorCommand):
             r = sim.advance(command, env=env)
         else:
-            r = sim.advance_velocity(command, env=env)
+            offset = None if onboard is None else onboard.controller_offset(s.x)
+            r = sim.advance_velocity(command, env=env, seen_offset=offset)
         n_sub = r.states.shape[0]
         t_sub = s.t_s + dyn.dt_s * np.arange(1, n_sub + 1)
         times.append(t_sub)
@@ -120,6 +153,15 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
         finite = bool(np.all(np.isfinite(r.states)))
         c = _clearance(city, r.states[:, 0:3], radius) if finite else np.full(n_sub, np.nan)
         clear.append(c)
+        if near_unmapped is not None and unmapped is not None:
+            near_unmapped.append(unmapped.obstacle_clearance_m(r.states[:, 0:3], radius) if finite
+                                 else np.full(n_sub, np.nan))
+        if onboard is not None and estimates is not None:
+            held_estimate = np.repeat(estimates[-1][-1:], n_sub, axis=0)
+            if finite:
+                onboard.advance(s.x, r.states, s.t_s)
+                held_estimate[-1] = onboard.estimated_position_m()
+            estimates.append(held_estimate)
         code = int(episode.period_outcome(r.states[None], episode.collided(c[None]), lo, hi, goal,
                                           task.goal_radius_m)[0])
         ended = episode.OUTCOME_OF_CODE[code]  # None while running
@@ -127,11 +169,15 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
             outcome = ended
             detail = _detail(code, r.states, c, t_sub, s.t_s, sim.state.t_s, task, city)
             break
+    record = None if onboard is None else onboard.record()
     return Trajectory(
         t_s=np.concatenate(times), states=np.concatenate(states), rotor_commands=np.concatenate(cmds),
         wind_enu_m_s=np.concatenate(winds), clearance_m=np.concatenate(clear),
         decision_t_s=np.array(decision_t), compute_s=np.array(compute), energy_J=sim.state.energy_J,
-        outcome=outcome, plan_time_s=info.plan_time_s, detail=detail, shaft_power_W=np.concatenate(power))
+        outcome=outcome, plan_time_s=info.plan_time_s, detail=detail, shaft_power_W=np.concatenate(power),
+        estimate_m=None if estimates is None else np.concatenate(estimates),
+        unmapped_clearance_m=None if near_unmapped is None else np.concatenate(near_unmapped),
+        nav=record, lidar_hits_m=None if record is None else record.lidar_hits)
 
 
 class PilotError(RuntimeError):

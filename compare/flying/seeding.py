@@ -2,7 +2,8 @@
 
 A cell (scenario, episode, seed) gets one derived integer from `numpy.random.SeedSequence`, which
 seeds the turbulence realisation (the same for every pilot: all fly the same air) and
-the pilot (OMPL's RNG for the classical pilot; the learned pilot acts deterministically). The
+the pilot (OMPL's RNG for the classical pilot; the learned pilot acts deterministically) and the sensors
+(every pilot meets the same sensor noise on a cell: paired comparisons share it as they share the air). The
 derivation depends only on the cell, never on the order or the process it runs in, so a run gives
 the same numbers with any number of parallel jobs.
 """

@@ -35,6 +35,8 @@ from uam_fdm.files.atomic import atomic_open
 
 VIEWER_NAME = "viewer.html"
 START_COLOR, GOAL_COLOR = "#2ca02c", "#ffd700"
+UNMAPPED_COLOR = "#e4572e"  # obstacles the prior map lacks: one colour of their own, not the height scale
+LIDAR_COLOR = "#17becf"
 _BUILDING_SCALE = [[i / 8, to_hex(colormaps["viridis"](0.15 + 0.75 * i / 8))] for i in range(9)]
 
 
@@ -49,17 +51,21 @@ class ViewerConfig:
     round_s: float = 0.001
 
 
-def building_mesh(bmap: BuildingMap) -> go.Mesh3d:
+def building_mesh(bmap: BuildingMap, skip: frozenset[int] = frozenset(), only: frozenset[int] | None = None,
+                  color: str | None = None, name: str = "buildings") -> go.Mesh3d:
     """The buildings of `bmap` as one `Mesh3d` (ENU metres): fan-triangulated roofs and two triangles per wall.
 
-    Vertices carry (building id, height) as customdata for the hover text; colour is by height.
+    Vertices carry (building id, height) as customdata for the hover text; colour is by height, or `color` for all.
+    `skip`: ids left out; `only`: the ids drawn (None: all). A raised box (a crane's jib) starts at its base.
     """
     xs: list[float] = []
     ys, zs, ii, jj, kk, ids, heights = [], [], [], [], [], [], []
     for b in bmap.buildings:
+        if b.id in skip or (only is not None and b.id not in only):
+            continue
         fp = b.footprint_xy_m()
         n, base = len(fp), len(xs)
-        for z in (0.0, b.height_m):
+        for z in (getattr(b, "base_m", 0.0), b.height_m):
             xs += fp[:, 0].tolist()
             ys += fp[:, 1].tolist()
             zs += [z] * n
@@ -75,15 +81,17 @@ def building_mesh(bmap: BuildingMap) -> go.Mesh3d:
             jj += [base + w, base + n + w]
             kk += [base + n + w, base + n + v]
     top = max(heights, default=1.0)
+    scale = _BUILDING_SCALE if color is None else [[0.0, color], [1.0, color]]
+    what = "building" if color is None else "unmapped"
     return go.Mesh3d(
         x=rounded(xs, 0.01), y=rounded(ys, 0.01), z=rounded(zs, 0.01), i=ii, j=jj, k=kk,
         intensity=rounded(heights, 0.01),
-        intensitymode="vertex", colorscale=_BUILDING_SCALE, cmin=0.0, cmax=top, showscale=False, flatshading=True,
+        intensitymode="vertex", colorscale=scale, cmin=0.0, cmax=top, showscale=False, flatshading=True,
         lighting={"ambient": 0.55, "diffuse": 0.75, "specular": 0.05, "roughness": 0.9},
         lightposition={"x": -4000, "y": -6000, "z": 7000},
         customdata=np.column_stack([ids, heights]) if ids else None,
-        hovertemplate="building %{customdata[0]}<br>height %{customdata[1]:.1f} m<extra></extra>",
-        name="buildings", showlegend=False)
+        hovertemplate=what + " %{customdata[0]}<br>height %{customdata[1]:.1f} m<extra></extra>",
+        name=name, showlegend=color is not None)
 
 
 def city_scene(lo: np.ndarray, hi: np.ndarray, top_m: float) -> dict:
@@ -113,13 +121,16 @@ def _time_grid(group: FlightGroup, opts: ViewerConfig) -> np.ndarray:
 def group_payload(group: FlightGroup, opts: ViewerConfig) -> dict:
     """One cell for the page: its plotly figure (JSON) and, per pilot, samples on the cell's time grid.
 
-    Trace order in the figure: 0 buildings, 1 start, 2 goal, then per pilot: path, trail, vehicle.
+    Trace order in the figure: 0 buildings, 1 start, 2 goal, then per pilot: path, trail, vehicle; then the layers
+    the script never moves: the obstacles the prior map lacks (their own colour), each pilot's estimated path
+    (dashed) and the lidar's hits (hidden until chosen in the legend).
     """
     city, lo, hi = group.region()
     meta = group.meta
+    unmapped = group.unmapped_ids
     t = _time_grid(group, opts)
     fig = go.Figure()
-    fig.add_trace(building_mesh(city))
+    fig.add_trace(building_mesh(city, skip=unmapped))
     for name, xyz, color, symbol in (("start", meta.start_m, START_COLOR, "diamond"),
                                      ("goal", meta.goal_m, GOAL_COLOR, "circle")):
         fig.add_trace(go.Scatter3d(
@@ -154,6 +165,7 @@ def group_payload(group: FlightGroup, opts: ViewerConfig) -> dict:
             "z": rounded(s.pos_m[:, 2], opts.round_m), "speed": rounded(s.speed_m_s, 0.001),
             "clearance": rounded(s.clearance_m, 0.001),
             "min_clearance_m": _finite_min(p.episode.trajectory.clearance_m)})
+    _add_belief_layers(fig, group, city, unmapped, t, opts)
     top = max([float(hi[2])] + [b.height_m for b in city.buildings])
     fig.update_layout(
         margin={"l": 0, "r": 0, "t": 0, "b": 0}, paper_bgcolor="white", uirevision=group.spec,
@@ -166,6 +178,34 @@ def group_payload(group: FlightGroup, opts: ViewerConfig) -> dict:
         "t": rounded(t, opts.round_s), "duration_s": round(float(t[-1]), 3), "pilots": pilots,
         "figure": json.loads(pio.to_json(fig, validate=True, remove_uids=True)),
     }
+
+
+def _add_belief_layers(fig: go.Figure, group: FlightGroup, city: BuildingMap, unmapped: frozenset[int],
+                       t: np.ndarray, opts: ViewerConfig) -> None:
+    """The traces after the pilots': what the prior map lacks, where each pilot thought it was, what its lidar hit."""
+    if unmapped & {int(i) for i in city.building_ids}:
+        fig.add_trace(building_mesh(city, only=unmapped, color=UNMAPPED_COLOR, name="not in the prior map"))
+    for p in group.flights:
+        tr = p.episode.trajectory
+        label = text_for_html(p.label)
+        if tr.estimate_m is not None and len(tr.t_s):
+            est = np.column_stack([np.interp(t, tr.t_s, tr.estimate_m[:, i]) for i in range(3)])
+            last = max(int(np.searchsorted(t, p.end_t_s, side="right")), 1)
+            fig.add_trace(go.Scatter3d(
+                x=rounded(est[:last, 0], opts.round_m), y=rounded(est[:last, 1], opts.round_m),
+                z=rounded(est[:last, 2], opts.round_m), mode="lines", name=f"{label}: estimated path",
+                line={"color": to_hex(p.color), "width": 3, "dash": "dash"}, opacity=0.8, legendgroup=p.pilot,
+                hovertemplate=f"<b>{label}</b> estimate<br>(%{{x:.1f}}, %{{y:.1f}}, %{{z:.1f}}) m<extra></extra>"))
+        hits = tr.lidar_hits_m
+        if hits is not None and len(hits):
+            keep = hits[np.linspace(0, len(hits) - 1, min(len(hits), LIDAR_POINTS_SHOWN)).astype(int)]
+            fig.add_trace(go.Scatter3d(
+                x=rounded(keep[:, 1], 0.1), y=rounded(keep[:, 2], 0.1), z=rounded(keep[:, 3], 0.1), mode="markers",
+                name=f"{label}: lidar hits", marker={"size": 1.5, "color": LIDAR_COLOR}, visible="legendonly",
+                legendgroup=f"{p.pilot} lidar", hovertemplate="lidar hit<extra></extra>"))
+
+
+LIDAR_POINTS_SHOWN = 4000  # per pilot and cell: a layer to see what was seen, not a point cloud to measure
 
 
 def _finite_min(values) -> float | None:

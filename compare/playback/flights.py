@@ -17,7 +17,7 @@ import numpy as np
 
 from compare.report.figures import crop_map, flight_region, pilot_colors, trace_from_episode
 from compare.results.episodes import EpisodeEntry, RunEpisodes, open_episodes
-from compare.results.run_info import WindInfo, read_run_info
+from compare.results.run_info import PRIOR_MAPS, WindInfo, read_run_info
 from compare.results.trajectory import SavedEpisode
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
@@ -73,9 +73,10 @@ class FlightGroup:
     Attributes:
         scenario, episode, seed: the cell.
         flights: one per pilot that flew it.
-        city: the scenario's map (from the run folder's `maps/<scenario>.yaml`).
+        city: the scenario's map, the city as it stands (from the run folder's `maps/<scenario>.yaml`).
         description: the scenario's one-line description (may be empty).
         wind: the scenario's wind as run.json records it (None when it does not).
+        prior: the pilots' prior map where it differs from `city` (`maps/prior/<scenario>.yaml`), else None.
     """
 
     scenario: str
@@ -85,6 +86,14 @@ class FlightGroup:
     city: BuildingMap
     description: str = ""
     wind: WindInfo | None = None
+    prior: BuildingMap | None = None
+
+    @property
+    def unmapped_ids(self) -> frozenset[int]:
+        """Ids of the true city's obstacles the prior map lacks (unmapped, missing, cranes and masts)."""
+        if self.prior is None:
+            return frozenset()
+        return frozenset(int(i) for i in self.city.building_ids) - {int(i) for i in self.prior.building_ids}
 
     @property
     def spec(self) -> str:
@@ -155,16 +164,20 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
                         key=lambda m: (pilot_order.get(m, len(pilot_order)), m))
     colors = pilot_colors(all_pilots, info.colors())
     maps: dict[str, BuildingMap] = {}
+    priors: dict[str, BuildingMap | None] = {}
     groups = []
     for (scenario, episode, seed) in sorted(by_cell, key=lambda c: (scen_order.get(c[0], len(scen_order)), c)):
         if scenario not in maps:
             maps[scenario] = load_map_file(run_dir / "maps" / f"{scenario}.yaml")
+            prior = run_dir / "maps" / PRIOR_MAPS / f"{scenario}.yaml"
+            priors[scenario] = load_map_file(prior) if prior.is_file() and not prior.is_symlink() else None
         found = sorted(by_cell[(scenario, episode, seed)],
                        key=lambda p: (pilot_order.get(p.pilot, len(pilot_order)), p.pilot))
         flights = tuple(replace(p, label=info.label(p.pilot), color=colors[p.pilot]) for p in found)
         sc = info.scenario(scenario)
         groups.append(FlightGroup(scenario, episode, seed, flights, maps[scenario],
-                                  description=sc.description if sc else "", wind=sc.wind if sc else None))
+                                  description=sc.description if sc else "", wind=sc.wind if sc else None,
+                                  prior=priors[scenario]))
     return groups
 
 

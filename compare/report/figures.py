@@ -29,7 +29,7 @@ from mpl_toolkits.mplot3d import Axes3D
 
 from compare.flying.pilots import PILOTS
 from compare.results.trajectory import EpisodeMeta, SavedEpisode
-from uam_fdm.city.buildings import BuildingMap, Prism
+from uam_fdm.city.buildings import Building, BuildingMap, Prism
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
 from uam_fdm.episode import Outcome
 
@@ -260,10 +260,17 @@ def flight_region(traces: Sequence[FlightTrace],
 def crop_map(bmap: BuildingMap, lo_m: np.ndarray, hi_m: np.ndarray) -> BuildingMap:
     """The part of `bmap` inside the box [lo, hi] in x/y: footprints clipped to it (prisms), bounds = the box.
 
-    Buildings keep their full height (the z extent of the drawing grows to show them).
+    Buildings keep their full height (the z extent of the drawing grows to show them). A raised box (a crane's jib)
+    is kept whole where it lies inside the box and left out where it crosses its edge (a clipped part could only
+    stand on the ground, and a jib drawn as a wall would mislead).
     """
-    parts = []
+    parts: list[Building | Prism] = []
     for b in bmap.buildings:
+        if isinstance(b, Building) and b.base_m > 0.0:
+            fp = b.footprint_xy_m()
+            if np.all(fp >= lo_m[:2]) and np.all(fp <= hi_m[:2]):
+                parts.append(b)
+            continue
         poly = _clip_to_rect(b.footprint_xy_m(), lo_m[:2], hi_m[:2])
         if len(poly) >= 3 and _area(poly) > 1e-2:
             parts.append(Prism(b.id, tuple(map(tuple, poly)), b.height_m))

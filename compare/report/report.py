@@ -330,6 +330,7 @@ def _scenario_blocks(run: _Run, s: ScenarioInfo) -> list[tuple[str, str]]:
                f"density {_fmt(atm.density_kg_m3, 3)} kg/m³")),
         ("p", (f"    wind: steady {steady} m/s (ENU), {_shear_words(wind.shear)}, "
                f"turbulence {wind.turbulence or 'n/a'}")),
+        ("p", f"    sensing {s.sensing} · map error {s.map_error} (docs/sensing.md)"),
         ("p", (f"    {_num(s.episodes)} episodes × seeds {list(s.seeds)}; pilots "
                f"{', '.join(run.label(m) for m in s.pilots)}; "
                f"physics {_num(s.physics_hz)} Hz, control {_num(s.control_hz)} Hz; "

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from compare.flying import pilots
+from compare.flying.episode_loop import Trajectory
 from compare.results.trajectory import SavedEpisode
 from planners.report import ClassicalReport
 from uam_fdm.episode import Outcome
@@ -81,6 +82,14 @@ class EpisodeMetrics:
             two vehicles that share a name but not a fingerprint are labelled apart (`label_vehicles`).
         The tracker columns (`TRACKER_METRICS`) are NaN for a pilot without a tracker (ppo) and, where an
         older episode file did not record them, for the classical pilot too (counts as floats for that).
+        sensing, map_error: the scenario's sensing level and map-error level (`perfect` and `exact` before either
+            existed; a "+" marks a level with overrides).
+        est_error_h_rms_m, est_error_h_max_m, est_error_v_rms_m, est_error_v_max_m: RMS and largest horizontal and
+            vertical error of the navigation estimate's position, at the control periods' ends [m] (0 at perfect
+            sensing: the estimate is the truth).
+        gnss_availability: share of GNSS epochs with a fix [-] (NaN at perfect sensing: no receiver simulated).
+        min_clearance_unmapped_m: least signed clearance of the collision sphere to the obstacles the prior map
+            lacks (unmapped buildings, missing ones, cranes and masts), physics rate [m] (NaN when it lacks none).
     """
 
     scenario: str
@@ -117,6 +126,14 @@ class EpisodeMetrics:
     planner_attempts: float = math.nan
     clearance_over_margin_min: float = math.nan
     vehicle_fingerprint: str = ""
+    sensing: str = "perfect"
+    map_error: str = "exact"
+    est_error_h_rms_m: float = math.nan
+    est_error_h_max_m: float = math.nan
+    est_error_v_rms_m: float = math.nan
+    est_error_v_max_m: float = math.nan
+    gnss_availability: float = math.nan
+    min_clearance_unmapped_m: float = math.nan
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
@@ -126,7 +143,11 @@ COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
 _KINDS = {f.name: str(f.type) for f in fields(EpisodeMetrics)}
 
 
-_OPTIONAL = (*TRACKER_METRICS, "vehicle_fingerprint")  # columns that older metrics.csv files lack
+SENSING_METRICS = ("est_error_h_rms_m", "est_error_h_max_m", "est_error_v_rms_m", "est_error_v_max_m",
+                   "gnss_availability", "min_clearance_unmapped_m")
+"""The columns of what the vehicle sensed and the map missed (older metrics.csv files: NaN)."""
+_OPTIONAL = (*TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *SENSING_METRICS)
+# columns that older metrics.csv files lack
 VEHICLE_TAG_CHARS = 8
 """Characters of the fingerprint that tell apart two vehicles sharing a name ("small_quad (1a2b3c4d)")."""
 
@@ -204,7 +225,29 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
         compute_ms_max=float(compute_ms.max()) if compute_ms.size else math.nan,
         plan_time_s=math.nan if does_not_plan else float(meta.plan_time_s),
         **_tracker_fields(meta.report),
+        sensing=meta.sensing, map_error=meta.map_error,
+        **_sensing_fields(traj, meta.sensing),
     )
+
+
+def _sensing_fields(traj: Trajectory, sensing: str) -> dict[str, float]:
+    """The estimation and unmapped-clearance columns from the flight's records (in the cell, before storing)."""
+    out: dict[str, float] = {}
+    near = traj.unmapped_clearance_m
+    if near is not None:
+        finite = np.asarray(near, float)[np.isfinite(near)]
+        out["min_clearance_unmapped_m"] = float(finite.min()) if finite.size else math.nan
+    nav = traj.nav
+    if nav is None:
+        if sensing == "perfect":
+            out.update(est_error_h_rms_m=0.0, est_error_h_max_m=0.0, est_error_v_rms_m=0.0, est_error_v_max_m=0.0)
+        return out
+    err = np.asarray(nav.error_m, float)
+    h, v = np.hypot(err[:, 0], err[:, 1]), np.abs(err[:, 2])
+    out.update(est_error_h_rms_m=float(np.sqrt(np.mean(h ** 2))), est_error_h_max_m=float(h.max()),
+               est_error_v_rms_m=float(np.sqrt(np.mean(v ** 2))), est_error_v_max_m=float(v.max()),
+               gnss_availability=nav.gnss_availability)
+    return out
 
 
 def _tracker_fields(report: PilotReport | None) -> dict[str, float]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +44,11 @@ class WindInfo:
     shear: WindShear | None = None
 
 
+PRIOR_MAPS = "prior"
+"""`RUN_DIR/maps/prior/<scenario>.yaml`: a scenario's prior map (the pilots'), where it differs from the city as it
+stands (`maps/<scenario>.yaml`)."""
+
+
 @dataclass(frozen=True)
 class ScenarioInfo:
     """One scenario of a run as flown.
@@ -54,6 +60,8 @@ class ScenarioInfo:
         episodes: episode count; seeds: the seeds flown; pilots: the pilots flown, by name (the key "methods"
             in the file).
         physics_hz, control_hz: physics and control rates [Hz].
+        sensing, map_error: the sensing level and map-error level flown ("perfect", "exact" in a run before either
+            existed; a "+" marks overrides of the level's preset).
     """
 
     name: str
@@ -69,6 +77,8 @@ class ScenarioInfo:
     pilots: tuple[str, ...] = ()
     physics_hz: float | None = None
     control_hz: float | None = None
+    sensing: str = "perfect"
+    map_error: str = "exact"
 
 
 @dataclass(frozen=True)
@@ -248,6 +258,8 @@ def _scenario_json(s: ScenarioInfo) -> dict[str, Any]:
                        "density_kg_m3": atm.density_kg_m3},
         "wind": wind_json, "episodes": s.episodes, "seeds": list(s.seeds), "methods": list(s.pilots),
         "physics_hz": s.physics_hz, "control_hz": s.control_hz,
+        **({} if s.sensing == "perfect" else {"sensing": s.sensing}),  # an older run's file rewrites byte for byte
+        **({} if s.map_error == "exact" else {"map_error": s.map_error}),
     }
 
 
@@ -338,7 +350,15 @@ def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:
         pilots=tuple(str(m) for m in r.sequence(s, "methods", f"{key}.methods")),
         physics_hz=r.number(s, "physics_hz", f"{key}.physics_hz"),
         control_hz=r.number(s, "control_hz", f"{key}.control_hz"),
+        sensing=_level(r.text(s, "sensing", f"{key}.sensing"), "perfect"),
+        map_error=_level(r.text(s, "map_error", f"{key}.map_error"), "exact"),
     )
+
+
+def _level(text: str, default: str) -> str:
+    """A level's label from run.json: a short plain word with an optional "+" (else the default: a file's text
+    never becomes a label)."""
+    return text if re.fullmatch(r"[a-z]{1,16}\+?", text or "") else default
 
 
 def _pilot_info(r: _Reader, value: Any, pilot: str, key: str) -> PilotInfo:

@@ -33,7 +33,15 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from compare.results.tables import EPISODE_SCHEMA, KEY_COLUMNS, SAMPLE_SCHEMA
+from compare.results.tables import (
+    EPISODE_SCHEMA,
+    EPISODE_SCHEMA_BEFORE_SENSING,
+    KEY_COLUMNS,
+    SAMPLE_SCHEMA,
+    SAMPLE_SCHEMA_BEFORE_SENSING,
+    upgraded_samples,
+    with_metric_defaults,
+)
 from compare.results.trajectory import MAX_EPISODE_BYTES, EpisodeKey
 from uam_fdm.files.atomic import atomic_open, atomic_path
 
@@ -160,6 +168,8 @@ def _why(exc: BaseException) -> str:
 
 
 def _checked_row(row: object, where: Path) -> dict[str, Any]:
+    if isinstance(row, dict):
+        row = with_metric_defaults(row)  # a part of a run from before the vehicle sensed
     if not isinstance(row, dict) or any(name not in row for name in EPISODE_SCHEMA.names):
         raise ValueError(f"{where}: not a stored episode (its episode row is incomplete)")
     try:
@@ -170,6 +180,7 @@ def _checked_row(row: object, where: Path) -> dict[str, Any]:
 
 
 def _checked_samples(table: pa.Table, row: Mapping[str, Any], where: Path) -> pa.Table:
+    table = upgraded_samples(table)
     if not table.schema.equals(SAMPLE_SCHEMA):
         raise ValueError(f"{where}: not a stored episode (its columns are not the samples table's)")
     if table.num_rows != row["samples"]:
@@ -206,7 +217,10 @@ def read_episode_table(run_dir: Path) -> list[dict[str, Any]]:
         table = pq.read_table(path)
     except (OSError, ValueError, pa.ArrowException) as exc:
         raise ValueError(f"{path}: the run's episode table is truncated or corrupt ({_why(exc)})") from exc
-    if not table.schema.remove_metadata().equals(EPISODE_SCHEMA):
+    schema = table.schema.remove_metadata()
+    if schema.equals(EPISODE_SCHEMA_BEFORE_SENSING):  # a run from before the vehicle sensed
+        return [with_metric_defaults(r) for r in table.to_pylist()]
+    if not schema.equals(EPISODE_SCHEMA):
         raise ValueError(f"{path}: not a run's episode table (its columns differ)")
     return table.to_pylist()
 
@@ -380,7 +394,8 @@ def open_samples(path: Path) -> pq.ParquetFile:
         f = pq.ParquetFile(path)
     except (OSError, ValueError, pa.ArrowException) as exc:
         raise ValueError(f"{path}: truncated or corrupt samples file ({_why(exc)})") from exc
-    if not f.schema_arrow.remove_metadata().equals(SAMPLE_SCHEMA):
+    if not f.schema_arrow.remove_metadata().equals(SAMPLE_SCHEMA) and not f.schema_arrow.remove_metadata().equals(
+            SAMPLE_SCHEMA_BEFORE_SENSING):  # a run from before the vehicle sensed: read, without its columns
         f.close()
         raise ValueError(f"{path}: not a samples file (its columns differ)")
     return f

@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 
 from compare.flying.episode_loop import Trajectory
-from compare.results.metrics import EpisodeMetrics
+from compare.results.metrics import SENSING_METRICS, EpisodeMetrics
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, meta_from_json, meta_to_json
 
 STORE_MODES = ("control", "full")
@@ -52,6 +52,8 @@ QUATERNION = ("qw", "qx", "qy", "qz")
 BODY_RATES = ("wx_rad_s", "wy_rad_s", "wz_rad_s")
 WIND = ("wind_e_m_s", "wind_n_m_s", "wind_u_m_s")
 ROTOR_SPEED, ROTOR_COMMAND = "rotor_speed_rad_s", "rotor_command_rad_s"
+ESTIMATE = ("est_x_m", "est_y_m", "est_z_m")
+LIDAR_HITS = "lidar_hits_m"
 
 _KEY_FIELDS = [pa.field("scenario", pa.string(), False), pa.field("episode", pa.int32(), False),
                pa.field("method", pa.string(), False), pa.field("seed", pa.int64(), False)]
@@ -66,9 +68,27 @@ SAMPLE_SCHEMA = pa.schema(
     + [pa.field(n, _F32, False) for n in WIND]
     + [pa.field("clearance_m", _F32, False), pa.field("shaft_power_w", _F32),
        pa.field("decision_t_s", pa.float64()), pa.field("compute_s", _F32)])
+SAMPLE_SCHEMA_BEFORE_SENSING = SAMPLE_SCHEMA  # a store written before the vehicle sensed: still read
+SAMPLE_SCHEMA = SAMPLE_SCHEMA_BEFORE_SENSING.append(pa.field(ESTIMATE[0], pa.float64())).append(
+    pa.field(ESTIMATE[1], pa.float64())).append(pa.field(ESTIMATE[2], pa.float64())).append(
+    pa.field(LIDAR_HITS, pa.list_(_F32)))
 """One row per kept sample (see the module docstring); world ENU [m, m/s], body FLU [rad/s], quaternion
 body -> world [w, x, y, z]. shaft_power_w is null in an episode saved before it was recorded; decision_t_s and
-compute_s are null except at the row where the pilot decided (the start of that control period)."""
+compute_s are null except at the row where the pilot decided (the start of that control period). est_*_m: the
+navigation estimate's position (null at perfect sensing: it is the truth); lidar_hits_m: at the first kept row at or
+after each lidar scan, a thinned set of its true hit points, flattened [x, y, z, ...] world ENU (null elsewhere and at
+perfect sensing)."""
+
+
+def upgraded_samples(table: pa.Table) -> pa.Table:
+    """A samples table of a store written before the vehicle sensed, with the sensing columns added as nulls (any
+    other table is returned as it is, for the caller's schema check)."""
+    if not table.schema.remove_metadata().equals(SAMPLE_SCHEMA_BEFORE_SENSING):
+        return table
+    for f in SAMPLE_SCHEMA:
+        if f.name not in table.column_names:
+            table = table.append_column(f, pa.nulls(table.num_rows, f.type))
+    return table
 
 
 @dataclass(frozen=True)
@@ -95,6 +115,7 @@ METRIC_COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
 CONDITION_COLUMNS = ("field_density_kg_m3", "density_altitude_m", "turbulence", "steady_wind_m_s",
                      "steady_wind_e_m_s", "steady_wind_n_m_s", "steady_wind_u_m_s", "building_coverage")
 
+_ADDED_WITH_SENSING = ("sensing", "map_error", *SENSING_METRICS)
 EPISODE_SCHEMA = pa.schema(
     [pa.field(f.name, _METRIC_TYPES[str(f.type)], False) for f in fields(EpisodeMetrics)]
     + [pa.field("turbulence", pa.string())]
@@ -105,6 +126,17 @@ EPISODE_SCHEMA = pa.schema(
 """One row per episode: the metrics.csv columns (same names and order), the conditions (null where not
 recorded), how its samples were kept ("control" or "full") and how many, the file of the run store holding them
 (relative to the store folder) and the first of them there, and the episode's metadata as JSON."""
+EPISODE_SCHEMA_BEFORE_SENSING = pa.schema([f for f in EPISODE_SCHEMA if f.name not in _ADDED_WITH_SENSING])
+"""The episode table of a store written before the vehicle sensed: read, its rows given the metrics' defaults."""
+
+
+def with_metric_defaults(row: dict[str, Any]) -> dict[str, Any]:
+    """An episode-table row with the columns a store written before the vehicle sensed lacks, at the metrics'
+    defaults (perfect sensing, an exact map)."""
+    for f in fields(EpisodeMetrics):
+        if f.name in _ADDED_WITH_SENSING and f.name not in row:
+            row[f.name] = f.default
+    return row
 
 
 def kept_rows(traj: Trajectory, mode: str, period_rows: int) -> np.ndarray:
@@ -169,7 +201,23 @@ def samples_table(key: EpisodeKey, traj: Trajectory, n_rotors: int, mode: str, p
     decided_t, compute = _decisions_on_rows(t, np.asarray(traj.decision_t_s, float), np.asarray(traj.compute_s, float))
     cols["decision_t_s"] = pa.array(decided_t, pa.float64(), from_pandas=True)
     cols["compute_s"] = pa.array(compute.astype(np.float32), _F32, from_pandas=True)
+    est = traj.estimate_m
+    for i, name in enumerate(ESTIMATE):
+        cols[name] = pa.nulls(m, pa.float64()) if est is None else pa.array(
+            _quantized(np.asarray(est, float)[rows, i], "position", mode))
+    cols[LIDAR_HITS] = _lidar_on_rows(t, traj.lidar_hits_m)
     return pa.table(cols, schema=SAMPLE_SCHEMA)
+
+
+def _lidar_on_rows(t_s: np.ndarray, hits: np.ndarray | None) -> pa.Array:
+    """Each scan's thinned true hit points (hits: (H, 4) [t, x, y, z]) on the first kept row at or after its time,
+    flattened [x, y, z, ...] (null on rows without a scan)."""
+    per_row: list[list[float] | None] = [None] * len(t_s)
+    if hits is not None and len(hits):
+        rows = np.minimum(np.searchsorted(t_s, hits[:, 0] - 1e-9), len(t_s) - 1)
+        for r in np.unique(rows):
+            per_row[int(r)] = np.round(hits[rows == r, 1:4], 2).astype(np.float32).ravel().tolist()
+    return pa.array(per_row, pa.list_(_F32))
 
 
 def _decisions_on_rows(t_s: np.ndarray, decision_t_s: np.ndarray,
@@ -215,7 +263,7 @@ def episode_row(meta: EpisodeMeta, metrics: EpisodeMetrics, conditions: EpisodeC
 
 def metrics_from_row(row: Mapping[str, Any]) -> EpisodeMetrics:
     """The metrics.csv row an episode table's row holds (values exactly as computed in the cell)."""
-    return EpisodeMetrics(**{name: row[name] for name in METRIC_COLUMNS})
+    return EpisodeMetrics(**{name: row[name] for name in METRIC_COLUMNS if name in row})
 
 
 def meta_from_row(row: Mapping[str, Any]) -> EpisodeMeta:
@@ -259,9 +307,26 @@ def episode_from_tables(meta: EpisodeMeta, samples: pa.Table) -> SavedEpisode:
     decided = col("decision_t_s")
     has = ~np.isnan(decided)
     power = col("shaft_power_w")
+    est = None
+    if ESTIMATE[0] in samples.column_names and samples.column(ESTIMATE[0]).null_count < n:
+        est = np.column_stack([col(c) for c in ESTIMATE])
     traj = Trajectory(t_s=t, states=states, rotor_commands=rotors(ROTOR_COMMAND),
                       wind_enu_m_s=np.column_stack([col(c) for c in WIND]), clearance_m=col("clearance_m"),
                       decision_t_s=decided[has], compute_s=col("compute_s")[has], energy_J=meta.energy_J,
                       outcome=meta.outcome, plan_time_s=meta.plan_time_s, detail=meta.detail,
-                      shaft_power_W=None if samples.column("shaft_power_w").null_count == n else power)
+                      shaft_power_W=None if samples.column("shaft_power_w").null_count == n else power,
+                      estimate_m=est, lidar_hits_m=_lidar_from_samples(samples))
     return SavedEpisode(meta, traj)
+
+
+def _lidar_from_samples(samples: pa.Table) -> np.ndarray | None:
+    """The lidar hit points a samples table holds, (H, 4) [t, x, y, z] world ENU (None: none stored)."""
+    if LIDAR_HITS not in samples.column_names or samples.column(LIDAR_HITS).null_count == samples.num_rows:
+        return None
+    t = samples.column("t_s").to_numpy(zero_copy_only=False)
+    out = []
+    for ti, flat in zip(t, samples.column(LIDAR_HITS).to_pylist()):
+        if flat:
+            pts = np.asarray(flat, float).reshape(-1, 3)
+            out.append(np.column_stack([np.full(len(pts), ti), pts]))
+    return np.concatenate(out) if out else None

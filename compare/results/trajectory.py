@@ -107,6 +107,8 @@ class EpisodeMeta:
             before it was recorded): two vehicles that share a name are told apart by it.
         report: the pilot's end-of-episode report (`uam_fdm.pilot.PilotReport`; its type is the
             pilot's `compare.flying.pilots.PilotEntry.report_type`), None when it gives none.
+        sensing, map_error: the labels of the scenario's sensing and map-error levels (files saved before they
+            existed: "perfect", "exact").
     """
 
     key: EpisodeKey
@@ -128,6 +130,8 @@ class EpisodeMeta:
     failure_reason: Outcome | None = None
     vehicle_fingerprint: str = ""
     report: PilotReport | None = None
+    sensing: str = "perfect"
+    map_error: str = "exact"
 
     def __post_init__(self) -> None:
         where = f"episode {self.key.stem}"
@@ -218,7 +222,8 @@ def load_episode(path: Path) -> SavedEpisode:
     power = optional["shaft_power_W"]
     if power is not None and power.shape != (n,):
         raise ValueError(f"{path}: shaft_power_W has shape {power.shape}, expected ({n},) like t_s")
-    traj = Trajectory(**arrays, shaft_power_W=power, energy_J=meta.energy_J, outcome=meta.outcome,
+    columns: dict[str, Any] = dict(arrays)
+    traj = Trajectory(**columns, shaft_power_W=power, energy_J=meta.energy_J, outcome=meta.outcome,
                       plan_time_s=meta.plan_time_s, detail=meta.detail)
     return SavedEpisode(meta, traj)
 
@@ -237,6 +242,9 @@ def meta_to_json(meta: EpisodeMeta) -> dict[str, Any]:
         extra["failure_reason"] = meta.failure_reason.value
     if meta.vehicle_fingerprint:
         extra["vehicle_fingerprint"] = meta.vehicle_fingerprint
+    for level, plain in (("sensing", "perfect"), ("map_error", "exact")):
+        if getattr(meta, level) != plain:  # a file of a run before either existed stays as it was
+            extra[level] = getattr(meta, level)
     return {"key": asdict(meta.key), "map_name": meta.map_name, "vehicle": meta.vehicle,
             "start_m": list(meta.start_m), "goal_m": list(meta.goal_m), "goal_radius_m": meta.goal_radius_m,
             "timeout_s": meta.timeout_s, "collision_radius_m": meta.collision_radius_m, "n_rotors": meta.n_rotors,
@@ -267,7 +275,16 @@ def meta_from_json(m: Mapping[str, Any]) -> EpisodeMeta:
         collision_radius_m=m["collision_radius_m"], n_rotors=m["n_rotors"], energy_J=m["energy_J"],
         outcome=m["outcome"], plan_time_s=m["plan_time_s"], detail=m.get("detail", ""), **context,
         failure_reason=extra.get("failure_reason") or None, report=report,
-        vehicle_fingerprint=str(extra.get("vehicle_fingerprint") or ""))
+        vehicle_fingerprint=str(extra.get("vehicle_fingerprint") or ""),
+        sensing=_label(extra.get("sensing"), "perfect"), map_error=_label(extra.get("map_error"), "exact"))
+
+
+def _label(value: Any, default: str) -> str:
+    """A level's label read from a file: a short plain word (anything else: the default, so a file's text never
+    reaches a page or a path as a label)."""
+    if isinstance(value, str) and re.fullmatch(r"[a-z]{1,16}\+?", value):
+        return value
+    return default
 
 
 def episode_files(run_dir: Path) -> list[Path]:

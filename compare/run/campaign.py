@@ -52,6 +52,7 @@ from compare.results.failures import (
 )
 from compare.results.metrics import label_vehicles, read_metrics_csv, write_metrics_csv
 from compare.results.run_info import (
+    PRIOR_MAPS,
     RUN_INFO_NAME,
     AirEnvelope,
     AtmosphereInfo,
@@ -83,9 +84,19 @@ log = logging.getLogger(__name__)
 FAIRNESS_COMMON = (
     "{every} pilots fly the same vehicle model (6-DOF, rotor dynamics, JSBSim atmosphere) at the same physics "
     "rate, each at its own decision rate (the rates are in run.json), and each decision is timed with the same "
-    "stopwatch. {every} know the vehicle's parameters, the building map, the air density, the forecast turbulence "
-    "level (none/light/moderate/severe) and the full vehicle state at each decision (perfect state estimation). "
-    "{none} knows the wind: {all} fly the same seeded steady wind and turbulence realisation in each episode.")
+    "stopwatch. {every} know the vehicle's parameters and its sensors' specifications, the prior building map (the "
+    "city as surveyed: the city as it stands where the map error is exact), the air density and the forecast "
+    "turbulence level (none/light/moderate/severe). {none} knows the wind: {all} fly the same seeded steady wind "
+    "and turbulence realisation, and meet the same sensor noise, in each episode.")
+FAIRNESS_SENSING = {
+    "perfect": "At perfect sensing each decision gets the full true vehicle state (perfect state estimation).",
+    "sensed": "At {levels} sensing each decision gets the navigation filter's estimate (an error-state EKF fusing "
+              "the IMU, barometer, GNSS receiver and heading aid) with its covariance, as old as the sensing "
+              "latency, and the readings since the previous decision (lidar scans, GNSS fixes, barometer and heading); "
+              "the velocity controller flies on the current estimate.",
+}
+FAIRNESS_TRUTH = ("The true city (with what the prior map lacks) and the true state stay with the simulator, which "
+                  "scores every metric on them.")
 FAIRNESS_CLEARANCE = ("Clearance is measured at every physics step from the vehicle's collision sphere to the "
                       "buildings and the ground.")
 VIDEOS_DIR = "videos"  # the run's animations, one file per animated cell
@@ -320,6 +331,8 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Seque
     out = opts.out_dir
     for sc in scenarios:
         write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
+        if sc.prior_map is not sc.city:  # the pilots' map, where it differs from the city as it stands
+            write_text_atomic(out / "maps" / PRIOR_MAPS / f"{sc.name}.yaml", map_yaml_text(sc.prior_map))
     flown = pilots.ordered(c.pilot for c in cells)
     entries = [pilots.pilot(m) for m in flown]
     at_control_rate = [s.name for s in entries if not s.needs_policy]
@@ -335,7 +348,8 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Seque
         notes=tuple(notes),
         pilots={s.name: PilotInfo(s.label, s.description, records if s.needs_policy else (),
                                  "" if s.name in pilots.PILOTS else s.color) for s in entries},
-        versions=versions(), fairness=fairness(flown), fingerprints=fingerprints, task_set=run_task_set(scenarios))
+        versions=versions(), fairness=fairness(flown, [sc.sensing.label for sc in scenarios]),
+        fingerprints=fingerprints, task_set=run_task_set(scenarios))
     write_run_info(info, out)
 
 
@@ -356,14 +370,21 @@ def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
         atmosphere=AtmosphereInfo(sc.atmosphere.elevation_m, sc.atmosphere.isa_offset_k, round(float(rho), 4)),
         wind=WindInfo(sc.wind.steady_enu_m_s, sc.wind.turbulence.value, sc.wind.shear),
         episodes=len(sc.episodes), seeds=tuple(sorted({c.seed for c in cells})),
-        pilots=tuple(pilots.ordered(c.pilot for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz)
+        pilots=tuple(pilots.ordered(c.pilot for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz,
+        sensing=sc.sensing.label, map_error=sc.map_error.label)
 
 
-def fairness(flown: Sequence[str]) -> str:
-    """The run's fairness statement for the pilots flown: what every pilot shares, then what each is given."""
+def fairness(flown: Sequence[str], sensing_levels: Sequence[str] = ("perfect",)) -> str:
+    """The run's fairness statement for the pilots flown at the sensing levels flown: what every pilot shares, what
+    each decision gets at each level, then what each pilot is given."""
     every, none, all_ = ("Both", "Neither", "both") if len(flown) <= 2 else ("All", "None", "all")
     common = FAIRNESS_COMMON.format(every=every, none=none, all=all_)
-    return " ".join([common, *(pilots.pilot(m).given for m in pilots.ordered(flown)), FAIRNESS_CLEARANCE])
+    levels = sorted(set(sensing_levels))
+    sensed = [lv for lv in levels if lv.rstrip("+") != "perfect"]
+    by_level = ([FAIRNESS_SENSING["perfect"]] if len(sensed) < len(levels) else []) + (
+        [FAIRNESS_SENSING["sensed"].format(levels=" and ".join(sensed))] if sensed else [])
+    return " ".join([common, *by_level, FAIRNESS_TRUTH, *(pilots.pilot(m).given for m in pilots.ordered(flown)),
+                     FAIRNESS_CLEARANCE])
 
 
 def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:

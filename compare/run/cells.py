@@ -26,7 +26,8 @@ from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, xy
 from compare.scenarios.scenario import Scenario
 from uam_fdm.air.atmosphere import density_altitude_m
 from uam_fdm.air.wind import WindField, probe_heights_up_to, turbulence_airspeed_m_s
-from uam_fdm.pilot import Pilot, World
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.pilot import Pilot, Truth, World
 from uam_fdm.vehicle.dynamics import VehicleDynamics
 
 
@@ -57,6 +58,7 @@ class CellRunner:
         self.store = store
         self._conditions: dict[int, EpisodeConditions] = {}
         self._worlds: dict[int, World] = {}
+        self._truths: dict[int, Truth] = {}
         self._dynamics: dict[tuple, VehicleDynamics] = {}
         self._pilots: dict[tuple[str, str], Pilot] = {}
 
@@ -67,9 +69,26 @@ class CellRunner:
             key = (sc.vehicle.fingerprint(), sc.physics_hz, sc.control_hz)
             if key not in self._dynamics:
                 self._dynamics[key] = VehicleDynamics(sc.vehicle, sc.physics_hz, sc.control_hz)
-            # the forecast turbulence level (a category) is the pilots' to know; its gusts are not
-            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.city, sc.air, sc.wind.turbulence)
+            # the forecast turbulence level (a category) is the pilots' to know; its gusts are not; the prior map is
+            # theirs, the city as it stands is not
+            sensing = None if sc.sensing.perfect else sc.sensing
+            self._worlds[si] = World(sc.vehicle, self._dynamics[key], sc.prior_map, sc.air, sc.wind.turbulence,
+                                     sensing=sensing)
         return self._worlds[si]
+
+    def truth(self, si: int, sensing_seed: int) -> Truth:
+        """What the simulator holds in scenario `si` (one ray caster and one map of the unmapped per scenario)."""
+        if si not in self._truths:
+            sc = self.scenarios[si]
+            ids = set(sc.unmapped_ids)
+            unmapped = [b for b in sc.city.buildings if b.id in ids]
+            near = (BuildingMap(unmapped, sc.city.bounds_min_m, sc.city.bounds_max_m, name="unmapped")
+                    if unmapped else None)
+            self._truths[si] = Truth(sc.city, sc.sensing, 0, near)
+        base = self._truths[si]
+        if not base.perfect:
+            base.ray_caster()  # built once, shared by the scenario's cells
+        return Truth(base.city, base.sensing, sensing_seed, base.unmapped, base.caster)
 
     def pilot(self, name: str, sc: Scenario) -> Pilot:
         """The pilot `name` flying in scenario `sc` (a pilot that flies a policy: the one for its vehicle)."""
@@ -118,13 +137,15 @@ class CellRunner:
         p = sc.vehicle
         wind_seed = cell_seed(sc.name, c.episode, c.seed, "wind")
         agent_seed = cell_seed(sc.name, c.episode, c.seed, "agent")
+        sensing_seed = cell_seed(sc.name, c.episode, c.seed, "sensing")
         # one reference probe airspeed per episode; turbulence rungs up to the flight volume's ceiling
         wind_speed = float(np.linalg.norm(sc.wind.steady_enu_m_s))
         airspeed = turbulence_airspeed_m_s(p.controller.max_speed_m_s, wind_speed)
         heights = probe_heights_up_to(float(sc.city.bounds_max_m[2]))
         wind = WindField.from_conditions(sc.wind, wind_seed, task.timeout_s + 1.0, airspeed, heights)
         pilot = self.pilot(c.pilot, sc)
-        traj = run_episode(world, pilot, task, wind, agent_seed, pilot_name=c.pilot)
+        traj = run_episode(world, pilot, task, wind, agent_seed, pilot_name=c.pilot,
+                           truth=self.truth(c.scenario, sensing_seed))
         report = pilot.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
         key = EpisodeKey(sc.name, c.episode, c.pilot, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
@@ -137,5 +158,5 @@ class CellRunner:
                            detail=traj.detail, wind_seed=wind_seed, agent_seed=agent_seed,
                            mean_decision_ms=float(np.mean(traj.compute_s) * 1e3) if len(traj.compute_s) else None,
                            failure_reason=None if report is None else report.failure_reason(traj.outcome),
-                           report=report)
+                           report=report, sensing=sc.sensing.label, map_error=sc.map_error.label)
         return meta, traj

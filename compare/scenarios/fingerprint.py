@@ -26,7 +26,8 @@ from uam_fdm.files.version import code_version
 
 # Words for the parts of a scenario's fingerprint, in the error that lists differences.
 SCENARIO_PARTS = {"map": "map (buildings, bounds, no-fly zones)", "vehicle": "vehicle parameters",
-                  "conditions": "atmosphere, wind or rates", "episodes": "episodes (start, goal, radius, timeout)"}
+                  "conditions": "atmosphere, wind or rates", "episodes": "episodes (start, goal, radius, timeout)",
+                  "sensing": "sensing (sensors, latency)"}
 
 
 def _plain(value: Any) -> Any:
@@ -58,15 +59,23 @@ def scenario_fingerprint(sc: Scenario) -> dict[str, str]:
     """Hashes of what a scenario's cells are flown from, one per part (keys of SCENARIO_PARTS).
 
     Names, descriptions and file paths are left out (they do not change a flight); seeds and pilots
-    too: they name cells (the episode files), so a resume with more seeds only adds cells.
+    too: they name cells (the episode files), so a resume with more seeds only adds cells. The prior map (when it
+    differs from the city) joins the map's hash and "sensing" is a part only when the vehicle senses less than
+    perfectly, so a scenario without map error or sensing keeps the hashes it had before they existed.
     """
     city = sc.city
-    return {
-        "map": _digest([list(city.buildings), city.bounds_min_m, city.bounds_max_m, list(city.no_fly)]),
+    world = [list(city.buildings), city.bounds_min_m, city.bounds_max_m, list(city.no_fly)]
+    if sc.prior_map is not city:
+        world.append(list(sc.prior_map.buildings))
+    out = {
+        "map": _digest(world),
         "vehicle": sc.vehicle.fingerprint(),
         "conditions": _digest([sc.atmosphere, sc.wind, sc.physics_hz, sc.control_hz]),
         "episodes": _digest([[ep.index, ep.task] for ep in sc.episodes]),
     }
+    if not sc.sensing.perfect:
+        out["sensing"] = _digest(sc.sensing)
+    return out
 
 
 def policy_fingerprint(folder: Path) -> dict[str, str]:

@@ -45,6 +45,13 @@ from uam_fdm.air.atmosphere import (
 from uam_fdm.air.shear import EXPONENT_RANGE, REFERENCE_HEIGHT_RANGE_M, ROUGHNESS_RANGE_M, ShearLaw, WindShear
 from uam_fdm.air.wind import TurbulenceLevel, WindConditions
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.city.map_error import (
+    KEEP_CLEAR_MARGIN_M,
+    MapErrorConfig,
+    apply_map_error,
+    map_error_from_config,
+    unmapped_from_config,
+)
 from uam_fdm.city.mapfile import map_from_config
 from uam_fdm.errors import ConfigError
 from uam_fdm.files.strict import (
@@ -59,6 +66,8 @@ from uam_fdm.files.strict import (
 from uam_fdm.files.yamlfile import load_yaml_file
 from uam_fdm.pilot import Task
 from uam_fdm.renamed import RenamedWarning
+from uam_fdm.sensing.config import sensing_from_config
+from uam_fdm.sensing.specs import SensingConfig, sensing_preset
 from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 
@@ -76,7 +85,7 @@ MAX_SEED = 2**32 - 1  # OMPL and most RNG seeding APIs take unsigned 32-bit seed
 MAX_NAME_CHARS = 100
 
 _TOP_KEYS = ("name", "description", "map", "bounds", "vehicle", "atmosphere", "episodes", "goal_radius_m",
-             "timeout_s", "seeds", "pilots", "physics_hz", "control_hz")
+             "timeout_s", "seeds", "pilots", "physics_hz", "control_hz", "unmapped", "map_error", "sensing")
 OLD_PILOTS_KEY = "methods"  # the key `pilots` before its rename: still read, with a warning, until the next release
 _REQUIRED_KEYS = ("name", "map", "vehicle", "episodes")
 _ATMOSPHERE_KEYS = ("elevation_m", "isa_offset_k", "wind_mps", "wind_reference_height_m", "wind_shear", "turbulence")
@@ -105,9 +114,15 @@ class Scenario:
         source: path of the file it came from (or the name given to `scenario_from_dict`).
         vehicle: the vehicle's parameters.
         vehicle_name: the preset name when the scenario names a preset, else `vehicle.name`.
-        city: the buildings, bounds and no-fly zones (ENU metres).
+        city: the TRUE world: buildings (with the `unmapped` ones and the generated cranes and masts), bounds
+            and no-fly zones (ENU metres); what the vehicle collides with and what scores.
         atmosphere: field elevation [m MSL] and ISA temperature offset [K].
         air: the atmosphere table flown in (`flight_atmosphere`), built once when the scenario is loaded.
+        prior_map: the map the pilots are given (`uam_fdm.city.map_error`): `city` itself (the same object) when
+            the scenario has no map error and no unmapped buildings.
+        unmapped_ids: ids of `city`'s buildings absent from `prior_map` (unmapped, missing, cranes and masts).
+        map_error: how `prior_map` differs from `city` (the `exact` preset by default).
+        sensing: what the vehicle senses (the `perfect` level for its mass by default).
         wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
         episodes: the tasks, in file order.
         seeds: the seeds each episode is flown with.
@@ -132,6 +147,10 @@ class Scenario:
     physics_hz: float
     control_hz: float
     air: Atmosphere
+    prior_map: BuildingMap
+    unmapped_ids: tuple[int, ...]
+    map_error: MapErrorConfig
+    sensing: SensingConfig
     raw: dict = field(default_factory=dict)
     task_set: TaskSetInfo | None = None
 
@@ -181,6 +200,9 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     name = _name(data["name"], source)
     description = _optional(data, "description", "", source, string)
     vehicle, vehicle_name = _vehicle(data["vehicle"], source, Path(base_dir))
+    sensing = (sensing_from_config(data["sensing"], vehicle.mass_kg, source) if "sensing" in data
+               else sensing_preset("perfect", vehicle.mass_kg))
+    map_error = _optional(data, "map_error", MapErrorConfig(), source, map_error_from_config)
     if "bounds" in data and data["bounds"] is None:
         raise ConfigError(source, "bounds", "must be a mapping {min: [x, y, z], max: [x, y, z]}, got None")
     city = map_from_config(data["map"], data.get("bounds"), source, Path(base_dir))
@@ -190,13 +212,17 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
     flown = _optional(data, pilots_key, DEFAULT_PILOTS, source, _pilots)
     physics_hz, control_hz = _rates(data, source, vehicle)
+    city, prior, unmapped_ids = _true_and_prior(data, source, city, map_error, seeds, vehicle)
     episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
+    if prior is not city:
+        _check_prior(episodes, prior, vehicle.collision_radius_m, source)
     air = flight_atmosphere(atmosphere, city)
     _check_hover(episodes, vehicle, air, source)
     return Scenario(name=name, description=description, source=source, vehicle=vehicle,
                     vehicle_name=vehicle_name, city=city, atmosphere=atmosphere, wind=wind,
                     episodes=episodes, seeds=seeds, pilots=flown, physics_hz=physics_hz,
-                    control_hz=control_hz, air=air, raw=copy.deepcopy(dict(data)))
+                    control_hz=control_hz, air=air, prior_map=prior, unmapped_ids=unmapped_ids,
+                    map_error=map_error, sensing=sensing, raw=copy.deepcopy(dict(data)))
 
 
 def flight_atmosphere(conditions: AtmosphereConditions, city: BuildingMap) -> Atmosphere:
@@ -435,6 +461,43 @@ def _check_point(p: tuple[float, float, float], city: BuildingMap, radius: float
     if city.in_no_fly(pts, radius)[0]:
         raise ConfigError(source, key, f"{list(p)} is in a no-fly zone (or within the vehicle's collision radius "
                                        f"{radius:g} m of one)")
+
+
+def _true_and_prior(data: Mapping, source: str, world: BuildingMap, config: MapErrorConfig, seeds: tuple[int, ...],
+                    vehicle: VehicleParams) -> tuple[BuildingMap, BuildingMap, tuple[int, ...]]:
+    """The true city, the pilots' prior map and the ids only the truth has, from `map` (`world`), `unmapped` and
+    `map_error` (drawn from `map_error.seed`, else the first of `seeds`, clear of every start and goal by the
+    collision radius plus `KEEP_CLEAR_MARGIN_M`). Without either key: (world, world, ())."""
+    if "unmapped" not in data and config.exact:
+        return world, world, ()
+    unmapped = unmapped_from_config(data.get("unmapped", []), source, world)
+    keep = _episode_points(data["episodes"], source)
+    seed = seeds[0] if config.seed is None else config.seed
+    result = apply_map_error(world, unmapped, config, seed, keep, vehicle.collision_radius_m + KEEP_CLEAR_MARGIN_M)
+    return result.truth, result.prior, result.unmapped_ids
+
+
+def _episode_points(value: Any, source: str) -> list[tuple[float, float, float]]:
+    """Every well-formed start and goal of `episodes` (ENU m); the rest is left for `_episodes` to name."""
+    points = []
+    for i, item in enumerate(value if isinstance(value, list) else []):
+        for k in ("start", "goal"):
+            if isinstance(item, Mapping) and k in item:
+                points.append(_vector3(item[k], source, f"episodes[{i}].{k}", "m, ENU"))
+    return points
+
+
+def _check_prior(episodes: tuple[ScenarioEpisode, ...], prior: BuildingMap, radius: float, source: str) -> None:
+    """Raise when a start or goal touches a building of the prior map: a pilot would believe it starts (or must
+    end) inside one."""
+    for ep in episodes:
+        for k, p in (("start", ep.task.start_m), ("goal", ep.task.goal_m)):
+            c = prior.clearance(np.array([p], dtype=float), radius)
+            if c.distance_m[0] <= 0.0 and c.building_id[0] >= 0:
+                raise ConfigError(source, f"episodes[{ep.index}].{k}",
+                                  f"{list(p)} is within the vehicle's collision radius {radius:g} m of building "
+                                  f"{int(c.building_id[0])} of the prior map (the map the pilots are given: map "
+                                  f"with map_error and without unmapped)")
 
 
 def _check_hover(episodes: tuple[ScenarioEpisode, ...], vehicle: VehicleParams, air: Atmosphere, source: str) -> None:

@@ -374,6 +374,14 @@ class BuildingMap:
         bid = np.where(use_b, self._part_ids[np.maximum(part, 0)] if len(self._parts) else -1, -1)
         return Clearance(_frozen(dist), _frozen(bid.astype(np.int64)), _frozen(near))
 
+    def obstacle_clearance_m(self, points_m: np.ndarray, radius_m: float = 0.0) -> np.ndarray:
+        """Signed distance from spheres to the nearest obstacle, the ground left out [m] (N,): the clearance to one
+        kind of obstacle (e.g. those a prior map lacks); +inf for a map without obstacles."""
+        p = _as_points(points_m)
+        if not self._parts:
+            return np.full(len(p), np.inf)
+        return clearance_np.nearest_parts(p, self._packed)[0] - _radius(radius_m)
+
     def surface_height_m(self, points_m: np.ndarray) -> np.ndarray:
         """Height of the surface directly below each point [m]: the highest roof at or below the point
         whose footprint holds its (x, y), else the ground (0). Points (N, 3), ENU metres -> (N,)."""

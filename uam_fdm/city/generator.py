@@ -308,12 +308,15 @@ def map_yaml_text(bmap: BuildingMap, header: Sequence[str] = ()) -> str:
     lines.append(f"bounds: {{min: [{', '.join(_fmt(v) for v in lo)}], max: [{', '.join(_fmt(v) for v in hi)}]}}")
     lines.append("map:")
     lines.append("  buildings:")
-    for b in bmap.buildings:
+    for i, b in enumerate(bmap.buildings):
         if not isinstance(b, Building):
             raise TypeError("only box buildings can be written as an explicit building list")
+        # the id where it is not the index (it identifies a building across a city and its prior map), the base
+        # where the box is raised (a crane's jib): a map without either is written as it always was
+        extra = (f", base: {_fmt(b.base_m)}" if b.base_m > 0.0 else "") + (f", id: {b.id}" if b.id != i else "")
         lines.append(f"  - {{center: [{_fmt(b.center_xy_m[0])}, {_fmt(b.center_xy_m[1])}], "
                      f"size: [{_fmt(b.size_xy_m[0])}, {_fmt(b.size_xy_m[1])}], height: {_fmt(b.height_m)}, "
-                     f"yaw_deg: {_fmt(math.degrees(b.yaw_rad))}}}")
+                     f"yaw_deg: {_fmt(math.degrees(b.yaw_rad))}{extra}}}")
     return "\n".join(lines) + "\n"
 
 

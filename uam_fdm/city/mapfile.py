@@ -37,7 +37,8 @@ MAPS_DIR = citygen.MAPS_DIR  # one folder of shipped maps: the generator writes 
 _SOURCES = ("buildings", "generator", "geojson", "named")
 _GEOJSON_OPTIONS = ("height_key", "origin_lonlat")
 _MAP_KEYS = set(_SOURCES) | set(_GEOJSON_OPTIONS) | {"no_fly"}
-_BUILDING_KEYS = {"center", "size", "height", "yaw_deg"}
+_BUILDING_KEYS = {"center", "size", "height", "yaw_deg", "base", "id"}
+MAX_BUILDING_ID = 10**9
 _NO_FLY_KEYS = {"center", "size", "z_range", "yaw_deg"}
 
 
@@ -200,15 +201,35 @@ def _yaw_deg(item: Mapping, source: str, key: str) -> float:
 
 
 def _building(item: Any, i: int, source: str, bounds: tuple[list[float], list[float]]) -> Building:
+    """`map.buildings[i]`: its id is `id` when given (a run folder's map keeps the city's ids, so a prior map's
+    buildings can be matched to the truth's; a crane's mast and jib share one), else its index."""
     key = f"map.buildings[{i}]"
-    item = mapping(item, source, key, _BUILDING_KEYS, ("center", "size", "height"))
+    building_id = i
+    if isinstance(item, Mapping) and "id" in item:
+        value = item["id"]
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_BUILDING_ID:
+            raise ConfigError(source, f"{key}.id", f"must be an integer in [0, {MAX_BUILDING_ID}], got {value!r}")
+        building_id = value
+        item = {k: v for k, v in item.items() if k != "id"}
+    return building_from_config(item, key, building_id, source, bounds)
+
+
+def building_from_config(item: Any, key: str, building_id: int, source: str,
+                         bounds: tuple[list[float], list[float]]) -> Building:
+    """One box building in the `map.buildings` format (`{center, size, height, yaw_deg, base}`: `base` [m] raises
+    the box off the ground, e.g. a crane's jib), its footprint inside the (min, max) bounds [m]; errors name `key`
+    (e.g. `unmapped[3]`). Its id is `building_id` (an `id` key is the caller's to read: here it is refused)."""
+    item = mapping(item, source, key, _BUILDING_KEYS - {"id"}, ("center", "size", "height"))
     center = numbers(item["center"], 2, source, f"{key}.center")
     size = _size(item["size"], source, f"{key}.size")
     height = item["height"]
     if not (is_finite_number(height) and height > 0):
         raise ConfigError(source, f"{key}.height", f"must be a positive number of metres, got {height!r}")
-    b = Building(i, (center[0], center[1]), (size[0], size[1]), float(height),
-                 math.radians(_yaw_deg(item, source, key)))
+    base = item.get("base", 0.0)
+    if not (is_finite_number(base) and 0.0 <= base < height):
+        raise ConfigError(source, f"{key}.base", f"must be a number of metres in [0, height {height!r}), got {base!r}")
+    b = Building(building_id, (center[0], center[1]), (size[0], size[1]), float(height),
+                 math.radians(_yaw_deg(item, source, key)), float(base))
     fp = b.footprint_xy_m()
     lo, hi = bounds
     if fp[:, 0].min() < lo[0] or fp[:, 1].min() < lo[1] or fp[:, 0].max() > hi[0] or fp[:, 1].max() > hi[1]:

@@ -116,6 +116,46 @@ def _period_functions(p: VehicleParams, rk4: ca.Function, ctrl: ca.Function,
     return period_rotor, period_velocity
 
 
+N_SEEN_OFFSET = 13  # [δp (3) m, δv (3) m/s, δq (4) body-frame quaternion, δω (3) rad/s]: estimate minus truth
+
+
+def _quat_product(a: ca.MX, b: ca.MX) -> ca.MX:
+    """Hamilton product a ⊗ b of quaternions [w, x, y, z]."""
+    aw, av, bw, bv = a[0], a[1:4], b[0], b[1:4]
+    return ca.vertcat(aw * bw - ca.dot(av, bv), aw * bv + bw * av + ca.cross(av, bv))
+
+
+def _period_velocity_seen_function(p: VehicleParams, rk4: ca.Function, ctrl: ca.Function, n_sub: int) -> ca.Function:
+    """The control period under the velocity controller flying on the navigation estimate, not the truth.
+
+    The controller sees, at every physics step, the true state moved by the estimate's error at the period's start
+    (`offset`: position and velocity added, the attitude error δq = q_true⁻¹ ⊗ q_est applied in the body frame, the
+    rate error added): the filter's error changes over seconds, a period lasts tens of milliseconds, so holding it
+    over the period is what a flight controller running on its estimator's output does between updates.
+    """
+    lay = StateLayout(p.n_rotors)
+    x0 = ca.MX.sym("x", lay.nx)
+    xi0 = ca.MX.sym("xi", N_CTRL_STATE)
+    cmd = ca.MX.sym("cmd", N_CMD)
+    env = ca.MX.sym("env", N_ENV)
+    dt = ca.MX.sym("dt")
+    offset = ca.MX.sym("offset", N_SEEN_OFFSET)
+    energy: ca.MX | int  # the sum of the substeps' energies, starting from 0
+    x, xi, states, cmds, energy = x0, xi0, [], [], 0
+    for _ in range(n_sub):
+        q_seen = _quat_product(x[lay.quat], offset[6:10])
+        seen = ca.vertcat(x[lay.pos] + offset[0:3], x[lay.vel] + offset[3:6], q_seen / ca.norm_2(q_seen),
+                          x[lay.rate] + offset[10:13], x[lay.rotor])
+        u_k, xi = ctrl(seen, xi, cmd, env, dt)
+        x, e = rk4(x, u_k, env, dt)
+        states.append(x)
+        cmds.append(u_k)
+        energy += e
+    return ca.Function("period_velocity_seen", [x0, xi0, cmd, env, dt, offset],
+                       [ca.horzcat(*states), ca.horzcat(*cmds), xi, energy],
+                       ["x", "xi", "cmd", "env", "dt", "offset"], ["states", "rotor_commands", "xi_next", "energy_J"])
+
+
 class VehicleDynamics:
     """All dynamics Functions of one vehicle at one physics/control rate, compiled when possible.
 
@@ -149,6 +189,8 @@ class VehicleDynamics:
         vm = {f.name(): f for f in (model.dynamics, model.shaft_power, model.rk4_step, model.jacobians,
                                     ctrl, period_rotor.expand(), period_velocity.expand())}
         self.model = model
+        self._compiled, self._cache_dir = compiled, cache_dir
+        self._rk4, self._ctrl = model.rk4_step, ctrl
         lib = None
         if compiled is not False:
             name = f"uam_{params.fingerprint()}_{self.n_substeps}"
@@ -163,8 +205,23 @@ class VehicleDynamics:
                 self._callers[fname] = BatchCaller(lib.path, vm[fname])
         self._maps: dict[tuple[str, int], ca.Function] = {}
 
+    def _add_seen_period(self) -> None:
+        """Build (and compile, in its own library, when the model is compiled) `period_velocity_seen` on first use:
+        a run where every pilot flies on the truth never builds it."""
+        f = _period_velocity_seen_function(self.params, self._rk4, self._ctrl, self.n_substeps).expand()
+        lib = None
+        if self.backend == "compiled":
+            lib = compile_functions([f], f"uam_seen_{self.params.fingerprint()}_{self.n_substeps}", self._cache_dir)
+        if lib is None:
+            self.functions["period_velocity_seen"] = f
+        else:
+            self.functions["period_velocity_seen"] = lib.functions["period_velocity_seen"]
+            self._callers["period_velocity_seen"] = BatchCaller(lib.path, f)
+
     def _eval(self, name: str, n: int, *inputs) -> list[np.ndarray]:
         """Evaluate `name` for n vehicles; each output as (n, rows*cols), column-major per vehicle."""
+        if name == "period_velocity_seen" and name not in self.functions:
+            self._add_seen_period()
         caller = self._callers.get(name)
         if caller is not None:
             return caller(n, *inputs)
@@ -228,6 +285,17 @@ class VehicleDynamics:
         r = self.period_velocity_batch(np.asarray(x, float)[None], np.asarray(ctrl_state, float)[None],
                                        np.asarray(cmd, float)[None], np.asarray(env, float)[None])
         return PeriodResult(r.states[0], r.rotor_commands[0], r.ctrl_state[0], float(np.asarray(r.energy_J)[0]))
+
+    def period_velocity_seen(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, env: np.ndarray,
+                             offset: np.ndarray) -> PeriodResult:
+        """`period_velocity` with the controller flying on the estimate: `offset` (`N_SEEN_OFFSET`,) is the
+        estimate's error at the period's start ([δp m, δv m/s ENU, δq body quaternion, δω rad/s])."""
+        n = 1
+        states, cmds, xi, energy = self._eval("period_velocity_seen", n, np.asarray(x, float)[None],
+                                              np.asarray(ctrl_state, float)[None], np.asarray(cmd, float)[None],
+                                              np.asarray(env, float)[None], self.dt_s, np.asarray(offset, float)[None])
+        return PeriodResult(states.reshape(self.n_substeps, self.layout.nx),
+                            cmds.reshape(self.n_substeps, self.params.n_rotors), xi[0], float(energy[0, 0]))
 
     # -- batched -------------------------------------------------------------------------------
     def period_rotor_batch(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> PeriodResult:

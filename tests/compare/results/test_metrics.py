@@ -154,12 +154,14 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
 
 def test_a_metrics_csv_without_the_tracker_columns_still_reads(tmp_path):
     lines = write_metrics_csv([row("rrt_mpc")], tmp_path / "new.csv").read_text().splitlines()
-    n = len(COLUMNS) - len(M.TRACKER_METRICS) - 1
-    assert COLUMNS[n:] == (*M.TRACKER_METRICS, "vehicle_fingerprint")  # the columns older files lack are last
+    later = (*M.TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *M.SENSING_METRICS)
+    n = len(COLUMNS) - len(later)
+    assert COLUMNS[n:] == later  # the columns older files lack are last
     old = tmp_path / "old.csv"
     old.write_text("\n".join(",".join(line.split(",")[:n]) for line in lines) + "\n")
     (r,) = read_metrics_csv(old)
     assert r.planner_margin_m != r.planner_margin_m and r.plan_time_s == 0.5
+    assert (r.sensing, r.map_error) == ("perfect", "exact") and math.isnan(r.gnss_availability)
 
 
 def test_tracker_metrics_are_summarised_but_not_paired():
@@ -284,7 +286,8 @@ def test_csv_columns_are_the_contract_order():
         "plan_time_s", "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
         "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
         "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min",
-        "vehicle_fingerprint")
+        "vehicle_fingerprint", "sensing", "map_error", "est_error_h_rms_m", "est_error_h_max_m", "est_error_v_rms_m",
+        "est_error_v_max_m", "gnss_availability", "min_clearance_unmapped_m")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):

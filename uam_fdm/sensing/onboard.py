@@ -1,0 +1,278 @@
+"""The vehicle's sensors and navigation filter, stepped beside the simulator: truth in, belief out.
+
+Each control period the runner hands `Onboard` the true physics-rate states it just flew; `Onboard` turns them
+into what the vehicle's sensors report and fuses them in the navigation filter:
+
+* the IMU samples the specific force and body rates every `round(physics_hz / imu.rate_hz)` physics steps (the
+  mean acceleration over the sample's steps, as a real IMU's anti-aliasing filter averages), and the filter
+  predicts with each sample;
+* the barometer, heading aid, GNSS receiver and lidar sample at the period's end when their next epoch has come
+  (so none samples faster than the control rate; the shipped rates are all at or below it), and the filter fuses
+  the readings in that order;
+* the filter fuses each reading at its own time and hands out the estimate propagated to the present with the
+  IMU: EKF2's design (a delayed fusion horizon and an output predictor), so neither a decision nor the velocity
+  controller (`controller_offset`) acts on a stale state;
+* the readings a decision receives (lidar scans, GNSS fixes, barometer and heading) are those at least
+  `latency_s` old: what the perception stack has had time to deliver.
+
+Nothing here is a pilot's: `Observation` carries only the estimate, its covariance and the readings.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from uam_fdm.air.atmosphere import Atmosphere
+from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.pilot import Observation, SensorData
+from uam_fdm.sensing.baro import Barometer
+from uam_fdm.sensing.gnss import Gnss
+from uam_fdm.sensing.heading import HeadingSensor
+from uam_fdm.sensing.imu import Imu
+from uam_fdm.sensing.lidar import Lidar
+from uam_fdm.sensing.nav_filter import NavEstimate, NavFilter
+from uam_fdm.sensing.raycast import RayCaster
+from uam_fdm.sensing.specs import SensingConfig
+
+GRAVITY_M_S2 = 9.80665
+LIDAR_HITS_KEPT = 96  # true hit points kept per scan for the viewer's lidar layer (a thinned, even subset)
+_STREAMS = ("imu", "baro", "gnss", "heading", "lidar", "initial")
+
+
+@dataclass(frozen=True)
+class NavRecord:
+    """What the onboard estimation did over an episode (the simulator's record: it holds the truth's errors).
+
+    Attributes:
+        t_s: (E,) times of the estimates, one per control period's end [s].
+        position_m: (E, 3) estimated position, world ENU [m].
+        error_m: (E, 3) estimated minus true position, world ENU [m].
+        sigma_m: (E, 3) the filter's standard deviation of each position component [m].
+        gnss_epochs: GNSS epochs in the episode; gnss_fixes: those with a fix.
+        satellites: (G,) satellites tracked at each epoch.
+        lidar_hits: (H, 4) [t_s, x, y, z] a thinned set of the lidar's true hit points, world ENU [m].
+    """
+
+    t_s: np.ndarray
+    position_m: np.ndarray
+    error_m: np.ndarray
+    sigma_m: np.ndarray
+    gnss_epochs: int
+    gnss_fixes: int
+    satellites: np.ndarray
+    lidar_hits: np.ndarray
+
+    @property
+    def gnss_availability(self) -> float:
+        """Share of GNSS epochs with a fix (NaN without epochs)."""
+        return self.gnss_fixes / self.gnss_epochs if self.gnss_epochs else math.nan
+
+
+class Onboard:
+    """One vehicle's sensors and navigation filter over one episode.
+
+    Args:
+        config: the sensing level (not `perfect`: a perfect vehicle has nothing onboard to simulate).
+        city: the TRUE city (lines of sight, lidar hits).
+        caster: a ray caster over `city` (built once per city by the caller).
+        atmosphere: the true atmosphere (the barometer reads its pressure).
+        x0: the true initial state (13 + n,); the vehicle waits on the pad at t0_s.
+        physics_dt_s: physics step [s].
+        seed: the episode's sensing seed (every sensor's noise and the initial estimate).
+    """
+
+    def __init__(self, config: SensingConfig, city: BuildingMap, caster: RayCaster, atmosphere: Atmosphere,
+                 x0: np.ndarray, physics_dt_s: float, seed: int, t0_s: float = 0.0) -> None:
+        if config.perfect:
+            raise ValueError("perfect sensing simulates nothing onboard: fly on the truth instead")
+        rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6))))
+        self.config, self.dt = config, float(physics_dt_s)
+        self.imu = Imu(config.imu, rngs["imu"])
+        self.baro = Barometer(config.baro, atmosphere, float(x0[2]), rngs["baro"])
+        self.gnss = Gnss(config.gnss, city, caster if config.gnss.urban_canyon else None, rngs["gnss"])
+        self.heading = HeadingSensor(config.heading, rngs["heading"])
+        self.lidar = Lidar(config.lidar, caster, rngs["lidar"])
+        self.imu_stride = max(1, int(round(1.0 / (config.imu.rate_hz * self.dt))))
+        first_baro = self.baro.measure(t0_s, float(x0[2]))
+        self.filter = NavFilter(config.imu, config.baro, config.heading,
+                                initial_estimate(config, x0, t0_s, first_baro.altitude_m, rngs["initial"]))
+        self._rotors = np.asarray(x0[13:], float).copy()
+        self._rate = np.asarray(x0[10:13], float).copy()
+        self._step = 0  # physics steps flown
+        self._pending: list[tuple[float, np.ndarray]] = []  # (accel ENU, rate body) of steps since the last IMU sample
+        self._next = {name: t0_s for name in ("baro", "heading", "gnss", "lidar")}
+        self._readings: deque[tuple[float, str, object]] = deque()
+        self._t: list[float] = []
+        self._pos: list[np.ndarray] = []
+        self._err: list[np.ndarray] = []
+        self._sig: list[np.ndarray] = []
+        self._sats: list[int] = []
+        self._fixes = 0
+        self._hits: list[np.ndarray] = []
+        self._remember(t0_s, x0)
+
+    # ---- the truth of one control period in ------------------------------------------------------------------
+    def advance(self, x_start: np.ndarray, states: np.ndarray, t_start_s: float) -> None:
+        """Sense and fuse one flown control period: `states` (n_sub, nx) after each physics step from `x_start`."""
+        v = np.vstack([x_start[3:6], states[:, 3:6]])
+        accel = np.diff(v, axis=0) / self.dt  # mean ENU acceleration over each step [m/s²]
+        for k in range(states.shape[0]):
+            self._pending.append((accel[k], states[k, 10:13]))
+            self._step += 1
+            if self._step % self.imu_stride == 0:
+                self._imu_sample(t_start_s + (k + 1) * self.dt, states[k])
+        x_end, t_end = states[-1], t_start_s + states.shape[0] * self.dt
+        self._rotors, self._rate = x_end[13:].copy(), x_end[10:13].copy()
+        self._sense(x_end, t_end)
+        self._remember(t_end, x_end)
+
+    def _imu_sample(self, t_s: float, x: np.ndarray) -> None:
+        a = np.mean([p[0] for p in self._pending], axis=0)
+        w = np.mean([p[1] for p in self._pending], axis=0)
+        self._pending.clear()
+        rot = _rotation(x[6:10])
+        force = rot.T @ (a + np.array([0.0, 0.0, GRAVITY_M_S2]))
+        samples = self.imu.measure(np.array([t_s]), force[None], w[None])
+        self.filter.predict(samples)
+        self._last_gyro = samples
+
+    def _due(self, name: str, rate_hz: float, t_s: float) -> bool:
+        if t_s + 1e-9 < self._next[name]:
+            return False
+        self._next[name] += 1.0 / rate_hz * max(1, math.floor((t_s - self._next[name]) * rate_hz + 1e-9) + 1)
+        return True
+
+    def _sense(self, x: np.ndarray, t_s: float) -> None:
+        cfg = self.config
+        if self._due("baro", cfg.baro.rate_hz, t_s):
+            reading = self.baro.measure(t_s, float(x[2]))
+            self.filter.update_baro(reading)
+            self._readings.append((t_s, "baro", reading))
+        if self._due("heading", cfg.heading.rate_hz, t_s):
+            h = self.heading.measure(t_s, _yaw(x[6:10]))
+            self.filter.update_heading(h)
+            self._readings.append((t_s, "heading", h))
+        if self._due("gnss", cfg.gnss.rate_hz, t_s):
+            fix = self.gnss.measure(t_s, x[0:3], x[3:6])
+            self._sats.append(int(self.gnss.last_satellites))
+            if fix is not None:
+                self._fixes += 1
+                self.filter.update_gnss(fix)
+                self._readings.append((t_s, "gnss", fix))
+        if self._due("lidar", cfg.lidar.rate_hz, t_s):
+            scan, hits = self.lidar.scan(t_s, x[0:3], _rotation(x[6:10]))
+            self._readings.append((t_s, "lidar", scan))
+            if len(hits):
+                keep = np.linspace(0, len(hits) - 1, min(LIDAR_HITS_KEPT, len(hits))).astype(int)
+                self._hits.append(np.column_stack([np.full(len(keep), t_s), hits[keep]]))
+
+    def _remember(self, t_s: float, x_true: np.ndarray) -> None:
+        est = self.filter.estimate
+        self._current = (t_s, est, self._measured_rate())
+        self._t.append(t_s)
+        self._pos.append(np.asarray(est.position_m, float).copy())
+        self._err.append(np.asarray(est.position_m, float) - x_true[0:3])
+        self._sig.append(np.sqrt(np.clip(np.diag(est.covariance)[0:3], 0.0, None)))
+
+    def _measured_rate(self) -> np.ndarray:
+        """Body rates as the autopilot sees them: the last gyro sample minus the estimated gyro bias [rad/s]."""
+        last = getattr(self, "_last_gyro", None)
+        if last is None:
+            return self._rate.copy()
+        return np.asarray(last.gyro_rad_s[-1], float) - np.asarray(self.filter.estimate.gyro_bias_rad_s, float)
+
+    # ---- belief out --------------------------------------------------------------------------------------------
+    def observation(self, t_s: float) -> Observation:
+        """What a decision at `t_s` acts on: the current estimate in the vehicle-state layout, its covariance, and
+        the readings at least `latency_s` old not yet handed over."""
+        seen_t = t_s - self.config.latency_s + 1e-9
+        t_est, est, rate = self._current
+        x = est.state(self._rotors, rate)
+        lists: dict[str, list] = {"lidar": [], "imu": [], "gnss": [], "baro": [], "heading": []}
+        while self._readings and self._readings[0][0] <= seen_t:
+            _, kind, reading = self._readings.popleft()
+            lists[kind].append(reading)
+        sensors = SensorData(**{k: tuple(v) for k, v in lists.items()})
+        return Observation(t_s, x, covariance=np.array(est.covariance, copy=True), sensors=sensors, estimate_t_s=t_est)
+
+    def controller_offset(self, x_true: np.ndarray) -> np.ndarray:
+        """The current estimate's error (`uam_fdm.vehicle.dynamics.N_SEEN_OFFSET`,) for the velocity controller:
+        [δp m, δv m/s ENU, δq = q_true⁻¹ ⊗ q_est, δω = measured minus true body rate rad/s]."""
+        est = self.filter.estimate
+        dq = _quat_product(_quat_conjugate(x_true[6:10]), np.asarray(est.quaternion, float))
+        return np.concatenate([np.asarray(est.position_m) - x_true[0:3], np.asarray(est.velocity_m_s) - x_true[3:6],
+                               dq, self._measured_rate() - x_true[10:13]])
+
+    def estimated_position_m(self) -> np.ndarray:
+        """The current estimate's position, world ENU [m]."""
+        return np.asarray(self.filter.estimate.position_m, float).copy()
+
+    def record(self) -> NavRecord:
+        """The episode's estimation record so far."""
+        hits = np.concatenate(self._hits) if self._hits else np.zeros((0, 4))
+        return NavRecord(np.asarray(self._t), np.asarray(self._pos), np.asarray(self._err), np.asarray(self._sig),
+                         len(self._sats), self._fixes, np.asarray(self._sats, dtype=np.int64), hits)
+
+
+def initial_estimate(config: SensingConfig, x0: np.ndarray, t0_s: float, baro_m: float,
+                     rng: np.random.Generator) -> NavEstimate:
+    """The filter's state at the start of the task, as a vehicle that took off from a surveyed pad below it has it:
+    position to the pad's survey (`PAD_SIGMA_H_M`, `PAD_SIGMA_V_M`: the errors a run measures are made in flight,
+    not drawn at the start), at the start's velocity to 0.1 m/s, levelled to 1° and headed by the heading aid,
+    biases from their power-on σ, and the barometer's offset set so that its first reading `baro_m` [m] agrees with
+    the estimated height (as EKF2 aligns its height sources)."""
+    cov = initial_covariance(config)
+    err = rng.standard_normal(cov.shape[0]) * np.sqrt(np.diag(cov))
+    position = x0[0:3] + err[0:3]
+    q = _quat_product(np.asarray(x0[6:10], float), _small_rotation(err[6:9]))
+    return NavEstimate(t_s=t0_s, position_m=position, velocity_m_s=x0[3:6] + err[3:6],
+                       quaternion=q / np.linalg.norm(q), accel_bias_m_s2=np.zeros(3), gyro_bias_rad_s=np.zeros(3),
+                       covariance=cov, baro_offset_m=float(baro_m - position[2]))
+
+
+PAD_SIGMA_H_M = 0.3  # a surveyed pad's horizontal position, σ [m]
+PAD_SIGMA_V_M = 0.1  # ... and its height (the barometer zeroed on it), σ [m]
+
+
+def initial_covariance(config: SensingConfig) -> np.ndarray:
+    """Error-state covariance at the start [δp, δv, δθ, δb_a, δb_g, δb_baro]: the pad's survey, velocity 0.1 m/s,
+    attitude 1° (roll, pitch) and the heading aid's σ, biases from the IMU's power-on σ, the barometer's offset
+    0.01 m (aligned at the start)."""
+    imu, head = config.imu, config.heading
+    yaw = math.hypot(head.noise_rad, head.disturbance_rad)
+    sig = [PAD_SIGMA_H_M, PAD_SIGMA_H_M, PAD_SIGMA_V_M, 0.1, 0.1, 0.1, math.radians(1.0), math.radians(1.0), yaw,
+           *[imu.accel_bias_initial_m_s2] * 3, *[imu.gyro_bias_initial_rad_s] * 3, 0.01]
+    return np.diag(np.square(sig))
+
+
+def _rotation(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix body -> world of a unit quaternion [w, x, y, z]."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _yaw(q: np.ndarray) -> float:
+    w, x, y, z = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _quat_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, av, bw, bv = a[0], a[1:4], b[0], b[1:4]
+    return np.concatenate([[aw * bw - av @ bv], aw * bv + bw * av + np.cross(av, bv)])
+
+
+def _quat_conjugate(q: np.ndarray) -> np.ndarray:
+    return np.array([q[0], -q[1], -q[2], -q[3]])
+
+
+def _small_rotation(theta: np.ndarray) -> np.ndarray:
+    """The unit quaternion of rotation vector `theta` [rad]."""
+    angle = float(np.linalg.norm(theta))
+    if angle < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * theta / angle])
