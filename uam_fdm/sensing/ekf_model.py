@@ -176,6 +176,9 @@ class FilterFunctions:
         measure: per aid name, x -> (h, H) with H = ∂h(x ⊕ δx)/∂δx at δx = 0.
         inject: (x, dx) -> x ⊕ dx.
         reset_jacobian: dx -> ∂[(x ⊕ δx) ⊖ (x ⊕ dx)]/∂δx at δx = dx (17, 17); independent of x.
+        update: per scalar aid (barometer, heading), the whole update in one call: (x, P, z, r) -> (x_next, P_next,
+            nis), the same arithmetic as the general path (Joseph form, injection, reset Jacobian), for the aids fused
+            at the highest rates.
     """
 
     predict: ca.Function
@@ -183,9 +186,36 @@ class FilterFunctions:
     measure: dict[str, ca.Function]
     inject: ca.Function
     reset_jacobian: ca.Function
+    update: dict[str, ca.Function]
 
     def all(self) -> list[ca.Function]:
-        return [self.predict, self.transition, *self.measure.values(), self.inject, self.reset_jacobian]
+        return [self.predict, self.transition, *self.measure.values(), self.inject, self.reset_jacobian,
+                *self.update.values()]
+
+
+SCALAR_AIDS = ("baro", "heading")
+
+
+def scalar_update_function(name: str, measure: ca.Function, inject: ca.Function, reset: ca.Function) -> ca.Function:
+    """(x, P, z, r) -> (x_next, P_next, nis): one scalar measurement fused (innovation wrapped for the heading)."""
+    x = ca.SX.sym("x", NX)
+    p = ca.SX.sym("P", NDX, NDX)
+    z = ca.SX.sym("z")
+    r = ca.SX.sym("r")
+    h, jac = measure(x)
+    y = z - h
+    if name == "heading":
+        y = ca.atan2(ca.sin(y), ca.cos(y))
+    pht = p @ jac.T
+    s = jac @ pht + r
+    gain = pht / s
+    ikh = ca.SX.eye(NDX) - gain @ jac
+    p_new = ikh @ p @ ikh.T + gain @ (r * gain.T)
+    dx = gain * y
+    g = reset(dx)
+    p_new = g @ p_new @ g.T
+    return ca.Function(f"nav_update_{name}", [x, p, z, r], [inject(x, dx), 0.5 * (p_new + p_new.T), y * y / s],
+                       ["x", "P", "z", "r"], ["x_next", "P_next", "nis"])
 
 
 def build_filter_functions() -> FilterFunctions:
@@ -214,4 +244,5 @@ def build_filter_functions() -> FilterFunctions:
     reset = ca.substitute(ca.jacobian(after, dx), dx, dx_hat)
     reset = ca.substitute(reset, x, ca.DM([0.0] * 6 + [1.0, 0.0, 0.0, 0.0] + [0.0] * 8))  # independent of x
     reset_jacobian = ca.Function("nav_reset_jacobian", [dx_hat], [ca.densify(reset)], ["dx"], ["G"])
-    return FilterFunctions(predict, transition, measure, inject, reset_jacobian)
+    update = {name: scalar_update_function(name, measure[name], inject, reset_jacobian) for name in SCALAR_AIDS}
+    return FilterFunctions(predict, transition, measure, inject, reset_jacobian, update)

@@ -78,18 +78,20 @@ class Lidar:
         """All beam directions of a scan: (rays_per_scan, 3) unit, body FLU (read-only)."""
         return self._dirs
 
-    def scan(self, t_s: float, position_m: np.ndarray, rotation_body_to_world: np.ndarray
-             ) -> tuple[LidarScan, np.ndarray]:
+    def scan(self, t_s: float, position_m: np.ndarray, rotation_body_to_world: np.ndarray,
+             truth_points: int | None = None) -> tuple[LidarScan, np.ndarray]:
         """One scan from the true pose.
 
         Args:
             t_s: time [s].
             position_m: (3,) true position of the lidar, world ENU metres.
             rotation_body_to_world: (3, 3) true attitude, body FLU -> world ENU.
+            truth_points: return the true hit points of this many returned beams, evenly spread over the scan
+                (None: of every returned beam).
 
         Returns:
-            the scan (returned beams only), and the true world hit points of those beams (K, 3) ENU metres (for
-            the viewer; not for pilots).
+            the scan (returned beams only), and the true world hit points (K, 3) ENU metres of its returned beams
+            (or of `truth_points` of them), for the viewer; not for pilots.
         """
         p = np.asarray(position_m, dtype=float).reshape(3)
         rot = np.asarray(rotation_body_to_world, dtype=float).reshape(3, 3)
@@ -103,7 +105,9 @@ class Lidar:
         # dropout and noise are drawn even when 0 (a noiseless spec): the draws do not depend on the figures
         measured = np.maximum(r + sigma * self._rng.standard_normal(len(idx)), 0.0)
         dirs = self._dirs[idx]
-        truth = p + d_world[idx] * r[:, None]
+        shown = idx if truth_points is None or truth_points >= len(idx) else idx[
+            np.linspace(0, len(idx) - 1, truth_points).astype(int)]
+        truth = p + d_world[shown] * r_true[shown, None]
         dirs.setflags(write=False)
         measured.setflags(write=False)
         return LidarScan(float(t_s), dirs, measured), truth

@@ -101,8 +101,9 @@ class Onboard:
                                 initial_estimate(config, x0, t0_s, first_baro.altitude_m, rngs["initial"]))
         self._rotors = np.asarray(x0[13:], float).copy()
         self._rate = np.asarray(x0[10:13], float).copy()
-        self._step = 0  # physics steps flown
-        self._pending: list[tuple[float, np.ndarray]] = []  # (accel ENU, rate body) of steps since the last IMU sample
+        # the physics steps since the last IMU sample: mean ENU acceleration [m/s²] and body rates [rad/s] of each
+        self._pending_a, self._pending_w = np.zeros((0, 3)), np.zeros((0, 3))
+        self._last_gyro: np.ndarray | None = None
         self._next = {name: t0_s for name in ("baro", "heading", "gnss", "lidar")}
         self._readings: deque[tuple[float, str, object]] = deque()
         self._t: list[float] = []
@@ -117,27 +118,26 @@ class Onboard:
     # ---- the truth of one control period in ------------------------------------------------------------------
     def advance(self, x_start: np.ndarray, states: np.ndarray, t_start_s: float) -> None:
         """Sense and fuse one flown control period: `states` (n_sub, nx) after each physics step from `x_start`."""
-        v = np.vstack([x_start[3:6], states[:, 3:6]])
-        accel = np.diff(v, axis=0) / self.dt  # mean ENU acceleration over each step [m/s²]
-        for k in range(states.shape[0]):
-            self._pending.append((accel[k], states[k, 10:13]))
-            self._step += 1
-            if self._step % self.imu_stride == 0:
-                self._imu_sample(t_start_s + (k + 1) * self.dt, states[k])
-        x_end, t_end = states[-1], t_start_s + states.shape[0] * self.dt
-        self._rotors, self._rate = x_end[13:].copy(), x_end[10:13].copy()
+        n = states.shape[0]
+        accel = np.diff(np.vstack([x_start[3:6], states[:, 3:6]]), axis=0) / self.dt  # mean ENU accel per step
+        a_all = np.vstack([self._pending_a, accel])
+        w_all = np.vstack([self._pending_w, states[:, 10:13]])
+        stride, before = self.imu_stride, len(self._pending_a)
+        k = len(a_all) // stride  # IMU samples completed in this period
+        if k:
+            last = np.arange(1, k + 1) * stride - 1 - before  # each sample's last physics step in this period
+            rot = _rotations(states[last, 6:10])
+            a_mean = a_all[:k * stride].reshape(k, stride, 3).mean(axis=1) + np.array([0.0, 0.0, GRAVITY_M_S2])
+            force = np.einsum("kji,kj->ki", rot, a_mean)  # Rᵀ (a - g): the specific force, body FLU
+            w_mean = w_all[:k * stride].reshape(k, stride, 3).mean(axis=1)
+            samples = self.imu.measure(t_start_s + (last + 1) * self.dt, force, w_mean)
+            self.filter.predict(samples)
+            self._last_gyro = samples.gyro_rad_s[-1]
+        self._pending_a, self._pending_w = a_all[k * stride:], w_all[k * stride:]
+        x_end, t_end = states[-1], t_start_s + n * self.dt
+        self._rotors = x_end[13:].copy()
         self._sense(x_end, t_end)
         self._remember(t_end, x_end)
-
-    def _imu_sample(self, t_s: float, x: np.ndarray) -> None:
-        a = np.mean([p[0] for p in self._pending], axis=0)
-        w = np.mean([p[1] for p in self._pending], axis=0)
-        self._pending.clear()
-        rot = _rotation(x[6:10])
-        force = rot.T @ (a + np.array([0.0, 0.0, GRAVITY_M_S2]))
-        samples = self.imu.measure(np.array([t_s]), force[None], w[None])
-        self.filter.predict(samples)
-        self._last_gyro = samples
 
     def _due(self, name: str, rate_hz: float, t_s: float) -> bool:
         if t_s + 1e-9 < self._next[name]:
@@ -163,11 +163,10 @@ class Onboard:
                 self.filter.update_gnss(fix)
                 self._readings.append((t_s, "gnss", fix))
         if self._due("lidar", cfg.lidar.rate_hz, t_s):
-            scan, hits = self.lidar.scan(t_s, x[0:3], _rotation(x[6:10]))
+            scan, hits = self.lidar.scan(t_s, x[0:3], _rotation(x[6:10]), truth_points=LIDAR_HITS_KEPT)
             self._readings.append((t_s, "lidar", scan))
             if len(hits):
-                keep = np.linspace(0, len(hits) - 1, min(LIDAR_HITS_KEPT, len(hits))).astype(int)
-                self._hits.append(np.column_stack([np.full(len(keep), t_s), hits[keep]]))
+                self._hits.append(np.column_stack([np.full(len(hits), t_s), hits]))
 
     def _remember(self, t_s: float, x_true: np.ndarray) -> None:
         est = self.filter.estimate
@@ -179,10 +178,9 @@ class Onboard:
 
     def _measured_rate(self) -> np.ndarray:
         """Body rates as the autopilot sees them: the last gyro sample minus the estimated gyro bias [rad/s]."""
-        last = getattr(self, "_last_gyro", None)
-        if last is None:
+        if self._last_gyro is None:
             return self._rate.copy()
-        return np.asarray(last.gyro_rad_s[-1], float) - np.asarray(self.filter.estimate.gyro_bias_rad_s, float)
+        return self._last_gyro - np.asarray(self.filter.estimate.gyro_bias_rad_s, float)
 
     # ---- belief out --------------------------------------------------------------------------------------------
     def observation(self, t_s: float) -> Observation:
@@ -246,6 +244,14 @@ def initial_covariance(config: SensingConfig) -> np.ndarray:
     sig = [PAD_SIGMA_H_M, PAD_SIGMA_H_M, PAD_SIGMA_V_M, 0.1, 0.1, 0.1, math.radians(1.0), math.radians(1.0), yaw,
            *[imu.accel_bias_initial_m_s2] * 3, *[imu.gyro_bias_initial_rad_s] * 3, 0.01]
     return np.diag(np.square(sig))
+
+
+def _rotations(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices body -> world (K, 3, 3) of unit quaternions (K, 4) [w, x, y, z]."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)], axis=1)
 
 
 def _rotation(q: np.ndarray) -> np.ndarray:

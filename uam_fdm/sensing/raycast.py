@@ -99,7 +99,9 @@ class RayCaster:
             nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
             self._normal, self._plane = nrm, np.einsum("ij,ij->i", nrm, local[tris[:, 0]])
         self._normal_xyz = tuple(np.ascontiguousarray(self._normal[:, i]) for i in range(3))
-        self._scene = rtcs.EmbreeScene(robust=True)
+        # Embree's fast (not "robust") traversal: on the shipped cities it agrees with an exact slab test on every
+        # hit and miss of 300,000 lidar rays (perf/lidar.py) and casts 20 % faster
+        self._scene = rtcs.EmbreeScene(robust=False)
         self._mesh = None
         if len(tris):
             self._mesh = TriangleMesh(self._scene, np.ascontiguousarray(local, dtype=np.float32),

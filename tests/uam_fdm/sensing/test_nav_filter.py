@@ -337,3 +337,25 @@ def test_gnss_correlation_time_inflates_position_noise():
     # 60 s barely do: the first counts in full, the next ones at 1/(2τ/Δt) = 1/1200 of a fix each
     assert white.estimate.covariance[0, 0] == pytest.approx(1.0 / (1.0 + 20 / 0.5), rel=0.05)
     assert correlated.estimate.covariance[0, 0] == pytest.approx(1.0 / (1.0 + 1 / 0.5 + 19 / (0.5 * 1200)), rel=0.05)
+
+
+@pytest.mark.parametrize("kind, z", [("baro", 0.7), ("heading", 0.9)])
+def test_scalar_updates_in_one_call_match_the_general_path(kind, z):
+    """The barometer and heading updates run as one generated call; the general path (measurement Jacobian, Joseph
+    form, injection, reset Jacobian in NumPy) gives the same state and covariance."""
+    start = NavEstimate.initial(0.0, np.array([1.0, 2.0, 3.0]), np.array([0.5, 0.0, 0.1]),
+                                np.array([0.9, 0.1, 0.2, 0.37]) / np.linalg.norm([0.9, 0.1, 0.2, 0.37]), BMI088)
+    fused, general = (BatchNavFilter(BMI088, MS5611, IST8310, [start]) for _ in range(2))
+    fused.predict(0.01, np.array([[0.3, -0.2, 9.9]]), np.array([[0.01, 0.02, -0.3]]))
+    general.predict(0.01, np.array([[0.3, -0.2, 9.9]]), np.array([[0.01, 0.02, -0.3]]))
+    idx, zz, r = np.array([0]), np.array([[z]]), np.array([[[0.04]]])
+    assert fused._update(kind, idx, zz, r)[0]
+    scalar = em.SCALAR_AIDS
+    try:
+        em.SCALAR_AIDS = ()  # type: ignore[misc]  # the general path for the same update
+        assert general._update(kind, idx, zz, r)[0]
+    finally:
+        em.SCALAR_AIDS = scalar  # type: ignore[misc]
+    assert np.allclose(fused.x, general.x, rtol=0, atol=1e-12)
+    assert np.allclose(fused.P, general.P, rtol=0, atol=1e-12)
+    assert not np.allclose(fused.x, BatchNavFilter(BMI088, MS5611, IST8310, [start]).x)  # it did move
