@@ -88,6 +88,9 @@ class EpisodeMetrics:
             vertical error of the navigation estimate's position, at the control periods' ends [m] (0 at perfect
             sensing: the estimate is the truth).
         gnss_availability: share of GNSS epochs with a fix [-] (NaN at perfect sensing: no receiver simulated).
+        est_nees_in_bounds: share of the control periods whose position NEES (the estimate's error under its own
+            covariance, 3 dof) lies inside the two-sided 95 % chi-square interval [-]: about 0.95 for a consistent
+            filter, less for an over- or underconfident one (NaN at perfect sensing).
         min_clearance_unmapped_m: least signed clearance of the collision sphere to the obstacles the prior map
             lacks (unmapped buildings, missing ones, cranes and masts), physics rate [m] (NaN when it lacks none).
     """
@@ -134,6 +137,7 @@ class EpisodeMetrics:
     est_error_v_max_m: float = math.nan
     gnss_availability: float = math.nan
     min_clearance_unmapped_m: float = math.nan
+    est_nees_in_bounds: float = math.nan
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
@@ -144,7 +148,7 @@ _KINDS = {f.name: str(f.type) for f in fields(EpisodeMetrics)}
 
 
 SENSING_METRICS = ("est_error_h_rms_m", "est_error_h_max_m", "est_error_v_rms_m", "est_error_v_max_m",
-                   "gnss_availability", "min_clearance_unmapped_m")
+                   "gnss_availability", "min_clearance_unmapped_m", "est_nees_in_bounds")
 """The columns of what the vehicle sensed and the map missed (older metrics.csv files: NaN)."""
 _OPTIONAL = (*TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *SENSING_METRICS)
 # columns that older metrics.csv files lack
@@ -246,7 +250,7 @@ def _sensing_fields(traj: Trajectory, sensing: str) -> dict[str, float]:
     h, v = np.hypot(err[:, 0], err[:, 1]), np.abs(err[:, 2])
     out.update(est_error_h_rms_m=float(np.sqrt(np.mean(h ** 2))), est_error_h_max_m=float(h.max()),
                est_error_v_rms_m=float(np.sqrt(np.mean(v ** 2))), est_error_v_max_m=float(v.max()),
-               gnss_availability=nav.gnss_availability)
+               gnss_availability=nav.gnss_availability, est_nees_in_bounds=nav.nees_in_bounds)
     return out
 
 

@@ -244,7 +244,7 @@ class BuildingMap:
         self._planning: BuildingMap | None = None
         self._part_ids = np.array([p.id for p in parts], dtype=np.int64)
         self._ids = np.unique(self._part_ids)
-        self._packed = _pack_parts(parts)
+        self._packed = pack_parts(parts)
         self._packed_no_fly = clearance_np.pack(
             [(*z.center_xy_m, z.yaw_rad, *z.size_xy_m, *z.z_range_m) for z in no_fly], [],
             list(range(len(no_fly))), [])
@@ -566,7 +566,8 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _pack_parts(parts: tuple[Obstacle, ...]) -> clearance_np.PackedPrisms:
+def pack_parts(parts: Sequence[Obstacle]) -> clearance_np.PackedPrisms:
+    """Obstacle parts packed for the NumPy distance kernel (its row i is parts[i])."""
     boxes, box_part, polys, poly_part = [], [], [], []
     for i, p in enumerate(parts):
         if isinstance(p, Building):

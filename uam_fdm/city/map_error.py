@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from uam_fdm.city import distance as clearance_np
-from uam_fdm.city.buildings import Building, BuildingMap, Obstacle, Prism
+from uam_fdm.city.buildings import Building, BuildingMap, Obstacle, Prism, pack_parts
 from uam_fdm.city.mapfile import building_from_config
 from uam_fdm.errors import ConfigError
 from uam_fdm.files.strict import mapping, number_in_range
@@ -222,13 +222,13 @@ def _prior_parts(world: BuildingMap, missing: tuple[int, ...], config: MapErrorC
     row = {bid: i for i, bid in enumerate(ids)}
     part_row = np.array([row[p.id] for p in parts])
     dz, dxy = _draw(len(ids), config, rngs[0], rngs[1])
-    true_d = clearance_np.part_distances(keep, _pack(parts)) if len(keep) else None
+    true_d = clearance_np.part_distances(keep, pack_parts(parts)) if len(keep) else None
     for attempt in range(_TRIES + 1):
         moved = [_perturbed(p, float(dz[r]), dxy[r]) for p, r in zip(parts, part_row)]
         bad = np.zeros(len(ids), dtype=bool)
         bad[part_row[~_inside_bounds(moved, world)]] = True
         if true_d is not None:
-            d = clearance_np.part_distances(keep, _pack(moved))
+            d = clearance_np.part_distances(keep, pack_parts(moved))
             near = (d < np.minimum(clearance_m, true_d)).any(axis=0)
             bad[part_row[near]] = True
         if not bad.any():
@@ -264,19 +264,6 @@ def _inside_bounds(parts: Sequence[Obstacle], world: BuildingMap) -> np.ndarray:
                     dtype=bool)
 
 
-def _pack(parts: Sequence[Obstacle]) -> clearance_np.PackedPrisms:
-    """Parts packed for the distance kernel (row i = parts[i])."""
-    boxes, box_rows, polys, poly_rows = [], [], [], []
-    for i, p in enumerate(parts):
-        if isinstance(p, Building):
-            boxes.append((*p.center_xy_m, p.yaw_rad, *p.size_xy_m, p.base_m, p.height_m))
-            box_rows.append(i)
-        else:
-            polys.append((p.footprint_xy_m(), 0.0, p.height_m))
-            poly_rows.append(i)
-    return clearance_np.pack(boxes, polys, box_rows, poly_rows)
-
-
 # ---- cranes and masts --------------------------------------------------------------------------------
 def _crane(rng: np.random.Generator, bid: int, lo: np.ndarray, hi: np.ndarray) -> tuple[Building, ...]:
     """A tower crane at a uniform spot: a mast from the ground to the jib's top and a jib (with its counter-jib)
@@ -310,7 +297,7 @@ def _generate(known: tuple[Obstacle, ...], world: BuildingMap, config: MapErrorC
     least `clearance_m` from every keep-clear point and `_GAP_M` from every other obstacle; a candidate that does
     not fit is drawn again, and after `_TRIES` draws dropped (counted, logged)."""
     lo, hi = world.bounds_min_m[:2], world.bounds_max_m[:2]
-    known_packed = _pack(known) if known else None
+    known_packed = pack_parts(known) if known else None
     placed: list[Building] = []
     dropped = 0
     for make, count, rng in ((_crane, config.cranes, rngs[0]), (_mast, config.masts, rngs[1])):
@@ -334,11 +321,11 @@ def _fits(candidate: tuple[Building, ...], known: clearance_np.PackedPrisms | No
     clear of the other obstacles by `_GAP_M`."""
     if not _inside_bounds(candidate, world).all():
         return False
-    if len(keep) and clearance_np.part_distances(keep, _pack(candidate)).min() < clearance_m:
+    if len(keep) and clearance_np.part_distances(keep, pack_parts(candidate)).min() < clearance_m:
         return False
     others = [known] if known is not None else []
     if placed:
-        others.append(_pack(placed))
+        others.append(pack_parts(placed))
     for box in candidate:
         samples, reach = _axis_samples(box)
         for packed in others:

@@ -163,6 +163,9 @@ class BatchNavFilter:
         gnss_correlation_time_s: correlation time of the receiver's position error assumed by the filter (see
             module docstring); 0: white.
         gnss_reset_after_s: reset position and velocity to GNSS after it was rejected this long [s].
+        baro_offset_walk_m_rthz: the random walk of the barometer's offset the filter assumes [m/√s] (None: the
+            part's drift); a larger one lets the offset follow errors a datasheet's drift leaves out, such as
+            pressure altitude's scale error on a non-standard day.
         compiled: True to require compiled code, False for CasADi's virtual machine, None to compile when a
             compiler exists.
         cache_dir: cache of compiled libraries (default `codegen.default_cache_dir()`).
@@ -170,8 +173,8 @@ class BatchNavFilter:
 
     def __init__(self, imu: ImuSpec, baro: BaroSpec, heading: HeadingSpec, initial: Sequence[NavEstimate], *,
                  gate_probability: float | None = 0.9999, gnss_correlation_time_s: float = 0.0,
-                 gnss_reset_after_s: float = 5.0, compiled: bool | None = None,
-                 cache_dir: Path | None = None) -> None:
+                 gnss_reset_after_s: float = 5.0, baro_offset_walk_m_rthz: float | None = None,
+                 compiled: bool | None = None, cache_dir: Path | None = None) -> None:
         if not initial:
             raise ValueError("a BatchNavFilter needs at least one vehicle")
         self.imu_spec, self.baro_spec, self.heading_spec = imu, baro, heading
@@ -190,7 +193,8 @@ class BatchNavFilter:
         # a heading aid without correlation time: its disturbance is white (decay factor 0 at every step)
         tau = heading.correlation_time_s if heading.correlation_time_s > 0.0 else 1e-12
         self.noise = np.array([imu.accel_noise_density_m_s2_rthz, imu.gyro_noise_density_rad_s_rthz,
-                               imu.accel_bias_walk_m_s3_rthz, imu.gyro_bias_walk_rad_s2_rthz, baro.drift_m_rthz,
+                               imu.accel_bias_walk_m_s3_rthz, imu.gyro_bias_walk_rad_s2_rthz,
+                               baro.drift_m_rthz if baro_offset_walk_m_rthz is None else baro_offset_walk_m_rthz,
                                heading.disturbance_rad, tau])
         self.gate_probability = gate_probability
         # the gate's chi-square quantile per measurement dimension (scipy's ppf costs tens of µs a call)

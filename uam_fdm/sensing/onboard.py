@@ -39,6 +39,7 @@ from uam_fdm.sensing.specs import SensingConfig
 
 GRAVITY_M_S2 = 9.80665
 LIDAR_HITS_KEPT = 96  # true hit points kept per scan for the viewer's lidar layer (a thinned, even subset)
+NEES_95 = (0.2158, 9.3484)  # the chi-square distribution's 2.5 % and 97.5 % quantiles at 3 degrees of freedom
 _STREAMS = ("imu", "baro", "gnss", "heading", "lidar", "initial")
 
 
@@ -51,6 +52,7 @@ class NavRecord:
         position_m: (E, 3) estimated position, world ENU [m].
         error_m: (E, 3) estimated minus true position, world ENU [m].
         sigma_m: (E, 3) the filter's standard deviation of each position component [m].
+        nees: (E,) the position error's normalised squared size under the filter's position covariance (3 dof).
         gnss_epochs: GNSS epochs in the episode; gnss_fixes: those with a fix.
         satellites: (G,) satellites tracked at each epoch.
         lidar_hits: (H, 4) [t_s, x, y, z] a thinned set of the lidar's true hit points, world ENU [m].
@@ -60,10 +62,19 @@ class NavRecord:
     position_m: np.ndarray
     error_m: np.ndarray
     sigma_m: np.ndarray
+    nees: np.ndarray
     gnss_epochs: int
     gnss_fixes: int
     satellites: np.ndarray
     lidar_hits: np.ndarray
+
+    @property
+    def nees_in_bounds(self) -> float:
+        """Share of the estimates whose position NEES lies inside its two-sided 95 % chi-square interval (3 dof):
+        about 0.95 for a consistent filter (NaN without estimates)."""
+        if not len(self.nees):
+            return math.nan
+        return float(np.mean((self.nees >= NEES_95[0]) & (self.nees <= NEES_95[1])))
 
     @property
     def gnss_availability(self) -> float:
@@ -98,7 +109,8 @@ class Onboard:
         self.imu_stride = max(1, int(round(1.0 / (config.imu.rate_hz * self.dt))))
         first_baro = self.baro.measure(t0_s, float(x0[2]))
         self.filter = NavFilter(config.imu, config.baro, config.heading,
-                                initial_estimate(config, x0, t0_s, first_baro.altitude_m, rngs["initial"]))
+                                initial_estimate(config, x0, t0_s, first_baro.altitude_m, rngs["initial"]),
+                                **filter_tuning(config))
         self._rotors = np.asarray(x0[13:], float).copy()
         self._rate = np.asarray(x0[10:13], float).copy()
         # the physics steps since the last IMU sample: mean ENU acceleration [m/s²] and body rates [rad/s] of each
@@ -110,6 +122,7 @@ class Onboard:
         self._pos: list[np.ndarray] = []
         self._err: list[np.ndarray] = []
         self._sig: list[np.ndarray] = []
+        self._nees: list[float] = []
         self._sats: list[int] = []
         self._fixes = 0
         self._hits: list[np.ndarray] = []
@@ -175,6 +188,8 @@ class Onboard:
         self._pos.append(np.asarray(est.position_m, float).copy())
         self._err.append(np.asarray(est.position_m, float) - x_true[0:3])
         self._sig.append(np.sqrt(np.clip(np.diag(est.covariance)[0:3], 0.0, None)))
+        err = self._err[-1]
+        self._nees.append(float(err @ np.linalg.solve(est.covariance[0:3, 0:3], err)))
 
     def _measured_rate(self) -> np.ndarray:
         """Body rates as the autopilot sees them: the last gyro sample minus the estimated gyro bias [rad/s]."""
@@ -212,7 +227,21 @@ class Onboard:
         """The episode's estimation record so far."""
         hits = np.concatenate(self._hits) if self._hits else np.zeros((0, 4))
         return NavRecord(np.asarray(self._t), np.asarray(self._pos), np.asarray(self._err), np.asarray(self._sig),
+                         np.asarray(self._nees),
                          len(self._sats), self._fixes, np.asarray(self._sats, dtype=np.int64), hits)
+
+
+BARO_SCALE_WALK_M_RTHZ = 0.05  # the baro offset's walk for a non-standard day's scale error [m/√s]
+
+
+def filter_tuning(config: SensingConfig) -> dict[str, float]:
+    """How the flight controller's filter is tuned for its parts, as an integrator tunes EKF2: the receiver's
+    position error is time-correlated (its correlation time known from the receiver's model), so each fix is
+    de-weighted by 2τ/Δt rather than averaged as if white; the barometer's offset may walk by
+    `BARO_SCALE_WALK_M_RTHZ` beyond the part's drift, for pressure altitude's scale error on a non-standard day
+    (±7 % at ±20 K: 0.7 m in a 10 m climb), which no datasheet drift covers."""
+    return {"gnss_correlation_time_s": config.gnss.correlation_time_s,
+            "baro_offset_walk_m_rthz": math.hypot(config.baro.drift_m_rthz, BARO_SCALE_WALK_M_RTHZ)}
 
 
 def initial_estimate(config: SensingConfig, x0: np.ndarray, t0_s: float, baro_m: float,
@@ -237,13 +266,18 @@ PAD_SIGMA_V_M = 0.1  # ... and its height (the barometer zeroed on it), σ [m]
 
 def initial_covariance(config: SensingConfig) -> np.ndarray:
     """Error-state covariance at the start [δp, δv, δθ, δb_a, δb_g, δb_baro]: the pad's survey, velocity 0.1 m/s,
-    attitude 1° (roll, pitch) and the heading aid's σ, biases from the IMU's power-on σ, the barometer's offset
-    0.01 m (aligned at the start)."""
-    imu, head = config.imu, config.heading
+    attitude 1° (roll, pitch) and the heading aid's σ, biases from the IMU's power-on σ. The barometer's offset is
+    set from the estimated height (`initial_estimate`), so its error is the height's error with the other sign plus
+    the first reading's noise: the two are correlated, not independent (independent, the first readings would
+    shrink the height's σ far below its error)."""
+    imu, head, baro = config.imu, config.heading, config.baro
     yaw = math.hypot(head.noise_rad, head.disturbance_rad)
     sig = [PAD_SIGMA_H_M, PAD_SIGMA_H_M, PAD_SIGMA_V_M, 0.1, 0.1, 0.1, math.radians(1.0), math.radians(1.0), yaw,
-           *[imu.accel_bias_initial_m_s2] * 3, *[imu.gyro_bias_initial_rad_s] * 3, 0.01]
-    return np.diag(np.square(sig))
+           *[imu.accel_bias_initial_m_s2] * 3, *[imu.gyro_bias_initial_rad_s] * 3, 0.0]
+    cov = np.diag(np.square(sig))
+    cov[15, 15] = PAD_SIGMA_V_M ** 2 + baro.noise_m ** 2
+    cov[2, 15] = cov[15, 2] = -PAD_SIGMA_V_M ** 2
+    return cov
 
 
 def _rotations(q: np.ndarray) -> np.ndarray:

@@ -180,6 +180,11 @@ def test_metrics_score_estimation_and_the_unmapped(tmp_path):
     h = np.hypot(traj.nav.error_m[:, 0], traj.nav.error_m[:, 1])
     assert m.est_error_h_rms_m == pytest.approx(math.sqrt(np.mean(h ** 2))) and 0.0 < m.est_error_h_rms_m < 5.0
     assert m.est_error_h_max_m == pytest.approx(h.max()) and m.gnss_availability == 1.0
+    nav = traj.nav
+    inside = (nav.nees >= 0.2158) & (nav.nees <= 9.3484)
+    assert m.est_nees_in_bounds == pytest.approx(inside.mean()) and len(nav.nees) == len(nav.t_s)
+    # with a diagonal-dominant covariance the NEES is about the squared errors over the variances
+    assert np.all(nav.nees >= 0.0) and np.median(nav.nees) > np.median((nav.error_m / nav.sigma_m) ** 2) * 0.3
     # clearance to the unmapped building alone: the distance to its box, less the collision radius
     pos = traj.states[:, 0:3]
     lo, hi = np.array([70.0, 15.0, 0.0]), np.array([80.0, 25.0, 40.0])

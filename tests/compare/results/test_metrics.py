@@ -287,7 +287,8 @@ def test_csv_columns_are_the_contract_order():
         "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
         "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min",
         "vehicle_fingerprint", "sensing", "map_error", "est_error_h_rms_m", "est_error_h_max_m", "est_error_v_rms_m",
-        "est_error_v_max_m", "gnss_availability", "min_clearance_unmapped_m")
+        "est_error_v_max_m", "gnss_availability", "min_clearance_unmapped_m",
+        "est_nees_in_bounds")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):
