@@ -58,14 +58,18 @@ def main(runs: list[Path]) -> None:
                 v = np.array([float(r["est_error_v_rms_m"]) for r in rs])
                 gnss = np.array([float(r["gnss_availability"]) for r in rs])
                 near = np.array([float(r["min_clearance_unmapped_m"]) for r in rs])
+                nees = np.array([float(r.get("est_nees_in_bounds", "nan")) for r in rs])
                 cells[p] = {(r["scenario"], r["episode"], r["seed"]): r["success"] == "1" for r in rs}
                 by_vehicle[vehicle].append([
                     level, p, _rate(ok, n), _rate(hit, n), f"{np.mean(h):.2f} (max {np.max(h):.2f})",
                     f"{np.mean(v):.2f}", "—" if np.all(np.isnan(gnss)) else f"{100 * np.nanmean(gnss):.0f} %",
-                    "—" if np.all(np.isnan(near)) else f"{np.nanmin(near):.2f}"])
+                    "—" if np.all(np.isnan(near)) else f"{np.nanmin(near):.2f}",
+                    "—" if np.all(np.isnan(nees)) else
+                    f"{100 * np.nanmean(nees):.0f} % (least {100 * np.nanmin(nees):.0f} %)"])
                 figures.setdefault(vehicle, {}).setdefault(level, {})[p] = {
                     "episodes": n, "success": ok / n if n else None, "collisions": hit / n if n else None,
-                    "est_error_h_rms_m_mean": float(np.mean(h)) if n else None}
+                    "est_error_h_rms_m_mean": float(np.mean(h)) if n else None,
+                    "est_nees_in_bounds_mean": None if np.all(np.isnan(nees)) else float(np.nanmean(nees))}
             keys = sorted(set(cells["ppo"]) & set(cells["rrt_mpc"]))
             if len(keys) >= FEW:
                 a = np.array([cells["ppo"][k] for k in keys])
@@ -75,17 +79,40 @@ def main(runs: list[Path]) -> None:
                         f"over {len(keys)} pairs")
             else:
                 diff = f"{len(keys)} pairs: too few for an interval"
-            by_vehicle[vehicle].append([level, "ppo − rrt_mpc", diff, "", "", "", "", ""])
+            by_vehicle[vehicle].append([level, "ppo − rrt_mpc", diff, "", "", "", "", "", ""])
             figures[vehicle][level]["paired_success_difference"] = diff
     header = ["sensing / map", "pilot", "success", "collisions", "est. error h RMS [m], mean (max)",
-              "est. error v RMS [m]", "GNSS fix", "least clearance to unmapped [m]"]
+              "est. error v RMS [m]", "GNSS fix", "least clearance to unmapped [m]",
+              "position NEES inside its 95 % interval, mean over flights"]
     for vehicle, table in by_vehicle.items():
         print(f"\n{vehicle}\n")
         print("| " + " | ".join(header) + " |")
         print("|" + "---|" * len(header))
         for row in table:
             print("| " + " | ".join(row) + " |")
+    print("\nestimation error per scenario (both pilots' flights; mean of the flights' RMS, 95 % t-interval)\n")
+    print("| sensing / map | scenario | flights | horizontal RMS [m] | vertical RMS [m] |")
+    print("|---|---|---|---|---|")
+    for run in runs:
+        rows = [r for r in _rows(run) if r["sensing"] != "perfect"]
+        for scenario in sorted({r["scenario"] for r in rows}):
+            mine = [r for r in rows if r["scenario"] == scenario]
+            level = f"{mine[0]['sensing']} / {mine[0]['map_error']}"
+            cells = [_mean_interval(np.array([float(r[c]) for r in mine]))
+                     for c in ("est_error_h_rms_m", "est_error_v_rms_m")]
+            print(f"| {level} | {scenario} | {len(mine)} | {cells[0]} | {cells[1]} |")
+            figures.setdefault("per_scenario", {}).setdefault(level, {})[scenario] = cells[0]
     print(json.dumps(figures))
+
+
+def _mean_interval(values: np.ndarray) -> str:
+    """Mean and its 95 % t-interval (below `FEW` values: the values' range instead)."""
+    if len(values) < FEW:
+        return f"{values.mean():.2f} (range {values.min():.2f}-{values.max():.2f}; too few for an interval)"
+    from scipy.stats import t
+
+    half = t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values))
+    return f"{values.mean():.2f} [{values.mean() - half:.2f}, {values.mean() + half:.2f}]"
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ from uam_fdm.sensing.raycast import RayCaster
 from uam_fdm.sensing.specs import SensingConfig
 
 GRAVITY_M_S2 = 9.80665
-LIDAR_HITS_KEPT = 96  # true hit points kept per scan for the viewer's lidar layer (a thinned, even subset)
+LIDAR_HITS_KEPT = 32  # true hit points kept per scan for the viewer's lidar layer (a thinned, even subset)
 NEES_95 = (0.2158, 9.3484)  # the chi-square distribution's 2.5 % and 97.5 % quantiles at 3 degrees of freedom
 _STREAMS = ("imu", "baro", "gnss", "heading", "lidar", "initial")
 
