@@ -40,6 +40,7 @@ import numpy as np
 
 from uam_fdm.air.wind import TurbulenceLevel, milspec_low_altitude
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.strict import strict_json_loads
 from uam_fdm.vehicle.params import VehicleParams
 
 log = logging.getLogger(__name__)
@@ -399,7 +400,7 @@ def load_tracking_table(path: Path | str = DEFAULT_TABLE_PATH) -> TrackingErrorT
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = strict_json_loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: not a readable tracking-error table ({exc})") from exc
     if not isinstance(data, dict) or data.get("format_version") not in (1, TABLE_FORMAT_VERSION):

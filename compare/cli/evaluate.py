@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -14,6 +13,7 @@ from compare.cli.common import check_ranges, one_torch_thread, turbulence_levels
 from compare.scenarios.scenario import MAX_SEED
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
+from uam_fdm.air.wind import MAX_STEADY_WIND_M_S
 
 if TYPE_CHECKING:
     from rl.task.config import NavConfig
@@ -61,7 +61,7 @@ def evaluate_policy(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
-    check_ranges({"--seed": (args.seed, 0, MAX_SEED)})
+    check_ranges({"--episodes": (args.episodes, 1, pool_cities(args.pool)), "--seed": (args.seed, 0, MAX_SEED)})
     one_torch_thread()
     air = air_from_options(args)  # before anything is loaded: a bad option is named at once
     policy = load_policy(args.policy)
@@ -121,6 +121,15 @@ def _by_city_kind(results: dict[str, EvalResult], nav: NavConfig) -> dict[str, A
     return {"by_city_kind": {name: [asdict(g) for g in rows] for name, rows in groups.items()}}
 
 
+def pool_cities(pool: str) -> int:
+    """The held-out cities of `pool` ("test" or "validation"): the most episodes `evaluate-policy` flies, one city
+    each (past them a test evaluation would fly the validation cities)."""
+    from rl.task.cities import EVAL_SEEDS
+    from rl.training.evaluation import VALIDATION_OFFSET
+
+    return VALIDATION_OFFSET if pool == "test" else len(EVAL_SEEDS) - VALIDATION_OFFSET
+
+
 def air_from_options(args: argparse.Namespace) -> Callable[[AirDistribution], AirDistribution]:
     """The air `evaluate-policy` flies, from --air or --elevation/--isa-offset, --wind-max and --turbulence, as a
     function of the task's air (what is not given stays the task's). Checked here, before any work.
@@ -134,8 +143,11 @@ def air_from_options(args: argparse.Namespace) -> Callable[[AirDistribution], Ai
                                ("--isa-offset", args.isa_offset, ISA_OFFSET_RANGE_K)):
         if value is not None and not valid[0] <= value <= valid[1]:
             raise ValueError(f"{name} {value:g}: must be within [{valid[0]:g}, {valid[1]:g}]")
-    if args.wind_max is not None and not (math.isfinite(args.wind_max) and args.wind_max >= 0.0):
-        raise ValueError(f"--wind-max {args.wind_max:g}: must be a finite speed >= 0 m/s")
+    # the steady-wind bound of the wind model, which scenario files obey too: well above any wind a multicopter
+    # flies in (the trained air reaches 8 to 12 m/s), so past it a value is a unit or typing mistake, not a test
+    if args.wind_max is not None and not 0.0 <= args.wind_max <= MAX_STEADY_WIND_M_S:
+        raise ValueError(f"--wind-max {args.wind_max:g}: must be a steady wind speed in [0, {MAX_STEADY_WIND_M_S:g}] "
+                         f"m/s")
     levels = turbulence_levels(args.turbulence) if args.turbulence is not None else None
 
     def air(trained: AirDistribution) -> AirDistribution:

@@ -15,6 +15,7 @@ from compare.cli.common import CommandInterrupted, add_deprecated_alias, csv_lis
 from compare.cli.printout import print_run_results
 from compare.flying.pilots import PILOT_NAMES, pilot
 from compare.results.outputs import check_output_dir
+from compare.results.run_info import RUN_INFO_NAME
 from compare.run.backends import BACKENDS
 from compare.run.campaign import RunConfig, RunInterrupted, check_empty_run_folder, estimate_run, run_comparison
 from compare.scenarios.levels import MAP_ERROR_LEVELS, SENSING_LEVELS, with_levels
@@ -125,7 +126,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"uam-compare: warning: --jobs {args.jobs} is more than the {os.cpu_count()} CPUs here; the extra "
               f"processes only compete for them", file=sys.stderr)
     check_output_dir(out, "--out")
-    if not args.resume:
+    if args.resume:
+        check_resumable(args.out)
+    else:
         check_empty_run_folder(out)
     scenarios = [with_levels(with_pilots(sc, tuple(args.pilot)), args.sensing, args.map_error)
                  for sc in _scenarios(args)]  # every file checked here
@@ -145,6 +148,17 @@ def run(args: argparse.Namespace) -> int:
                                  f"{shlex.join(again)}") from None
     print_run_results(run_dir)
     return 0
+
+
+def check_resumable(out: Path | None) -> None:
+    """`--resume` completes a run: refuse an --out that is not a run folder (none given, no such folder, no
+    run.json), rather than start a new run where a typo points (`check_resume` then compares its inputs)."""
+    if out is None:
+        raise ValueError("--resume: give --out, the run folder to complete")
+    if not (out / RUN_INFO_NAME).is_file():
+        what = "no such folder" if not out.exists() else f"no {RUN_INFO_NAME}"
+        raise ValueError(f"{out}: cannot resume: not a run folder of uam-compare ({what}); nothing was written "
+                         f"(to start a new run, leave out --resume)")
 
 
 def _run_config(args: argparse.Namespace, out: Path) -> RunConfig:

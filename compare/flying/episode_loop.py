@@ -25,7 +25,7 @@ import numpy as np
 from uam_fdm import episode
 from uam_fdm.air.wind import WindField
 from uam_fdm.episode import Outcome
-from uam_fdm.pilot import Observation, Pilot, RotorCommand, Task, Truth, VelocityCommand, World
+from uam_fdm.pilot import Observation, Pilot, ResetInfo, RotorCommand, Task, Truth, VelocityCommand, World
 from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.model import hover_state
@@ -113,6 +113,9 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
     unmapped = truth.unmapped
     near_unmapped = None if unmapped is None else [unmapped.obstacle_clearance_m(x0[None, 0:3], radius)]
     info = pilot.reset(world, task, seed)
+    if not isinstance(info, ResetInfo):  # a plug-in's mistake: its cell fails naming it, not at `info.ok`
+        raise PilotError(f"pilot {pilot_name or pilot.name!r}: reset returned {info!r:.60}, not a ResetInfo "
+                         f"(uam_fdm.pilot.ResetInfo)")
     hover = x0[dyn.layout.rotor]
     times, states, cmds, winds, clear = [np.zeros(1)], [x0[None]], [hover[None]], [np.zeros((1, 3))], []
     clear.append(np.array([_clearance(city, x0[None, 0:3], radius)[0]]))

@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 import importlib
 import inspect
+import numbers
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
@@ -172,6 +173,12 @@ PLUGIN_GROUP = "uam_compare.pilots"
 PLUGIN_WALL_S_PER_FLIGHT_S = 1.0  # run estimates for a plug-in that does not state its own
 _REFERENCE = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
 _ENTRY_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")  # it names output files: the scenario-name rule
+MAX_PLUGIN_NAME_BYTES = 78
+"""Longest plug-in name (`module:Class` or an entry point's), in bytes. It names the episode files,
+`<scenario>__ep000__<pilot>__s<seed>`, which `compare.results.trajectory.EpisodeKey` keeps within MAX_STEM_BYTES
+(200) bytes: this leaves room for a scenario name of up to 100 characters (the loader's MAX_NAME_CHARS) and a seed
+of up to 10 digits, so that a long name is refused when it is named, not when its first episode is saved."""
+MAX_WALL_S_PER_FLIGHT_S = 1000.0  # a plug-in's wall time per simulated second: beyond it no cell limit means anything
 
 
 def is_reference(name: str) -> bool:
@@ -215,8 +222,18 @@ def _entry_point(name: str) -> metadata.EntryPoint | None:
     return found[0] if found else None
 
 
+def _check_name_length(name: str) -> None:
+    """Refuse a plug-in name too long for the episode files it names (`MAX_PLUGIN_NAME_BYTES`), before any import."""
+    size = len(name.encode())
+    if size > MAX_PLUGIN_NAME_BYTES:
+        raise ValueError(f"pilot {name[:40]!r}...: its name is {size} bytes long; at most {MAX_PLUGIN_NAME_BYTES} "
+                         f"(it names the episode files, beside the scenario's name): use a shorter module path or "
+                         f"class name, or an entry point")
+
+
 @functools.cache  # one import and one entry per name and process (the module is cached by Python anyway)
 def _plugin(reference: str) -> PilotEntry:
+    _check_name_length(reference)
     module_name, _, attr = reference.partition(":")
     try:
         module = importlib.import_module(module_name)
@@ -238,6 +255,7 @@ def _plugin_from_entry_point(name: str, value: str) -> PilotEntry:
     if not _ENTRY_NAME.match(name) or "__" in name:
         raise ValueError(f"plug-in entry point {name!r} ({PLUGIN_GROUP}): a pilot name may only hold letters, "
                          f"digits, '_', '.' and '-', without '__' (it names output files)")
+    _check_name_length(name)
     entry = _entry_point(name)
     assert entry is not None
     try:
@@ -300,6 +318,27 @@ def _check_constructible(name: str, cls: type) -> None:
                          f"plug-in Pilot class is made with no arguments (or name a PilotEntry instead)")
 
 
+def _check_named(name: str, cls: type) -> None:
+    """A Pilot has a `name` (it labels the pilot's errors): a plug-in class declares it, as a class attribute (a
+    string, or a property) or an annotation set in `__init__`; else every cell of it would fail."""
+    annotated = any("name" in vars(k).get("__annotations__", {}) for k in cls.__mro__ if k is not Pilot)
+    if not hasattr(cls, "name") and not annotated:
+        raise ValueError(f"pilot {name!r}: {cls.__qualname__} has no `name`; a Pilot names itself (e.g. "
+                         f"name = \"my_pilot\" in the class; uam_fdm.pilot.Pilot)")
+    value = inspect.getattr_static(cls, "name", "")
+    if not isinstance(value, str) and not hasattr(type(value), "__get__"):
+        raise ValueError(f"pilot {name!r}: {cls.__qualname__}.name is {value!r:.40}, not a string")
+
+
+def _check_wall_time(name: str, value: object) -> float:
+    """`wall_s_per_flight_s` as a float, unless it is not a number in (0, MAX_WALL_S_PER_FLIGHT_S] (ValueError)."""
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        if 0.0 < float(value) <= MAX_WALL_S_PER_FLIGHT_S:  # NaN and infinity fail here too
+            return float(value)
+    raise ValueError(f"pilot {name!r}: wall_s_per_flight_s = {value!r:.40} is not a wall time per simulated "
+                     f"second: a number in (0, {MAX_WALL_S_PER_FLIGHT_S:g}] (e.g. 1.0), or leave it out")
+
+
 class _PluginBuilder:
     """Builds a plug-in `Pilot` class with no arguments and checks that it is one."""
 
@@ -319,7 +358,8 @@ def _entry_of(name: str, source: str, obj: object) -> PilotEntry:
     if isinstance(obj, PilotEntry):
         _check_text(name, "label", obj.label, MAX_LABEL_CHARS)
         _check_text(name, "description", obj.description, MAX_DESCRIPTION_CHARS)
-        return replace(obj, name=name, default=False, color=_check_color(name, obj.color))
+        return replace(obj, name=name, default=False, color=_check_color(name, obj.color),
+                       wall_s_per_flight_s=_check_wall_time(name, obj.wall_s_per_flight_s))
     if not inspect.isclass(obj):
         raise ValueError(f"pilot {name!r}: {source} is a {type(obj).__name__}, not a Pilot class or a PilotEntry")
     missing = [m for m in ("reset", "act", "episode_report") if not callable(getattr(obj, m, None))]
@@ -327,6 +367,7 @@ def _entry_of(name: str, source: str, obj: object) -> PilotEntry:
         raise ValueError(f"pilot {name!r}: {obj.__qualname__} is not a pilot: it lacks {', '.join(missing)} "
                          f"(uam_fdm.pilot.Pilot)")
     _check_constructible(name, obj)
+    _check_named(name, obj)
     label = _check_text(name, "label", str(getattr(obj, "label", obj.__name__)), MAX_LABEL_CHARS)
     doc = inspect.getdoc(obj) or ""
     description = str(getattr(obj, "description", "")) or doc.split("\n\n")[0].replace("\n", " ") or label
@@ -343,7 +384,7 @@ def _entry_of(name: str, source: str, obj: object) -> PilotEntry:
         given=given, build=_PluginBuilder(name, obj), plans=bool(getattr(obj, "plans", False)),
         uses_torch=bool(getattr(obj, "uses_torch", False)),
         report_type=report_type if isinstance(report_type, type) else None,
-        wall_s_per_flight_s=float(getattr(obj, "wall_s_per_flight_s", PLUGIN_WALL_S_PER_FLIGHT_S)))
+        wall_s_per_flight_s=_check_wall_time(name, getattr(obj, "wall_s_per_flight_s", PLUGIN_WALL_S_PER_FLIGHT_S)))
 
 
 def ordered(names: Iterable[str]) -> list[str]:

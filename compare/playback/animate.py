@@ -40,7 +40,7 @@ from compare.playback.flights import Flight, FlightGroup, sample_flight
 from compare.report.figures import GOAL_STYLE, START_STYLE, plain_text, trace_from_episode
 from compare.results.run_info import WindInfo
 from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
+from uam_fdm.city.plot import draw_map_3d, draw_map_topdown, missing_glyphs_unsaid
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path
 
@@ -235,7 +235,8 @@ class _Scene:
             a.set_animated(True)  # left out of the full draw; drawn per frame over the saved background
         # with an orbit only the 3D panel changes: save the rest, redraw that panel alone each frame
         self.ax3.set_visible(not opts.orbit_deg)
-        self.canvas.draw()
+        with missing_glyphs_unsaid():  # a name from a file in a script the font lacks: a box on the frame
+            self.canvas.draw()
         self._background = self.canvas.copy_from_bbox(fig.bbox)
         self.ax3.set_visible(True)
 
@@ -321,8 +322,9 @@ class _Scene:
             self.ax3.view_init(elev=_ELEV_DEG, azim=_AZIM_DEG + self.opts.orbit_deg * frac)
             self.figure.draw_artist(self.ax3)
         self._update(k)
-        for a in self.moving:
-            self.figure.draw_artist(a)
+        with missing_glyphs_unsaid():
+            for a in self.moving:
+                self.figure.draw_artist(a)
         return self.canvas.buffer_rgba()
 
     def _update(self, k: int) -> None:

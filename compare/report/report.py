@@ -57,7 +57,7 @@ from rl.policies.folder import PolicyFolder, Provenance
 from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
-from uam_fdm.city.plot import save_figure
+from uam_fdm.city.plot import missing_glyphs_unsaid, save_figure
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path
 
@@ -208,7 +208,8 @@ class _PageWriter:
 
     def add(self, fig: Figure, name: str) -> None:
         save_figure(fig, self.fig_dir / f"{_slug(name)}.png", dpi=PNG_DPI)
-        self.pdf.savefig(fig)
+        with missing_glyphs_unsaid():
+            self.pdf.savefig(fig)
         fig.clear()  # Figure-API figures are not registered with pyplot: clearing frees their artists
         self.count += 1
 

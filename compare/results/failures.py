@@ -24,6 +24,7 @@ from typing import Any
 from compare.flying.episode_loop import PilotError
 from compare.results.trajectory import EpisodeKey
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.strict import strict_json_loads
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +125,7 @@ def read_failure(path: Path) -> FailedCell:
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = strict_json_loads(path.read_text(encoding="utf-8"))
         if data.get("format_version") != FORMAT_VERSION:
             raise ValueError(f"format {data.get('format_version')!r}, expected {FORMAT_VERSION}")
         limit = data.get("limit_s")

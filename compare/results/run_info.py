@@ -20,6 +20,7 @@ from typing import Any
 
 from uam_fdm.air.shear import WindShear
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.strict import strict_json_loads
 
 RUN_INFO_NAME = "run.json"
 FORMAT_VERSION = 1
@@ -292,7 +293,7 @@ def read_run_info(run_dir: Path) -> RunInfo:
     if not path.is_file():
         raise ValueError(f"{run_dir}: not a run folder (no {RUN_INFO_NAME})")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = strict_json_loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: not readable JSON ({exc})") from exc
     return run_info_from_json(data, str(path))

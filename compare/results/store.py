@@ -24,13 +24,17 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
 import re
+import stat
+import weakref
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from compare.results.tables import (
@@ -118,10 +122,12 @@ def write_part(path: Path, data: bytes) -> Path:
 
 @dataclass(frozen=True)
 class Unreadable:
-    """A file of the run's episodes that does not read: its path and why (the reason names the file)."""
+    """A file of the run's episodes that does not read (or rows of it that are not read): its path and why (the
+    reason names the file); `planned` False: cells run.json does not plan, which `run --resume` does not fly."""
 
     path: Path
     reason: str
+    planned: bool = True
 
 
 def part_row(path: Path) -> dict[str, Any]:
@@ -130,11 +136,12 @@ def part_row(path: Path) -> dict[str, Any]:
     Raises:
         ValueError: not a part (not Parquet, truncated, no row), naming the file.
     """
-    try:
-        meta = pq.read_schema(path).metadata or {}
-        row = json.loads(meta[ROW_META_KEY])
-    except (KeyError, OSError, ValueError, pa.ArrowException) as exc:
-        raise ValueError(f"{path}: not a stored episode, or truncated or corrupt ({_why(exc)})") from exc
+    with open_regular(path) as source:
+        try:
+            meta = pq.read_schema(source).metadata or {}
+            row = json.loads(meta[ROW_META_KEY])
+        except (KeyError, OSError, ValueError, pa.ArrowException) as exc:
+            raise ValueError(f"{path}: not a stored episode, or truncated or corrupt ({_why(exc)})") from exc
     return _checked_row(row, path)
 
 
@@ -145,13 +152,38 @@ def read_part(path: Path) -> tuple[dict[str, Any], pa.Table]:
         ValueError: truncated, corrupt or not a part, naming the file.
     """
     row = part_row(path)
-    try:
-        f = pq.ParquetFile(path)
-        check_inflated(path, [f.metadata.row_group(g) for g in range(f.metadata.num_row_groups)])
-        table = f.read()
-    except (OSError, ValueError, pa.ArrowException) as exc:
-        raise ValueError(f"{path}: not a stored episode, or truncated or corrupt ({_why(exc)})") from exc
+    with open_regular(path) as source:
+        try:
+            f = pq.ParquetFile(source)
+            check_inflated(path, [f.metadata.row_group(g) for g in range(f.metadata.num_row_groups)])
+            table = f.read()
+        except (OSError, ValueError, pa.ArrowException) as exc:
+            raise ValueError(f"{path}: not a stored episode, or truncated or corrupt ({_why(exc)})") from exc
     return row, _checked_samples(table.replace_schema_metadata(None), row, path)
+
+
+def open_regular(path: Path) -> IO[bytes]:
+    """`path` opened for reading, if it is a regular file (a FIFO named like a store's file is never opened: its
+    reader would wait for a writer for ever; one put in its place after the check is opened without waiting, and
+    refused).
+
+    Raises:
+        ValueError: not a regular file, or it cannot be opened, naming it.
+    """
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise ValueError(f"{path}: not a regular file")
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or _why(exc)})") from exc
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError(f"{path}: not a regular file")
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 def check_inflated(path: Path, groups: Sequence[Any]) -> None:
@@ -185,10 +217,21 @@ def _checked_samples(table: pa.Table, row: Mapping[str, Any], where: Path) -> pa
         raise ValueError(f"{where}: not a stored episode (its columns are not the samples table's)")
     if table.num_rows != row["samples"]:
         raise ValueError(f"{where}: {table.num_rows} samples, its episode row says {row['samples']}")
-    if table.num_rows and tuple(table.column(c)[0].as_py() for c in KEY_COLUMNS) != tuple(
-            row[c] for c in KEY_COLUMNS):
-        raise ValueError(f"{where}: its samples are of another cell than its episode row")
+    other = other_cell(table, row)
+    if other:
+        raise ValueError(f"{where}: its samples are of another cell than its episode row ({other})")
     return table
+
+
+def other_cell(samples: pa.Table, row: Mapping[str, Any]) -> str:
+    """How the samples' cell columns (scenario, episode, method, seed) disagree with an episode row's, in words
+    ("seed 1, its row says 0"); "" where every sample is of the row's cell."""
+    for c in KEY_COLUMNS:
+        found = pc.unique(samples.column(c)).to_pylist()
+        others = [v for v in found if v != row[c]]
+        if others:
+            return f"{c} {str(others[0])[:80]}, its row says {str(row[c])[:80]}"
+    return ""
 
 
 def key_of(row: Mapping[str, Any]) -> EpisodeKey:
@@ -204,25 +247,51 @@ def cell_rank(row: Mapping[str, Any]) -> tuple[str, int, str, int]:
     return (row["scenario"], int(row["episode"]), row["method"], int(row["seed"]))
 
 
-def read_episode_table(run_dir: Path) -> list[dict[str, Any]]:
+def read_episode_table(run_dir: Path, max_rows: int | None = None, planned: str = "") -> list[dict[str, Any]]:
     """The compacted episode table's rows ([] when the run has none yet).
 
+    Args:
+        max_rows: a table of more rows is refused before they are read (None: any size).
+        planned: what `max_rows` comes from, for the message ("run.json plans 2 episodes").
+
     Raises:
-        ValueError: the table does not read, naming it.
+        ValueError: the table does not read, or holds more than `max_rows` rows, naming it.
     """
     path = store_dir(run_dir) / EPISODE_TABLE
     if not path.exists():
         return []
-    try:
-        table = pq.read_table(path)
-    except (OSError, ValueError, pa.ArrowException) as exc:
-        raise ValueError(f"{path}: the run's episode table is truncated or corrupt ({_why(exc)})") from exc
+    with open_regular(path) as source:
+        try:
+            f = pq.ParquetFile(source)
+            rows = f.metadata.num_rows
+            table = f.read() if max_rows is None or rows <= max_rows else None
+        except (OSError, ValueError, pa.ArrowException) as exc:
+            raise ValueError(f"{path}: the run's episode table is truncated or corrupt ({_why(exc)})") from exc
+    if table is None:
+        raise ValueError(f"{path}: {rows:,} rows, far more than {planned or 'the run plans'}: refused unread "
+                         f"(at most {max_rows:,} are read)")
     schema = table.schema.remove_metadata()
     if schema.equals(EPISODE_SCHEMA_BEFORE_SENSING):  # a run from before the vehicle sensed
         return [with_metric_defaults(r) for r in table.to_pylist()]
     if not schema.equals(EPISODE_SCHEMA):
         raise ValueError(f"{path}: not a run's episode table (its columns differ)")
     return table.to_pylist()
+
+
+def episode_table_rows(run_dir: Path) -> int:
+    """How many rows the episode table holds, from its footer alone (0 when the run has none yet).
+
+    Raises:
+        ValueError: the table does not open (not Parquet, truncated), naming it.
+    """
+    path = store_dir(run_dir) / EPISODE_TABLE
+    if not path.exists():
+        return 0
+    with open_regular(path) as source:
+        try:
+            return int(pq.ParquetFile(source).metadata.num_rows)
+        except (OSError, ValueError, pa.ArrowException) as exc:
+            raise ValueError(f"{path}: the run's episode table is truncated or corrupt ({_why(exc)})") from exc
 
 
 def samples_path(run_dir: Path, row: Mapping[str, Any]) -> Path:
@@ -256,7 +325,6 @@ def compact(run_dir: Path) -> list[Unreadable]:
     """
     folder = store_dir(run_dir)
     parts = part_files(run_dir)
-    old = read_episode_table(run_dir)
     bad: list[Unreadable] = []
     rows: list[tuple[dict[str, Any], Path]] = []
     for p in parts:
@@ -264,7 +332,10 @@ def compact(run_dir: Path) -> list[Unreadable]:
             rows.append((part_row(p), p))
         except ValueError as exc:
             bad.append(Unreadable(p, str(exc)))
-    if rows:
+    if not rows:  # nothing to move in: the table's footer is checked, its rows are left to its readers
+        episode_table_rows(run_dir)
+    else:
+        old = read_episode_table(run_dir)
         rows.sort(key=lambda rp: cell_rank(rp[0]))
         gen = 1 + max((int(m["gen"]) for f in samples_files(run_dir) if (m := _SAMPLES.match(f.name))), default=0)
         new_rows, done, failed = _write_samples(folder, gen, rows)
@@ -385,17 +456,20 @@ class _SamplesWriter:
 
 
 def open_samples(path: Path) -> pq.ParquetFile:
-    """A samples file opened for reading (its footer read).
+    """A samples file (or a part) opened for reading (its footer read; closed with `close(force=True)`).
 
     Raises:
-        ValueError: truncated, corrupt or not a samples file, naming it.
+        ValueError: not a regular file, truncated, corrupt or not a samples file, naming it.
     """
+    source = open_regular(path)
     try:
-        f = pq.ParquetFile(path)
+        f = pq.ParquetFile(source)
     except (OSError, ValueError, pa.ArrowException) as exc:
+        source.close()
         raise ValueError(f"{path}: truncated or corrupt samples file ({_why(exc)})") from exc
+    weakref.finalize(f, source.close)  # closed with the reader, as a file pyarrow opened itself would be
     if not f.schema_arrow.remove_metadata().equals(SAMPLE_SCHEMA) and not f.schema_arrow.remove_metadata().equals(
             SAMPLE_SCHEMA_BEFORE_SENSING):  # a run from before the vehicle sensed: read, without its columns
-        f.close()
+        source.close()
         raise ValueError(f"{path}: not a samples file (its columns differ)")
     return f

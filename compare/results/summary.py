@@ -45,6 +45,7 @@ from compare.results.stats import (
     newcombe_paired_interval,
 )
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.strict import strict_json_loads
 from uam_fdm.stats import wilson_interval
 
 SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
@@ -454,7 +455,7 @@ def read_summary_json(path: Path) -> Summary:
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = strict_json_loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: not readable JSON ({exc})") from exc
     return _summary_from_json(data, str(path), "", None)

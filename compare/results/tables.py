@@ -34,6 +34,7 @@ import pyarrow as pa
 from compare.flying.episode_loop import Trajectory
 from compare.results.metrics import SENSING_METRICS, EpisodeMetrics
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, meta_from_json, meta_to_json
+from uam_fdm.files.strict import strict_json_loads
 
 STORE_MODES = ("control", "full")
 """Sample rates a run can store: the control rate (default) or the physics rate (`--store full`)."""
@@ -273,7 +274,7 @@ def meta_from_row(row: Mapping[str, Any]) -> EpisodeMeta:
         ValueError: its meta_json is not an episode's metadata.
     """
     try:
-        return meta_from_json(json.loads(row["meta_json"]))
+        return meta_from_json(strict_json_loads(row["meta_json"]))
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"its metadata is not readable ({exc})") from exc
 

@@ -31,6 +31,7 @@ from compare.flying import pilots
 from compare.flying.episode_loop import Trajectory
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_open
+from uam_fdm.files.strict import strict_json_loads
 from uam_fdm.pilot import PilotReport
 
 FORMAT_VERSION = 1
@@ -200,7 +201,7 @@ def load_episode(path: Path) -> SavedEpisode:
             raise ValueError(f"its arrays would take {inflated / 2**20:,.0f} MiB in memory; at most "
                              f"{MAX_EPISODE_BYTES / 2**20:,.0f} MiB")
         with np.load(path, allow_pickle=False) as z:
-            header = json.loads(str(z["meta_json"]))
+            header = strict_json_loads(str(z["meta_json"]))
             arrays = {name: np.array(z[name]) for name in _ARRAYS}
             optional = {name: np.array(z[name]) if name in z.files else None for name in _OPTIONAL_ARRAYS}
     # a truncated or damaged file fails inside zipfile/zlib (BadZipFile, EOFError, zlib.error on a bad CRC)

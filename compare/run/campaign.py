@@ -223,8 +223,8 @@ def plan_cells(scenarios: Sequence[Scenario], opts: RunConfig,
         for m in [name for name in flown if pilots.pilot(name).needs_policy]:
             if policies is not None and policy is None:
                 flown.remove(m)
-                notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} (none shipped, none "
-                             f"given with --policy); {m} not flown")
+                notes.append(f"{sc.name}: no learned policy for vehicle {sc.vehicle_name!r} "
+                             f"({_why_no_policy(sc, opts, policies)}); {m} not flown")
             elif policy is not None and abs(sc.control_hz - policy.control_hz) > 1e-9:
                 others = ",".join(o for o in flown if o != m)
                 raise ValueError(
@@ -485,6 +485,19 @@ def policy_facts(policy: Path | None) -> PolicyFacts:
     nav = loaded.nav
     return PolicyFacts(loaded.folder.resolve(), nav.vehicle, load_vehicle(nav.vehicle).fingerprint(),
                        float(nav.control_hz), float(nav.decision_hz), air_envelope(nav.air))
+
+
+def _why_no_policy(sc: Scenario, opts: RunConfig, policies: Mapping[str, PolicyFacts]) -> str:
+    """Why no policy flies `sc`'s vehicle (`policies`: those chosen, by vehicle fingerprint), for its note."""
+    same_name = next((p.folder for p in policies.values() if p.vehicle == sc.vehicle_name),
+                     shipped_policy_dir(sc.vehicle_name))
+    if same_name is not None:  # a vehicle file that reuses a preset's name with other parameters
+        return f"{same_name} was trained for the preset {sc.vehicle_name!r}, not for this vehicle's other parameters"
+    given = {Path(f).resolve() for f in opts.policies}
+    for_others = sorted({p.vehicle for p in policies.values() if p.folder in given})
+    if for_others:
+        return f"none shipped; --policy gives one for {', '.join(map(repr, for_others))} only"
+    return "none shipped, none given with --policy"
 
 
 def select_policies(scenarios: Sequence[Scenario], opts: RunConfig) -> dict[str, PolicyFacts]:

@@ -68,7 +68,11 @@ from uam_fdm.pilot import Task
 from uam_fdm.renamed import RenamedWarning
 from uam_fdm.sensing.config import sensing_from_config
 from uam_fdm.sensing.specs import SensingConfig, sensing_preset
-from uam_fdm.vehicle.dynamics import control_ratio_problem, motor_lag_problem
+from uam_fdm.vehicle.dynamics import (
+    MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD,
+    control_ratio_problem,
+    motor_lag_problem,
+)
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle, preset_names, vehicle_from_dict
 
 DEFAULT_GOAL_RADIUS_M = 3.0
@@ -387,7 +391,11 @@ def _rates(data: Mapping, source: str, vehicle: VehicleParams) -> tuple[float, f
     control = _optional(data, "control_hz", DEFAULT_CONTROL_HZ, source,
                         lambda v, s, k: number_in_range(v, (0.0, physics), "Hz (at most physics_hz)", s, k,
                                                         open_low=True))
-    ratio = physics / control
+    ratio, most = physics / control, MAX_PHYSICS_STEPS_PER_CONTROL_PERIOD
+    if not ratio <= most:  # before any rounding: a tiny control_hz overflows it
+        raise ConfigError(source, "control_hz", f"control_hz {control:g} Hz gives {ratio:.3g} physics steps per "
+                                                f"control period at {physics:g} Hz; at most {most} (control_hz >= "
+                                                f"{physics / most:g} Hz)")
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise ConfigError(source, "physics_hz", f"must be an integer multiple of control_hz {control:g} Hz, "
                                                 f"got {physics:g} Hz (ratio {ratio:g})")

@@ -30,19 +30,24 @@ def resolve_scenarios(spec: str | Path) -> list[Scenario]:
     """Load the scenarios named by `spec`.
 
     Args:
-        spec: a built-in set name (`builtin_sets()`; it wins over a same-named folder, so write
-            ``./default`` for a local one; a benchmark set is generated, `compare.scenarios.benchmark`), a scenario
-            YAML file, or a folder whose ``*.yaml`` / ``*.yml`` files are loaded in sorted file-name order.
+        spec: a built-in set name (`builtin_sets()`; a benchmark set is generated, `compare.scenarios.benchmark`),
+            a scenario YAML file, or a folder whose ``*.yaml`` / ``*.yml`` files are loaded in sorted file-name
+            order. A bare set name that is also a file or folder here is refused (write ``./default`` for it).
 
     Returns:
         The scenarios, in order.
 
     Raises:
         ValueError: when `spec` is neither a set nor an existing file or folder (the message lists
-            the built-in sets), or the folder holds no YAML file.
+            the built-in sets), both a set and a file or folder here, or the folder holds no YAML file.
         ConfigError: for any bad scenario, or two scenarios with the same name.
     """
     text = str(spec)
+    local = Path(text)
+    if text in builtin_sets() and local.exists() and local.resolve() != (SCENARIO_DIR / text).resolve():
+        kind = "folder" if local.is_dir() else "file"
+        raise ValueError(f"{text!r} names both a built-in scenario set and the {kind} ./{text} here: write ./{text} "
+                         f"for the {kind}; for the built-in set, run from a folder without a {text!r} in it")
     if text in BENCHMARK_SETS:
         return list(build_task_set(text).scenarios)
     if text in SWEEP_SETS:

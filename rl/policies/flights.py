@@ -21,6 +21,7 @@ the physics rate the comparison's metrics use.
 from __future__ import annotations
 
 import json
+import math
 import re
 import zipfile
 from dataclasses import dataclass, field
@@ -33,6 +34,7 @@ from rl.policies.reader import OBS_NORM_KEYS, ObsNorm
 from uam_fdm.episode import OUTCOMES
 from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.files.npz import write_npz
+from uam_fdm.files.strict import strict_json_loads
 
 FLIGHTS_DIR = "training_flights"
 TASKS_FILE = "tasks.json"
@@ -105,25 +107,45 @@ class FlightTasks:
         return {"format": FORMAT, "version": VERSION, "rule": self.rule, "seed": self.seed,
                 "control_hz": self.control_hz, "vehicle": self.vehicle, "collision_radius_m": self.collision_radius_m,
                 "tasks": [vars(t) | {"start_m": list(t.start_m), "goal_m": list(t.goal_m),
-                                     "wind_m_s": list(t.wind_m_s)} for t in self.tasks],
+                                     "wind_m_s": list(t.wind_m_s), "elevation_m": _known(t.elevation_m),
+                                     "isa_offset_k": _known(t.isa_offset_k)} for t in self.tasks],
                 "cities": [{"name": c.name, "bounds_min_m": list(c.bounds_min_m), "bounds_max_m": list(c.bounds_max_m),
                             "boxes": np.round(c.boxes, 3).tolist()} for c in self.cities]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FlightTasks:
-        """From tasks.json's object (KeyError, TypeError, ValueError when it is not one)."""
+        """From tasks.json's object (KeyError, TypeError, ValueError when it is not one; a number that is not
+        finite is named by its key, e.g. "tasks[3].timeout_s"; an unknown field's atmosphere is null).
+        """
         if d.get("format") != FORMAT or d.get("version") != VERSION:
             raise ValueError(f"not version {VERSION} of the {FORMAT!r} format")
-        cities = tuple(CityBoxes(str(c["name"]), _triple(c["bounds_min_m"]), _triple(c["bounds_max_m"]),
-                                 _boxes(c["boxes"])) for c in d["cities"])
-        tasks = tuple(RecordedTask(int(t["city"]), str(t["leg"]), _triple(t["start_m"]), _triple(t["goal_m"]),
-                                   float(t["goal_radius_m"]), float(t["timeout_s"]), float(t["start_yaw_rad"]),
-                                   str(t["turbulence"]), float(t["elevation_m"]), float(t["isa_offset_k"]),
-                                   _triple(t["wind_m_s"])) for t in d["tasks"])
+        cities = tuple(CityBoxes(str(c["name"]), _triple(c["bounds_min_m"], f"cities[{i}].bounds_min_m"),
+                                 _triple(c["bounds_max_m"], f"cities[{i}].bounds_max_m"),
+                                 _boxes(c["boxes"], f"cities[{i}].boxes")) for i, c in enumerate(d["cities"]))
+
+        def task(k: int, t: dict[str, Any]) -> RecordedTask:
+            def real(key: str) -> float:
+                return _finite(t[key], f"tasks[{k}].{key}")
+
+            def triple(key: str) -> tuple[float, float, float]:
+                return _triple(t[key], f"tasks[{k}].{key}")
+
+            air = {key: float("nan") if t[key] is None else float(t[key]) for key in ("elevation_m", "isa_offset_k")}
+            for key, v in air.items():  # NaN: written so before unknown fields were null
+                if math.isinf(v):
+                    raise ValueError(f"tasks[{k}].{key} must be a finite number or null, got {t[key]!r}")
+            return RecordedTask(_integer(t["city"], f"tasks[{k}].city"), str(t["leg"]), triple("start_m"),
+                                triple("goal_m"), real("goal_radius_m"), real("timeout_s"), real("start_yaw_rad"),
+                                str(t["turbulence"]), air["elevation_m"], air["isa_offset_k"], triple("wind_m_s"))
+
+        tasks = tuple(task(k, t) for k, t in enumerate(d["tasks"]))
         if not tasks or any(not 0 <= t.city < len(cities) for t in tasks):
             raise ValueError("no tasks, or a task names a city that is not listed")
-        return cls(str(d["rule"]), int(d["seed"]), float(d["control_hz"]), str(d["vehicle"]),
-                   float(d["collision_radius_m"]), tasks, cities)
+        control_hz = _finite(d["control_hz"], "control_hz")
+        if control_hz <= 0:
+            raise ValueError(f"control_hz must be positive, got {control_hz!r}")
+        return cls(str(d["rule"]), _integer(d["seed"], "seed"), control_hz, str(d["vehicle"]),
+                   _finite(d["collision_radius_m"], "collision_radius_m"), tasks, cities)
 
 
 @dataclass(frozen=True, eq=False)
@@ -234,7 +256,7 @@ class TrainingFlights:
                              f"{HOW_TO_RECORD}")
         path = d / TASKS_FILE
         try:
-            tasks = FlightTasks.from_dict(json.loads(path.read_text(encoding="utf-8")))
+            tasks = FlightTasks.from_dict(strict_json_loads(path.read_text(encoding="utf-8")))
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"{path}: not a training-flights task list ({exc})") from None
         return cls(folder, tasks, tuple(steps))
@@ -275,8 +297,9 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
         raise ValueError(f"{path}: its arrays do not fit together (flights, offsets and samples)")
     if np.any(task < 0) or np.any(task >= n_tasks):
         raise ValueError(f"{path}: a flight names a task that tasks.json does not list")
-    if not (np.isfinite(pos).all() and np.isfinite(vel).all() and np.isfinite(time_s).all()):
-        raise ValueError(f"{path}: non-finite positions, velocities or times")
+    for key, values in (("pos_m", pos), ("vel_m_s", vel), ("time_s", time_s), ("min_clearance_m", min_c)):
+        if not np.isfinite(values.astype(float)).all():
+            raise ValueError(f"{path}: array {key!r} has non-finite values")
     known = {str(o) for o in OUTCOMES}
     bad = next((str(o) for o in outcome if str(o) not in known), None)
     if bad is not None:
@@ -286,6 +309,10 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
                            vel[offsets[i]:offsets[i + 1]].astype(np.float32),
                            clear[offsets[i]:offsets[i + 1]].astype(np.float32)) for i in range(f))
     actor = {k[len("actor/"):]: v.astype(np.float32) for k, v in a.items() if k.startswith("actor/")}
+    broken = next((k for k, v in a.items() if k.startswith(("actor/", "obs_norm/")) and not np.isfinite(v).all()),
+                  None)
+    if broken is not None:  # the checkpoint can be flown again (`rl.pilots.learned.load_checkpoint_policy`)
+        raise ValueError(f"{path}: array {broken!r} has non-finite values")
     norm = None
     if all(f"obs_norm/{k}" in a for k in OBS_NORM_KEYS):
         n = {k: a[f"obs_norm/{k}"].astype(np.float64) for k in OBS_NORM_KEYS}
@@ -293,14 +320,33 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
     return CheckpointFlights(int(need("timesteps")), flights, actor, norm)
 
 
-def _triple(v: Any) -> tuple[float, float, float]:
+def _known(v: float) -> float | None:
+    """A number for tasks.json: None (null) when not known (NaN), as JSON has no NaN."""
+    return None if math.isnan(v) else v
+
+
+def _finite(v: Any, key: str) -> float:
+    """`v` as a finite float, else a ValueError naming `key`."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{key} must be a finite number, got {str(v)[:60]}")
+    return float(v)
+
+
+def _integer(v: Any, key: str) -> int:
+    """`v` as an int (a JSON integer), else a ValueError naming `key`."""
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ValueError(f"{key} must be an integer, got {str(v)[:60]}")
+    return v
+
+
+def _triple(v: Any, key: str) -> tuple[float, float, float]:
     if not isinstance(v, (list, tuple)) or len(v) != 3:
-        raise ValueError(f"expected three numbers, got {str(v)[:60]}")
-    return (float(v[0]), float(v[1]), float(v[2]))
+        raise ValueError(f"{key} must be three numbers, got {str(v)[:60]}")
+    return (_finite(v[0], key), _finite(v[1], key), _finite(v[2], key))
 
 
-def _boxes(v: Any) -> np.ndarray:
+def _boxes(v: Any, key: str) -> np.ndarray:
     a = np.asarray(v, dtype=float).reshape(-1, 6) if len(v) else np.zeros((0, 6))
     if not np.isfinite(a).all():
-        raise ValueError("non-finite building boxes")
+        raise ValueError(f"{key} holds non-finite numbers")
     return a

@@ -25,7 +25,6 @@ its config and draws its reward curve and provenance in the report.
 """
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -33,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from rl.task.config import NavConfig
+from uam_fdm.files.strict import strict_json_loads
 from uam_fdm.vehicle.params import preset_names
 
 MODEL = "model.zip"
@@ -228,7 +228,7 @@ class PolicyFolder:
             ValueError: "<folder>/config.json: not a policy configuration (<why>)".
         """
         try:
-            cfg = json.loads(self.config_file.read_text())
+            cfg = strict_json_loads(self.config_file.read_text())
             nav = NavConfig.from_dict(cfg["nav"])
             ppo = cfg["ppo"]
             preset = cfg.get("preset")
@@ -253,7 +253,7 @@ class PolicyFolder:
         if not path.is_file():
             return None
         try:
-            loaded = json.loads(path.read_text(encoding="utf-8"))
+            loaded = strict_json_loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             raise ValueError(f"{path}: unreadable ({exc})") from None
         if not isinstance(loaded, dict):

@@ -26,6 +26,8 @@ from rl.policies.folder import NetworkConfig
 from uam_fdm.files.atomic import atomic_open
 
 if TYPE_CHECKING:  # PyTorch loads only with a network
+    import torch
+
     from rl.policies.network import ActorCritic
 
 OBS_NORM_KEYS = ("mean", "var", "count", "epsilon", "clip_obs")
@@ -111,20 +113,14 @@ def zip_entry(path: Path, name: str) -> bytes:
         raise ValueError(f"{path}: not a readable zip file ({exc})") from None
 
 
-def load_network(path: Path, n_obs: int, config: NetworkConfig) -> ActorCritic:
-    """The actor-critic of `model.zip` at `path`, built from settings and filled with its weights only.
-
-    Args:
-        n_obs: observation size the network must take; config: the network's shape (config.json's "ppo").
+def policy_weights(path: Path) -> dict[str, torch.Tensor]:
+    """The tensors of `model.zip`'s `policy.pth` at `path` (SB3 parameter names), read as tensors only.
 
     Raises:
-        ValueError: the file is unreadable, holds anything but tensors, or its weights do not fit
-            the network (e.g. another observation size; both sizes named).
+        ValueError: the file is unreadable, holds anything but tensors or a non-finite weight (naming it).
     """
     # PyTorch is loaded only here: reading a folder's statistics and settings (fingerprints, reports) needs none
     import torch
-
-    from rl.policies.network import ActorCritic
 
     raw = zip_entry(path, "policy.pth")
     try:
@@ -137,6 +133,37 @@ def load_network(path: Path, n_obs: int, config: NetworkConfig) -> ActorCritic:
     bad = next((k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())), None)
     if bad is not None:
         raise ValueError(f"{path}: policy.pth's {str(bad)[:80]} holds non-finite weights")
+    return state
+
+
+def network_shape(path: Path) -> tuple[int, tuple[int, ...]]:
+    """What `model.zip`'s weights at `path` take and are: (observation size, the actor's units per hidden layer).
+
+    Raises:
+        ValueError: as `policy_weights`, or the weights hold no actor layers of the paper's network (naming it).
+    """
+    state = policy_weights(path)
+    layers: list[torch.Tensor] = []
+    while (w := state.get(f"mlp_extractor.policy_net.{2 * len(layers)}.weight")) is not None and w.ndim == 2:
+        layers.append(w)
+    if not layers:
+        raise ValueError(f"{path}: policy.pth holds no actor layers (mlp_extractor.policy_net)")
+    return int(layers[0].shape[1]), tuple(int(w.shape[0]) for w in layers)
+
+
+def load_network(path: Path, n_obs: int, config: NetworkConfig) -> ActorCritic:
+    """The actor-critic of `model.zip` at `path`, built from settings and filled with its weights only.
+
+    Args:
+        n_obs: observation size the network must take; config: the network's shape (config.json's "ppo").
+
+    Raises:
+        ValueError: the file is unreadable, holds anything but tensors, or its weights do not fit
+            the network (e.g. another observation size; both sizes named).
+    """
+    from rl.policies.network import ActorCritic
+
+    state = policy_weights(path)
     first = state.get("mlp_extractor.policy_net.0.weight")
     if first is not None and first.shape[1] != n_obs:
         raise ValueError(f"{path}: the network takes {first.shape[1]} observations; "

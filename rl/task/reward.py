@@ -38,6 +38,9 @@ from dataclasses import dataclass
 import numpy as np
 
 TERMS = ("progress", "time", "danger", "proximity", "braking", "arrival", "collision")
+MAX_WEIGHT = 1e6  # per metre, second or event: the shipped tasks' are 100 at most
+SCALE_RANGE = (1e-3, 1e6)  # the horizon [s], distance [m], speed [m/s] and margin the terms divide by
+_SCALES = ("ttc_horizon_s", "proximity_m", "proximity_speed_m_s", "braking_margin")
 
 
 @dataclass(frozen=True)
@@ -57,13 +60,12 @@ class RewardConfig:
     collision_penalty: float = 100.0
 
     def __post_init__(self) -> None:
+        # bounded, so that no episode's return overflows (float32 in the environment, summed over thousands of
+        # decisions): a weight of 1e308 in a policy's config.json would make every return infinite
         for k, v in self.__dict__.items():
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"reward.{k} must be a finite number >= 0, got {v!r}")
-        if (self.ttc_horizon_s <= 0 or self.proximity_m <= 0 or self.proximity_speed_m_s <= 0
-                or self.braking_margin <= 0):
-            raise ValueError("reward.ttc_horizon_s, reward.proximity_m, reward.proximity_speed_m_s and "
-                             "reward.braking_margin must be > 0")
+            lo, hi = SCALE_RANGE if k in _SCALES else (0.0, MAX_WEIGHT)
+            if not (np.isfinite(v) and lo <= v <= hi):
+                raise ValueError(f"reward.{k} must be a finite number in [{lo:g}, {hi:g}], got {v!r}")
 
 
 def reward_terms(cfg: RewardConfig, route_before_m: np.ndarray, route_after_m: np.ndarray,

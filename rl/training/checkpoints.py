@@ -3,13 +3,14 @@
 `save_vec_normalize` / `restore_vec_normalize`: every VecNormalize statistic as plain arrays (SB3's own
 `VecNormalize.load` unpickles a whole object). `load_model_for_resume`: `PPO.load` of `model.zip` with
 *every* pickled entry of its `data` replaced by an object built here (`custom_objects`, which SB3 uses
-instead of unpickling), refusing a file with a pickled entry it does not know. The flying files
-(network weights, observation statistics) are read by `rl.policies.reader`.
+instead of unpickling), refusing a file with a pickled entry it does not know. `check_resume`: whether a run
+can resume from a folder, before anything is built or written. The flying files (network weights,
+observation statistics) are read by `rl.policies.reader`.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3 import PPO
@@ -17,11 +18,16 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from rl.policies.reader import OBS_NORM_KEYS, ObsNorm, load_arrays, zip_entry
-from rl.training.ppo import PPOConfig, TanhMeanPolicy
+from rl.policies.folder import CONFIG, MODEL, VEC_NORMALIZE, NetworkConfig, PolicyFolder
+from rl.policies.reader import OBS_NORM_KEYS, ObsNorm, load_arrays, network_shape, zip_entry
+from rl.sensing.observation import obs_size
+from rl.training.config import TrainConfig
+from rl.training.ppo import PRESETS, PPOConfig, TanhMeanPolicy
 from uam_fdm.files.atomic import atomic_open
+from uam_fdm.files.strict import strict_json_loads
 
 VEC_NORM_KEYS = OBS_NORM_KEYS + ("ret_mean", "ret_var", "ret_count", "clip_reward", "gamma")
+RESUME_FILES = (MODEL, VEC_NORMALIZE, CONFIG)  # and curriculum.json when there (difficulty 1 without)
 
 # the pickled entries SB3 2.x writes in model.zip's `data`; each is replaced, never unpickled
 _REPLACED = ("policy_class", "observation_space", "action_space", "lr_schedule", "learning_rate", "clip_range",
@@ -66,14 +72,7 @@ def load_model_for_resume(path: Path, venv: VecNormalize, preset: PPOConfig, tb:
     Raises:
         ValueError: the file is unreadable or holds a pickled entry this version does not replace.
     """
-    try:
-        data = json.loads(zip_entry(path, "data"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: its 'data' entry is not JSON ({exc})") from None
-    pickled = sorted(k for k, v in data.items() if isinstance(v, dict) and ":serialized:" in v)
-    unknown = [k for k in pickled if k not in _REPLACED]
-    if unknown:
-        raise ValueError(f"{path}: pickled entries {unknown} would run code on loading; refused")
+    model_data(path)
     lr = preset.learning_rate_schedule()
     replaced = {"policy_class": TanhMeanPolicy, "observation_space": venv.observation_space,
                 "action_space": venv.action_space, "lr_schedule": lambda _: 0.0, "learning_rate": lr,
@@ -82,3 +81,98 @@ def load_model_for_resume(path: Path, venv: VecNormalize, preset: PPOConfig, tb:
                 "ep_info_buffer": None, "ep_success_buffer": None}
     return PPO.load(str(path), env=venv, device="cpu", custom_objects=replaced, force_reset=True,
                     tensorboard_log=str(tb) if tb is not None else None)
+
+
+def model_data(path: Path) -> dict[str, Any]:
+    """`model.zip`'s `data` entry (SB3's settings of the model) as JSON, its pickled entries left as they are.
+
+    Raises:
+        ValueError: not a JSON object, or it holds a pickled entry this version does not replace (naming the file).
+    """
+    try:
+        data = strict_json_loads(zip_entry(path, "data").decode("utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: its 'data' entry is not JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: its 'data' entry is not a JSON object")
+    pickled = sorted(k for k, v in data.items() if isinstance(v, dict) and ":serialized:" in v)
+    unknown = [k for k in pickled if k not in _REPLACED]
+    if unknown:
+        raise ValueError(f"{path}: pickled entries {unknown} would run code on loading; refused")
+    return data
+
+
+def read_curriculum(path: Path) -> tuple[float, int | None]:
+    """curriculum.json: the difficulty (0 to 1] and the timestep its level began (None: not recorded).
+
+    Raises:
+        ValueError: unreadable, or a value of the wrong kind, naming the file and the key.
+    """
+    try:
+        state = strict_json_loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: unreadable ({exc})") from None
+    if not isinstance(state, dict):
+        raise ValueError(f"{path}: not a JSON object")
+    difficulty, since = state.get("difficulty"), state.get("level_since")
+    if isinstance(difficulty, bool) or not isinstance(difficulty, (int, float)) or not 0 < difficulty <= 1:
+        raise ValueError(f"{path}: difficulty must be a number in (0, 1], got {str(difficulty)[:40]}")
+    if since is not None and (isinstance(since, bool) or not isinstance(since, int) or since < 0):
+        raise ValueError(f"{path}: level_since must be a timestep count (an integer >= 0), got {str(since)[:40]}")
+    return float(difficulty), since
+
+
+def check_resume(folder: Path, cfg: TrainConfig) -> None:
+    """Raise ValueError unless training `cfg` can resume from `folder` (a checkpoint or a policy folder); read
+    before anything is built or written. Its files are there; its config.json says what its weights are (the
+    network's layers and the observation size); it was trained for this run's vehicle, observation and network;
+    its statistics are of that observation size and its curriculum state is readable.
+
+    Raises:
+        ValueError: one line naming the folder and what is missing, or the file and key that disagree.
+    """
+    src, where = PolicyFolder(folder), f"--resume {folder}"
+    if not src.path.is_dir():
+        raise ValueError(f"{where}: no such folder (give a policy folder or one of its checkpoints/step_*)")
+    for name in RESUME_FILES:
+        if not (src.path / name).is_file():
+            raise ValueError(f"{where}: not a checkpoint or policy folder ({name} is missing)")
+    saved = src.config()
+    n_obs = obs_size(saved.nav.perception, saved.nav.observe)
+    held_obs, held_arch = network_shape(src.model)
+    if held_arch != saved.network.net_arch:
+        raise ValueError(f"{src.config_file}: ppo.net_arch is {list(saved.network.net_arch)}; the weights of "
+                         f"{MODEL} have layers of {list(held_arch)} units")
+    if held_obs != n_obs:
+        raise ValueError(f"{src.config_file}: nav.perception and nav.observe give {n_obs} observations; the "
+                         f"weights of {MODEL} take {held_obs}")
+    data = model_data(src.model)
+    kwargs, space = data.get("policy_kwargs"), data.get("observation_space")
+    built = kwargs.get("net_arch") if isinstance(kwargs, dict) else None
+    if built != NetworkConfig(held_arch).policy_kwargs()["net_arch"]:
+        raise ValueError(f"{src.model}: its data's policy_kwargs.net_arch is {str(built)[:80]}; its weights have "
+                         f"layers of {list(held_arch)} units")
+    shape = space.get("_shape") if isinstance(space, dict) else None
+    if shape != [held_obs]:
+        raise ValueError(f"{src.model}: its data's observation_space._shape is {str(shape)[:40]}; its weights "
+                         f"take {held_obs} observations")
+    stats = load_arrays(src.vec_normalize, VEC_NORM_KEYS)
+    if stats["mean"].shape != (n_obs,) or stats["var"].shape != (n_obs,):
+        raise ValueError(f"{src.vec_normalize}: statistics for {stats['mean'].size} observations; "
+                         f"{CONFIG} gives {n_obs}")
+    if src.curriculum.is_file():
+        read_curriculum(src.curriculum)
+    if saved.nav.vehicle != cfg.nav.vehicle:
+        raise ValueError(f"{where}: trained for vehicle {saved.nav.vehicle!r} ({CONFIG}'s nav.vehicle); this run "
+                         f"trains {cfg.nav.vehicle!r} (give --vehicle {saved.nav.vehicle})")
+    run_obs = obs_size(cfg.nav.perception, cfg.nav.observe)
+    if run_obs != n_obs:
+        raise ValueError(f"{where}: its policy takes {n_obs} observations ({CONFIG}'s nav.perception and "
+                         f"nav.observe); this run's task gives {run_obs} (give the --observe or --envelope it "
+                         f"was trained with)")
+    run_arch = PRESETS[cfg.preset].net_arch
+    if tuple(run_arch) != held_arch:
+        raise ValueError(f"{where}: its network has layers of {list(held_arch)} units ({CONFIG}'s ppo.net_arch); "
+                         f"this run's preset {cfg.preset!r} builds {list(run_arch)}")

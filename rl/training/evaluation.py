@@ -88,6 +88,10 @@ def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, 
         seed: slot i is seeded with seed + i.
         pool: "test" or "validation" (recorded in the result).
         world: a prebuilt world (its cities are used in order).
+
+    Raises:
+        ValueError: an episode's return or time is not finite (naming the metric; the task's `nav.reward`
+            bounds its weights so that none is).
     """
     world = world or NavWorld(eval_config(nav, episodes, pool))
     venv = UAMNavVecEnv(episodes, world=world, seed=seed)
@@ -104,6 +108,11 @@ def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, 
             returns[i] = infos[i]["episode"]["r"]
             times[i] = infos[i]["t_s"]
         done |= d
+    for key, values in (("mean_return", returns), ("mean_time_s", times)):
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:  # a mean of them would be inf or NaN, said by a NumPy warning at best
+            raise ValueError(f"evaluation: {key} is not finite: episode(s) {bad[:5].tolist()} of {episodes} "
+                             f"ended with {values[bad[0]]!r}")
     counts = {k: outcomes.count(k) for k in sorted(set(outcomes))}
     ns, nc = counts.get(Outcome.SUCCESS, 0), counts.get(Outcome.COLLISION, 0)
     return EvalResult(episodes, ns / episodes, nc / episodes, wilson_interval(ns, episodes),

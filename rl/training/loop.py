@@ -30,7 +30,13 @@ from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.policies.folder import CHECKPOINT_FILES, CHECKPOINTS, CURVE_COLUMNS, PolicyFolder
 from rl.policies.reader import ObsNorm
-from rl.training.checkpoints import load_model_for_resume, restore_vec_normalize, save_vec_normalize
+from rl.training.checkpoints import (
+    check_resume,
+    load_model_for_resume,
+    read_curriculum,
+    restore_vec_normalize,
+    save_vec_normalize,
+)
 from rl.training.config import TrainConfig
 from rl.training.evaluation import EvalResult, eval_config, evaluate
 from rl.training.ppo import PRESETS, make_model, normalized_env
@@ -45,6 +51,12 @@ def _versions() -> dict[str, str]:
             "stable-baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__}
 
 
+def command_line() -> str:
+    """This process's command line as typed, the program by its name: provenance.json records no path of the
+    machine it ran on that the user did not type (the options, `--out` among them, are kept as given)."""
+    return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv else ""
+
+
 def _write_json(path: Path, data: dict) -> None:
     write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
@@ -57,7 +69,13 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
 
     Returns:
         The kept model's evaluation on `cfg.eval_episodes` validation episodes.
+
+    Raises:
+        ValueError: `resume` is not a folder this run can resume from (`check_resume`), before anything is
+            built or written.
     """
+    if resume is not None:
+        check_resume(Path(resume), cfg)
     torch.set_num_threads(cfg.torch_threads)
     run = _TrainingRun(cfg, Path(out_dir), Path(resume) if resume is not None else None, log, world)
     if resume is None:
@@ -68,7 +86,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
                         reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
     run.write_row(run.evaluate())
     best_steps, kept = run.keep_best()
-    _write_json(run.out.provenance_file, run.provenance(best_steps, kept, command or " ".join(sys.argv)))
+    _write_json(run.out.provenance_file, run.provenance(best_steps, kept, command or command_line()))
     return kept
 
 
@@ -98,10 +116,8 @@ class _TrainingRun:
             src = PolicyFolder(resume)
             self.venv = restore_vec_normalize(src.vec_normalize, self.base)
             self.model = load_model_for_resume(src.model, self.venv, preset, self.out.tensorboard)
-            state_file = src.curriculum
-            state = json.loads(state_file.read_text()) if state_file.is_file() else {"difficulty": 1.0}
-            difficulty = state["difficulty"]
-            self.level_since = int(state.get("level_since", self.model.num_timesteps))
+            difficulty, since = read_curriculum(src.curriculum) if src.curriculum.is_file() else (1.0, None)
+            self.level_since = int(self.model.num_timesteps if since is None else since)
             log(f"resumed from {resume} at {self.model.num_timesteps} timesteps (difficulty {difficulty:g})")
         else:
             self.venv = normalized_env(self.base, preset, cfg.nav.decision_hz)

@@ -5,8 +5,10 @@ here touches pyplot's global state.  `python -m uam_fdm.city.plot OUT_DIR` rende
 """
 from __future__ import annotations
 
+import contextlib
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -144,10 +146,21 @@ def map_figure(bmap: BuildingMap, title: str | None = None) -> Figure:
     return fig
 
 
+@contextlib.contextmanager
+def missing_glyphs_unsaid() -> Iterator[None]:
+    """Draw without matplotlib's warning for each character its font lacks: names come from users' files (a
+    scenario, a city, a pilot's label) in any script, and such a character is drawn as a box on the page, where
+    it is seen; the warning would repeat it on stderr, glyph by glyph, with a library's path. Every other warning
+    is left as it is."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font", category=UserWarning)
+        yield
+
+
 def save_figure(fig: Figure, path: Path, dpi: int = 110) -> Path:
     """Save a figure atomically (temp file in the same folder, then os.replace); returns the path."""
     path = Path(path)
-    with atomic_path(path, suffix=path.suffix) as tmp:
+    with atomic_path(path, suffix=path.suffix) as tmp, missing_glyphs_unsaid():
         fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
     return path
 

@@ -16,6 +16,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from uam_fdm.files.strict import strict_json_loads
+
 LOCK_NAME = ".uam-compare.lock"  # hidden: the readers and the non-empty-folder checks pass it by
 
 
@@ -88,7 +90,7 @@ def _open_lock_file(path: Path) -> int:
 def _holder(fd: int) -> str:
     """Who holds the lock, from what it wrote in the file (a short phrase; the file's text is never trusted)."""
     try:
-        info = json.loads(os.pread(fd, 1024, 0).decode("utf-8"))
+        info = strict_json_loads(os.pread(fd, 1024, 0).decode("utf-8"))
         return f"pid {int(info['pid'])}, {str(info['command'])[:80]!r} since {str(info['since'])[:19]}"
     except (ValueError, KeyError, TypeError, UnicodeDecodeError):
         return "a process that has just started"

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Collection, Iterable, Mapping
+from itertools import accumulate
 from typing import Any
 
 from uam_fdm.errors import ConfigError
@@ -87,18 +89,50 @@ def is_finite_number(value: Any) -> bool:
 
 
 def strict_json_loads(text: str) -> Any:
-    """`json.loads`, refusing an integer longer than `MAX_JSON_INT_CHARS` digits (ValueError), which no file of ours
-    holds: as a float it would overflow, and converting it can take seconds."""
+    """`json.loads` of a file a user or another run wrote, refusing what no file of ours holds: an integer longer
+    than `MAX_JSON_INT_CHARS` digits (as a float it would overflow, and converting it can take seconds) and arrays
+    or objects nested deeper than `MAX_JSON_DEPTH` (the parser recurses, and a deep enough file ends it in a
+    RecursionError instead of a message).
+
+    Raises:
+        json.JSONDecodeError: (a ValueError) not JSON, or either of the above; a reader that names its file for
+            malformed JSON names it for these too.
+    """
+    deep = _too_deep(text)
+    if deep is not None:
+        raise json.JSONDecodeError(f"nested deeper than {MAX_JSON_DEPTH} levels", text, deep)
+
     def parse_int(digits: str) -> int:
         if len(digits.lstrip("-")) > MAX_JSON_INT_CHARS:
-            raise ValueError(f"an integer of {len(digits)} digits ({digits[:12]}...): too large, at most "
-                             f"{MAX_JSON_INT_CHARS}")
+            raise json.JSONDecodeError(f"an integer of {len(digits)} digits ({digits[:12]}...): too large, at most "
+                                       f"{MAX_JSON_INT_CHARS}", text, max(text.find(digits), 0))
         return int(digits)
 
     return json.loads(text, parse_int=parse_int)
 
 
+def _too_deep(text: str) -> int | None:
+    """The offset in `text` of the first bracket opening level `MAX_JSON_DEPTH` + 1 (brackets inside strings
+    do not count), or None when it nests no deeper."""
+    if text.count("[") + text.count("{") <= MAX_JSON_DEPTH:  # the common case: no scan at all
+        return None
+    brackets = _NOT_A_BRACKET.sub("", _STRING.sub("", text))
+    if max(accumulate(map(_DEPTH_STEP.__getitem__, brackets)), default=0) <= MAX_JSON_DEPTH:
+        return None
+    depth = 0  # too deep: where (a second pass, only for the message)
+    for m in _BRACKET_OR_STRING.finditer(text):
+        depth += _DEPTH_STEP.get(m.group(), 0)
+        if depth > MAX_JSON_DEPTH:
+            return m.start()
+    return None
+
+
 MAX_JSON_INT_CHARS = 20  # 2**63 has 19 digits
+MAX_JSON_DEPTH = 64  # our deepest files (run.json, a summary) nest under ten levels
+_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')  # a whole JSON string: brackets in it do not nest
+_NOT_A_BRACKET = re.compile(r"[^\[\]{}]+")
+_BRACKET_OR_STRING = re.compile(_STRING.pattern + r"|[\[\]{}]")
+_DEPTH_STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
 
 
 def number(value: Any, source: str, key: str) -> float:

@@ -233,8 +233,8 @@ def test_in_task_space_keeps_what_the_network_reads():
     (["--air", "hot-and-high", "--elevation", "100"], "--air and --elevation/--isa-offset"),
     (["--elevation", "12000"], "--elevation 12000: must be within [-500, 9000]"),
     (["--isa-offset", "99"], "--isa-offset 99: must be within [-50, 50]"),
-    (["--wind-max", "-1"], "--wind-max -1: must be a finite speed >= 0 m/s"),
-    (["--wind-max", "nan"], "--wind-max nan: must be a finite speed >= 0 m/s"),
+    (["--wind-max", "-1"], "--wind-max -1: must be a steady wind speed in [0, 60] m/s"),
+    (["--wind-max", "nan"], "--wind-max nan: must be a steady wind speed in [0, 60] m/s"),
     (["--turbulence", "light,gale"], "--turbulence light,gale:"),
     (["--turbulence", "light,light"], "--turbulence light,light: names a level twice"),
 ])
