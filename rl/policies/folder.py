@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from rl.task.config import NavConfig
-from uam_fdm.files.strict import strict_json_loads
+from uam_fdm.files.strict import json_object_file, strict_json_loads
 from uam_fdm.vehicle.params import preset_names
 
 MODEL = "model.zip"
@@ -252,12 +252,7 @@ class PolicyFolder:
         path = self.provenance_file
         if not path.is_file():
             return None
-        try:
-            loaded = strict_json_loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: unreadable ({exc})") from None
-        if not isinstance(loaded, dict):
-            raise ValueError(f"{path}: not a JSON object")
+        loaded = json_object_file(path)
         return Provenance.from_dict(loaded) if loaded else None
 
 

@@ -24,7 +24,7 @@ from rl.sensing.observation import obs_size
 from rl.training.config import TrainConfig
 from rl.training.ppo import PRESETS, PPOConfig, TanhMeanPolicy
 from uam_fdm.files.atomic import atomic_open
-from uam_fdm.files.strict import strict_json_loads
+from uam_fdm.files.strict import json_object_file, strict_json_loads
 
 VEC_NORM_KEYS = OBS_NORM_KEYS + ("ret_mean", "ret_var", "ret_count", "clip_reward", "gamma")
 RESUME_FILES = (MODEL, VEC_NORMALIZE, CONFIG)  # and curriculum.json when there (difficulty 1 without)
@@ -110,12 +110,7 @@ def read_curriculum(path: Path) -> tuple[float, int | None]:
     Raises:
         ValueError: unreadable, or a value of the wrong kind, naming the file and the key.
     """
-    try:
-        state = strict_json_loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: unreadable ({exc})") from None
-    if not isinstance(state, dict):
-        raise ValueError(f"{path}: not a JSON object")
+    state = json_object_file(path)
     difficulty, since = state.get("difficulty"), state.get("level_since")
     if isinstance(difficulty, bool) or not isinstance(difficulty, (int, float)) or not 0 < difficulty <= 1:
         raise ValueError(f"{path}: difficulty must be a number in (0, 1], got {str(difficulty)[:40]}")

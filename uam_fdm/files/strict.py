@@ -18,6 +18,7 @@ import math
 import re
 from collections.abc import Collection, Iterable, Mapping
 from itertools import accumulate
+from pathlib import Path
 from typing import Any
 
 from uam_fdm.errors import ConfigError
@@ -86,6 +87,21 @@ def is_finite_number(value: Any) -> bool:
         return math.isfinite(value)
     except OverflowError:  # an int beyond a float's range
         return False
+
+
+def json_object_file(path: Path) -> dict[str, Any]:
+    """The JSON object in file `path` (`strict_json_loads`).
+
+    Raises:
+        ValueError: unreadable, not JSON, or not an object, naming the file.
+    """
+    try:
+        loaded = strict_json_loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: unreadable ({exc})") from None
+    if not isinstance(loaded, dict):
+        raise ValueError(f"{path}: not a JSON object")
+    return loaded
 
 
 def strict_json_loads(text: str) -> Any:
