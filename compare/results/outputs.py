@@ -18,6 +18,7 @@ def check_output_dir(path: Path, option: str) -> None:
         option: how the command line names it (e.g. "--out"), for the message.
     """
     path = Path(path)
+    _check_not_a_dead_link(path, option)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{option} {path}: is a file, not a folder")
     _check_writable_ancestor(path, option)
@@ -31,6 +32,7 @@ def check_output_file(path: Path, option: str) -> None:
         option: how the command line names it (e.g. "--out"), for the message.
     """
     path = Path(path)
+    _check_not_a_dead_link(path, option)
     if path.is_dir():
         raise ValueError(f"{option} {path}: is a folder; give a file name")
     _check_writable_ancestor(path.parent, option, shown=path)
@@ -41,6 +43,12 @@ def check_not_replacing(path: Path | None, option: str, overwrite: bool) -> None
     user named is never replaced without being asked (None: the command's default file, its own to replace)."""
     if path is not None and not overwrite and Path(path).is_file():
         raise ValueError(f"{option} {path}: the file exists; give another name, or --overwrite to replace it")
+
+
+def _check_not_a_dead_link(path: Path, option: str) -> None:
+    """A link that leads nowhere (a loop, or a target that is gone) is neither a folder nor a place to make one."""
+    if path.is_symlink() and not path.exists():
+        raise ValueError(f"{option} {path}: is a link that leads nowhere (a loop of links, or a missing target)")
 
 
 def _check_writable_ancestor(folder: Path, option: str, shown: Path | None = None) -> None:

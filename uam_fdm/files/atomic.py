@@ -69,9 +69,17 @@ def remove_stale_temporaries(folder: Path | str) -> list[Path]:
     """Remove the temporary files that interrupted writes left anywhere under `folder`; returns them.
 
     Call it only where no other writer is at work in `folder` (a run before it flies, a report before
-    it scores): a temporary there can only be the remains of a killed process.
+    it scores): a temporary there can only be the remains of a killed process. Links are never followed: a link
+    planted in the folder (to a user's home, say) leads the sweep nowhere, and a link named like a temporary is
+    not one of ours.
     """
-    stale = sorted(p for p in Path(folder).rglob(f".*{TEMP_MARK}*") if p.is_file())
+    stale = []
+    for here, _dirs, files in os.walk(folder, followlinks=False):
+        for name in files:
+            p = Path(here) / name
+            if name.startswith(".") and TEMP_MARK in name and not p.is_symlink() and p.is_file():
+                stale.append(p)
+    stale.sort()
     for p in stale:
         p.unlink(missing_ok=True)
     return stale

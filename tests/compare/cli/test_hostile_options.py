@@ -225,3 +225,33 @@ def test_a_set_name_that_is_also_a_local_folder_is_refused_naming_both(tmp_path:
               "write ./default for the folder")
     assert main(["validate", "./default"]) == 0  # the local folder, as written
     assert "tiny" in capsys.readouterr().out
+
+
+def test_the_sweep_of_stale_temporaries_never_follows_a_link(tmp_path):
+    """A link planted in a run folder (to a user's folder) never leads the sweep of stale temporaries there, and a
+    link named like a temporary is left alone: only the run's own killed writes are removed."""
+    from uam_fdm.files.atomic import TEMP_MARK, remove_stale_temporaries
+
+    run, home = tmp_path / "run", tmp_path / "home"
+    run.mkdir()
+    home.mkdir()
+    theirs = home / f".notes.txt{TEMP_MARK}draft.tmp"  # a user's file that happens to look like a temporary
+    theirs.write_text("mine")
+    (run / "maps").symlink_to(home, target_is_directory=True)
+    (run / f".x{TEMP_MARK}link.tmp").symlink_to(theirs)
+    ours = run / f".metrics.csv{TEMP_MARK}k3j2.tmp"
+    ours.write_text("half")
+    assert remove_stale_temporaries(run) == [ours]
+    assert theirs.read_text() == "mine" and (run / f".x{TEMP_MARK}link.tmp").is_symlink()
+
+
+@pytest.mark.parametrize("target", ["loop", "gone"])
+def test_an_output_that_is_a_dead_link_is_named_as_one(tmp_path, capsys, target):
+    """`--out` at a link to itself (a loop) or to a missing target: one line saying so, exit 2, nothing written
+    (before: "File exists")."""
+    out = tmp_path / "loop"
+    out.symlink_to(out if target == "loop" else tmp_path / "gone")
+    assert main(["run", str(TINY), "--pilots", "apf", "--pilot", "apf", "--no-progress", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "link that leads nowhere" in err[0] and str(out) in err[0]
+    assert out.is_symlink() and not (tmp_path / "gone").exists()
