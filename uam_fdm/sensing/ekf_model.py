@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from uam_fdm.vehicle.model import quat_to_rotation
+from uam_fdm.vehicle.model import quat_product, quat_to_rotation
 
 GRAVITY_M_S2 = 9.80665
 NX = 18  # nominal state
@@ -44,16 +44,6 @@ POS, VEL, QUAT, ACC_BIAS, GYRO_BIAS, BARO, HEADING = (slice(0, 3), slice(3, 6), 
 D_POS, D_VEL, D_ATT, D_ACC_BIAS, D_GYRO_BIAS, D_BARO, D_HEADING = (slice(0, 3), slice(3, 6), slice(6, 9),
                                                                    slice(9, 12), slice(12, 15), slice(15, 16),
                                                                    slice(16, 17))
-
-
-def quat_mul(a: ca.SX, b: ca.SX) -> ca.SX:
-    """Hamilton product a ⊗ b of quaternions [w, x, y, z]."""
-    return ca.vertcat(
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    )
 
 
 def quat_exp(theta: ca.SX) -> ca.SX:
@@ -74,7 +64,7 @@ def _normalised(q: ca.SX) -> ca.SX:
 
 def inject_expr(x: ca.SX, dx: ca.SX) -> ca.SX:
     """x ⊕ δx: the nominal state corrected by an error state."""
-    q = _normalised(quat_mul(x[QUAT], quat_exp(dx[D_ATT])))
+    q = _normalised(quat_product(x[QUAT], quat_exp(dx[D_ATT])))
     return ca.vertcat(x[POS] + dx[D_POS], x[VEL] + dx[D_VEL], q, x[ACC_BIAS] + dx[D_ACC_BIAS],
                       x[GYRO_BIAS] + dx[D_GYRO_BIAS], x[BARO] + dx[D_BARO], x[HEADING] + dx[D_HEADING])
 
@@ -83,7 +73,7 @@ def difference_expr(x1: ca.SX, x0: ca.SX) -> ca.SX:
     """x1 ⊖ x0: the error state taking x0 to x1 (attitude 2·vec(q0* ⊗ q1), the log map to first order, exact in
     its derivative where the two attitudes coincide, which is where it is differentiated)."""
     q0c = x0[QUAT] * ca.DM([1.0, -1.0, -1.0, -1.0])
-    dq = quat_mul(q0c, x1[QUAT])
+    dq = quat_product(q0c, x1[QUAT])
     return ca.vertcat(x1[POS] - x0[POS], x1[VEL] - x0[VEL], 2 * dq[1:4], x1[ACC_BIAS] - x0[ACC_BIAS],
                       x1[GYRO_BIAS] - x0[GYRO_BIAS], x1[BARO] - x0[BARO], x1[HEADING] - x0[HEADING])
 
@@ -99,8 +89,8 @@ def nominal_step_expr(x: ca.SX, imu: ca.SX, dt: ca.SX, decay: ca.SX) -> ca.SX:
     accel = imu[0:3] - x[ACC_BIAS]
     dtheta = (imu[3:6] - x[GYRO_BIAS]) * dt
     q = x[QUAT]
-    q_next = _normalised(quat_mul(q, quat_exp(dtheta)))
-    q_mid = _normalised(quat_mul(q, quat_exp(0.5 * dtheta)))
+    q_next = _normalised(quat_product(q, quat_exp(dtheta)))
+    q_mid = _normalised(quat_product(q, quat_exp(0.5 * dtheta)))
     a_world = quat_to_rotation(q_mid) @ accel + ca.DM([0.0, 0.0, -GRAVITY_M_S2])
     v = x[VEL]
     return ca.vertcat(x[POS] + v * dt + 0.5 * a_world * dt ** 2, v + a_world * dt, q_next,

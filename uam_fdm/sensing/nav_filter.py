@@ -41,7 +41,7 @@ from uam_fdm.sensing.heading import HeadingReading, wrap_angle
 from uam_fdm.sensing.imu import ImuSamples
 from uam_fdm.sensing.specs import BaroSpec, HeadingSpec, ImuSpec
 from uam_fdm.vehicle.codegen import compile_functions
-from uam_fdm.vehicle.fastcall import BatchCaller
+from uam_fdm.vehicle.fastcall import BatchCaller, map_rows
 
 log = logging.getLogger(__name__)
 
@@ -218,24 +218,7 @@ class BatchNavFilter:
         caller = self._callers.get(name)
         if caller is not None:
             return caller(n, *inputs)
-        f = self._vm[name]
-        key = (name, n)
-        if key not in self._maps:
-            self._maps[key] = f.map(n, "serial")
-        args = []
-        for k, a in enumerate(inputs):
-            a = np.asarray(a, float)
-            if a.ndim == 2:  # one column-major row per vehicle -> the vehicles' matrices side by side
-                r, c = f.size_in(k)
-                a = a.reshape(n * c, r).T
-            args.append(a)
-        outs = self._maps[key](*args)
-        outs = outs if isinstance(outs, (list, tuple)) else [outs]
-        result = []
-        for k, o in enumerate(outs):
-            r, c = f.size_out(k)
-            result.append(np.asarray(o.full()).reshape(r, n, c).transpose(1, 2, 0).reshape(n, r * c))
-        return result
+        return map_rows(self._vm[name], self._maps, n, *inputs)
 
     # -- prediction ----------------------------------------------------------------------------------------------
     def predict(self, t_s: float | np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray) -> None:

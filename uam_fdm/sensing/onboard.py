@@ -290,10 +290,7 @@ def _rotations(q: np.ndarray) -> np.ndarray:
 
 def _rotation(q: np.ndarray) -> np.ndarray:
     """Rotation matrix body -> world of a unit quaternion [w, x, y, z]."""
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return _rotations(np.asarray(q, float)[None])[0]
 
 
 def _yaw(q: np.ndarray) -> float:

@@ -17,8 +17,8 @@ import numpy as np
 from uam_fdm.errors import ConfigError
 from uam_fdm.vehicle.codegen import compile_functions
 from uam_fdm.vehicle.control import N_CMD, N_CTRL_STATE, build_controller_function
-from uam_fdm.vehicle.fastcall import BatchCaller
-from uam_fdm.vehicle.model import N_ENV, StateLayout, build_model_functions
+from uam_fdm.vehicle.fastcall import BatchCaller, map_rows
+from uam_fdm.vehicle.model import N_ENV, StateLayout, build_model_functions, quat_product
 from uam_fdm.vehicle.params import VehicleParams
 
 log = logging.getLogger(__name__)
@@ -119,12 +119,6 @@ def _period_functions(p: VehicleParams, rk4: ca.Function, ctrl: ca.Function,
 N_SEEN_OFFSET = 13  # [δp (3) m, δv (3) m/s, δq (4) body-frame quaternion, δω (3) rad/s]: estimate minus truth
 
 
-def _quat_product(a: ca.MX, b: ca.MX) -> ca.MX:
-    """Hamilton product a ⊗ b of quaternions [w, x, y, z]."""
-    aw, av, bw, bv = a[0], a[1:4], b[0], b[1:4]
-    return ca.vertcat(aw * bw - ca.dot(av, bv), aw * bv + bw * av + ca.cross(av, bv))
-
-
 def _period_velocity_seen_function(p: VehicleParams, rk4: ca.Function, ctrl: ca.Function, n_sub: int) -> ca.Function:
     """The control period under the velocity controller flying on the navigation estimate, not the truth.
 
@@ -143,7 +137,7 @@ def _period_velocity_seen_function(p: VehicleParams, rk4: ca.Function, ctrl: ca.
     energy: ca.MX | int  # the sum of the substeps' energies, starting from 0
     x, xi, states, cmds, energy = x0, xi0, [], [], 0
     for _ in range(n_sub):
-        q_seen = _quat_product(x[lay.quat], offset[6:10])
+        q_seen = quat_product(x[lay.quat], offset[6:10])
         seen = ca.vertcat(x[lay.pos] + offset[0:3], x[lay.vel] + offset[3:6], q_seen / ca.norm_2(q_seen),
                           x[lay.rate] + offset[10:13], x[lay.rotor])
         u_k, xi = ctrl(seen, xi, cmd, env, dt)
@@ -225,22 +219,7 @@ class VehicleDynamics:
         caller = self._callers.get(name)
         if caller is not None:
             return caller(n, *inputs)
-        f = self.functions[name]
-        if n == 1:
-            outs = f(*[np.asarray(a, float).reshape(-1, 1) if np.ndim(a) else a for a in inputs])
-        else:
-            key = (name, n)
-            if key not in self._maps:
-                self._maps[key] = f.map(n, "serial")
-            args = [np.asarray(a, float).T if np.ndim(a) == 2 else np.asarray(a, float) for a in inputs]
-            outs = self._maps[key](*args)
-        outs = outs if isinstance(outs, (list, tuple)) else [outs]
-        result = []
-        for k, o in enumerate(outs):
-            r, c = f.size_out(k)
-            full = np.asarray(o.full()).reshape(r, n, c)
-            result.append(full.transpose(1, 2, 0).reshape(n, r * c))
-        return result
+        return map_rows(self.functions[name], self._maps, n, *inputs)
 
     # -- single vehicle ------------------------------------------------------------------------
     def x_dot(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> np.ndarray:

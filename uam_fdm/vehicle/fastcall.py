@@ -96,3 +96,35 @@ def _address(a: np.ndarray) -> int:
         return ctypes.addressof(ctypes.c_char.from_buffer(a))  # type: ignore[arg-type]
     except (TypeError, ValueError):
         return a.ctypes.data
+
+
+def map_rows(f: ca.Function, maps: dict[tuple[str, int], ca.Function], n: int,
+             *inputs: np.ndarray | float) -> list[np.ndarray]:
+    """`BatchCaller`'s layout through CasADi's virtual machine (no compiler): `f` mapped over n vehicles.
+
+    Args:
+        f: the Function.
+        maps: a cache of mapped Functions, keyed by (name, n), kept by the caller.
+        n: number of vehicles.
+        inputs: per input, (n, size) with one column-major row per vehicle, or one value shared by all.
+
+    Returns:
+        One array per output of shape (n, rows*cols), column-major per vehicle.
+    """
+    key = (f.name(), n)
+    if key not in maps:
+        maps[key] = f.map(n, "serial")
+    args = []
+    for k, a in enumerate(inputs):
+        a = np.asarray(a, float)
+        if a.ndim == 2:  # one column-major row per vehicle -> the vehicles' matrices side by side
+            r, c = f.size_in(k)
+            a = a.reshape(n * c, r).T
+        args.append(a)
+    outs = maps[key](*args)
+    outs = outs if isinstance(outs, (list, tuple)) else [outs]
+    result = []
+    for k, o in enumerate(outs):
+        r, c = f.size_out(k)
+        result.append(np.asarray(o.full()).reshape(r, n, c).transpose(1, 2, 0).reshape(n, r * c))
+    return result

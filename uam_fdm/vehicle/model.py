@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
@@ -75,6 +76,19 @@ class StateLayout:
     @property
     def nx(self) -> int:
         return 13 + self.n_rotors
+
+
+Symbolic = TypeVar("Symbolic", ca.SX, ca.MX)
+
+
+def quat_product(a: Symbolic, b: Symbolic) -> Symbolic:
+    """Hamilton product a ⊗ b of quaternions [w, x, y, z] (SX or MX)."""
+    return ca.vertcat(
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    )
 
 
 def quat_to_rotation(q: ca.SX) -> ca.SX:
