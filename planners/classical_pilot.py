@@ -1,21 +1,32 @@
-"""The classical pilot: plan once with OMPL RRT* (timed), time-parameterise, track with NMPC.
+"""The classical pilot: plan with OMPL RRT* (timed), time-parameterise, track with NMPC, map what it senses, replan.
 
 Implements the `uam_fdm.pilot.Pilot` protocol and emits rotor-speed commands. Its clearance margins
 follow from the vehicle's measured tracking error in the forecast turbulence and the air density
-(`planners.margins`). It replans from the current position when the tracking error exceeds a
-threshold, or when the MPC's last prediction comes closer to an obstacle than the MPC's margin
-(each bounded per episode; replanning time counts as planning time). `episode_report()` gives
-what the tracker did, for the metrics.
+(`planners.margins`), widened by k σ of the navigation estimate's position when it flies on one. It replans
+when the tracking error exceeds a threshold, or when the MPC's last prediction comes closer to an obstacle than
+the MPC's margin (each bounded per episode; replanning time counts as planning time).
+
+Flying on its sensors (any level but `perfect`) it also maps: each lidar scan goes into `planners.sensed_map`
+(an OctoMap octree of what the prior map lacks; prior parts seen through are taken out), and the pilot plans and
+tracks on the fused map. It replans when a newly sensed obstacle comes within the margin of the path still to fly
+("blocked") or when k σ has grown past the margin it planned with ("uncertainty"). Such a replan costs flight
+time: for `replan_budget_s` the vehicle brakes along its velocity, and the new plan starts from where the braking
+leaves it then (deterministic: the budget, not the wall clock). When no path exists in what it knows it holds
+there (a hover) and tries again every `hold_retry_s`. At `perfect` sensing nothing is sensed and a replan is
+instantaneous, as before sensing existed (the privileged reference). `episode_report()` gives what the tracker
+did, for the metrics.
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from planners.clearance import MarginTaper, endpoint_allowance
 from planners.ladder import LADDER, LadderResult, PlanStep, plan_with_escalation
@@ -30,12 +41,14 @@ from planners.margins import (
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.report import ClassicalReport
 from planners.rrt_star import PlannerConfig, PlanResult
-from planners.timing import Reference, TimingLimits, time_parameterize
+from planners.sensed_map import MappingConfig, SensedMap
+from planners.timing import Reference, TimingLimits, braking_reference, time_parameterize
+from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
 
 log = logging.getLogger(__name__)
 
-REPLAN_CAUSES = ("tracking", "clearance")
+REPLAN_CAUSES = ("tracking", "clearance", "blocked", "uncertainty")
 
 
 @dataclass(frozen=True)
@@ -56,7 +69,7 @@ class ClassicalConfig:
             exceeds this [m]; None disables it.
         max_replans: at most this many tracking-error replans per episode.
         replan_on_clearance: replan from the current position when the MPC's last predicted states
-            come closer to an obstacle (`World.city.planning_map()`) than the MPC's margin.
+            come closer to an obstacle (the map it knows: the prior, fused with what it sensed) than the MPC's margin.
         max_clearance_replans: at most this many clearance replans per episode.
         replan_cooldown_s: no clearance replan within this time of the previous replan [s] (the new
             reference needs a moment to pull the prediction out).
@@ -64,6 +77,16 @@ class ClassicalConfig:
             (the tracker lags the reference); the planning ladder climbs on past a step whose fastest plan does
             not (`planners.ladder`).
         ladder: the planning attempts, in order (`planners.ladder.LADDER`).
+        mapping: how scans are mapped (flying on sensors).
+        uncertainty_k: margins grow by this many σ of the estimate's position (its covariance's largest axis).
+        uncertainty_replan_m: replan when k σ exceeds what the flown plan's margins took by this much [m].
+        replan_budget_s: flight time a replan in flight takes (braking meanwhile) [s]; calibrated so that the
+            planning ladder fits it on this machine (perf/replanning.py).
+        hold_retry_s: holding for want of a path, try again after this long [s].
+        refuse_margin_m: a newly sensed obstacle blocks the path still to fly when it comes within the collision
+            radius plus the margin at rest plus this [m] of it (half a voxel's diagonal covers the voxel's extent).
+        fuse_period_s: the map the MPC keeps clear of is refreshed with what was sensed at most this often [s]
+            (a replan always refreshes it first).
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -79,6 +102,13 @@ class ClassicalConfig:
     replan_cooldown_s: float = 1.0
     time_fraction: float = 0.8
     ladder: tuple[PlanStep, ...] = LADDER
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    uncertainty_k: float = 3.0
+    uncertainty_replan_m: float = 0.5
+    replan_budget_s: float = 0.5
+    hold_retry_s: float = 1.0
+    refuse_margin_m: float = 0.9
+    fuse_period_s: float = 1.0
 
 
 @dataclass
@@ -101,6 +131,10 @@ class ClassicalStats:
     planner_attempts: int = 0
     planner_step: str = ""
     planner_candidates: int = 0
+    in_flight_replan_s: list[float] = field(default_factory=list)  # wall time of each replan flown through
+    hover_holds: int = 0
+    map_update_s: list[float] = field(default_factory=list)
+    uncertainty_margin_m: list[float] = field(default_factory=list)
 
 
 class ClassicalPilot:
@@ -159,7 +193,23 @@ class ClassicalPilot:
         # the air the reference is timed for: density at the start, gusts of the forecast level there
         self._sigma = float(world.atmosphere.density_ratio(float(task.start_m[2])))
         self._gust_m_s = forecast_gust_m_s(world.turbulence, float(task.start_m[2]))
-        self.margins = self.margins_for(world, task)
+        self._known: BuildingMap = world.city
+        self._sensed: SensedMap | None = None
+        sigma_m = 0.0
+        if world.sensing is not None and not world.sensing.perfect:
+            from uam_fdm.sensing.onboard import initial_covariance  # the filter's start: what the pad survey gives
+
+            lidar = world.sensing.lidar
+            self._sensed = SensedMap(world.city, self.config.mapping, lidar.max_range_m, lidar.vertical_fov_deg[1])
+            sigma_m = position_sigma_m(initial_covariance(world.sensing))
+        self._base_margins = self.margins_for(world, task)
+        self._planned_extra_m = self.config.uncertainty_k * sigma_m
+        self.margins = self._base_margins.widened(self._planned_extra_m)
+        self._pending: tuple | None = None  # a plan made in flight, flown once its budget has passed
+        self._hold_retry_t = math.inf  # holding for want of a path: when to try again
+        self._blocked = False
+        self._extra_now = self._planned_extra_m
+        self._map_dirty, self._fused_t = False, -math.inf
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         self._stage_mpc_margins = np.full(self._tracker.horizon_steps, self.margins.mpc_m)
         self._relaxed_ends: list[tuple[np.ndarray, float]] = []
@@ -192,7 +242,7 @@ class ClassicalPilot:
             return ref.duration_s if ref.ok else math.inf
 
         time_left = cfg.time_fraction * (task.timeout_s - t_start)
-        found = plan_with_escalation(world.city, start, task.goal_m, radius, self._planner_cfg,
+        found = plan_with_escalation(self._known, start, task.goal_m, radius, self._planner_cfg,
                                      seed=self._seed + sum(self.stats.replans_by_cause.values()),
                                      floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=cfg.ladder, judge=judge,
                                      time_available_s=time_left)
@@ -211,10 +261,10 @@ class ClassicalPilot:
         self._relaxed_ends, self._promise_ends = [], []
         for end in (np.asarray(plan.path_m[0], float), np.asarray(plan.path_m[-1], float)):
             mpc_floor = by_speed.mpc_fraction * by_speed.floor_m
-            _, zone = endpoint_allowance(world.city.planning_map(), end, radius, mpc_floor)
+            _, zone = endpoint_allowance(self._known.planning_map(), end, radius, mpc_floor)
             if zone > 0.0:
                 self._relaxed_ends.append((end, zone))
-            r_e, zone = endpoint_allowance(world.city.planning_map(), end, radius, by_speed.floor_m)
+            r_e, zone = endpoint_allowance(self._known.planning_map(), end, radius, by_speed.floor_m)
             if zone > 0.0:
                 self._promise_ends.append((end, zone, r_e - radius))
         return True, "ok", ""
@@ -229,7 +279,7 @@ class ClassicalPilot:
         if velocity_m_s is not None and len(plan.path_m) > 1:
             tangent = plan.path_m[1] - plan.path_m[0]
             start_speed = max(0.0, float(velocity_m_s @ tangent) / max(float(np.linalg.norm(tangent)), 1e-9))
-        return time_parameterize(plan.path_m, limits, world.city, world.vehicle.collision_radius_m, margin_m,
+        return time_parameterize(plan.path_m, limits, self._known, world.vehicle.collision_radius_m, margin_m,
                                  start_speed_m_s=start_speed, tapers=tapers,
                                  speed_limit=margins.by_speed.speed_limit_m_s)
 
@@ -250,7 +300,26 @@ class ClassicalPilot:
             planner_margin_m=m.planner_m if m else math.nan, mpc_margin_m=m.mpc_m if m else math.nan,
             margin_source=m.source if m else "", planner_margin_floor_m=m.floor_m if m else math.nan,
             planner_attempts=s.planner_attempts, planner_step=s.planner_step,
-            clearance_over_margin_min=min(s.clearance_over_margin, default=math.nan))
+            clearance_over_margin_min=min(s.clearance_over_margin, default=math.nan),
+            **self._sensing_report())
+
+    def _sensing_report(self) -> dict[str, float]:
+        """The report's fields of flying on sensors (none at `perfect` sensing: they stay NaN)."""
+        sensed, s = getattr(self, "_sensed", None), self.stats
+        if sensed is None:
+            return {}
+        replan_ms = 1e3 * np.asarray(s.in_flight_replan_s, float)
+        update_ms = 1e3 * np.asarray(s.map_update_s, float)
+        fused = sensed.fused()
+        return dict(
+            replans_blocked=s.replans_by_cause["blocked"], replans_uncertainty=s.replans_by_cause["uncertainty"],
+            hover_holds=s.hover_holds,
+            replan_ms_median=float(np.median(replan_ms)) if replan_ms.size else math.nan,
+            replan_ms_p95=float(np.percentile(replan_ms, 95)) if replan_ms.size else math.nan,
+            map_update_ms_median=float(np.median(update_ms)) if update_ms.size else math.nan,
+            uncertainty_margin_max_m=max(s.uncertainty_margin_m, default=math.nan),
+            sensed_obstacles=len(fused.buildings) - (len(sensed.prior.buildings) - len(sensed.cleared_parts)),
+            cleared_prior_parts=len(sensed.cleared_parts))
 
     # -- flying ---------------------------------------------------------------------------------
     def act(self, obs: Observation) -> RotorCommand:
@@ -260,19 +329,31 @@ class ClassicalPilot:
             raise RuntimeError("act() before reset()")
         mpc = self._tracker
         sigma = float(world.atmosphere.density_ratio_clamped(float(obs.x[2])))
+        if self._sensed is not None:
+            self._sense(obs)
         if self.reference is None:
             return RotorCommand(world.vehicle.hover_rotor_speeds_rad_s(sigma))
-        self._maybe_replan(obs, self.reference)
+        if self._pending is not None and obs.t_s + 1e-9 >= self._pending[2]:
+            self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends = self._pending
+            self._pending = None
+            self._tracker.reset()
+            self._last_t = None
+            self.last_solution = None  # its prediction belonged to the braking
+        if self._hold_retry_t <= obs.t_s:
+            self._replan_in_flight(obs, None)
+        else:
+            self._maybe_replan(obs, self.reference)
         n_stages, h = mpc.horizon_steps, mpc.step_s
         ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
-        # the MPC's margin at each stage follows the reference's speed there
-        by_speed = self._flying()[1].by_speed
+        # the MPC's margin at each stage follows the reference's speed there (and the estimate's σ now)
+        by_speed = self._flying()[1].by_speed if self._sensed is None else \
+            self._base_margins.by_speed.widened(self._extra_now)
         self._stage_mpc_margins = by_speed.mpc_fraction * by_speed.margin_m(np.linalg.norm(ref_vel[1:], axis=1))
         self._record_promise(obs, ref_pos[0], float(np.linalg.norm(ref_vel[0])))
         normals, offsets = self._halfspaces(obs, ref_pos)
         elapsed = 0.0 if self._last_t is None else obs.t_s - self._last_t
         # the map is known to this pilot: its MPC predicts the ground effect of the surface below it now
-        height = float(obs.x[2] - world.city.surface_height_m(obs.x[None, 0:3])[0])
+        height = float(obs.x[2] - self._known.surface_height_m(obs.x[None, 0:3])[0])
         sol = mpc.solve(obs.x, ref_pos, ref_vel, self._task.start_yaw_rad, sigma, normals, offsets, elapsed,
                         height_above_surface_m=height)
         self._last_t = obs.t_s
@@ -287,9 +368,92 @@ class ClassicalPilot:
         for end, zone, allowed in self._promise_ends:
             if float(np.linalg.norm(ref_pos - end)) <= zone:
                 local = min(local, allowed)
-        clearance = world.city.planning_map().clearance_one(float(obs.x[0]), float(obs.x[1]), float(obs.x[2]),
+        clearance = self._known.planning_map().clearance_one(float(obs.x[0]), float(obs.x[1]), float(obs.x[2]),
                                                             world.vehicle.collision_radius_m)
         self.stats.clearance_over_margin.append(clearance / max(local, 0.05))
+
+    def _sense(self, obs: Observation) -> None:
+        """Map the scans handed over with `obs` on its estimate; flag the path still to fly as blocked when a newly
+        sensed obstacle comes within the margin of it; refresh the fused map at most every `fuse_period_s`."""
+        sensed, cfg = self._sensed, self.config
+        assert sensed is not None
+        sigma_m = position_sigma_m(obs.covariance) if obs.covariance is not None else 0.0
+        self._extra_now = cfg.uncertainty_k * sigma_m
+        self.stats.uncertainty_margin_m.append(self._extra_now)
+        fresh = []
+        for scan in obs.sensors.lidar:
+            # the scan is as old as the sensing latency, and so is the estimate it is placed on (`Observation`)
+            t0 = time.perf_counter()
+            update = sensed.integrate(scan, obs.x, sigma_m)
+            self.stats.map_update_s.append(time.perf_counter() - t0)
+            if update.changed:
+                self._map_dirty = True
+                fresh.append(update.new_voxels_m)
+        if fresh and self.reference is not None and self._pending is None and self._hold_retry_t == math.inf:
+            voxels = np.vstack(fresh)
+            if len(voxels) and self._path_blocked(obs, voxels):
+                self._blocked = True
+        if self._map_dirty and obs.t_s - self._fused_t >= cfg.fuse_period_s:
+            self._refresh_known(obs.t_s)
+
+    def _refresh_known(self, t_s: float) -> None:
+        assert self._sensed is not None
+        self._known = self._sensed.fused()
+        self._map_dirty, self._fused_t = False, t_s
+
+    def _path_blocked(self, obs: Observation, voxels_m: np.ndarray) -> bool:
+        """True when a voxel (K, 3) [m] lies within the collision radius plus the margin at rest plus
+        `refuse_margin_m` of the reference still to fly (sampled every 0.2 s)."""
+        ref = self.reference
+        assert ref is not None
+        t_ref = obs.t_s - self._t_ref0
+        times = np.append(np.arange(max(t_ref, 0.0), ref.duration_s, 0.2), ref.duration_s)
+        ahead, _, _ = ref.sample_horizon(float(times[0]), 0.2, len(times))
+        world, _ = self._flying()
+        reach = (world.vehicle.collision_radius_m + self._base_margins.by_speed.widened(self._extra_now).floor_m
+                 + self.config.refuse_margin_m)
+        distance, _ = cKDTree(ahead).query(voxels_m, distance_upper_bound=reach)
+        if np.any(np.isfinite(distance)):
+            log.info("a sensed obstacle %.1f m from the path still to fly at t = %.2f s: replanning",
+                     float(np.min(distance)), obs.t_s)
+            return True
+        return False
+
+    def _replan_in_flight(self, obs: Observation, cause: str | None) -> None:
+        """Replan on the fused map, flying a braking reference for `replan_budget_s` meanwhile; the new plan starts
+        where the braking leaves the vehicle then. `cause` None: a retry while holding. No path: hold (hover)."""
+        cfg, s = self.config, self.stats
+        world = self._world
+        assert world is not None and self._sensed is not None
+        if cause is not None:
+            s.replans_by_cause[cause] += 1
+        self._last_replan_t = obs.t_s
+        self._refresh_known(obs.t_s)
+        limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
+                                           self._gust_m_s)
+        brake = braking_reference(obs.x[0:3], obs.x[3:6], limits.max_accel_m_s2)
+        t_switch = obs.t_s + cfg.replan_budget_s
+        p_b, v_b, _ = brake.sample(cfg.replan_budget_s)
+        self._planned_extra_m = self._extra_now
+        self.margins = self._base_margins.widened(self._extra_now)
+        self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
+        before = s.plan_time_s
+        ok, _, detail = self._plan(np.asarray(p_b, float), t_start=t_switch, velocity_m_s=np.asarray(v_b, float))
+        s.replan_time_s += s.plan_time_s - before
+        s.in_flight_replan_s.append(s.plan_time_s - before)
+        if ok:
+            self._pending = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends)
+            self._hold_retry_t = math.inf
+        elif self._hold_retry_t == math.inf:
+            s.hover_holds += 1
+            log.info("no path in what the pilot knows at t = %.2f s (%s): holding", obs.t_s, detail)
+        if not ok:
+            self._hold_retry_t = obs.t_s + cfg.hold_retry_s
+        # braking until the new plan's start (or holding): the MPC tracks the stop
+        self.reference, self._t_ref0 = brake, obs.t_s
+        self._tracker.reset()
+        self._last_t = None
+        self.last_solution = None
 
     def _maybe_replan(self, obs: Observation, reference: Reference) -> None:
         """Replan if `_replan_cause` says so; `reference` is the one flown now (`self.reference`)."""
@@ -298,6 +462,9 @@ class ClassicalPilot:
         self.stats.reference_speeds_m_s.append(float(np.linalg.norm(reference.sample(t_ref)[1])))
         cause = self._replan_cause(obs, reference)
         if cause is None:
+            return
+        if self._sensed is not None:
+            self._replan_in_flight(obs, cause)
             return
         self.stats.replans_by_cause[cause] += 1
         self._last_replan_t = obs.t_s
@@ -313,8 +480,18 @@ class ClassicalPilot:
             self.last_solution = None   # its prediction belonged to the old reference
 
     def _replan_cause(self, obs: Observation, reference: Reference) -> str | None:
-        """"tracking", "clearance" or None (no replan now)."""
+        """"blocked", "uncertainty", "tracking", "clearance" or None (no replan now; never while a plan made in
+        flight waits for its start)."""
         cfg, s = self.config, self.stats
+        if self._pending is not None:
+            return None
+        if self._blocked:
+            self._blocked = False
+            return "blocked"
+        if self._sensed is not None and self._extra_now > self._planned_extra_m + cfg.uncertainty_replan_m:
+            log.info("k sigma %.2f m above the %.2f m planned for at t = %.2f s: replanning", self._extra_now,
+                     self._planned_extra_m, obs.t_s)
+            return "uncertainty"
         t_ref = obs.t_s - self._t_ref0
         if cfg.replan_error_m is not None and s.replans_by_cause["tracking"] < cfg.max_replans:
             ref_now, _, _ = reference.sample(t_ref)
@@ -353,7 +530,7 @@ class ClassicalPilot:
         out = np.full(len(points_m), math.inf)
         if np.any(keep):
             world, _ = self._flying()
-            obstacles = world.city.planning_map()
+            obstacles = self._known.planning_map()
             out[keep] = obstacles.clearance(points_m[keep], world.vehicle.collision_radius_m).distance_m
         return out
 
@@ -364,7 +541,7 @@ class ClassicalPilot:
         points, and the ground; each offset by the collision radius plus the MPC's clearance margin.
         """
         (world, _), mpc = self._flying(), self._tracker
-        obstacles = world.city.planning_map()  # the no-fly volumes are kept at the same margin
+        obstacles = self._known.planning_map()  # the no-fly volumes are kept at the same margin
         n_stages, k = mpc.horizon_steps, mpc.config.n_halfspaces
         if k == 0:
             return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
@@ -403,3 +580,9 @@ class ClassicalPilot:
         s.mpc_solve_times_s.append(sol.solve_time_s)
         s.mpc_iterations.append(sol.iterations)
         s.mpc_statuses[sol.status] = s.mpc_statuses.get(sol.status, 0) + 1
+
+
+def position_sigma_m(covariance: np.ndarray) -> float:
+    """1 σ [m] of an error-state covariance's position block (16, 16) along its largest axis."""
+    block = np.asarray(covariance, float)[0:3, 0:3]
+    return float(math.sqrt(max(float(np.linalg.eigvalsh(0.5 * (block + block.T))[-1]), 0.0)))

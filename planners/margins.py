@@ -246,6 +246,12 @@ class SpeedMargins:
         j = np.searchsorted(m, np.asarray(clearance_m, float), side="right") - 1
         return tops[np.maximum(j, 0)]
 
+    def widened(self, extra_m: float) -> SpeedMargins:
+        """These margins with `extra_m` [m] added at every speed (itself when it is 0)."""
+        if extra_m == 0.0:
+            return self
+        return SpeedMargins(self.uppers_m_s, tuple(m + float(extra_m) for m in self.margins_m), self.mpc_fraction)
+
     def taper(self, accel_m_s2: float, start_speed_m_s: float = 0.0) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """Distances from a start or goal within which each step's margin holds for a reference that
         leaves it (or arrives at it) at `start_speed_m_s` and changes speed at most `accel_m_s2`:
@@ -294,6 +300,15 @@ class Margins:
     def floor_m(self) -> float:
         """The planner margin at rest [m]."""
         return self.by_speed.floor_m
+
+    def widened(self, extra_m: float) -> Margins:
+        """These margins with `extra_m` [m] added to the planner's at every speed (the MPC's: its share of it);
+        itself when it is 0."""
+        if extra_m == 0.0:
+            return self
+        speed = self.by_speed.widened(extra_m)
+        return Margins(speed.cruise_m, speed.mpc_fraction * speed.cruise_m, self.tracking_p99_m,
+                       f"{self.source} + {extra_m:.2f} m for the estimate's uncertainty", speed)
 
 
 def interpolate_p99(rows: Sequence[TrackingErrorRow], density_ratio: float) -> float:

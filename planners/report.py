@@ -39,6 +39,15 @@ class ClassicalReport:
         clearance_over_margin_min: least, over the decisions, of the vehicle's sphere clearance (to
             buildings, no-fly volumes and the ground) over the margin in force at its reference point
             (the promise: >= 0.5) [-].
+        replans_blocked, replans_uncertainty: replans flying on sensors because a newly sensed obstacle came
+            within the margin of the path still to fly, or because k σ of the estimate outgrew the margin planned
+            with (NaN at `perfect` sensing: nothing is sensed).
+        hover_holds: times the pilot held (hovered) for want of a path in what it knew.
+        replan_ms_median, replan_ms_p95: wall time of a replan in flight [ms] (what `replan_budget_s` must cover).
+        map_update_ms_median: wall time to map one lidar scan [ms].
+        uncertainty_margin_max_m: the largest k σ added to the margins [m].
+        sensed_obstacles: obstacles in the fused map at the end that the prior lacked (clusters of sensed
+            columns); cleared_prior_parts: prior parts taken out because beams passed through them.
 
     Read from an episode file saved before a field existed, that field is NaN (a count too: the
     counts' `float`), {} or "".
@@ -62,10 +71,22 @@ class ClassicalReport:
     planner_attempts: int | float = math.nan
     planner_step: str = ""
     clearance_over_margin_min: float = math.nan
+    replans_blocked: int | float = math.nan
+    replans_uncertainty: int | float = math.nan
+    hover_holds: int | float = math.nan
+    replan_ms_median: float = math.nan
+    replan_ms_p95: float = math.nan
+    map_update_ms_median: float = math.nan
+    uncertainty_margin_max_m: float = math.nan
+    sensed_obstacles: int | float = math.nan
+    cleared_prior_parts: int | float = math.nan
 
     @property
     def replans(self) -> int | float:
-        return self.replans_tracking + self.replans_clearance
+        """Replans of every cause (those not recorded, as in an older file or at `perfect` sensing, count 0
+        unless none is recorded)."""
+        return self.replans_tracking + self.replans_clearance + sum(
+            v for v in (self.replans_blocked, self.replans_uncertainty) if not math.isnan(v))
 
     def failure_reason(self, outcome: Outcome) -> Outcome | None:
         """`Outcome.SOLVER_FAILURE` for an episode that failed in flight (not for want of a plan) with at
@@ -103,4 +124,9 @@ class ClassicalReport:
             planner_margin_m=num("planner_margin_m"), mpc_margin_m=num("mpc_margin_m"),
             margin_source=str(data.get("margin_source") or ""), planner_margin_floor_m=num("planner_margin_floor_m"),
             planner_attempts=num("planner_attempts"), planner_step=str(data.get("planner_step") or ""),
-            clearance_over_margin_min=num("clearance_over_margin_min"))
+            clearance_over_margin_min=num("clearance_over_margin_min"),
+            **{name: num(name) for name in _SENSING_FIELDS})
+
+
+_SENSING_FIELDS = ("replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
+                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")

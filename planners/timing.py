@@ -544,6 +544,30 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     return ref
 
 
+def braking_reference(position_m: np.ndarray, velocity_m_s: np.ndarray, decel_m_s2: float, step_s: float = 0.02
+                      ) -> Reference:
+    """A straight stop: from `position_m` (3,) at `velocity_m_s` (3,) world ENU, slowing at `decel_m_s2` [m/s²]
+    along the velocity until at rest, then holding there (a hover). Its clearance is not checked (NaN): it is what
+    the vehicle flies while a replan runs, or holding when none succeeds."""
+    p0 = np.asarray(position_m, float).reshape(3)
+    v0 = np.asarray(velocity_m_s, float).reshape(3)
+    speed = float(np.linalg.norm(v0))
+    if not (math.isfinite(decel_m_s2) and decel_m_s2 > 0.0):
+        raise ValueError(f"decel_m_s2 must be positive and finite, got {decel_m_s2!r}")
+    stop_s = speed / decel_m_s2
+    t = np.append(np.arange(0.0, stop_s, step_s), stop_s) if stop_s > 0.0 else np.zeros(1)
+    unit = v0 / speed if speed > 0.0 else np.zeros(3)
+    s_along = speed * t - 0.5 * decel_m_s2 * t * t
+    v_along = speed - decel_m_s2 * t
+    pos = p0 + s_along[:, None] * unit
+    vel = v_along[:, None] * unit
+    acc = np.broadcast_to(-decel_m_s2 * unit if speed > 0.0 else np.zeros(3), pos.shape).copy()
+    acc[-1] = 0.0
+    return Reference(t_s=_frozen(t), pos_m=_frozen(pos), vel_m_s=_frozen(vel), acc_m_s2=_frozen(acc),
+                     duration_s=float(stop_s), status="ok", length_m=float(s_along[-1]), min_clearance_m=math.nan,
+                     required_clearance_m=math.nan, refinements=0, stops=1)
+
+
 def _at_rest(p: np.ndarray, city: BuildingMap, radius_m: float, margin_m: float) -> Reference:
     z = np.zeros((1, 3))
     clear = float(city.clearance(p[None, :], radius_m).distance_m[0])

@@ -3,13 +3,13 @@ with their Wilson intervals, per kind of city where the task mixes them, and las
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compare.cli.common import check_ranges, one_torch_thread, turbulence_levels
+from compare.cli.printout import json_line
 from compare.scenarios.scenario import MAX_SEED
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
@@ -94,7 +94,7 @@ def evaluate_policy(args: argparse.Namespace) -> int:
                    paired=pairs)
         results["potential field"] = ex
     out.update(_by_city_kind(results, nav))
-    print(json.dumps(out))
+    print(json_line(out))  # a kind of city that got no episodes has NaN rates: null here
     return 0
 
 

@@ -90,13 +90,15 @@ def animate(args: argparse.Namespace) -> int:
     if args.all:
         out_dir = args.out if args.out is not None else args.run_dir / VIDEOS_DIR
         check_output_dir(out_dir, "--out")
-        results = render_videos(groups, out_dir, "all", opts, progress=not args.no_progress, fmt=args.format)
+        results = render_videos(groups, out_dir, "all", opts, progress=not args.no_progress, fmt=args.format,
+                                root=args.run_dir if args.out is None else None)
     else:
         group = select_group(groups, args.episode) if args.episode is not None else groups[0]
         out = args.out if args.out is not None else args.run_dir / VIDEOS_DIR / f"{group.stem}.{args.format}"
         check_output_file(out, "--out")
         check_not_replacing(args.out, "--out", args.overwrite)
-        results = [render_animation(group, out, opts, progress=not args.no_progress)]
+        results = [render_animation(group, out, opts, progress=not args.no_progress,
+                                    root=args.run_dir if args.out is None else None)]
     for r in results:
         print(f"{r.path}  ({r.format}, {r.frames} frames {r.width_px}x{r.height_px} at {r.fps:g} fps, "
               f"x{r.speedup:.2f} real time, rendered in {r.seconds:.1f} s)")

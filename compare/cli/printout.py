@@ -4,8 +4,11 @@ the headline figures as one JSON line for scripts."""
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.level_rates import level_json, level_rates, level_table_lines
@@ -139,4 +142,20 @@ def print_headline_json(run_dir: Path) -> None:
     if task_set is not None and task_set.name in BENCHMARK_SETS and (run_dir / "metrics.csv").exists():
         # per vehicle, air and turbulence level (printed above)
         out["by_level"] = level_json(level_rates(info, read_metrics_csv(run_dir / "metrics.csv")))
-    print(json.dumps(out))
+    print(json_line(out))
+
+
+def json_line(data: Any) -> str:
+    """`data` as one line of strict JSON for scripts: a number that is not finite (a rate of no episodes is NaN)
+    is null, as JSON has neither NaN nor Infinity and strict readers refuse them."""
+    return json.dumps(_finite_or_null(data), allow_nan=False)
+
+
+def _finite_or_null(value: Any) -> Any:
+    if isinstance(value, float):  # NumPy's float64 too
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {k: _finite_or_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_null(v) for v in value]
+    return value

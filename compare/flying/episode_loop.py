@@ -60,7 +60,8 @@ class Trajectory:
             the control periods' ends), world ENU [m]; None at perfect sensing (the estimate is the truth).
         unmapped_clearance_m: (M,) signed clearance of the collision sphere to the obstacles the prior map lacks
             [m]; None when it lacks none.
-        nav: the onboard estimation's record (errors, GNSS epochs); None at perfect sensing or read from a file.
+        nav: the onboard estimation's record (errors, GNSS epochs, when the lidar first sensed each unmapped
+            obstacle); None at perfect sensing or read from a file.
         lidar_hits_m: (H, 4) [t_s, x, y, z] a thinned set of the lidar's true hit points, world ENU [m] (the
             viewer's layer); None at perfect sensing.
     """
@@ -108,7 +109,9 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
     if not truth.perfect and truth.sensing is not None:
         from uam_fdm.sensing.onboard import Onboard
 
-        onboard = Onboard(truth.sensing, city, truth.ray_caster(), world.atmosphere, x0, dyn.dt_s, truth.sensing_seed)
+        lacks = () if truth.unmapped is None else truth.unmapped.building_ids.tolist()
+        onboard = Onboard(truth.sensing, city, truth.ray_caster(), world.atmosphere, x0, dyn.dt_s, truth.sensing_seed,
+                          unmapped_ids=lacks)
     estimates = None if onboard is None else [onboard.estimated_position_m()[None]]
     unmapped = truth.unmapped
     near_unmapped = None if unmapped is None else [unmapped.obstacle_clearance_m(x0[None, 0:3], radius)]

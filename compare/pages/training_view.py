@@ -9,7 +9,10 @@ are listed by task, coloured by outcome, and the chosen task is drawn in 3D besi
 second checkpoint, both playable in time. It opens from disk with no network.
 
 Flights are put in the page at `TrainingViewConfig.page_hz` (10 Hz: the pilot's decision rate), not at
-the recorded control rate, to keep the page small.
+the recorded control rate, to keep the page small, and with at most `TrainingViewConfig.max_points_per_flight`
+samples each (2,000: 200 s at 10 Hz, longer than any recorded task's timeout; a longer flight is drawn thinned
+further, its last sample kept). Checkpoints are read one at a time, each refused unread past
+`rl.policies.flights.MAX_CHECKPOINT_BYTES`, so memory follows what the page draws, not what a file claims.
 """
 from __future__ import annotations
 
@@ -40,10 +43,12 @@ OUTCOME_WORDS = {"success": "arrived", "collision": "collided", "timeout": "time
 
 @dataclass(frozen=True)
 class TrainingViewConfig:
-    """What the page holds: flights resampled to `page_hz` [Hz], positions rounded to `round_m` [m]."""
+    """What the page holds: flights resampled to `page_hz` [Hz], at most `max_points_per_flight` samples each
+    (thinned further past it), positions rounded to `round_m` [m]."""
 
     page_hz: float = 10.0
     round_m: float = 0.01
+    max_points_per_flight: int = 2_000
 
 
 def city_map(city: CityBoxes) -> BuildingMap:
@@ -112,7 +117,8 @@ def training_payload(policy_dir: Path, opts: TrainingViewConfig = TrainingViewCo
         ckpt = flights.checkpoint(step)
         rows = []
         for f in ckpt.flights:
-            keep = np.unique(np.r_[np.arange(0, len(f.pos_m), stride), len(f.pos_m) - 1])
+            every = max(stride, -(-len(f.pos_m) // opts.max_points_per_flight))  # the cap on samples drawn
+            keep = np.unique(np.r_[np.arange(0, len(f.pos_m), every), len(f.pos_m) - 1])
             p, v = f.pos_m[keep].astype(float), f.vel_m_s[keep].astype(float)
             rows.append({"task": f.task, "outcome": f.outcome, "words": OUTCOME_WORDS.get(f.outcome, f.outcome),
                          "color": OUTCOME_COLORS.get(f.outcome, "#333333"), "time_s": round(f.time_s, 3),

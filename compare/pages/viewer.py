@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -215,7 +215,7 @@ def _finite_min(values) -> float | None:
 
 
 def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerConfig = ViewerConfig(), *,
-                      warn_unreadable: bool = True) -> None:
+                      warn_unreadable: bool = True, warned: Collection[str] = ()) -> None:
     """Write the viewer page of a run folder to `out`, piece by piece: each cell's data is written as it is
     made, so a run's cells are never held together (a benchmark run's page is hundreds of MB; held as one
     string, with the copies that assembling it makes, it took gigabytes).
@@ -224,7 +224,7 @@ def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerConfig = ViewerCo
     """
     run_dir = Path(run_dir)
     info = read_run_info(run_dir)
-    groups = flight_groups(run_dir, warn_unreadable=warn_unreadable)
+    groups = flight_groups(run_dir, warn_unreadable=warn_unreadable, warned=warned)
     run = {"folder": run_dir.name, "command": info.command, "created_utc": info.created_utc}
 
     def data() -> None:  # the same text as json_for_script({"run": run, "groups": [...]})
@@ -263,15 +263,19 @@ def write_viewer_page(run_dir: Path, out: IO[str], opts: ViewerConfig = ViewerCo
 
 
 def build_viewer(run_dir: Path, out: Path | None = None, opts: ViewerConfig = ViewerConfig(), *,
-                 warn_unreadable: bool = True) -> Path:
+                 warn_unreadable: bool = True, warned: Collection[str] = ()) -> Path:
     """Write the viewer of a run folder (default `RUN_DIR/viewer.html`) atomically; returns its path.
 
-    An unreadable episode file is left out with a warning (INFO when `warn_unreadable` is False).
+    An unreadable episode file is left out with a warning (INFO when `warn_unreadable` is False: the caller has
+    named the files its listing finds unreadable); a flight that does not draw, with one warning line each (INFO
+    for the file names in `warned`: the caller has named them).
 
     Raises:
-        ValueError: not a run folder, no readable saved episodes, or an unreadable map, naming the file.
+        ValueError: not a run folder, no readable saved episodes, an unreadable map, or a link in the run folder
+            on the way to the default file (`uam_fdm.files.inside`), naming the file.
     """
+    root = None if out is not None else Path(run_dir)  # the run's own file: no link in the run folder followed
     out = Path(out) if out is not None else Path(run_dir) / VIEWER_NAME
-    with atomic_open(out, "w", encoding="utf-8", newline="") as f:
-        write_viewer_page(run_dir, f, opts, warn_unreadable=warn_unreadable)
+    with atomic_open(out, "w", root=root, encoding="utf-8", newline="") as f:
+        write_viewer_page(run_dir, f, opts, warn_unreadable=warn_unreadable, warned=warned)
     return out

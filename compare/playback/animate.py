@@ -43,6 +43,7 @@ from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.plot import draw_map_3d, draw_map_topdown, missing_glyphs_unsaid
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path
+from uam_fdm.files.inside import inside_no_links
 
 _log = logging.getLogger(__name__)
 
@@ -106,7 +107,7 @@ def ffmpeg_available() -> bool:
 
 @plain_text
 def render_animation(group: FlightGroup, out: Path, opts: AnimationConfig = AnimationConfig(),
-                     progress: bool = True) -> AnimationResult:
+                     progress: bool = True, *, root: Path | None = None) -> AnimationResult:
     """Render the pilots of `group` flying on one clock to `out` (".mp4" or ".gif").
 
     An ".mp4" asked for without ffmpeg is written as a GIF beside it (`out.with_suffix(".gif")`, with a
@@ -118,9 +119,11 @@ def render_animation(group: FlightGroup, out: Path, opts: AnimationConfig = Anim
         out: output file; its suffix chooses the format.
         opts: frame rate, length, size and camera orbit.
         progress: show a tqdm progress bar on stderr.
+        root: the run folder `out` lies in (None: a file the user named): no link in it is followed
+            (`uam_fdm.files.atomic.atomic_path`).
 
     Raises:
-        ValueError: invalid options or an unsupported suffix (naming the path).
+        ValueError: invalid options, an unsupported suffix or a link below `root` (naming the path).
     """
     opts.validate()
     out = Path(out)
@@ -138,7 +141,7 @@ def render_animation(group: FlightGroup, out: Path, opts: AnimationConfig = Anim
     scene = _Scene(group, times, opts)
     bar = tqdm(total=n, desc=f"animate {group.spec}", unit="frame", disable=not progress, leave=False)
     try:
-        with atomic_path(out, suffix=f".{fmt}") as tmp:
+        with atomic_path(out, suffix=f".{fmt}", root=root) as tmp:
             frames = (scene.draw(k) for k in range(n))
             if fmt == "mp4":
                 _write_mp4(frames, tmp, scene.figure, opts.fps, bar, title=group.spec)
@@ -468,7 +471,7 @@ def _changed_box(prev: np.ndarray, cur: np.ndarray) -> tuple[int, int, int, int]
 @plain_text
 def render_videos(groups: list[FlightGroup], out_dir: Path, which: str = "scenario",
                   opts: AnimationConfig = AnimationConfig(), progress: bool = True,
-                  fmt: str = "mp4") -> list[AnimationResult]:
+                  fmt: str = "mp4", *, root: Path | None = None) -> list[AnimationResult]:
     """Render several cells of a run to `out_dir/<cell stem>.<fmt>`.
 
     Args:
@@ -478,15 +481,20 @@ def render_videos(groups: list[FlightGroup], out_dir: Path, which: str = "scenar
         opts: frame rate, length, size and camera orbit of every video.
         progress: show a progress bar per video.
         fmt: "mp4" (GIF when ffmpeg is missing) or "gif".
+        root: the run folder `out_dir` lies in (None: a folder the user named): no link in it is followed, and
+            it is checked before anything is rendered.
 
     Raises:
-        ValueError: unknown `which` or `fmt`, or invalid options, before anything is rendered.
+        ValueError: unknown `which` or `fmt`, invalid options, or a link below `root` on the way to `out_dir`,
+            before anything is rendered.
     """
     if which not in VIDEO_CHOICES:
         raise ValueError(f"--videos {which!r}: choose from {', '.join(VIDEO_CHOICES)}")
     if fmt not in FORMATS:
         raise ValueError(f"--format {fmt!r}: choose from {', '.join(FORMATS)}")
     opts.validate()
+    if root is not None:
+        inside_no_links(root, out_dir)
     if which == "none":
         return []
     chosen, seen = [], set()
@@ -494,4 +502,4 @@ def render_videos(groups: list[FlightGroup], out_dir: Path, which: str = "scenar
         if which == "all" or g.scenario not in seen:
             chosen.append(g)
             seen.add(g.scenario)
-    return [render_animation(g, Path(out_dir) / f"{g.stem}.{fmt}", opts, progress) for g in chosen]
+    return [render_animation(g, Path(out_dir) / f"{g.stem}.{fmt}", opts, progress, root=root) for g in chosen]

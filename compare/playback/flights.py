@@ -9,7 +9,7 @@ flight on a shared time grid (`sample_flight`), holding a pilot that has already
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -124,11 +124,13 @@ class FlightGroup:
         return self.flights[0].episode.meta
 
 
-def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[FlightGroup]:
+def flight_groups(run_dir: Path, *, warn_unreadable: bool = True, warn_undrawable: bool = True,
+                  warned: Collection[str] = ()) -> list[FlightGroup]:
     """Load every saved episode of a run folder, grouped by (scenario, episode, seed), in run order.
 
-    An unreadable (corrupt, truncated) episode file is left out and logged, as a warning unless
-    `warn_unreadable` is False (the caller has already warned about it).
+    An episode file the listing finds unreadable (corrupt, truncated) is left out and logged, as a warning unless
+    `warn_unreadable` is False (the caller has already warned about it); a flight that does not load or draw
+    (`compare.results.episodes.RunEpisodes.load`) likewise, one warning line each unless `warn_undrawable` is False.
 
     Raises:
         ValueError: not a run folder, no readable saved episodes, or a scenario's map is missing or
@@ -143,6 +145,7 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
     pilot_order = {m: i for i, m in enumerate(info.pilots)}
     by_cell: dict[tuple[str, int, int], list[Flight]] = {}
     level = logging.WARNING if warn_unreadable else logging.INFO
+    level_undrawable = logging.WARNING if warn_undrawable else logging.INFO
     unreadable = []
     for bad in episodes.unreadable:
         logger.log(level, "skipping unreadable episode file %s", bad.reason)  # the reason names the file
@@ -151,7 +154,9 @@ def flight_groups(run_dir: Path, *, warn_unreadable: bool = True) -> list[Flight
         try:  # read once here (then let go): an unreadable one is left out before anything is drawn
             ep = episodes.load(entry)
         except ValueError as exc:  # one bad file must not cost the flights of the rest
-            logger.log(level, "skipping unreadable episode file %s", exc)  # the message names the file
+            # the message names the file; one the caller has named (`warned`, file names) is not warned twice
+            quiet = entry.name in warned
+            logger.log(logging.INFO if quiet else level_undrawable, "skipping unreadable episode file %s", exc)
             unreadable.append(entry.name)
             continue
         k = ep.meta.key

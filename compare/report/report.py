@@ -167,15 +167,16 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
     run_dir = Path(run_dir)
     run = _make_run(run_dir, read_run_info(run_dir))
     run.skip_log_level = logging.WARNING if warn_unreadable else logging.INFO
+    root = run_dir if out is None else None  # the run's own report: no link in the run folder followed
     out = Path(out) if out is not None else run_dir / "report.pdf"
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = _episode_groups(run)
-    with atomic_path(out, suffix=".pdf.tmp") as tmp:
+    with atomic_path(out, suffix=".pdf.tmp", root=root) as tmp:
         # TrueType (Type 42) fonts: text stays searchable and journals accept the pages
         metadata = {"Title": "uam-compare report", "Creator": "uam-compare",
                     "Subject": run.info.command, "CreationDate": None}
         with rc_context({"pdf.fonttype": 42}), PdfPages(tmp, metadata=metadata) as pdf:
-            pages = _PageWriter(pdf, run_dir / "figures")
+            pages = _PageWriter(pdf, run_dir / "figures", run_dir)
             n_present = sum(len(paths) for paths in groups.values())
             pages.add_all(F.text_pages("uam-compare report", _title_blocks(run, n_present)), "title")
             rows, why = _read_metrics(run_dir / "metrics.csv")
@@ -203,11 +204,11 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
 class _PageWriter:
     """Adds figures to the PDF and saves each as a PNG, then releases it."""
 
-    def __init__(self, pdf: PdfPages, fig_dir: Path) -> None:
-        self.pdf, self.fig_dir, self.count = pdf, fig_dir, 0
+    def __init__(self, pdf: PdfPages, fig_dir: Path, run_dir: Path | None = None) -> None:
+        self.pdf, self.fig_dir, self.run_dir, self.count = pdf, fig_dir, run_dir, 0  # run_dir: no link in it followed
 
     def add(self, fig: Figure, name: str) -> None:
-        save_figure(fig, self.fig_dir / f"{_slug(name)}.png", dpi=PNG_DPI)
+        save_figure(fig, self.fig_dir / f"{_slug(name)}.png", dpi=PNG_DPI, root=self.run_dir)
         with missing_glyphs_unsaid():
             self.pdf.savefig(fig)
         fig.clear()  # Figure-API figures are not registered with pyplot: clearing frees their artists

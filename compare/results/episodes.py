@@ -9,11 +9,12 @@ wins over the episode table (a compaction cut short) and both over an `.npz`.
 
 What a store says is checked before it is believed: the episode table holds the cells run.json plans and no others
 (rows of other cells are skipped, named in one line; a table of far more rows than the run plans is refused
-unread), no cell twice (both rows are skipped, named: which one is the flight cannot be told, and `run --resume`
-flies it again), and the samples a row points at are of its cell (else the episode is skipped, naming the table,
-the row and what disagrees). An episode is read with at most `MAX_SAMPLES_READ` samples (a longer one is thinned
-as it is read, a row group at a time), and one with no finite position, or positions beyond `FLIGHT_REACH_M` of
-its start, is refused by name: the pages draw it with the rest left out, not instead of the rest.
+unread), no cell twice (both rows are skipped, named: which one is the flight cannot be told; `run --resume`
+refuses such a store, `refuse_bad_rows`), and the samples a row points at are of its cell (else the episode is
+skipped, naming the table, the row and what disagrees). An episode is read with at most `MAX_SAMPLES_READ` samples
+(a longer one is thinned as it is read, a row group at a time), and one with no finite position, or positions
+beyond `FLIGHT_REACH_M` of its start, is refused by name: the pages draw it with the rest left out, not instead of
+the rest.
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from compare.results.metrics import EpisodeMetrics, episode_metrics
+from compare.results.run_folder import check_run_folder_links
 from compare.results.run_info import read_run_info
 from compare.results.store import (
     EPISODE_TABLE,
@@ -349,8 +351,13 @@ def open_episodes(run_dir: Path) -> RunEpisodes:
 
     An unreadable part or `.npz` is listed in `unreadable`; an unreadable episode table too (its episodes are
     then missing), and its rows that are not read (one entry for each reason).
+
+    Raises:
+        LinkInFolder: (a ValueError) a link in the run folder (`compare.results.run_folder`): what it leads to
+            is another folder's, never read as this run's.
     """
     run_dir = Path(run_dir)
+    check_run_folder_links(run_dir)
     plan = _run_plan(run_dir)
     found: dict[EpisodeKey, EpisodeEntry] = {}
     bad: list[Unreadable] = []
@@ -406,7 +413,7 @@ def open_episodes(run_dir: Path) -> RunEpisodes:
         if len(at) > 1:  # compaction never writes one cell twice: neither row is believed
             del stored[key]
             bad.append(Unreadable(table, f"{table}: {_rows_named(at)} hold one cell, {key.stem}: none of them is "
-                                         "read (which is its flight cannot be told; `run --resume` flies it again)"))
+                                         "read (which is its flight cannot be told)"))
     if unplanned:
         bad.append(Unreadable(table, f"{table}: {_rows_named(unplanned)} hold cells run.json does not plan "
                                      f"(first {key_of(rows[unplanned[0]]).stem}): skipped", planned=False))
@@ -418,6 +425,22 @@ def open_episodes(run_dir: Path) -> RunEpisodes:
     found.update(parts)
     order = sorted(found, key=lambda k: (k.scenario, k.episode, k.method, k.seed))
     return RunEpisodes(run_dir, tuple(found[k] for k in order), tuple(bad))
+
+
+def refuse_bad_rows(run_dir: Path) -> None:
+    """Refuse to add to a run whose store holds what the readers skip as not the run's: an episode table that does
+    not read or is far larger than the plan, a row whose cell or samples file is not readable, rows of cells
+    run.json does not plan (parts too), a cell held twice (`open_episodes`'s checks). Compaction would keep them
+    beside the new episodes. A part that does not read is not refused: `run --resume` flies its cell again.
+
+    Raises:
+        ValueError: naming the run, the file and its first bad row (the readers' reason).
+    """
+    table = store_dir(run_dir) / EPISODE_TABLE
+    for bad in open_episodes(run_dir).unreadable:
+        if bad.path == table or not bad.planned:
+            raise ValueError(f"{run_dir}: cannot resume: {bad.reason}; nothing was flown or written (fly into a "
+                             f"new folder; `uam-compare report` reports this one without them)")
 
 
 def kept_keys(run_dir: Path) -> set[EpisodeKey]:

@@ -24,6 +24,7 @@ from typing import Any
 from compare.flying.episode_loop import PilotError
 from compare.results.trajectory import EpisodeKey
 from uam_fdm.files.atomic import write_text_atomic
+from uam_fdm.files.inside import inside_no_links
 from uam_fdm.files.strict import strict_json_loads
 
 log = logging.getLogger(__name__)
@@ -114,7 +115,7 @@ def failure_path(run_dir: Path, key: EpisodeKey) -> Path:
 def write_failure(run_dir: Path, failure: FailedCell) -> Path:
     """Write `failure` to `run_dir/failed/<stem>.json` atomically; returns the path."""
     data: dict[str, Any] = {"format_version": FORMAT_VERSION, **asdict(failure), "kind": failure.kind.value}
-    return write_text_atomic(failure_path(run_dir, failure.key), json.dumps(data, indent=2) + "\n")
+    return write_text_atomic(failure_path(run_dir, failure.key), json.dumps(data, indent=2) + "\n", root=run_dir)
 
 
 def read_failure(path: Path) -> FailedCell:
@@ -159,8 +160,12 @@ def describe_failures(failures: Sequence[FailedCell]) -> str:
 
 
 def remove_failure(run_dir: Path, key: EpisodeKey) -> bool:
-    """Remove the record of `key` (its cell has flown since); True when there was one."""
-    path = failure_path(run_dir, key)
+    """Remove the record of `key` (its cell has flown since); True when there was one.
+
+    Raises:
+        LinkInFolder: (a ValueError) a link on the way to it (`uam_fdm.files.inside`): nothing is removed there.
+    """
+    path = inside_no_links(run_dir, failure_path(run_dir, key))
     existed = path.exists()
     path.unlink(missing_ok=True)
     return existed

@@ -33,6 +33,10 @@ CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
                    "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
                    "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min")
+MAPPING_METRICS = ("replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
+                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
+"""The classical pilot's columns of flying on its sensors: mapping and replanning in flight (NaN at perfect sensing
+and for a pilot without them); in metrics.csv, not yet in the summary."""
 """The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
 pilot like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
@@ -93,6 +97,22 @@ class EpisodeMetrics:
             filter, less for an over- or underconfident one (NaN at perfect sensing).
         min_clearance_unmapped_m: least signed clearance of the collision sphere to the obstacles the prior map
             lacks (unmapped buildings, missing ones, cranes and masts), physics rate [m] (NaN when it lacks none).
+        unmapped_sensed: obstacles the prior map lacks that a returned lidar beam hit during the episode [count]
+            (NaN at perfect sensing: no lidar simulated).
+        unmapped_first_sensed_m_min, unmapped_first_sensed_m_median: over those obstacles, least and median true
+            range from the vehicle's centre to the obstacle when the lidar first sensed it (the nearest returned
+            beam on it in its first scan) [m]: how much room the pilot had left to react (NaN when none was
+            sensed, and at perfect sensing).
+        replans_blocked, replans_uncertainty: the classical pilot's replans in flight because a newly sensed obstacle
+            came within its margin of the path still to fly, and because k σ of its estimate outgrew the margin it
+            planned with [count] (`MAPPING_METRICS`: NaN at perfect sensing and for other pilots).
+        hover_holds: times the classical pilot held (hovered) for want of a path in what it knew [count].
+        replan_ms_median, replan_ms_p95: wall time of a replan in flight [ms] (the pilot flies `replan_budget_s`
+            braking meanwhile, whatever this is).
+        map_update_ms_median: wall time to map one lidar scan [ms].
+        uncertainty_margin_max_m: the largest k σ the classical pilot added to its margins [m].
+        sensed_obstacles, cleared_prior_parts: obstacles in its fused map at the end that the prior lacked, and
+            prior parts it took out because beams passed through them [count].
     """
 
     scenario: str
@@ -138,6 +158,18 @@ class EpisodeMetrics:
     gnss_availability: float = math.nan
     min_clearance_unmapped_m: float = math.nan
     est_nees_in_bounds: float = math.nan
+    unmapped_sensed: float = math.nan
+    unmapped_first_sensed_m_min: float = math.nan
+    unmapped_first_sensed_m_median: float = math.nan
+    replans_blocked: float = math.nan
+    replans_uncertainty: float = math.nan
+    hover_holds: float = math.nan
+    replan_ms_median: float = math.nan
+    replan_ms_p95: float = math.nan
+    map_update_ms_median: float = math.nan
+    uncertainty_margin_max_m: float = math.nan
+    sensed_obstacles: float = math.nan
+    cleared_prior_parts: float = math.nan
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
@@ -148,9 +180,10 @@ _KINDS = {f.name: str(f.type) for f in fields(EpisodeMetrics)}
 
 
 SENSING_METRICS = ("est_error_h_rms_m", "est_error_h_max_m", "est_error_v_rms_m", "est_error_v_max_m",
-                   "gnss_availability", "min_clearance_unmapped_m", "est_nees_in_bounds")
+                   "gnss_availability", "min_clearance_unmapped_m", "est_nees_in_bounds", "unmapped_sensed",
+                   "unmapped_first_sensed_m_min", "unmapped_first_sensed_m_median")
 """The columns of what the vehicle sensed and the map missed (older metrics.csv files: NaN)."""
-_OPTIONAL = (*TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *SENSING_METRICS)
+_OPTIONAL = (*TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *SENSING_METRICS, *MAPPING_METRICS)
 # columns that older metrics.csv files lack
 VEHICLE_TAG_CHARS = 8
 """Characters of the fingerprint that tell apart two vehicles sharing a name ("small_quad (1a2b3c4d)")."""
@@ -235,7 +268,8 @@ def episode_metrics(saved: SavedEpisode) -> EpisodeMetrics:
 
 
 def _sensing_fields(traj: Trajectory, sensing: str) -> dict[str, float]:
-    """The estimation and unmapped-clearance columns from the flight's records (in the cell, before storing)."""
+    """The estimation, unmapped-clearance and first-sensed columns from the flight's records (in the cell, before
+    storing)."""
     out: dict[str, float] = {}
     near = traj.unmapped_clearance_m
     if near is not None:
@@ -251,6 +285,11 @@ def _sensing_fields(traj: Trajectory, sensing: str) -> dict[str, float]:
     out.update(est_error_h_rms_m=float(np.sqrt(np.mean(h ** 2))), est_error_h_max_m=float(h.max()),
                est_error_v_rms_m=float(np.sqrt(np.mean(v ** 2))), est_error_v_max_m=float(v.max()),
                gnss_availability=nav.gnss_availability, est_nees_in_bounds=nav.nees_in_bounds)
+    first_m = np.array([r for _, _, r in nav.first_sensed], float)
+    out["unmapped_sensed"] = float(len(first_m))
+    if first_m.size:
+        out.update(unmapped_first_sensed_m_min=float(first_m.min()),
+                   unmapped_first_sensed_m_median=float(np.median(first_m)))
     return out
 
 
@@ -267,7 +306,8 @@ def _tracker_fields(report: PilotReport | None) -> dict[str, float]:
             "tracking_max_m": float(r.tracking_max_m), "planner_margin_m": float(r.planner_margin_m),
             "mpc_margin_m": float(r.mpc_margin_m), "planner_margin_floor_m": float(r.planner_margin_floor_m),
             "planner_attempts": float(r.planner_attempts),
-            "clearance_over_margin_min": float(r.clearance_over_margin_min)}
+            "clearance_over_margin_min": float(r.clearance_over_margin_min),
+            **{name: float(getattr(r, name)) for name in MAPPING_METRICS}}
 
 
 def _path_length_m(positions_m: np.ndarray) -> float:

@@ -227,7 +227,8 @@ class RunInfo:
 # ---- writing ----------------------------------------------------------------------------------------------
 def write_run_info(info: RunInfo, run_dir: Path) -> Path:
     """Write `RUN_DIR/run.json` atomically (indent 2); returns its path."""
-    return write_text_atomic(Path(run_dir) / RUN_INFO_NAME, json.dumps(run_info_to_json(info), indent=2) + "\n")
+    return write_text_atomic(Path(run_dir) / RUN_INFO_NAME, json.dumps(run_info_to_json(info), indent=2) + "\n",
+                             root=run_dir)
 
 
 def run_info_to_json(info: RunInfo) -> dict[str, Any]:

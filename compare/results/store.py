@@ -43,11 +43,13 @@ from compare.results.tables import (
     KEY_COLUMNS,
     SAMPLE_SCHEMA,
     SAMPLE_SCHEMA_BEFORE_SENSING,
+    upgraded_episodes,
     upgraded_samples,
     with_metric_defaults,
 )
 from compare.results.trajectory import MAX_EPISODE_BYTES, EpisodeKey
 from uam_fdm.files.atomic import atomic_open, atomic_path
+from uam_fdm.files.inside import inside_no_links
 
 log = logging.getLogger(__name__)
 
@@ -113,9 +115,13 @@ def part_bytes(row: Mapping[str, Any], samples: pa.Table) -> bytes:
     return buffer.getvalue()
 
 
-def write_part(path: Path, data: bytes) -> Path:
-    """Write a part's content (`part_bytes`) to `path` atomically; returns the path."""
-    with atomic_open(path, "wb") as f:
+def write_part(path: Path, data: bytes, *, root: Path | None = None) -> Path:
+    """Write a part's content (`part_bytes`) to `path` atomically; returns the path.
+
+    Args:
+        root: the run folder `path` lies in: no link on the way is followed (`uam_fdm.files.atomic.atomic_path`).
+    """
+    with atomic_open(path, "wb", root=root) as f:
         f.write(data)
     return Path(path)
 
@@ -270,6 +276,7 @@ def read_episode_table(run_dir: Path, max_rows: int | None = None, planned: str 
     if table is None:
         raise ValueError(f"{path}: {rows:,} rows, far more than {planned or 'the run plans'}: refused unread "
                          f"(at most {max_rows:,} are read)")
+    table = upgraded_episodes(table)  # a run from before some of the sensing columns: at their defaults
     schema = table.schema.remove_metadata()
     if schema.equals(EPISODE_SCHEMA_BEFORE_SENSING):  # a run from before the vehicle sensed
         return [with_metric_defaults(r) for r in table.to_pylist()]
@@ -320,10 +327,14 @@ def compact(run_dir: Path) -> list[Unreadable]:
         The parts that did not read (left in place; each also logged).
 
     Raises:
-        ValueError: the existing episode table does not read (nothing is changed).
+        ValueError: the existing episode table does not read, or the store (its folder, its parts folder or its
+            table) is a link (`LinkInFolder`): nothing is changed.
         OSError: a file could not be written (nothing is lost: the parts stay until their copy is complete).
     """
     folder = store_dir(run_dir)
+    # before anything is read or written: a store that is a link is another run's, whose lock is not held here
+    inside_no_links(run_dir, folder / PARTS_DIR)
+    inside_no_links(run_dir, folder / EPISODE_TABLE)
     parts = part_files(run_dir)
     bad: list[Unreadable] = []
     rows: list[tuple[dict[str, Any], Path]] = []
@@ -338,12 +349,12 @@ def compact(run_dir: Path) -> list[Unreadable]:
         old = read_episode_table(run_dir)
         rows.sort(key=lambda rp: cell_rank(rp[0]))
         gen = 1 + max((int(m["gen"]) for f in samples_files(run_dir) if (m := _SAMPLES.match(f.name))), default=0)
-        new_rows, done, failed = _write_samples(folder, gen, rows)
+        new_rows, done, failed = _write_samples(folder, gen, rows, Path(run_dir))
         bad += failed
         fresh = {key_of(r) for r in new_rows}
         table = [r for r in old if key_of(r) not in fresh] + new_rows
         table.sort(key=cell_rank)
-        write_episode_table(folder / EPISODE_TABLE, table)
+        write_episode_table(folder / EPISODE_TABLE, table, root=Path(run_dir))
         for p in done:
             p.unlink(missing_ok=True)
         used = {r["samples_file"] for r in table}
@@ -355,15 +366,16 @@ def compact(run_dir: Path) -> list[Unreadable]:
     return bad
 
 
-def write_episode_table(path: Path, rows: Sequence[Mapping[str, Any]]) -> Path:
-    """Write the episode table (rows in cell order) atomically; returns the path."""
+def write_episode_table(path: Path, rows: Sequence[Mapping[str, Any]], *, root: Path | None = None) -> Path:
+    """Write the episode table (rows in cell order) atomically (`root`: the run folder, as `write_part`'s); returns
+    the path."""
     table = pa.Table.from_pylist(list(rows), schema=EPISODE_SCHEMA)
-    with atomic_path(path, ".parquet") as tmp:
+    with atomic_path(path, ".parquet", root=root) as tmp:
         pq.write_table(table, tmp, row_group_size=ROW_GROUP_ROWS, **write_options(EPISODE_SCHEMA))
     return path
 
 
-def _write_samples(folder: Path, gen: int, rows: Iterable[tuple[dict[str, Any], Path]]
+def _write_samples(folder: Path, gen: int, rows: Iterable[tuple[dict[str, Any], Path]], root: Path
                    ) -> tuple[list[dict[str, Any]], list[Path], list[Unreadable]]:
     """Append the parts' samples, in the given order, to new samples files of generation `gen`.
 
@@ -372,7 +384,7 @@ def _write_samples(folder: Path, gen: int, rows: Iterable[tuple[dict[str, Any], 
     new_rows: list[dict[str, Any]] = []
     done: list[Path] = []
     bad: list[Unreadable] = []
-    writer = _SamplesWriter(folder, gen)
+    writer = _SamplesWriter(folder, gen, root)
     try:
         for row, path in rows:
             try:
@@ -392,10 +404,10 @@ def _write_samples(folder: Path, gen: int, rows: Iterable[tuple[dict[str, Any], 
 
 class _SamplesWriter:
     """Writes samples in full row groups into files of at most `ROWS_PER_FILE` rows, each renamed into place
-    when complete (`atomic_path`)."""
+    when complete (`atomic_path`, no link below the run folder `root` followed)."""
 
-    def __init__(self, folder: Path, gen: int) -> None:
-        self.folder, self.gen, self.k = folder, gen, 0
+    def __init__(self, folder: Path, gen: int, root: Path) -> None:
+        self.folder, self.gen, self.k, self.root = folder, gen, 0, root
         self._buffer: list[pa.Table] = []
         self._buffered = 0
         self._rows = 0  # rows in the current file, buffered ones included
@@ -422,7 +434,7 @@ class _SamplesWriter:
         """Write the first `n` buffered rows as one row group."""
         table = pa.concat_tables(self._buffer)
         if self._writer is None:
-            self._file = atomic_path(self.folder / self.name, ".parquet")
+            self._file = atomic_path(self.folder / self.name, ".parquet", root=self.root)
             tmp = self._file.__enter__()
             self._writer = pq.ParquetWriter(tmp, SAMPLE_SCHEMA, **WRITE_OPTIONS)
         self._writer.write_table(table.slice(0, n), row_group_size=n)

@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 
 from compare.flying.episode_loop import Trajectory
-from compare.results.metrics import SENSING_METRICS, EpisodeMetrics
+from compare.results.metrics import MAPPING_METRICS, SENSING_METRICS, EpisodeMetrics
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, meta_from_json, meta_to_json
 from uam_fdm.files.strict import strict_json_loads
 
@@ -116,7 +116,7 @@ METRIC_COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
 CONDITION_COLUMNS = ("field_density_kg_m3", "density_altitude_m", "turbulence", "steady_wind_m_s",
                      "steady_wind_e_m_s", "steady_wind_n_m_s", "steady_wind_u_m_s", "building_coverage")
 
-_ADDED_WITH_SENSING = ("sensing", "map_error", *SENSING_METRICS)
+_ADDED_WITH_SENSING = ("sensing", "map_error", *SENSING_METRICS, *MAPPING_METRICS)
 EPISODE_SCHEMA = pa.schema(
     [pa.field(f.name, _METRIC_TYPES[str(f.type)], False) for f in fields(EpisodeMetrics)]
     + [pa.field("turbulence", pa.string())]
@@ -129,6 +129,22 @@ recorded), how its samples were kept ("control" or "full") and how many, the fil
 (relative to the store folder) and the first of them there, and the episode's metadata as JSON."""
 EPISODE_SCHEMA_BEFORE_SENSING = pa.schema([f for f in EPISODE_SCHEMA if f.name not in _ADDED_WITH_SENSING])
 """The episode table of a store written before the vehicle sensed: read, its rows given the metrics' defaults."""
+
+
+def upgraded_episodes(table: pa.Table) -> pa.Table:
+    """An episode table of a store written before some of the sensing columns existed (`sensing`, `map_error`,
+    `SENSING_METRICS`), with the missing ones added at the metrics' defaults (perfect sensing, an exact map, NaN), in
+    `EPISODE_SCHEMA`'s order; any other table is returned as it is, for the caller's schema check."""
+    have = table.schema.remove_metadata()
+    missing = [n for n in EPISODE_SCHEMA.names if n not in have.names]
+    if (not missing or not set(missing) <= set(_ADDED_WITH_SENSING) or len(set(have.names)) != len(have.names)
+            or any(f.name not in EPISODE_SCHEMA.names or not EPISODE_SCHEMA.field(f.name).equals(f) for f in have)):
+        return table
+    defaults = {f.name: f.default for f in fields(EpisodeMetrics)}
+    for name in missing:
+        field = EPISODE_SCHEMA.field(name)
+        table = table.append_column(field, pa.array([defaults[name]] * table.num_rows, field.type))
+    return table.select(list(EPISODE_SCHEMA.names))
 
 
 def with_metric_defaults(row: dict[str, Any]) -> dict[str, Any]:

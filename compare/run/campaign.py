@@ -40,7 +40,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from compare.flying import pilots
-from compare.results.episodes import kept_keys, open_episodes
+from compare.results.episodes import kept_keys, open_episodes, refuse_bad_rows
 from compare.results.failures import (
     FAILED_DIR,
     FailedCell,
@@ -51,6 +51,7 @@ from compare.results.failures import (
     write_failure,
 )
 from compare.results.metrics import label_vehicles, read_metrics_csv, write_metrics_csv
+from compare.results.run_folder import check_run_folder_links
 from compare.results.run_info import (
     PRIOR_MAPS,
     RUN_INFO_NAME,
@@ -330,9 +331,9 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Seque
     that fly one, their vehicles and decision rates, the pilots in table order) and maps/*.yaml."""
     out = opts.out_dir
     for sc in scenarios:
-        write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city))
+        write_text_atomic(out / "maps" / f"{sc.name}.yaml", map_yaml_text(sc.city), root=out)
         if sc.prior_map is not sc.city:  # the pilots' map, where it differs from the city as it stands
-            write_text_atomic(out / "maps" / PRIOR_MAPS / f"{sc.name}.yaml", map_yaml_text(sc.prior_map))
+            write_text_atomic(out / "maps" / PRIOR_MAPS / f"{sc.name}.yaml", map_yaml_text(sc.prior_map), root=out)
     flown = pilots.ordered(c.pilot for c in cells)
     entries = [pilots.pilot(m) for m in flown]
     at_control_rate = [s.name for s in entries if not s.needs_policy]
@@ -419,8 +420,11 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:
     jobs = min(opts.jobs, len(cells))  # a worker per cell at most: --jobs 64 for one cell starts one interpreter
     with (open_backend(opts.backend, setup, jobs, opts.address, isolate=not opts.in_process) as backend,
           folder_lock(out, opts.command or "uam-compare run")):
+        check_run_folder_links(out)  # a link planted in a run folder being resumed leads no write out of it
         if not opts.resume:  # checked again under the lock: two runs started together into one --out
             check_empty_run_folder(out)
+        else:  # the store's rows are of the cells run.json plans, each once, before anything is written
+            refuse_bad_rows(out)
         _remove_stale_temporaries(out)
         for n in notes:  # cells left out (also in run.json and the report)
             log.warning("%s", n)
@@ -441,8 +445,9 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:
         if opts.videos != "none":  # matplotlib, and ffmpeg's writer, only for a run that animates
             from compare.playback.animate import render_videos
             from compare.playback.flights import flight_groups
-            groups = flight_groups(out, warn_unreadable=False)  # finalize has named any unreadable file
-            render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress)
+            # finalize has named any unreadable file, and its viewer every flight that does not draw
+            groups = flight_groups(out, warn_unreadable=False, warn_undrawable=not opts.report)
+            render_videos(groups, out / VIDEOS_DIR, opts.videos, progress=opts.progress, root=out)
     return out
 
 
@@ -545,6 +550,7 @@ def finalize(run_dir: Path, report: bool = True) -> Path:
     if not (run_dir / RUN_INFO_NAME).is_file():
         raise ValueError(f"{run_dir}: not a run folder ({RUN_INFO_NAME} is missing)")
     with folder_lock(run_dir, "uam-compare report"):
+        check_run_folder_links(run_dir)  # before any work: a store linked to another run is not this one's
         return _finalize(run_dir, report)
 
 
@@ -581,7 +587,8 @@ def _finalize(run_dir: Path, report: bool) -> Path:
     if report:  # matplotlib and plotly, only when the report is built: scoring alone needs neither
         from compare.pages.viewer import build_viewer
         from compare.report.report import build_report
-        # the skipped files were named above: the report lists them on its failures page without a second warning
+        # the skipped files were named above; the viewer, which reads every flight, names each that does not draw
+        # (one warning each): the report lists them all on its failures page without a second warning
+        build_viewer(run_dir, warn_unreadable=False, warned=unreadable)
         build_report(run_dir, warn_unreadable=False)
-        build_viewer(run_dir, warn_unreadable=False)
     return run_dir

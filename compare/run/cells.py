@@ -111,7 +111,7 @@ class CellRunner:
     def run(self, c: Cell) -> Path:
         """Fly cell `c` and write its part of the run store; returns the file."""
         key, data = self.part(c)
-        return write_part(part_path(self.out_dir, key), data)
+        return write_part(part_path(self.out_dir, key), data, root=self.out_dir)
 
     def part(self, c: Cell) -> tuple[EpisodeKey, bytes]:
         """Fly cell `c`: its key and its part's content (`compare.results.store.part_bytes`), scored first."""

@@ -41,6 +41,11 @@ TASKS_FILE = "tasks.json"
 FORMAT = "uam-compare training flights"
 VERSION = 1
 _STEP_RE = re.compile(r"^step_(\d{11})\.npz$")
+MAX_CHECKPOINT_BYTES = 64 * 2**20
+"""A checkpoint file's arrays together, uncompressed, at most [bytes] (a recorded checkpoint holds about 1 MB: 8
+flights of at most a few thousand samples). The sizes the file's zip directory and each array's header declare
+are checked before any array is read: a small file that inflates to gigabytes (zeros compress a thousandfold) is
+refused unread, and no reader holds more than this of one checkpoint."""
 HOW_TO_RECORD = ("train it with `uam-compare train` of this version (it records the flights of every checkpoint "
                  "into training_flights/)")
 
@@ -200,12 +205,13 @@ def tasks_text(tasks: FlightTasks) -> str:
 
 
 def write_tasks(policy_dir: Path | str, tasks: FlightTasks) -> Path:
-    """Write tasks.json (atomic); returns its path."""
-    return write_text_atomic(flights_dir(policy_dir) / TASKS_FILE, tasks_text(tasks))
+    """Write tasks.json (atomic; no link in the policy folder followed); returns its path."""
+    return write_text_atomic(flights_dir(policy_dir) / TASKS_FILE, tasks_text(tasks), root=policy_dir)
 
 
 def write_checkpoint(policy_dir: Path | str, ckpt: CheckpointFlights) -> Path:
-    """Write one checkpoint's file (reproducibly: the same flights give the same bytes); returns its path."""
+    """Write one checkpoint's file (reproducibly: the same flights give the same bytes; no link in the policy
+    folder followed); returns its path."""
     fl = ckpt.flights
     lengths = [len(f.pos_m) for f in fl]
     arrays: dict[str, np.ndarray] = {
@@ -224,7 +230,7 @@ def write_checkpoint(policy_dir: Path | str, ckpt: CheckpointFlights) -> Path:
     if ckpt.obs_norm is not None:
         for k in OBS_NORM_KEYS:
             arrays[f"obs_norm/{k}"] = np.asarray(getattr(ckpt.obs_norm, k), dtype=np.float64)
-    return write_npz(checkpoint_file(policy_dir, ckpt.timesteps), arrays)
+    return write_npz(checkpoint_file(policy_dir, ckpt.timesteps), arrays, root=policy_dir)
 
 
 @dataclass(frozen=True)
@@ -274,8 +280,10 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
     """One checkpoint file of a folder whose tasks.json lists `n_tasks` tasks.
 
     Raises:
-        ValueError: the file is missing, unreadable, holds objects, or its arrays do not fit together.
+        ValueError: the file is missing, unreadable, holds objects, would inflate past `MAX_CHECKPOINT_BYTES`, or
+            its arrays do not fit together (more flights than tasks among them).
     """
+    check_declared_size(path, MAX_CHECKPOINT_BYTES)
     try:
         with np.load(path, allow_pickle=False) as z:
             a = {k: np.array(z[k]) for k in z.files}
@@ -291,6 +299,8 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
     outcome, time_s, min_c = need("outcome"), need("time_s").astype(float), need("min_clearance_m").astype(float)
     pos, vel, clear = need("pos_m"), need("vel_m_s"), need("clearance_m")
     f = len(task)
+    if f > n_tasks:  # one flight per task: more would each cost the page a row, whatever tasks.json says
+        raise ValueError(f"{path}: {f:,} flights, but tasks.json lists {n_tasks} tasks (one flight per task)")
     if (outcome.shape != (f,) or time_s.shape != (f,) or min_c.shape != (f,) or offsets.shape != (f + 1,)
             or offsets[0] != 0 or np.any(np.diff(offsets) < 1) or pos.ndim != 2 or pos.shape[1] != 3
             or vel.shape != pos.shape or clear.shape != (len(pos),) or offsets[-1] != len(pos)):
@@ -318,6 +328,46 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
         n = {k: a[f"obs_norm/{k}"].astype(np.float64) for k in OBS_NORM_KEYS}
         norm = ObsNorm(n["mean"], n["var"], float(n["count"]), float(n["epsilon"]), float(n["clip_obs"]))
     return CheckpointFlights(int(need("timesteps")), flights, actor, norm)
+
+
+def check_declared_size(path: Path, max_bytes: int) -> None:
+    """Refuse, unread, an `.npz` whose arrays would take more than `max_bytes` in memory: the uncompressed sizes
+    its zip directory declares (zipfile never inflates a member past its declared size) and, as each member's
+    header is read, the size its shape and type declare (which must fit in the member).
+
+    Raises:
+        ValueError: over `max_bytes`, a header that claims more than its member holds, an array of objects, or
+            not a readable `.npz`, naming the file (and the array).
+    """
+    try:
+        with zipfile.ZipFile(path) as z:
+            members = z.infolist()
+            declared = sum(i.file_size for i in members)
+            if declared > max_bytes:
+                raise ValueError(f"{path}: its arrays would take {declared / 2**20:,.0f} MiB in memory (the sizes "
+                                 f"its zip directory declares); at most {max_bytes / 2**20:,.0f} MiB: refused unread")
+            for info in members:
+                with z.open(info) as fp:
+                    version = np.lib.format.read_magic(fp)
+                    header = _HEADER_READERS.get(version)
+                    if header is None:
+                        raise ValueError(f"{path}: array {info.filename!r} is in .npy format {version}, not one "
+                                         "this tool writes")
+                    shape, _fortran, dtype = header(fp)
+                if dtype.hasobject:
+                    raise ValueError(f"{path}: array {info.filename!r} holds Python objects")
+                if math.prod(shape) * dtype.itemsize > info.file_size:
+                    raise ValueError(f"{path}: array {info.filename!r} claims {shape} of {dtype}, more than the "
+                                     f"{info.file_size:,} bytes it holds")
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a plain-array .npz file ({exc})") from None
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{path}: unreadable ({exc})") from None
+
+
+_HEADER_READERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
 
 
 def _known(v: float) -> float | None:

@@ -43,6 +43,7 @@ from rl.training.ppo import PRESETS, make_model, normalized_env
 from rl.training.recording import FlightRecorder
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path, write_text_atomic
+from uam_fdm.files.inside import inside_no_links, make_folders
 from uam_fdm.files.version import code_version
 
 
@@ -57,8 +58,8 @@ def command_line() -> str:
     return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv else ""
 
 
-def _write_json(path: Path, data: dict) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+def _write_json(path: Path, data: dict, root: Path) -> None:
+    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True) + "\n", root=root)
 
 
 def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress: bool = True,
@@ -86,7 +87,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
                         reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
     run.write_row(run.evaluate())
     best_steps, kept = run.keep_best()
-    _write_json(run.out.provenance_file, run.provenance(best_steps, kept, command or command_line()))
+    _write_json(run.out.provenance_file, run.provenance(best_steps, kept, command or command_line()), run.out_dir)
     return kept
 
 
@@ -102,8 +103,7 @@ class _TrainingRun:
                  world: NavWorld | None) -> None:
         self.cfg, self.out_dir, self.resume, self.log = cfg, out_dir, resume, log
         self.out = PolicyFolder(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        self.out.checkpoints.mkdir(exist_ok=True)
+        make_folders(out_dir, self.out.checkpoints)  # no link planted in the policy folder is followed
         preset = PRESETS[cfg.preset]
         self.t_start = time.perf_counter()
         self.code = code_version()  # at the start: the code this run imported (HEAD may move while it trains)
@@ -130,7 +130,7 @@ class _TrainingRun:
         history = None if resume is None else resume.parent.parent if resume.parent.name == CHECKPOINTS else resume
         self.recorder = (FlightRecorder(cfg.nav, cfg.record_flights, cfg.seed, out_dir, self.eval_world, history,
                                         int(self.model.num_timesteps)) if cfg.record_flights else None)
-        if resume is None or not self.out.reward_curve.exists():
+        if resume is None or not inside_no_links(out_dir, self.out.reward_curve).exists():
             with open(self.out.reward_curve, "w", newline="") as f:
                 csv.writer(f).writerow(CURVE_COLUMNS)
         steps = self.model.num_timesteps
@@ -148,11 +148,14 @@ class _TrainingRun:
 
     def save_to(self, folder: Path) -> None:
         """Write the current model as a checkpoint folder (`CHECKPOINT_FILES`)."""
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folders(self.out_dir, folder)
+        for name in CHECKPOINT_FILES:  # the writers below that take no root: none of their files is a link
+            inside_no_links(self.out_dir, folder / name)
         pf = PolicyFolder(folder)
-        _write_json(pf.config_file, self.cfg.to_dict())
-        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty, "level_since": self.level_since})
-        with atomic_path(pf.model, suffix=".zip") as tmp:
+        _write_json(pf.config_file, self.cfg.to_dict(), self.out_dir)
+        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty, "level_since": self.level_since},
+                    self.out_dir)
+        with atomic_path(pf.model, suffix=".zip", root=self.out_dir) as tmp:
             self.model.save(str(tmp))
         save_vec_normalize(pf.vec_normalize, self.venv)
         ObsNorm.of(self.venv).save(pf.obs_norm)
@@ -166,7 +169,7 @@ class _TrainingRun:
                rate(Outcome.COLLISION), rate(Outcome.TIMEOUT), n, f"{self.base.batch.difficulty:.3f}",
                f"{res.success_rate:.4f}" if res else "", f"{res.collision_rate:.4f}" if res else "",
                res.episodes if res else "", f"{time.perf_counter() - self.t_start:.1f}"]
-        with open(self.out.reward_curve, "a", newline="") as f:
+        with open(inside_no_links(self.out_dir, self.out.reward_curve), "a", newline="") as f:
             csv.writer(f).writerow(row)
         self.outcomes, self.returns = [], []
 

@@ -92,7 +92,7 @@ def test_a_predicted_clearance_violation_replans_from_the_current_state(vehicles
     o = obs_at(1.0)
     pilot.last_solution = _fake_prediction(pilot, o.x[0:3], o.x[0:3] + (8.0, 0.0, 0.0))
     pilot.act(o)
-    assert pilot.stats.replans_by_cause == {"tracking": 0, "clearance": 0}
+    assert pilot.stats.replans_by_cause == {"tracking": 0, "clearance": 0, "blocked": 0, "uncertainty": 0}
     # a prediction bending to 0.2 m from the wall's face (sphere clearance 0.2 - 0.42 < the MPC's 0.5 m)
     plan_before, reference_before = pilot.stats.plan_time_s, pilot.reference
     o = obs_at(1.2)
@@ -100,7 +100,7 @@ def test_a_predicted_clearance_violation_replans_from_the_current_state(vehicles
     pilot.last_solution = _fake_prediction(pilot, o.x[0:3], o.x[0:3] + (8.0, 2.8, 0.0))
     assert pilot.predicted_clearance_m(pilot.last_solution.predicted_states[1:, 0:3]) < 0.0
     pilot.act(o)
-    assert pilot.stats.replans_by_cause == {"tracking": 0, "clearance": 1}
+    assert pilot.stats.replans_by_cause == {"tracking": 0, "clearance": 1, "blocked": 0, "uncertainty": 0}
     assert pilot.reference is not reference_before and pilot._t_ref0 == 1.2          # from the current state
     assert np.allclose(pilot.plan.path_m[0], o.x[0:3])
     assert np.linalg.norm(pilot.reference.vel_m_s[0]) == pytest.approx(3.0, abs=0.3)  # no stop to replan
@@ -219,3 +219,75 @@ def test_the_fastest_candidate_plan_is_flown_and_a_late_one_climbs_the_ladder(ve
     assert [a.algorithm for a in tried.attempts] == ["informed_rrtstar", "rrtconnect", "rrtconnect"]
     assert tried.duration_s == min(tried.durations_s) > 4.0 and len(tried.candidates) == sum(
         s.candidates for i, s in enumerate(steps) if i != 2)
+
+
+def _sensed_obs(pilot: ClassicalPilot, p, t: float, lidar, pos: np.ndarray) -> Observation:
+    """An observation on the true hover state at `pos` with one lidar scan and a 0.1 m position σ."""
+    from uam_fdm.pilot import SensorData
+
+    scan, _ = lidar.scan(t, pos, np.eye(3))
+    return Observation(t, hover_state(p, pos), covariance=np.eye(16) * 0.01, sensors=SensorData(lidar=(scan,)),
+                       estimate_t_s=t)
+
+
+def test_a_wall_the_prior_lacks_blocks_the_path_and_the_pilot_brakes_then_flies_round_it(vehicles,
+                                                                                        compiled_dynamics):
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+    from uam_fdm.sensing.specs import sensing_preset
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -30.0, 0.0), (80.0, 30.0, 50.0))
+    prior = BuildingMap([], *bounds)
+    truth = BuildingMap([Building(7, (30.0, -2.0), (2.0, 20.0), 25.0)], *bounds)  # across the straight line
+    world = World(p, compiled_dynamics["small_quad"], prior,
+                  Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
+                  sensing=sensing_preset("nominal", p.mass_kg))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    assert pilot.margins.planner_m > cfg.planner.safety_margin_m  # widened by k σ of the pad's survey
+    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
+    straight = pilot.reference
+    pilot.act(_sensed_obs(pilot, p, 0.0, lidar, np.array(task.start_m)))
+    assert pilot.stats.replans_by_cause["blocked"] == 1
+    assert pilot._pending is not None and pilot.reference is not straight
+    assert pilot.reference.stops == 1  # braking while the replan's budget runs
+    new_plan_t0 = pilot._pending[2]
+    assert new_plan_t0 == pytest.approx(cfg.replan_budget_s)
+    pilot.act(_sensed_obs(pilot, p, cfg.replan_budget_s, lidar, np.array(task.start_m)))
+    assert pilot._pending is None and pilot._t_ref0 == pytest.approx(cfg.replan_budget_s)
+    # the new reference keeps clear of the wall it never had on its map
+    assert truth.clearance(pilot.reference.pos_m, p.collision_radius_m).distance_m.min() > 0.5
+    report = pilot.episode_report()
+    assert report.replans_blocked == 1 and report.replans == 1 and report.hover_holds == 0
+    assert report.sensed_obstacles >= 1 and report.map_update_ms_median > 0.0
+    assert report.replan_ms_median > 0.0
+
+
+def test_no_path_in_what_it_knows_makes_the_pilot_hold(vehicles, compiled_dynamics):
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+    from uam_fdm.sensing.specs import sensing_preset
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -30.0, 0.0), (80.0, 30.0, 50.0))
+    prior = BuildingMap([], *bounds)
+    # a wall across the whole flight volume, taller than its top
+    truth = BuildingMap([Building(7, (30.0, 0.0), (2.0, 60.0), 60.0)], *bounds)
+    world = World(p, compiled_dynamics["small_quad"], prior,
+                  Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
+                  sensing=sensing_preset("nominal", p.mass_kg))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False))
+    assert pilot.reset(world, task, seed=3).ok
+    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
+    pilot.act(_sensed_obs(pilot, p, 0.0, lidar, np.array(task.start_m)))
+    assert pilot.stats.hover_holds == 1 and pilot._pending is None
+    hold = pilot.reference
+    assert np.allclose(hold.sample(100.0)[1], 0.0)  # at rest: a hover where the braking ends
+    pilot.act(_sensed_obs(pilot, p, 0.5, lidar, np.array(task.start_m)))
+    assert pilot.stats.hover_holds == 1  # still the same hold; the retry waits for hold_retry_s
+    pilot.act(_sensed_obs(pilot, p, 1.0, lidar, np.array(task.start_m)))
+    assert pilot.stats.hover_holds == 1 and len(pilot.stats.in_flight_replan_s) == 2  # retried, still no path

@@ -161,3 +161,16 @@ def test_the_reference_slows_where_it_passes_closer_than_the_cruise_margin():
     # the margin in force along the curve never exceeds the clearance there
     clear = wall.clearance(capped.pos_m, 0.5).distance_m
     assert np.all(speeds.margin_m(v) <= clear + 1e-6)
+
+
+def test_margins_widen_by_the_estimates_uncertainty_at_every_speed():
+    from planners.margins import Margins, SpeedMargins
+
+    speed = SpeedMargins((2.0, 5.0), (1.0, 1.5, 2.0), 0.5)
+    wide = speed.widened(0.75)
+    assert wide.margins_m == (1.75, 2.25, 2.75) and wide.uppers_m_s == speed.uppers_m_s
+    assert speed.widened(0.0) is speed
+    m = Margins(2.0, 1.0, 0.4, "table", speed)
+    w = m.widened(0.75)
+    assert (w.planner_m, w.mpc_m, w.floor_m) == (2.75, 1.375, 1.75)
+    assert "uncertainty" in w.source and m.widened(0.0) is m

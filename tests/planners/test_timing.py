@@ -225,3 +225,19 @@ def test_start_inside_the_margin_uses_the_planners_allowance():
     ref = time_parameterize(plan.path_m, LIMITS, city, R_QUAD, MARGIN)
     assert ref.ok and ref.min_clearance_m >= 0.5 - 0.05 - 1e-9
     assert np.array_equal(ref.pos_m[0], start)
+
+
+def test_a_braking_reference_stops_along_the_velocity_and_holds():
+    from planners.timing import braking_reference
+
+    ref = braking_reference(np.array([1.0, 2.0, 3.0]), np.array([3.0, 4.0, 0.0]), 2.5)
+    assert ref.duration_s == pytest.approx(2.0)
+    p_end, v_end, _ = ref.sample(10.0)
+    assert np.allclose(p_end, [1.0 + 0.6 * 5.0, 2.0 + 0.8 * 5.0, 3.0])  # v² / 2a = 5 m along (0.6, 0.8, 0)
+    assert np.allclose(v_end, 0.0)
+    p_1, v_1, _ = ref.sample(1.0)
+    assert np.allclose(v_1, [1.5, 2.0, 0.0]) and np.allclose(p_1, [1.0 + 0.6 * 3.75, 2.0 + 0.8 * 3.75, 3.0])
+    at_rest = braking_reference(np.zeros(3), np.zeros(3), 1.0)
+    assert at_rest.duration_s == 0.0 and np.allclose(at_rest.sample(1.0)[0], 0.0)
+    with pytest.raises(ValueError, match="decel_m_s2"):
+        braking_reference(np.zeros(3), np.ones(3), 0.0)

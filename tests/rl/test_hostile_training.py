@@ -1,6 +1,7 @@
 """Hostile inputs to training and to what training writes: resuming from a folder that cannot be resumed, a
-policy whose numbers overflow, non-finite numbers and deep nesting in the JSON of policy and run folders, and
-provenance that names the machine a shipped policy was trained on.
+policy whose numbers overflow, non-finite numbers and deep nesting in the JSON of policy and run folders,
+provenance that names the machine a shipped policy was trained on, training flights that inflate far beyond their
+file's size or are longer than a page draws, and a link planted in a policy folder.
 
 Each bad input is one clear line (naming the folder or file, the key and the value), exit code 2, before
 anything is built or written; nothing here trains (a resume that got past its checks would meet a stand-in that
@@ -243,3 +244,94 @@ def test_shipped_provenance_holds_no_absolute_path(vehicle):
 def test_the_recorded_command_keeps_out_as_typed_and_the_program_by_name(monkeypatch):
     monkeypatch.setattr(sys, "argv", ["/opt/venv/bin/uam-compare", "train", "--out", "runs/mine", "--seed", "3"])
     assert command_line() == "uam-compare train --out runs/mine --seed 3"
+
+
+# ---- 5. training flights: small files, big memory; links in a policy folder ----------------------------------
+def _rewrite_checkpoint(path: Path, edit: Any) -> None:
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    edit(arrays)
+    from uam_fdm.files.npz import write_npz
+
+    write_npz(path, arrays)
+
+
+def _longer_first_flight(samples: int) -> Any:
+    """An edit making the first flight `samples` long (zeros: they compress a thousandfold)."""
+    def edit(a: dict[str, np.ndarray]) -> None:
+        off = a["offsets"]
+        extra = samples - int(off[1] - off[0])
+        for k in ("pos_m", "vel_m_s", "clearance_m"):
+            pad = np.zeros((extra, *a[k].shape[1:]), a[k].dtype)
+            a[k] = np.concatenate([a[k][:off[1]], pad, a[k][off[1]:]])
+        a["offsets"] = np.concatenate([off[:1], off[1:] + extra])
+
+    return edit
+
+
+def test_a_checkpoint_that_inflates_past_the_cap_is_refused_unread(tmp_path, capsys, monkeypatch):
+    """A checkpoint of a few hundred kB whose arrays inflate to many MB: refused by name from the sizes its zip
+    directory declares, before any array is read (the cap lowered here; the shipped checkpoints are far below it)."""
+    import rl.policies.flights as flights_module
+
+    folder = _flights_policy(tmp_path)
+    path = folder / "training_flights" / "step_00000000000.npz"
+    _rewrite_checkpoint(path, _longer_first_flight(300_000))  # 8.4 MB of arrays in a small file
+    monkeypatch.setattr(flights_module, "MAX_CHECKPOINT_BYTES", 4 * 2**20, raising=False)
+    read: list[str] = []
+    real = np.load
+    monkeypatch.setattr(np, "load", lambda file, *args, **kwargs: read.append(str(file)) or real(file, *args, **kwargs))
+    line = fails(_view(folder, tmp_path), capsys, tmp_path, str(path), "refused unread", "at most 4 MiB")
+    assert "MiB in memory" in line and str(path) not in read
+
+
+def test_a_checkpoint_array_that_claims_more_than_it_holds_is_refused_by_name(tmp_path, capsys):
+    """An array header claiming 10**12 samples in a member of a few bytes: refused naming the array (before: numpy
+    set out to allocate terabytes)."""
+    import io
+    import zipfile
+
+    folder = _flights_policy(tmp_path)
+    path = folder / "training_flights" / "step_00000000000.npz"
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order": False, "shape": (10**12, 3)})
+    with zipfile.ZipFile(path) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members["pos_m.npy"] = header.getvalue() + b"\0" * 64  # (the header holds the format's magic)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for n, data in members.items():
+            z.writestr(n, data)
+    fails(_view(folder, tmp_path), capsys, tmp_path, str(path), "'pos_m.npy' claims")
+
+
+def test_a_long_flight_is_drawn_with_at_most_the_stated_samples(tmp_path):
+    """A recorded flight of 40,000 samples (800 s at 50 Hz, within the reader's cap): the page draws it with at
+    most `max_points_per_flight` samples, its last one kept (before: every 5th, 8,001)."""
+    from compare.pages.training_view import TrainingViewConfig, training_payload
+
+    folder = _flights_policy(tmp_path)
+    path = folder / "training_flights" / "step_00000000000.npz"
+    _rewrite_checkpoint(path, _longer_first_flight(40_000))
+    cap = TrainingViewConfig().max_points_per_flight
+    (checkpoint,) = training_payload(folder)["checkpoints"]
+    assert checkpoint["timesteps"] == 0
+    (first, *rest) = checkpoint["flights"]
+    assert cap <= 2_000 and len(first["x"]) <= cap + 1 and first["x"][-1] == 0.0
+    assert all(len(f["x"]) <= cap + 1 for f in rest)
+
+
+def test_training_flights_are_never_written_through_a_link_in_the_policy_folder(tmp_path):
+    """`POLICY/training_flights` a link to a user's folder: the recorder's writers refuse it, naming the link,
+    and write nothing there."""
+    from rl.policies.flights import write_tasks
+    from uam_fdm.files.inside import LinkInFolder
+
+    folder = _flights_policy(tmp_path)
+    tasks = TrainingFlights.open(folder).tasks
+    home = tmp_path / "home"
+    shutil.move(folder / "training_flights", home)
+    (folder / "training_flights").symlink_to(home, target_is_directory=True)
+    before = {p.name: p.read_bytes() for p in home.iterdir()}
+    with pytest.raises(LinkInFolder, match="training_flights: a symbolic link inside"):
+        write_tasks(folder, tasks)
+    assert {p.name: p.read_bytes() for p in home.iterdir()} == before

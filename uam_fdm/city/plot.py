@@ -157,10 +157,11 @@ def missing_glyphs_unsaid() -> Iterator[None]:
         yield
 
 
-def save_figure(fig: Figure, path: Path, dpi: int = 110) -> Path:
-    """Save a figure atomically (temp file in the same folder, then os.replace); returns the path."""
+def save_figure(fig: Figure, path: Path, dpi: int = 110, *, root: Path | None = None) -> Path:
+    """Save a figure atomically (temp file in the same folder, then os.replace); returns the path (`root`: the
+    folder this tool owns that `path` lies in, as `uam_fdm.files.atomic.atomic_path`'s)."""
     path = Path(path)
-    with atomic_path(path, suffix=path.suffix) as tmp, missing_glyphs_unsaid():
+    with atomic_path(path, suffix=path.suffix, root=root) as tmp, missing_glyphs_unsaid():
         fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
     return path
 

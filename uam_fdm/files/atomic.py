@@ -15,19 +15,31 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
+from uam_fdm.files.inside import inside_no_links, make_folders
+
 TEMP_MARK = ".partial-"  # in every temporary name (".<final name>.partial-<random><suffix>"), and only there
 
 
 @contextmanager
-def atomic_path(path: Path | str, suffix: str = ".tmp") -> Iterator[Path]:
+def atomic_path(path: Path | str, suffix: str = ".tmp", *, root: Path | str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside `path` for a writer that takes a file name; rename on success.
 
     Args:
         path: the final file.
         suffix: the temporary name's ending (some writers choose the format from it, e.g. ".pdf").
+        root: the folder this tool owns that `path` lies in (a run or policy folder; None: a file the user
+            named): no link between it and `path` is followed (`uam_fdm.files.inside`), and the folders on the
+            way are made without following one.
+
+    Raises:
+        LinkInFolder: (a ValueError) a link below `root` on the way to `path`, or `path` itself a link.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if root is None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    else:
+        make_folders(root, path.parent)
+        inside_no_links(root, path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARK}", suffix=suffix, dir=path.parent)
     os.close(fd)
     try:
@@ -52,15 +64,17 @@ def _umask() -> int:
 
 
 @contextmanager
-def atomic_open(path: Path | str, mode: str = "w", **kwargs: Any) -> Iterator[IO]:
-    """Open a temporary file beside `path` (`open` arguments); renamed to `path` when the block ends cleanly."""
-    with atomic_path(path) as tmp, open(tmp, mode, **kwargs) as f:
+def atomic_open(path: Path | str, mode: str = "w", *, root: Path | str | None = None, **kwargs: Any) -> Iterator[IO]:
+    """Open a temporary file beside `path` (`open` arguments); renamed to `path` when the block ends cleanly
+    (`root`: as `atomic_path`'s)."""
+    with atomic_path(path, root=root) as tmp, open(tmp, mode, **kwargs) as f:
         yield f
 
 
-def write_text_atomic(path: Path | str, text: str) -> Path:
-    """Write `text` (UTF-8, newlines as given) to `path` atomically; returns the path."""
-    with atomic_open(path, "w", encoding="utf-8", newline="") as f:
+def write_text_atomic(path: Path | str, text: str, *, root: Path | str | None = None) -> Path:
+    """Write `text` (UTF-8, newlines as given) to `path` atomically (`root`: as `atomic_path`'s); returns the
+    path."""
+    with atomic_open(path, "w", root=root, encoding="utf-8", newline="") as f:
         f.write(text)
     return Path(path)
 

@@ -19,14 +19,16 @@ from uam_fdm.files.atomic import atomic_open
 _EPOCH = (1980, 1, 1, 0, 0, 0)  # the zip format's earliest date: a fixed stamp instead of the clock
 
 
-def write_npz(path: Path | str, arrays: Mapping[str, np.ndarray], compress: bool = True) -> Path:
-    """Write `arrays` (name -> array, no objects) to `path` reproducibly and atomically; returns the path.
+def write_npz(path: Path | str, arrays: Mapping[str, np.ndarray], compress: bool = True, *,
+              root: Path | str | None = None) -> Path:
+    """Write `arrays` (name -> array, no objects) to `path` reproducibly and atomically (`root`: the folder this
+    tool owns that `path` lies in, as `uam_fdm.files.atomic.atomic_path`'s); returns the path.
 
     Raises:
         ValueError: an array of Python objects (it would need pickling).
     """
     path = Path(path)
-    with atomic_open(path, "wb") as f, zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED if compress
+    with atomic_open(path, "wb", root=root) as f, zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED if compress
                                                          else zipfile.ZIP_STORED) as z:
         for name, value in arrays.items():
             a = np.asarray(value)

@@ -6,6 +6,8 @@ one instant from the true pose (the motion during a 0.1 s revolution is not mode
 first true hit (buildings, unmapped obstacles, ground) lies within [min_range_m, max_range_m]; a returning
 beam is then lost with probability `dropout` (dark, glass or grazing surfaces), and its range carries Gaussian
 noise of σ = range_noise_m + range_noise_per_m · range. Beams that return nothing are left out of the scan.
+Beside the scan, `LidarTruth` keeps what each returned beam truly hit (the city's part and the true range): the
+simulator's, for the viewer and the scorer (when an obstacle the prior map lacks was first seen).
 """
 from __future__ import annotations
 
@@ -34,6 +36,23 @@ class LidarScan:
     def points_body_m(self) -> np.ndarray:
         """The returned points: (K, 3), body FLU metres, from the lidar (the vehicle's centre)."""
         return self.directions_body * self.ranges_m[:, None]
+
+
+@dataclass(frozen=True)
+class LidarTruth:
+    """What a scan's returned beams truly hit: the simulator's record (the viewer, the scorer), never a pilot's.
+
+    Attributes:
+        points_m: (P, 3) true hit points, world ENU [m]: of every returned beam, or of the `truth_points` of them
+            `Lidar.scan` was asked for (evenly spread over the scan).
+        part_index: (K,) for each returned beam, in the scan's order, the index of the part it hit in the true
+            city's `buildings` (-1: the ground).
+        ranges_m: (K,) each returned beam's true range, before noise [m].
+    """
+
+    points_m: np.ndarray
+    part_index: np.ndarray
+    ranges_m: np.ndarray
 
 
 def beam_directions_body(spec: LidarSpec) -> np.ndarray:
@@ -79,25 +98,24 @@ class Lidar:
         return self._dirs
 
     def scan(self, t_s: float, position_m: np.ndarray, rotation_body_to_world: np.ndarray,
-             truth_points: int | None = None) -> tuple[LidarScan, np.ndarray]:
+             truth_points: int | None = None) -> tuple[LidarScan, LidarTruth]:
         """One scan from the true pose.
 
         Args:
             t_s: time [s].
             position_m: (3,) true position of the lidar, world ENU metres.
             rotation_body_to_world: (3, 3) true attitude, body FLU -> world ENU.
-            truth_points: return the true hit points of this many returned beams, evenly spread over the scan
+            truth_points: keep the true hit points of this many returned beams, evenly spread over the scan
                 (None: of every returned beam).
 
         Returns:
-            the scan (returned beams only), and the true world hit points (K, 3) ENU metres of its returned beams
-            (or of `truth_points` of them), for the viewer; not for pilots.
+            the scan (returned beams only), and what its returned beams truly hit (`LidarTruth`: not for pilots).
         """
         p = np.asarray(position_m, dtype=float).reshape(3)
         rot = np.asarray(rotation_body_to_world, dtype=float).reshape(3, 3)
         spec = self.spec
         d_world = self._dirs @ rot.T
-        r_true = self._caster.ranges_m(p, d_world, spec.max_range_m)
+        r_true, part = self._caster.first_hits(p, d_world, spec.max_range_m)
         idx = np.flatnonzero((r_true >= spec.min_range_m) & (r_true <= spec.max_range_m))  # a miss is inf
         idx = idx[self._rng.random(len(idx)) >= spec.dropout]
         r = r_true[idx]
@@ -107,8 +125,7 @@ class Lidar:
         dirs = self._dirs[idx]
         shown = idx if truth_points is None or truth_points >= len(idx) else idx[
             np.linspace(0, len(idx) - 1, truth_points).astype(int)]
-        truth = p + d_world[shown] * r_true[shown, None]
-        dirs.setflags(write=False)
-        measured.setflags(write=False)
+        truth = LidarTruth(p + d_world[shown] * r_true[shown, None], part[idx], r)
+        for a in (dirs, measured, truth.points_m, truth.part_index, truth.ranges_m):
+            a.setflags(write=False)
         return LidarScan(float(t_s), dirs, measured), truth
-

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,10 +33,11 @@ from uam_fdm.sensing.baro import Barometer
 from uam_fdm.sensing.gnss import Gnss
 from uam_fdm.sensing.heading import HeadingSensor
 from uam_fdm.sensing.imu import Imu
-from uam_fdm.sensing.lidar import Lidar
+from uam_fdm.sensing.lidar import Lidar, LidarTruth
 from uam_fdm.sensing.nav_filter import NavEstimate, NavFilter
 from uam_fdm.sensing.raycast import RayCaster
 from uam_fdm.sensing.specs import SensingConfig
+from uam_fdm.vehicle.attitude import rotation_matrices, rotation_matrix
 
 GRAVITY_M_S2 = 9.80665
 LIDAR_HITS_KEPT = 32  # true hit points kept per scan for the viewer's lidar layer (a thinned, even subset)
@@ -56,6 +58,9 @@ class NavRecord:
         gnss_epochs: GNSS epochs in the episode; gnss_fixes: those with a fix.
         satellites: (G,) satellites tracked at each epoch.
         lidar_hits: (H, 4) [t_s, x, y, z] a thinned set of the lidar's true hit points, world ENU [m].
+        first_sensed: for each obstacle the prior map lacks that a returned lidar beam hit, sorted by building id:
+            (building id, time of the first scan with such a beam [s], true range of that scan's nearest such
+            beam [m]); obstacles never hit are left out.
     """
 
     t_s: np.ndarray
@@ -67,6 +72,7 @@ class NavRecord:
     gnss_fixes: int
     satellites: np.ndarray
     lidar_hits: np.ndarray
+    first_sensed: tuple[tuple[int, float, float], ...] = ()
 
     @property
     def nees_in_bounds(self) -> float:
@@ -93,10 +99,14 @@ class Onboard:
         x0: the true initial state (13 + n,); the vehicle waits on the pad at t0_s.
         physics_dt_s: physics step [s].
         seed: the episode's sensing seed (every sensor's noise and the initial estimate).
+        t0_s: time of the start [s].
+        unmapped_ids: building ids of the obstacles in `city` the prior map lacks (when each was first sensed is
+            recorded; every part of a building shares its id).
     """
 
     def __init__(self, config: SensingConfig, city: BuildingMap, caster: RayCaster, atmosphere: Atmosphere,
-                 x0: np.ndarray, physics_dt_s: float, seed: int, t0_s: float = 0.0) -> None:
+                 x0: np.ndarray, physics_dt_s: float, seed: int, t0_s: float = 0.0, *,
+                 unmapped_ids: Iterable[int] = ()) -> None:
         if config.perfect:
             raise ValueError("perfect sensing simulates nothing onboard: fly on the truth instead")
         rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6))))
@@ -126,6 +136,11 @@ class Onboard:
         self._sats: list[int] = []
         self._fixes = 0
         self._hits: list[np.ndarray] = []
+        # each part of the true city: its building id, and whether the prior map lacks it (the lidar names parts)
+        unmapped = {int(i) for i in unmapped_ids}
+        self._part_id = np.array([int(b.id) for b in city.buildings], dtype=np.int64)
+        self._part_unmapped = np.isin(self._part_id, np.fromiter(unmapped, np.int64, len(unmapped)))
+        self._first_sensed: dict[int, tuple[float, float]] = {}
         self._remember(t0_s, x0)
 
     # ---- the truth of one control period in ------------------------------------------------------------------
@@ -139,7 +154,7 @@ class Onboard:
         k = len(a_all) // stride  # IMU samples completed in this period
         if k:
             last = np.arange(1, k + 1) * stride - 1 - before  # each sample's last physics step in this period
-            rot = _rotations(states[last, 6:10])
+            rot = rotation_matrices(states[last, 6:10])
             a_mean = a_all[:k * stride].reshape(k, stride, 3).mean(axis=1) + np.array([0.0, 0.0, GRAVITY_M_S2])
             force = np.einsum("kji,kj->ki", rot, a_mean)  # Rᵀ (a - g): the specific force, body FLU
             w_mean = w_all[:k * stride].reshape(k, stride, 3).mean(axis=1)
@@ -176,10 +191,24 @@ class Onboard:
                 self.filter.update_gnss(fix)
                 self._readings.append((t_s, "gnss", fix))
         if self._due("lidar", cfg.lidar.rate_hz, t_s):
-            scan, hits = self.lidar.scan(t_s, x[0:3], _rotation(x[6:10]), truth_points=LIDAR_HITS_KEPT)
+            scan, truth = self.lidar.scan(t_s, x[0:3], rotation_matrix(x[6:10]), truth_points=LIDAR_HITS_KEPT)
             self._readings.append((t_s, "lidar", scan))
-            if len(hits):
-                self._hits.append(np.column_stack([np.full(len(hits), t_s), hits]))
+            if len(truth.points_m):
+                self._hits.append(np.column_stack([np.full(len(truth.points_m), t_s), truth.points_m]))
+            self._note_unmapped(t_s, truth)
+
+    def _note_unmapped(self, t_s: float, truth: LidarTruth) -> None:
+        """Remember the scan at `t_s` [s] for each unmapped obstacle its returned beams hit for the first time."""
+        part = truth.part_index
+        on_part = part >= 0  # not the ground
+        hit = np.zeros(len(part), dtype=bool)
+        hit[on_part] = self._part_unmapped[part[on_part]]
+        if not hit.any():
+            return
+        ids, ranges = self._part_id[part[hit]], truth.ranges_m[hit]
+        for bid in np.unique(ids).tolist():
+            if bid not in self._first_sensed:
+                self._first_sensed[bid] = (float(t_s), float(ranges[ids == bid].min()))
 
     def _remember(self, t_s: float, x_true: np.ndarray) -> None:
         est = self.filter.estimate
@@ -226,9 +255,10 @@ class Onboard:
     def record(self) -> NavRecord:
         """The episode's estimation record so far."""
         hits = np.concatenate(self._hits) if self._hits else np.zeros((0, 4))
+        first = tuple((bid, t, r) for bid, (t, r) in sorted(self._first_sensed.items()))
         return NavRecord(np.asarray(self._t), np.asarray(self._pos), np.asarray(self._err), np.asarray(self._sig),
                          np.asarray(self._nees),
-                         len(self._sats), self._fixes, np.asarray(self._sats, dtype=np.int64), hits)
+                         len(self._sats), self._fixes, np.asarray(self._sats, dtype=np.int64), hits, first)
 
 
 BARO_SCALE_WALK_M_RTHZ = 0.05  # the baro offset's walk for a non-standard day's scale error [m/√s]
@@ -278,19 +308,6 @@ def initial_covariance(config: SensingConfig) -> np.ndarray:
     cov[15, 15] = PAD_SIGMA_V_M ** 2 + baro.noise_m ** 2
     cov[2, 15] = cov[15, 2] = -PAD_SIGMA_V_M ** 2
     return cov
-
-
-def _rotations(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices body -> world (K, 3, 3) of unit quaternions (K, 4) [w, x, y, z]."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)], axis=1)
-
-
-def _rotation(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix body -> world of a unit quaternion [w, x, y, z]."""
-    return _rotations(np.asarray(q, float)[None])[0]
 
 
 def _yaw(q: np.ndarray) -> float:

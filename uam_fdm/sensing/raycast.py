@@ -56,22 +56,32 @@ def part_mesh(part: Building | Prism) -> tuple[np.ndarray, np.ndarray]:
 def city_mesh(city: BuildingMap, *, ground: bool = True, ground_margin_m: float = 2000.0
               ) -> tuple[np.ndarray, np.ndarray]:
     """All of a city's parts (and the ground) as one triangle mesh: vertices (V, 3) ENU metres, triangles (T, 3)."""
+    verts, tris, _ = _city_mesh_parts(city, ground, ground_margin_m)
+    return verts, tris
+
+
+def _city_mesh_parts(city: BuildingMap, ground: bool, ground_margin_m: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`city_mesh` and, per triangle, the index of its part in `city.buildings` (-1: the ground)."""
     verts: list[np.ndarray] = []
     tris: list[np.ndarray] = []
+    owner: list[np.ndarray] = []
     n = 0
-    for part in city.buildings:
+    for i, part in enumerate(city.buildings):
         v, t = part_mesh(part)
         verts.append(v)
         tris.append(t + n)
+        owner.append(np.full(len(t), i, dtype=np.int64))
         n += len(v)
     if ground:
         lo = city.bounds_min_m[:2] - ground_margin_m
         hi = city.bounds_max_m[:2] + ground_margin_m
         verts.append(np.array([[lo[0], lo[1], 0.0], [hi[0], lo[1], 0.0], [hi[0], hi[1], 0.0], [lo[0], hi[1], 0.0]]))
         tris.append(np.array([[0, 1, 2], [0, 2, 3]]) + n)
+        owner.append(np.full(2, -1, dtype=np.int64))
     if not verts:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    return np.vstack(verts), np.vstack(tris)
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    return np.vstack(verts), np.vstack(tris), np.concatenate(owner)
 
 
 class RayCaster:
@@ -86,7 +96,7 @@ class RayCaster:
 
     def __init__(self, city: BuildingMap, *, ground: bool = True, ground_margin_m: float = 2000.0) -> None:
         self._args = (city, ground, ground_margin_m)
-        verts, tris = city_mesh(city, ground=ground, ground_margin_m=ground_margin_m)
+        verts, tris, self._tri_part = _city_mesh_parts(city, ground, ground_margin_m)
         # float32 loses ~1e-4 m at 1 km: cast around the centre of the volume, not around the map's corner
         self._offset = 0.5 * (np.asarray(city.bounds_min_m, float) + np.asarray(city.bounds_max_m, float))
         self._offset[2] = 0.0  # keep the ground exactly at z = 0 in the local frame too
@@ -158,6 +168,32 @@ class RayCaster:
                                                   output=True))
         t[t > max_range_m] = np.inf
         return t
+
+    def first_hits(self, origins_m: np.ndarray, directions: np.ndarray, max_range_m: float, *,
+                   exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Each ray's first hit and what it hit.
+
+        Args:
+            origins_m: (N, 3) ray origins, or one (3,) origin for all, world ENU metres.
+            directions: (N, 3) unit directions, world ENU.
+            max_range_m: longest range [m].
+            exact: as in `ranges_m`.
+
+        Returns:
+            (N,) range [m] as `ranges_m` gives it (np.inf where there is no hit within max_range_m) and (N,) index
+            of the hit part in the city's `buildings` (-1: the ground, -2: no hit).
+        """
+        o, d = self._local(origins_m, directions)
+        if len(d) == 0 or self.n_triangles == 0:
+            return np.full(len(d), np.inf), np.full(len(d), -2, dtype=np.int64)
+        tfar = np.nextafter(np.float32(max_range_m), np.float32(np.inf)) if math.isfinite(max_range_m) \
+            else np.float32(np.inf)
+        hit = self._scene.run(*self._f32(o, d), dists=float(tfar), query="DISTANCE", output=True)
+        t = self._exact(o, d, hit) if exact else hit["tfar"].astype(float)
+        t[t > max_range_m] = np.inf
+        part = np.where(hit["primID"] >= 0, self._tri_part[np.maximum(hit["primID"], 0)], -2)
+        part[~np.isfinite(t)] = -2
+        return t, part
 
     def _exact(self, o: np.ndarray, d: np.ndarray, hit: dict[str, np.ndarray]) -> np.ndarray:
         """Embree's hits with their ranges recomputed in float64 on the hit triangles' planes; misses inf."""

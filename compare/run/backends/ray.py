@@ -123,7 +123,7 @@ class RayBackend:
             reason = f"Ray: {type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
             return FailedCell(task.key, FailureKind.CRASH, reason, elapsed_s, NAME, "", task.limit_s)
         if isinstance(outcome, CellFlown) and outcome.data is not None:
-            write_part(part_path(self.setup.out_dir, task.key), outcome.data)
+            write_part(part_path(self.setup.out_dir, task.key), outcome.data, root=self.setup.out_dir)
             return CellFlown(outcome.key, outcome.elapsed_s, outcome.worker)
         return outcome
 

@@ -255,3 +255,49 @@ def test_an_output_that_is_a_dead_link_is_named_as_one(tmp_path, capsys, target)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "link that leads nowhere" in err[0] and str(out) in err[0]
     assert out.is_symlink() and not (tmp_path / "gone").exists()
+
+
+# ---- 5: the JSON line is strict JSON ------------------------------------------------------------------------
+def _strict(text: str) -> object:
+    """`json.loads` refusing NaN and Infinity, as strict JSON readers do."""
+    def refuse(name: str) -> None:
+        raise ValueError(f"{name} is not JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_evaluate_policy_prints_null_for_a_kind_of_city_without_episodes(monkeypatch: pytest.MonkeyPatch,
+                                                                         capsys: pytest.CaptureFixture) -> None:
+    """Two episodes, both in the first kind of city of a mixed task: the second kind's rates are NaN, and the last
+    line says null for them (before: NaN, which strict JSON readers refuse)."""
+    import rl.env.world
+    import rl.training.evaluation as evaluation
+
+    class World:  # stands in for the task's world: nothing is built or flown here
+        atmospheres = (None,)
+
+        def __init__(self, nav: object) -> None:
+            pass
+
+    result = evaluation.EvalResult(2, 0.5, 0.0, (0.09, 0.91), (0.0, 0.66), {"success": 1, "timeout": 1}, 1.0, 20.0,
+                                   ("success", "timeout"), "test", 0)
+    nan = float("nan")
+    monkeypatch.setattr(rl.env.world, "NavWorld", World)
+    monkeypatch.setattr(evaluation, "evaluate", lambda *args, **kwargs: result)
+    monkeypatch.setattr(evaluation, "rates_by_city_component", lambda res, nav: (
+        evaluation.GroupRates("dense", 2, 0.5, (0.09, 0.91), 0.0, (0.0, 0.66), {"success": 1, "timeout": 1}),
+        evaluation.GroupRates("sparse", 0, nan, (0.0, 1.0), nan, (0.0, 1.0), {})))
+    assert main(["evaluate-policy", "--episodes", "2", "--no-baseline"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    data = _strict(last)
+    assert isinstance(data, dict)
+    sparse = data["by_city_kind"]["ppo"][1]
+    assert sparse["episodes"] == 0 and sparse["success_rate"] is None and sparse["collision_rate"] is None
+    assert data["success_rate"] == 0.5
+
+
+def test_a_printed_json_line_holds_no_number_json_lacks() -> None:
+    from compare.cli.printout import json_line
+
+    line = json_line({"a": float("inf"), "b": [1.0, float("-inf"), (float("nan"), 2)], "c": {"d": float("nan")}})
+    assert _strict(line) == {"a": None, "b": [1.0, None, [None, 2]], "c": {"d": None}}

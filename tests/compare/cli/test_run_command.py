@@ -15,7 +15,7 @@ from pypdf import PdfReader
 
 from compare.cli import main
 from compare.results.episodes import open_episodes
-from compare.results.metrics import COLUMNS, TRACKER_METRICS
+from compare.results.metrics import COLUMNS, MAPPING_METRICS, TRACKER_METRICS
 from compare.results.store import EPISODE_TABLE, read_episode_table, store_dir, write_episode_table
 from rl.policies.folder import DEFAULT_POLICY_DIR
 from run_data import GOLDEN, TINY, without_wall_clock
@@ -71,6 +71,7 @@ def test_run_writes_every_output(tiny_run):
     ppo, mpc = rows
     assert all(ppo[k] == "nan" for k in TRACKER_METRICS)
     assert all(np.isfinite(float(mpc[k])) for k in TRACKER_METRICS), mpc
+    assert all(mpc[k] == "nan" for k in MAPPING_METRICS)  # perfect sensing: nothing mapped, no replan in flight
     assert 0.0 < float(mpc["mpc_solve_ms_median"]) <= float(mpc["mpc_solve_ms_p95"]) < 1e3
     assert float(mpc["mpc_failures"]) == 0.0 and float(mpc["replans_tracking"]) == 0.0
     assert 0.0 <= float(mpc["tracking_rms_m"]) <= float(mpc["tracking_max_m"]) < 1.0

@@ -191,3 +191,33 @@ def test_metrics_score_estimation_and_the_unmapped(tmp_path):
     d = np.linalg.norm(np.maximum(np.maximum(lo - pos, pos - hi), 0.0), axis=1) - sc.vehicle.collision_radius_m
     assert m.min_clearance_unmapped_m == pytest.approx(d.min(), abs=1e-6)
     assert pilot.name == "apf"
+
+
+IN_VIEW = {"center": [30.0, 70.0], "size": [6.0, 6.0], "height": 30.0}  # a mast-like block in the open, north-west
+
+
+def test_the_lidar_records_how_far_off_an_unmapped_obstacle_was_first_sensed(tmp_path):
+    sc = _scenario(unmapped=[IN_VIEW], sensing="nominal")
+    (bid,) = sc.unmapped_ids
+    meta, traj = _runner(sc, tmp_path).fly(Cell(0, 0, 0, "apf"))
+    m = episode_metrics(SavedEpisode(meta, traj))
+    assert traj.nav is not None
+    ((sensed_id, t_s, range_m),) = traj.nav.first_sensed
+    assert sensed_id == bid and 0.0 < t_s <= traj.t_s[-1]
+    assert (m.unmapped_sensed, m.unmapped_first_sensed_m_min, m.unmapped_first_sensed_m_median) == (1.0, range_m,
+                                                                                                    range_m)
+    assert range_m <= sc.sensing.lidar.max_range_m and range_m >= m.min_clearance_unmapped_m
+    # a beam's range to the block is at least the straight distance from the vehicle to it at that scan
+    lo, hi = np.array([27.0, 67.0, 0.0]), np.array([33.0, 73.0, 30.0])
+    pos = traj.states[int(np.argmin(np.abs(traj.t_s - t_s))), 0:3]
+    straight = float(np.linalg.norm(np.maximum(np.maximum(lo - pos, pos - hi), 0.0)))
+    assert straight - 1e-3 <= range_m <= straight + 0.5  # the nearest beam: within half a beam spacing of it
+
+
+def test_nothing_is_sensed_at_perfect_sensing(tmp_path):
+    sc = _scenario(unmapped=[IN_VIEW])
+    meta, traj = _runner(sc, tmp_path).fly(Cell(0, 0, 0, "apf"))
+    m = episode_metrics(SavedEpisode(meta, traj))
+    assert traj.nav is None and math.isfinite(m.min_clearance_unmapped_m)
+    assert math.isnan(m.unmapped_sensed) and math.isnan(m.unmapped_first_sensed_m_min)
+    assert math.isnan(m.unmapped_first_sensed_m_median)

@@ -1,5 +1,6 @@
-"""Hostile run stores: rows are checked before they are believed, one bad episode costs only itself, a FIFO is
-never opened, and a flight is read with a bounded number of samples.
+"""Hostile run stores: rows are checked before they are believed (by `run --resume` too), one bad episode costs only
+itself (and is named on stderr), a FIFO is never opened, a flight is read with a bounded number of samples, and a
+link planted inside a run folder (a folder of it, its store) is never followed by a writer or a reader.
 
 The stores are a real run's (the tiny scenario flown by the potential field with seeds 0 and 1: two rows, two
 flights in one samples file), rewritten with pyarrow as a hostile or careless hand would. Cases go through
@@ -21,7 +22,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import compare.results.episodes as episodes_module
-from cli_checks import error_line
+from cli_checks import error_line, fails, snapshot
 from compare.cli import main
 from compare.results.episodes import open_episodes
 from compare.results.store import ROW_GROUP_ROWS, WRITE_OPTIONS, compact
@@ -263,3 +264,100 @@ def test_a_part_compacted_while_listing_is_found_in_the_table(parts_run: Path,
     episodes = open_episodes(parts_run)
     assert episodes.unreadable == ()
     assert len(episodes.entries) == 4 and not any(e.part for e in episodes.entries)
+
+
+# ---- 5: a link planted inside a run folder is never followed -------------------------------------------------
+def _user_folder(tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A user's folder elsewhere (one file of theirs), and its snapshot."""
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("mine")
+    return home, snapshot(home)
+
+
+@pytest.mark.parametrize("link, argv", [
+    ("maps", [*FLY, "--resume"]),  # resume rewrites maps/tiny.yaml
+    ("figures", ["report"]),  # the report's pages as PNGs
+    ("videos", ["animate", "--format", "gif", "--fps", "2", "--duration", "1", "--size", "320x240", "--no-progress"]),
+    ("failed", ["view"]),  # a reader too: nothing in a run folder is read through a link
+])
+def test_a_folder_link_planted_in_a_run_folder_is_refused(run: Path, tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                          link: str, argv: list[str]) -> None:
+    """`RUN/<folder>` a link to a user's folder: every command refuses the run in one line naming the link, and
+    nothing is written there (before: the maps, the report's PNGs and the video were written into it)."""
+    home, before = _user_folder(tmp_path)
+    if (run / link).exists():
+        shutil.copytree(run / link, home, dirs_exist_ok=True)
+        shutil.rmtree(run / link)
+        before = snapshot(home)
+    (run / link).symlink_to(home, target_is_directory=True)
+    if argv[0] == "run":
+        argv = [*argv, "--out", str(run)]
+    else:
+        argv = [argv[0], str(run), *argv[1:], *(["--out", str(tmp_path / "v.html")] if argv[0] == "view" else [])]
+    assert main(argv) == 2
+    line = error_line(capsys.readouterr().err)
+    assert f"{run / link}: a symbolic link inside {run}" in line, line
+    assert snapshot(home) == before
+
+
+def test_a_writer_makes_its_folders_without_following_a_link(run: Path, tmp_path: Path) -> None:
+    """The one helper every writer goes through: a folder it makes below the run folder is made there, and a link
+    on the way (here `store/parts`, planted while a run flies) is refused before anything is written."""
+    from compare.results.store import part_path, write_part
+    from compare.results.trajectory import EpisodeKey
+    from uam_fdm.files.atomic import write_text_atomic
+    from uam_fdm.files.inside import LinkInFolder
+
+    home, before = _user_folder(tmp_path)
+    new = write_text_atomic(run / "maps" / "prior" / "tiny.yaml", "x", root=run)
+    assert new.read_text() == "x" and not (run / "maps" / "prior").is_symlink()
+    shutil.rmtree(run / "store" / "parts", ignore_errors=True)
+    (run / "store" / "parts").symlink_to(home, target_is_directory=True)
+    key = EpisodeKey("tiny", 0, "apf", 5)
+    with pytest.raises(LinkInFolder, match="store/parts: a symbolic link inside"):
+        write_part(part_path(run, key), b"part", root=run)
+    assert snapshot(home) == before
+
+
+# ---- 6: a store that is another run's is neither compacted nor read ------------------------------------------
+@pytest.mark.parametrize("command", ["report", "view"])
+def test_a_store_linked_to_another_run_is_refused_before_any_work(parts_run: Path, run: Path, tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture, command: str) -> None:
+    """`RUN/store -> OTHER/store`, OTHER a run still flying (its parts not compacted): `report RUN` would compact
+    OTHER's store without OTHER's lock, `view RUN` draw OTHER's flights as RUN's. Both refuse in one line naming
+    the link; OTHER is left byte for byte."""
+    shutil.rmtree(run / "store")
+    (run / "store").symlink_to(parts_run / "store", target_is_directory=True)
+    before = snapshot(parts_run)
+    argv = [command, str(run), *(["--out", str(tmp_path / "v.html")] if command == "view" else [])]
+    code = main(argv)
+    assert snapshot(parts_run) == before
+    assert code == 2 and f"{run / 'store'}: a symbolic link inside {run}" in error_line(capsys.readouterr().err)
+
+
+# ---- 7: report names each flight it cannot draw on stderr --------------------------------------------------
+def test_report_warns_once_for_each_flight_it_cannot_draw(run: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Seed 1's positions NaN: `report` leaves it out of its pages and says so in one warning line naming the file,
+    the cell and why (before: only on the report's failures page and at INFO)."""
+    row = _rows(run)[1]
+    _set_samples(run, "x_m", row["row_start"], row["row_start"] + row["samples"], float("nan"))
+    assert main(["report", str(run)]) == 0
+    lines = [w for w in _warnings(caplog) if S1 in w]
+    assert len(lines) == 1, lines
+    assert _samples(run).name in lines[0] and "finite position" in lines[0]
+
+
+# ---- 8: run --resume checks the store's rows against run.json before flying -----------------------------------
+@pytest.mark.parametrize("extra, expected", [
+    (lambda rows: [{**rows[0], "seed": s} for s in (7, 8)], ("rows 2 and 3 hold cells run.json does not plan",
+                                                             "tiny__ep000__apf__s7")),
+    (lambda rows: [dict(rows[0])], ("rows 0 and 2 hold one cell", S0)),
+])
+def test_resume_refuses_a_store_of_rows_the_run_does_not_plan(run: Path, capsys: pytest.CaptureFixture,
+                                                              extra: Any, expected: tuple[str, ...]) -> None:
+    """Rows of seeds run.json does not plan, or a cell held twice: `run --resume` refuses in one line naming the
+    table and the first bad rows, and writes nothing (before: it flew, and compaction kept the rows)."""
+    rows = _rows(run)
+    _write_rows(run, rows + extra(rows))
+    fails([*FLY, "--resume", "--out", str(run)], capsys, run, f"{run}: cannot resume: {_table(run)}", *expected)

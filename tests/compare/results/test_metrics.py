@@ -109,9 +109,11 @@ def test_metrics_of_a_known_polyline():
 
 TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures": 1, "replans_tracking": 0,
            "replans_clearance": 2, "tracking_rms_m": 0.125, "tracking_max_m": 0.75, "planner_margin_m": 1.5,
-           "mpc_margin_m": 0.75, "mpc_statuses": {"ok": 3}, "margin_source": "table", "replans": 2,
+           "mpc_margin_m": 0.75, "mpc_statuses": {"ok": 3}, "margin_source": "table", "replans": 3,
            "planner_margin_floor_m": 1.0, "planner_attempts": 2, "planner_step": "rrtconnect, speed margins",
-           "clearance_over_margin_min": 0.625}
+           "clearance_over_margin_min": 0.625, "replans_blocked": 1, "replans_uncertainty": 0, "hover_holds": 0,
+           "replan_ms_median": 120.0, "replan_ms_p95": 300.0, "map_update_ms_median": 8.5,
+           "uncertainty_margin_max_m": 0.875, "sensed_obstacles": 4, "cleared_prior_parts": 1}
 
 
 def _save_with_extra(tmp_path, extra: dict, pilot: str = "rrt_mpc") -> SavedEpisode:
@@ -130,7 +132,8 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
     report = ClassicalReport.from_json({**TRACKER, "plan_time_s": 0.7, "replan_time_s": 0.2, "mpc_solves": 3})
     assert isinstance(report, ClassicalReport) and report.replans_clearance == 2
     m = episode_metrics(make_episode(report=report))
-    assert {k: getattr(m, k) for k in M.TRACKER_METRICS} == {k: float(TRACKER[k]) for k in M.TRACKER_METRICS}
+    columns = (*M.TRACKER_METRICS, *M.MAPPING_METRICS)
+    assert {k: getattr(m, k) for k in columns} == {k: float(TRACKER[k]) for k in columns}
     # a pilot without a tracker (ppo): NaN in every tracker column, finite elsewhere
     ppo = episode_metrics(make_episode(pilot="ppo", plan_time_s=0.0))
     assert all(math.isnan(getattr(ppo, k)) for k in M.TRACKER_METRICS)
@@ -154,7 +157,7 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
 
 def test_a_metrics_csv_without_the_tracker_columns_still_reads(tmp_path):
     lines = write_metrics_csv([row("rrt_mpc")], tmp_path / "new.csv").read_text().splitlines()
-    later = (*M.TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *M.SENSING_METRICS)
+    later = (*M.TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *M.SENSING_METRICS, *M.MAPPING_METRICS)
     n = len(COLUMNS) - len(later)
     assert COLUMNS[n:] == later  # the columns older files lack are last
     old = tmp_path / "old.csv"
@@ -288,7 +291,9 @@ def test_csv_columns_are_the_contract_order():
         "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min",
         "vehicle_fingerprint", "sensing", "map_error", "est_error_h_rms_m", "est_error_h_max_m", "est_error_v_rms_m",
         "est_error_v_max_m", "gnss_availability", "min_clearance_unmapped_m",
-        "est_nees_in_bounds")
+        "est_nees_in_bounds", "unmapped_sensed", "unmapped_first_sensed_m_min", "unmapped_first_sensed_m_median",
+        "replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
+        "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):

@@ -242,3 +242,20 @@ def test_a_corrupt_episode_table_is_one_line_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("uam-compare: error: ") and str(table) in err[0], err
     assert "truncated or corrupt" in err[0] and table.stat().st_size == 100  # left as it was
+
+
+def test_a_store_from_before_the_newer_sensing_columns_reads_them_as_nan(tmp_path):
+    """A store written before `est_nees_in_bounds` and the first-sensed columns existed still reads: those columns
+    at NaN, every other one as stored."""
+    episodes = [_episode(e, "ppo") for e in range(2)]
+    _compacted(tmp_path, episodes)
+    path = store_dir(tmp_path) / EPISODE_TABLE
+    newer = ["est_nees_in_bounds", "unmapped_sensed", "unmapped_first_sensed_m_min", "unmapped_first_sensed_m_median"]
+    pq.write_table(pq.read_table(path).drop_columns(newer), path)
+    run = open_episodes(tmp_path)
+    assert len(run.entries) == 2
+    for saved, entry in zip(episodes, run.entries):
+        got, want = run.metrics(entry), episode_metrics(saved)
+        assert all(math.isnan(getattr(got, n)) for n in newer)
+        assert _same(got, replace(want, **dict.fromkeys(newer, math.nan)))
+        assert run.load(entry).meta == saved.meta

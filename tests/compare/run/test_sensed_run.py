@@ -13,6 +13,7 @@ from pypdf import PdfReader
 from compare.cli import main
 from compare.pages.viewer import ViewerConfig, group_payload
 from compare.playback.flights import flight_groups
+from compare.results.store import read_episode_table
 from run_data import TINY
 from uam_fdm.city.mapfile import load_map_file
 
@@ -38,6 +39,12 @@ def test_the_levels_are_recorded_everywhere(sensed_run):
     assert (row["sensing"], row["map_error"]) == ("degraded", "wrong")
     assert float(row["est_error_h_rms_m"]) > 0.0 and 0.0 <= float(row["gnss_availability"]) <= 1.0
     assert row["min_clearance_unmapped_m"] != "nan"
+    # how many unmapped obstacles the lidar sensed, and how far off at first: in metrics.csv and in the store
+    sensed = float(row["unmapped_sensed"])
+    assert sensed >= 0.0 and (sensed == 0.0) == (row["unmapped_first_sensed_m_min"] == "nan")
+    (stored,) = read_episode_table(sensed_run)
+    for name in ("unmapped_sensed", "unmapped_first_sensed_m_min", "unmapped_first_sensed_m_median"):
+        assert repr(stored[name]) == row[name], name
     text = "".join(page.extract_text() for page in PdfReader(sensed_run / "report.pdf").pages)
     assert "sensing degraded · map error wrong" in text
 

@@ -1,4 +1,5 @@
-"""Lidar: beam layout, exact geometry through the true pose, noise, dropout, thin unmapped obstacles."""
+"""Lidar: beam layout, exact geometry through the true pose, noise, dropout, thin unmapped obstacles, what each
+returned beam truly hit."""
 from __future__ import annotations
 
 import dataclasses
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.city.buildings import Building, BuildingMap, Prism
 from uam_fdm.sensing.lidar import Lidar, LidarScan, beam_directions_body
 from uam_fdm.sensing.raycast import RayCaster
 from uam_fdm.sensing.specs import VLP16, VLP32C
@@ -40,8 +41,9 @@ def test_a_thin_unmapped_crane_jib_is_seen_at_50_m():
     caster = RayCaster(BuildingMap([jib], *BOUNDS), ground=False)
     scan, truth = Lidar(QUIET, caster, np.random.default_rng(0)).scan(0.0, np.array([200.0, 200.0, 41.0]), np.eye(3))
     assert len(scan.ranges_m) >= 100  # the ±1° channels, over the jib's ±31° of azimuth
-    assert np.allclose(truth[:, 1], 250.0, atol=1e-3)  # every point on the jib's near face
-    assert np.all((truth[:, 2] > 40.0) & (truth[:, 2] < 42.0))
+    assert np.allclose(truth.points_m[:, 1], 250.0, atol=1e-3)  # every point on the jib's near face
+    assert np.all((truth.points_m[:, 2] > 40.0) & (truth.points_m[:, 2] < 42.0))
+    assert np.all(truth.part_index == 0)  # the jib: the city's only part
     el = np.degrees(np.arcsin(scan.directions_body[:, 2]))
     assert set(np.round(el, 6)) == {-1.0, 1.0}
     assert np.min(scan.ranges_m) == pytest.approx(50.0 / math.cos(math.radians(1.0)), abs=1e-3)
@@ -53,9 +55,9 @@ def test_the_true_attitude_turns_the_beams():
     p = np.array([200.0, 200.0, 50.0])
     for yaw in (0.0, 0.5 * math.pi, 2.0):
         scan, truth = lidar.scan(0.0, p, rot_z(yaw))
-        assert np.allclose(truth[:, 0], 299.0, atol=1e-3)
+        assert np.allclose(truth.points_m[:, 0], 299.0, atol=1e-3)
         # the body-frame points, turned by the true attitude, land on the true hits (no noise here)
-        assert np.allclose(p + scan.points_body_m() @ rot_z(yaw).T, truth, atol=1e-3)
+        assert np.allclose(p + scan.points_body_m() @ rot_z(yaw).T, truth.points_m, atol=1e-3)
         # the wall lies along world +x: in the body frame, at azimuth -yaw
         body_az = np.arctan2(scan.directions_body[:, 1], scan.directions_body[:, 0])
         assert abs(math.remainder(float(np.median(body_az)) + yaw, 2 * math.pi)) < 0.05
@@ -84,7 +86,8 @@ def test_noise_and_dropout_have_the_spec_statistics():
     kept, res, sig = [], [], []
     for k in range(20):
         scan, truth = lidar.scan(0.1 * k, np.array([200.0, 200.0, 100.0]), np.eye(3))
-        r_true = np.linalg.norm(truth - [200.0, 200.0, 100.0], axis=1)
+        r_true = np.linalg.norm(truth.points_m - [200.0, 200.0, 100.0], axis=1)
+        assert np.allclose(truth.ranges_m, r_true)
         kept.append(len(scan.ranges_m) / len(all_hits.ranges_m))
         res.append(scan.ranges_m - r_true)
         sig.append(0.02 + 1e-3 * r_true)
@@ -106,6 +109,58 @@ def test_same_seed_same_scan_and_the_scan_holds_no_truth():
     assert {f.name for f in dataclasses.fields(LidarScan)} == {"t_s", "directions_body", "ranges_m"}
     with pytest.raises(ValueError):
         a[0][0].ranges_m[0] = 1.0  # read-only
+
+
+def _parts_city() -> BuildingMap:
+    """Boxes (one yawed, one elevated like a crane's jib) and a footprint of two prisms sharing one id."""
+    return BuildingMap([Building(3, (240.0, 200.0), (10.0, 30.0), 60.0),
+                        Building(5, (180.0, 250.0), (20.0, 8.0), 35.0, yaw_rad=0.4),
+                        Building(9, (200.0, 160.0), (40.0, 2.0), 42.0, base_m=38.0),
+                        Prism(11, ((140.0, 180.0), (160.0, 180.0), (160.0, 200.0)), 50.0),
+                        Prism(11, ((140.0, 180.0), (160.0, 200.0), (140.0, 200.0)), 50.0)], *BOUNDS)
+
+
+def test_each_returned_beam_names_the_part_it_hit():
+    city = _parts_city()
+    caster = RayCaster(city)
+    lidar = Lidar(VLP16, caster, np.random.default_rng(3))  # noise and dropout as shipped
+    named = set()
+    for p, rot in ((np.array([200.0, 200.0, 40.0]), np.eye(3)), (np.array([195.0, 205.0, 20.0]), rot_z(0.7))):
+        scan, truth = lidar.scan(0.0, p, rot)
+        part = truth.part_index
+        assert part.shape == truth.ranges_m.shape == scan.ranges_m.shape and np.all(part >= -1)
+        # where each beam truly ends, in float64 on the hit triangle's plane (the lidar's ranges are float32's)
+        d = scan.directions_body @ rot.T
+        exact = caster.ranges_m(p, d, VLP16.max_range_m, exact=True)
+        assert np.allclose(truth.ranges_m, exact, atol=1e-3)
+        ends = p + d * exact[:, None]
+        assert np.all(np.abs(ends[part == -1, 2]) <= 1e-6)  # the ground
+        for k in set(part.tolist()) - {-1}:
+            on = BuildingMap([city.buildings[k]], *BOUNDS).obstacle_clearance_m(ends[part == k])
+            assert np.all(np.abs(on) <= 1e-6), (k, np.abs(on).max())
+        named |= set(part.tolist())
+    assert named == {-1, 0, 1, 2, 3, 4}  # every part, both prisms of building 11 told apart, and the ground
+
+
+def test_the_scan_is_the_one_the_ranges_and_the_seed_give():
+    """Naming the parts leaves the scan bit for bit as it was: the ranges as `ranges_m` casts them, then dropout
+    and noise drawn from the lidar's generator in the same order."""
+    caster = RayCaster(_parts_city())
+    spec = dataclasses.replace(VLP16, dropout=0.3)
+    lidar, rng = Lidar(spec, caster, np.random.default_rng(21)), np.random.default_rng(21)
+    for t, (p, rot) in enumerate(((np.array([200.0, 200.0, 40.0]), rot_z(0.2)),
+                                  (np.array([190.0, 210.0, 25.0]), rot_z(-1.1)))):
+        scan, truth = lidar.scan(0.1 * t, p, rot)
+        d = lidar.directions_body @ rot.T
+        r_true = caster.ranges_m(p, d, spec.max_range_m)
+        idx = np.flatnonzero((r_true >= spec.min_range_m) & (r_true <= spec.max_range_m))
+        idx = idx[rng.random(len(idx)) >= spec.dropout]
+        r = r_true[idx]
+        measured = np.maximum(r + (spec.range_noise_m + spec.range_noise_per_m * r) * rng.standard_normal(len(idx)),
+                              0.0)
+        assert np.array_equal(scan.ranges_m, measured) and np.array_equal(truth.ranges_m, r)
+        assert np.array_equal(scan.directions_body, lidar.directions_body[idx])
+        assert np.array_equal(truth.points_m, p + d[idx] * r[:, None])
 
 
 def test_bad_spec_raises():

@@ -1,0 +1,85 @@
+"""The classical pilot's map of what it senses: unmapped obstacles found, prior parts seen through taken out."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planners.sensed_map import MappingConfig, SensedMap, column_boxes, pack_keys, unpack_keys
+from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.sensing.lidar import Lidar
+from uam_fdm.sensing.raycast import RayCaster
+from uam_fdm.sensing.specs import VLP16
+
+LO, HI = (0.0, 0.0, 0.0), (200.0, 200.0, 80.0)
+KNOWN = Building(1, (150.0, 100.0), (20.0, 20.0), 40.0)  # in the prior and in the world
+UNMAPPED = Building(2, (100.0, 130.0), (10.0, 10.0), 30.0)  # in the world only
+PHANTOM = Building(3, (100.0, 70.0), (10.0, 10.0), 30.0)  # in the prior only
+
+
+def _state(p: np.ndarray) -> np.ndarray:
+    x = np.zeros(17)
+    x[0:3], x[6] = p, 1.0
+    return x
+
+
+def _mapped(scans: int = 3) -> tuple[SensedMap, np.ndarray]:
+    world = BuildingMap([KNOWN, UNMAPPED], LO, HI)
+    prior = BuildingMap([KNOWN, PHANTOM], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(0))
+    sensed = SensedMap(prior, MappingConfig(), VLP16.max_range_m)
+    p = np.array([100.0, 100.0, 20.0])
+    for _ in range(scans):
+        scan, _ = lidar.scan(0.0, p, np.eye(3))
+        sensed.integrate(scan, _state(p), 0.1)
+    return sensed, p
+
+
+def test_an_unmapped_building_enters_the_fused_map_and_a_phantom_leaves_it():
+    sensed, _ = _mapped()
+    fused = sensed.fused()
+    assert sensed.cleared_parts == (1,)  # PHANTOM: the prior's second part
+    probe_unmapped = np.array([[100.0, 125.5, 10.0]])  # just inside the unmapped building's face seen
+    probe_phantom = np.array([[100.0, 70.0, 10.0]])
+    assert fused.obstacle_clearance_m(probe_unmapped)[0] <= 0.0
+    assert sensed.prior.obstacle_clearance_m(probe_unmapped)[0] > 0.0
+    assert fused.obstacle_clearance_m(probe_phantom)[0] > 0.0
+    # the known building stays as the prior has it, not as voxels: no sensed box stands on its faces
+    sensed_parts = [b for b in fused.buildings if b.id > 3]
+    assert sensed_parts
+    assert all(abs(b.center_xy_m[0] - 150.0) > 10.0 or abs(b.center_xy_m[1] - 100.0) > 10.0 for b in sensed_parts)
+
+
+def test_nothing_sensed_leaves_the_prior_as_it_is():
+    prior = BuildingMap([KNOWN], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(prior), np.random.default_rng(1))
+    sensed = SensedMap(prior, MappingConfig(), VLP16.max_range_m)
+    p = np.array([100.0, 100.0, 20.0])
+    update = sensed.integrate(lidar.scan(0.0, p, np.eye(3))[0], _state(p), 0.1)
+    assert not update.changed
+    assert sensed.fused() is prior
+
+
+def test_the_same_scans_give_the_same_map():
+    a, _ = _mapped(2)
+    b, _ = _mapped(2)
+    assert a.fused().buildings == b.fused().buildings
+
+
+def test_columns_merge_into_boxes_without_closing_the_space_between():
+    vox = np.array([[0.5, 0.5, 3.5], [1.5, 0.5, 3.5], [0.5, 1.5, 3.5], [1.5, 1.5, 3.5], [2.5, 0.5, 1.5],
+                    [5.5, 5.5, 0.5]])
+    boxes = column_boxes(vox, 1.0, 100, np.zeros(3), np.full(3, 10.0))
+    assert [(b.center_xy_m, b.size_xy_m, b.height_m) for b in boxes] == [
+        ((1.0, 1.0), (2.0, 2.0), 4.0), ((2.5, 0.5), (1.0, 1.0), 2.0), ((5.5, 5.5), (1.0, 1.0), 1.0)]
+    assert [b.id for b in boxes] == [100, 101, 102]
+
+
+def test_voxel_keys_pack_and_unpack():
+    keys = np.array([[0, 0, 0], [-5, 7, 300], [1000, -1000, -3]])
+    assert np.array_equal(unpack_keys(pack_keys(keys)), keys)
+
+
+@pytest.mark.parametrize("bad", [{"resolution_m": 0.0}, {"carve_stride": 0}, {"through_tolerance_m": float("nan")}])
+def test_bad_mapping_settings_are_named(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        MappingConfig(**bad)
