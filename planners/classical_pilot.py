@@ -193,6 +193,10 @@ class ClassicalPilot:
         # the air the reference is timed for: density at the start, gusts of the forecast level there
         self._sigma = float(world.atmosphere.density_ratio(float(task.start_m[2])))
         self._gust_m_s = forecast_gust_m_s(world.turbulence, float(task.start_m[2]))
+        # the reference asks only for what the rotors can give in this air (thrust scales with density)
+        cfg = self.config
+        self._limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
+                                                 self._gust_m_s)
         self._known: BuildingMap = world.city
         self._sensed: SensedMap | None = None
         sigma_m = 0.0
@@ -224,9 +228,7 @@ class ClassicalPilot:
         world, margins = self._flying()
         task, cfg = self._task, self.config
         radius = world.vehicle.collision_radius_m
-        # the reference asks only for what the rotors can give in this air (thrust scales with density)
-        limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
-                                           self._gust_m_s)
+        limits = self._limits
         by_speed = margins.by_speed
         moving = 0.0 if velocity_m_s is None else float(np.linalg.norm(velocity_m_s))
         # the reference changes speed by at most the horizontal and vertical limits together
@@ -423,15 +425,12 @@ class ClassicalPilot:
         """Replan on the fused map, flying a braking reference for `replan_budget_s` meanwhile; the new plan starts
         where the braking leaves the vehicle then. `cause` None: a retry while holding. No path: hold (hover)."""
         cfg, s = self.config, self.stats
-        world = self._world
-        assert world is not None and self._sensed is not None
+        assert self._sensed is not None
         if cause is not None:
             s.replans_by_cause[cause] += 1
         self._last_replan_t = obs.t_s
         self._refresh_known(obs.t_s)
-        limits = TimingLimits.from_vehicle(world.vehicle, cfg.speed_fraction, cfg.accel_fraction, self._sigma,
-                                           self._gust_m_s)
-        brake = braking_reference(obs.x[0:3], obs.x[3:6], limits.max_accel_m_s2)
+        brake = braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2)
         t_switch = obs.t_s + cfg.replan_budget_s
         p_b, v_b, _ = brake.sample(cfg.replan_budget_s)
         self._planned_extra_m = self._extra_now

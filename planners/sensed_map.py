@@ -104,7 +104,6 @@ class SensedMap:
         self._cleared = np.zeros(len(prior.buildings), dtype=bool)
         self._keys = np.zeros(0, dtype=np.int64)  # packed keys of the voxels ever marked unexplained, sorted
         self._fused: BuildingMap | None = prior
-        self.scans = 0
 
     @property
     def cleared_parts(self) -> tuple[int, ...]:
@@ -121,7 +120,6 @@ class SensedMap:
         dirs = np.asarray(scan.directions_body, float) @ rot.T
         ranges = np.asarray(scan.ranges_m, float)
         points = origin + dirs * ranges[:, None]
-        self.scans += 1
         if not len(ranges):
             return ScanUpdate(np.zeros((0, 3)), ())
         expected, part = self._caster.first_hits(origin, dirs, self.max_range_m)
@@ -131,9 +129,8 @@ class SensedMap:
         cleared: list[int] = []
         if np.any(through):
             counts = np.bincount(part[through], minlength=len(self._through))
-            before = self._through >= cfg.clear_beams
             self._through += counts
-            newly = (self._through >= cfg.clear_beams) & ~before & ~self._cleared
+            newly = (self._through >= cfg.clear_beams) & ~self._cleared
             self._cleared |= newly
             cleared = [int(i) for i in np.flatnonzero(newly)]
         # beams through a cleared part, or beyond every prior surface, end on something the map now lacks

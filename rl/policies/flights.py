@@ -33,7 +33,7 @@ import numpy as np
 from rl.policies.reader import OBS_NORM_KEYS, ObsNorm
 from uam_fdm.episode import OUTCOMES
 from uam_fdm.files.atomic import write_text_atomic
-from uam_fdm.files.npz import write_npz
+from uam_fdm.files.npz import check_declared_size, write_npz
 from uam_fdm.files.strict import strict_json_loads
 
 FLIGHTS_DIR = "training_flights"
@@ -328,46 +328,6 @@ def read_checkpoint(path: Path, n_tasks: int) -> CheckpointFlights:
         n = {k: a[f"obs_norm/{k}"].astype(np.float64) for k in OBS_NORM_KEYS}
         norm = ObsNorm(n["mean"], n["var"], float(n["count"]), float(n["epsilon"]), float(n["clip_obs"]))
     return CheckpointFlights(int(need("timesteps")), flights, actor, norm)
-
-
-def check_declared_size(path: Path, max_bytes: int) -> None:
-    """Refuse, unread, an `.npz` whose arrays would take more than `max_bytes` in memory: the uncompressed sizes
-    its zip directory declares (zipfile never inflates a member past its declared size) and, as each member's
-    header is read, the size its shape and type declare (which must fit in the member).
-
-    Raises:
-        ValueError: over `max_bytes`, a header that claims more than its member holds, an array of objects, or
-            not a readable `.npz`, naming the file (and the array).
-    """
-    try:
-        with zipfile.ZipFile(path) as z:
-            members = z.infolist()
-            declared = sum(i.file_size for i in members)
-            if declared > max_bytes:
-                raise ValueError(f"{path}: its arrays would take {declared / 2**20:,.0f} MiB in memory (the sizes "
-                                 f"its zip directory declares); at most {max_bytes / 2**20:,.0f} MiB: refused unread")
-            for info in members:
-                with z.open(info) as fp:
-                    version = np.lib.format.read_magic(fp)
-                    header = _HEADER_READERS.get(version)
-                    if header is None:
-                        raise ValueError(f"{path}: array {info.filename!r} is in .npy format {version}, not one "
-                                         "this tool writes")
-                    shape, _fortran, dtype = header(fp)
-                if dtype.hasobject:
-                    raise ValueError(f"{path}: array {info.filename!r} holds Python objects")
-                if math.prod(shape) * dtype.itemsize > info.file_size:
-                    raise ValueError(f"{path}: array {info.filename!r} claims {shape} of {dtype}, more than the "
-                                     f"{info.file_size:,} bytes it holds")
-    except ValueError as exc:
-        if str(exc).startswith(str(path)):
-            raise
-        raise ValueError(f"{path}: not a plain-array .npz file ({exc})") from None
-    except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{path}: unreadable ({exc})") from None
-
-
-_HEADER_READERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
 
 
 def _known(v: float) -> float | None:

@@ -24,6 +24,7 @@ import numpy as np
 
 from rl.policies.folder import NetworkConfig
 from uam_fdm.files.atomic import atomic_open
+from uam_fdm.files.npz import npz_read_errors
 
 if TYPE_CHECKING:  # PyTorch loads only with a network
     import torch
@@ -41,18 +42,11 @@ def load_arrays(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
             value (naming the file and the key).
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            missing = [k for k in keys if k not in z.files]
-            if missing:
-                raise ValueError(f"{path}: missing arrays {missing}")
-            out = {k: np.array(z[k], dtype=np.float64) for k in keys}
-    except ValueError as exc:
-        if str(exc).startswith(str(path)):
-            raise
-        raise ValueError(f"{path}: not a plain-number .npz file ({exc})") from None
-    except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{path}: unreadable ({exc})") from None
+    with npz_read_errors(path, "plain-number"), np.load(path, allow_pickle=False) as z:
+        missing = [k for k in keys if k not in z.files]
+        if missing:
+            raise ValueError(f"{path}: missing arrays {missing}")
+        out = {k: np.array(z[k], dtype=np.float64) for k in keys}
     for k, v in out.items():
         if not np.isfinite(v).all():
             raise ValueError(f"{path}: array {k!r} has non-finite values")
