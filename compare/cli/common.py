@@ -7,8 +7,6 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TypeVar
 
-from rl.task.air import AirDistribution
-
 
 class CommandInterrupted(Exception):
     """A command stopped by the user (Ctrl-C, SIGTERM) that kept what it finished; the message says what and how
@@ -93,6 +91,8 @@ def turbulence_levels(text: str) -> tuple[str, ...]:
     Raises:
         ValueError: an unknown or repeated level, naming the option.
     """
+    from rl.task.air import AirDistribution  # the learned pilot's package: not for a command line that needs none
+
     levels = tuple(t.strip() for t in text.split(","))
     try:
         AirDistribution(turbulence=levels)

@@ -1,10 +1,16 @@
 """The `uam-compare` entry point: the parser of every command, `main`, its exit codes, and how an error becomes
-one line on stderr (the traceback of an unexpected one in a log file), as does a deprecation of our own."""
+one line on stderr (the traceback of an unexpected one in a log file), as does a deprecation of our own.
+
+The command modules import the packages their commands use (PyTorch, CasADi, matplotlib, OMPL, ...), so `main`
+imports only the one module of the command it runs: `COMMANDS` names each command's module and one-line help, and
+`uam-compare --help` or `--version` imports none of them.
+"""
 from __future__ import annotations
 
 import argparse
 import contextlib
 import errno
+import importlib
 import logging
 import os
 import signal
@@ -13,25 +19,48 @@ import tempfile
 import threading
 import traceback
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
-import compare.cli.demo as demo
-import compare.cli.evaluate as evaluate
-import compare.cli.playback as playback
-import compare.cli.report as report
-import compare.cli.run as run
-import compare.cli.train as train
-import compare.cli.validate as validate
 from compare.cli.common import CommandInterrupted, CommandParser
 from uam_fdm.files.atomic import TEMP_MARK
+from uam_fdm.files.version import code_version
 from uam_fdm.renamed import RenamedWarning
 
 DESCRIPTION = "The `uam-compare` command line."
-COMMAND_MODULES = (demo, run, report, playback, validate, train, evaluate)
-"""Each adds its commands (`add_parser`); `--help` lists them in this order."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """One command of the command line: the module that adds it (`add_parser`) and runs it, and its one-line help
+    (the module's own, checked by tests/compare/cli/test_entry.py)."""
+
+    module: str
+    help: str
+
+
+COMMANDS: dict[str, Command] = {name: Command(f"compare.cli.{module}", text) for name, module, text in (
+    ("demo", "demo", "fly the vehicle presets through a demo pattern and report what happened"),
+    ("maps", "demo", "render the shipped maps (top-down and 3D) to PNG"),
+    ("run", "run", "fly both pilots through scenarios and write metrics and the PDF report"),
+    ("sweep", "run", "fly the robustness sweep (success and collision against density altitude and steady wind, "
+                     "every pilot on the same tasks): `run sweep` with a per-step table; the report draws it"),
+    ("report", "report", "rescore a run folder's saved episodes, rebuild its report and viewer (no simulation)"),
+    ("animate", "playback", "render both pilots flying one cell of a run to MP4 (GIF without ffmpeg)"),
+    ("view", "playback", "write a run folder's interactive 3D viewer (one self-contained HTML file)"),
+    ("view-training", "playback", "write one offline HTML page of a policy's training: the curves, and the "
+                                  "recorded flights of every checkpoint in 3D, scrubbable"),
+    ("export", "playback", "write a run's flights, or a policy's recorded training flights, as a Rerun recording "
+                           "(.rrd; needs the rerun extra)"),
+    ("validate", "validate", "check scenario files strictly without flying anything"),
+    ("train", "train", "train the learned pilot with PPO from scratch on the batched environment"),
+    ("evaluate-policy", "evaluate", "fly a policy and the potential-field pilot (apf) on the same held-out cities; "
+                                    "last line is JSON"),
+)}
+"""Every command, in the order `--help` lists them; a module's commands stand together."""
 
 BAD_INPUT_EXIT = 2  # bad input (a file, a key, an option): the one error line says which and why
 INTERNAL_ERROR_EXIT = 1  # anything else: a bug or a broken installation; the traceback is in a log file
@@ -41,14 +70,62 @@ LOG_DIR_ENV = "UAM_COMPARE_LOG_DIR"
 MAX_MESSAGE_CHARS = 300
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The whole command line: the global options, and every command of `COMMAND_MODULES`."""
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line: the global options and every command of `COMMANDS`.
+
+    Args:
+        commands: the commands whose options are wanted (their modules are imported); the others are there by
+            name and one-line help only. None: every command in full.
+
+    Raises:
+        ValueError: a name in `commands` is not a command.
+    """
+    wanted = set(COMMANDS) if commands is None else set(commands)
+    unknown = sorted(wanted - set(COMMANDS))
+    if unknown:
+        raise ValueError(f"not commands: {', '.join(unknown)} (the commands: {', '.join(COMMANDS)})")
+    full = {COMMANDS[w].module for w in wanted}
     parser = argparse.ArgumentParser(prog="uam-compare", description=DESCRIPTION)
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO)")
+    parser.add_argument("--version", action=_VersionAction, help="print the version (and commit) and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=CommandParser)
-    for module in COMMAND_MODULES:
-        module.add_parser(sub)
+    added: set[str] = set()
+    for name, command in COMMANDS.items():
+        if command.module not in full:
+            sub.add_parser(name, help=command.help)
+        elif command.module not in added:  # adds every command of its module, which stand together
+            importlib.import_module(command.module).add_parser(sub)
+            added.add(command.module)
     return parser
+
+
+def command_of(argv: Sequence[str]) -> str | None:
+    """The command `argv` runs: its first word that is not a global option (None: no command, or not one of ours,
+    which argparse then refuses naming the commands)."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
+
+
+def version_text() -> str:
+    """"uam-compare <package version> (commit <12 hex digits>)": the commit where the package runs from a git
+    checkout (`uam_fdm.files.version`, which runs git; no path of this machine is printed)."""
+    code = code_version()
+    text = f"uam-compare {code['uam-compare'] or 'unknown version (not installed)'}"
+    return text + (f" (commit {code['commit'][:12]})" if code["commit"] else "")
+
+
+class _VersionAction(argparse.Action):
+    """`--version`: the version line on stdout, then exit 0 (read only when asked: it may run git)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, help: str | None = None) -> None:
+        super().__init__(option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(version_text())
+        parser.exit()
 
 
 class _CliFormatter(logging.Formatter):
@@ -61,8 +138,9 @@ class _CliFormatter(logging.Formatter):
 def main(argv: list[str] | None = None) -> int:
     """Run one command line (default: this process's); returns its exit code, and every error is one line on
     stderr: 2 for bad input, 130 when interrupted, 1 for anything else (its traceback in a log file)."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    command = command_of(argv)
+    parser = build_parser([] if command is None else [command])
     args = parser.parse_args(argv)
     args.argv = argv
     handler = logging.StreamHandler()  # a no-op where the caller configured logging already (basicConfig)

@@ -1,6 +1,7 @@
 """The commands that show flights after they were flown: `animate` (a video of one cell of a run, or of every cell),
 `view` (a run's interactive 3D viewer, one HTML file), `view-training` (a policy's training curves and recorded
-flights, one HTML file) and `export` (a run's, or a policy's recorded training flights, as a Rerun recording)."""
+flights, one HTML file) and `export` (a run's, or a policy's recorded training flights, as a Rerun recording, the one
+export format)."""
 from __future__ import annotations
 
 import argparse
@@ -49,7 +50,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     ex = sub.add_parser("export", help="write a run's flights, or a policy's recorded training flights, as a Rerun "
                         "recording (.rrd; needs the rerun extra)")
     ex.add_argument("folder", type=Path, help="a run folder (uam-compare run) or a policy folder with training flights")
-    ex.add_argument("--rerun", action="store_true", help="write a Rerun .rrd recording (the one format)")
+    ex.add_argument("--rerun", action="store_true",
+                    help="write a Rerun .rrd recording: the one format, written without it too (the default)")
     ex.add_argument("--out", type=Path, default=None,
                     help="file to write (default: RUN_DIR/flights.rrd, or <policy folder name>-training.rrd here)")
     ex.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -130,9 +132,8 @@ def view_training(args: argparse.Namespace) -> int:
 
 
 def export(args: argparse.Namespace) -> int:
-    """`export --rerun`: a run folder's flights, or a policy folder's recorded training flights, as one .rrd."""
-    if not args.rerun:
-        raise ValueError("export: give --rerun (a Rerun .rrd recording is the one export format)")
+    """`export`: a run folder's flights, or a policy folder's recorded training flights, as one Rerun .rrd (the one
+    format, so --rerun is the default)."""
     from compare.playback.rerun_export import require_rerun, run_recording, training_recording  # matplotlib
 
     require_rerun()  # a missing extra is said before anything is read

@@ -1,18 +1,23 @@
 """`train`: train the learned pilot with PPO. The options' defaults are `TrainConfig`'s (rl/training/config.py),
-read from it, never restated; the vehicle's task (`rl.task.vehicles`) gives the cities, air and observation."""
+read from it, never restated; the vehicle's task (`rl.task.vehicles`) gives the cities, air and observation, or
+`--scenario` a scenario file's map and air (`rl.env.ground`). It ends with the kept model's validation and what to
+do next with the policy."""
 from __future__ import annotations
 
 import argparse
+import shlex
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from compare.cli.common import check_ranges, option, turbulence_levels
 from compare.results.outputs import check_output_dir
-from compare.scenarios.scenario import MAX_SEED
+from compare.scenarios.scenario import MAX_SEED, load_scenario
+from rl.policies.folder import PROVENANCE, TENSORBOARD, PolicyFolder
 from rl.sensing.observation import ObservedContext
 
 if TYPE_CHECKING:
+    from rl.env.ground import TrainingGround
     from rl.task.config import NavConfig
     from rl.training.config import TrainConfig
 
@@ -62,6 +67,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 def _add_task_options(tr: argparse.ArgumentParser) -> None:
     """The options that change the vehicle's task: vehicle, cities, air, observation."""
     tr.add_argument("--vehicle", default=None, help="the vehicle and its task (rl/task/vehicles.py): {vehicles}")
+    tr.add_argument("--scenario", type=Path, default=None, metavar="FILE",
+                    help="train in a scenario file's map and air instead of generated cities: legs drawn in its map "
+                         "by the vehicle's task, validated on other legs there, full length from the start (no "
+                         "curriculum); its own episodes are left for `run FILE --policy OUT`. Its vehicle is the "
+                         "task's; not with --envelope, --city-pool or --turbulence")
     tr.add_argument("--city-pool", type=int, default=None, help="training cities (default: the task's, {city_pools})")
     tr.add_argument("--turbulence", default=None, metavar="LEVELS",
                     help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
@@ -106,9 +116,11 @@ def _count(n: int) -> str:
 
 
 def train(args: argparse.Namespace) -> int:
-    """`train`: every option checked by its own name before anything is built, then PPO; one line at the end."""
+    """`train`: every option (and --scenario's file) checked by its own name before anything is built, then PPO; at
+    the end the kept model's validation, once, and the next steps (`next_steps`)."""
     from rl.training.config import MAX_RECORDED_FLIGHTS, TrainConfig
     from rl.training.loop import train as train_policy
+    from rl.training.presets import PRESETS
 
     defaults = TrainConfig()
     given = {field: getattr(defaults, field) if getattr(args, dest) is None else getattr(args, dest)
@@ -121,29 +133,79 @@ def train(args: argparse.Namespace) -> int:
                   "--seed": (given["seed"], 0, MAX_SEED),
                   "--record-flights": (given["record_flights"], 0, MAX_RECORDED_FLIGHTS),
                   **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
-    nav = _task(args, defaults)
+    if given["preset"] in PRESETS:  # an unknown preset is named below; a known one fits the vehicles, or --envs says
+        n = given["n_envs"]
+        try:
+            PRESETS[given["preset"]].minibatch_size(n)
+        except ValueError as exc:
+            raise ValueError(f"--envs {n}: {str(exc).removeprefix(f'n_envs {n}: ')}") from None
+    ground = _ground(args)
+    nav = _task(args, defaults, ground)
     level_steps = (defaults.curriculum.level_steps if args.curriculum_level_steps is None
                    else args.curriculum_level_steps)
     check_ranges({"--curriculum-level-steps": (level_steps, 0, MAX_TIMESTEPS)})
-    curriculum = replace(defaults.curriculum, **({"level_steps": level_steps} if args.curriculum else {"start": 1.0}))
+    full_length = not args.curriculum or ground is not None  # a scenario's legs are drawn once, at full length
+    curriculum = replace(defaults.curriculum, **({"start": 1.0} if full_length else {"level_steps": level_steps}))
 
     def config(preset: str) -> TrainConfig:  # the other fields are checked above: a refusal here is the preset's
-        return TrainConfig(**{**given, "preset": preset}, nav=nav, curriculum=curriculum)
+        return TrainConfig(**{**given, "preset": preset}, nav=nav, curriculum=curriculum,
+                           scenario=None if ground is None else ground.source)
 
     cfg = option("--preset", config, given["preset"])
     res = train_policy(cfg, args.out, resume=args.resume, progress=not args.no_progress,
-                       command="uam-compare " + " ".join(args.argv))
-    print(f"policy written to {args.out}: validation success {res.success_rate:.1%}, collisions "
+                       command="uam-compare " + " ".join(args.argv), ground=ground)
+    prov = PolicyFolder(args.out).provenance() if (args.out / PROVENANCE).is_file() else None
+    at = f" (the model at {prov.kept_timesteps:,d} timesteps)" if prov and prov.kept_timesteps is not None else ""
+    print(f"policy written to {args.out}{at}: validation success {res.success_rate:.1%}, collisions "
           f"{res.collision_rate:.1%} over {res.episodes} episodes")
+    for line in next_steps(args.out, cfg):
+        print(line)
     return 0
 
 
-def _task(args: argparse.Namespace, defaults: TrainConfig) -> NavConfig:
-    """The vehicle's task with --city-pool, --turbulence and --observe applied; --out checked on the way (a
-    policy there is never replaced unasked)."""
+def next_steps(out: Path, cfg: TrainConfig) -> list[str]:
+    """What to do with a freshly trained policy folder `out`, as command lines: its training page (when flights
+    were recorded), its TensorBoard logs, and flying it in the comparison (on its scenario, if it has one)."""
+    folder = shlex.quote(str(out))
+    fly = f"uam-compare run {shlex.quote(cfg.scenario)} --policy {folder}" if cfg.scenario else \
+        f"uam-compare run --policy {folder}"
+    steps = [f"uam-compare view-training {folder}   # its learning curves and recorded flights, one HTML page"] \
+        if cfg.record_flights else []
+    steps += [f"tensorboard --logdir {shlex.quote(str(out / TENSORBOARD))}   # PPO's own curves",
+              f"{fly}   # fly it beside the other pilots"]
+    return ["next:"] + [f"  {step}" for step in steps]
+
+
+def _ground(args: argparse.Namespace) -> TrainingGround | None:
+    """--scenario's map and air, read and checked before anything is built (None: generated cities).
+
+    Raises:
+        ValueError: an option that the scenario states otherwise, or a bad scenario file (its file, key and reason).
+    """
+    from rl.env.ground import TrainingGround
+
+    if args.scenario is None:
+        return None
+    given = [name for name, value in (("--envelope", args.envelope), ("--city-pool", args.city_pool),
+                                      ("--turbulence", args.turbulence)) if value]
+    if given:
+        raise ValueError(f"--scenario and {', '.join(given)}: the scenario states the map and the air; give one or "
+                         f"the other")
+    if not args.scenario.is_file():
+        raise ValueError(f"--scenario {args.scenario}: no such file")
+    ground = TrainingGround.from_scenario(load_scenario(args.scenario))
+    if args.vehicle is not None and args.vehicle != ground.vehicle:
+        raise ValueError(f"--vehicle {args.vehicle}: {args.scenario} flies {ground.vehicle!r}; give that vehicle or "
+                         f"leave --vehicle out")
+    return ground
+
+
+def _task(args: argparse.Namespace, defaults: TrainConfig, ground: TrainingGround | None = None) -> NavConfig:
+    """The vehicle's task with --city-pool, --turbulence and --observe applied, or in `ground`'s air and rates; --out
+    checked on the way (a policy there is never replaced unasked)."""
     from rl.task.vehicles import task_for
 
-    vehicle = defaults.nav.vehicle if args.vehicle is None else args.vehicle
+    vehicle = ground.vehicle if ground is not None else defaults.nav.vehicle if args.vehicle is None else args.vehicle
     task = option("--vehicle", lambda v: task_for(v, envelope=args.envelope), vehicle)
     air = task.air if args.turbulence is None else replace(task.air, turbulence=turbulence_levels(args.turbulence))
     observe = task.observe if args.observe is None else parse_observed(args.observe)
@@ -151,7 +213,8 @@ def _task(args: argparse.Namespace, defaults: TrainConfig) -> NavConfig:
     if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
         raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
                          f"give another --out, --resume to continue its training, or --overwrite to replace it)")
-    return replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
+    task = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
+    return task if ground is None else ground.task(task)
 
 
 def parse_observed(text: str) -> ObservedContext:

@@ -15,7 +15,8 @@ training: tasks/task_<k>/city, start, goal                       static
           tasks/task_<k>/step_<timesteps>/path, vehicle, clearance_m, speed_m_s   (as above)
 ```
 
-rerun-sdk is an optional extra (`pip install 'uam-compare[rerun]'`), imported only here and only when asked;
+rerun-sdk is an optional extra (`pip install -e '.[rerun]'` in a clone, `pip install 'uam-compare[rerun]'` for an
+installed package), imported only here and only when asked;
 the recording is written with rerun-sdk's version (`RERUN_READS` says which viewer reads it) and atomically.
 """
 from __future__ import annotations
@@ -48,8 +49,9 @@ def require_rerun() -> Any:
         # optional (rerun-sdk, ~60 MB): imported only when a recording is asked for
         import rerun
     except ImportError:
-        raise ValueError(f"--rerun needs the optional package rerun-sdk: pip install 'uam-compare[{EXTRA}]' "
-                         "(or pip install rerun-sdk)") from None
+        raise ValueError(f"export needs the optional package rerun-sdk: in a clone of the repository pip install -e "
+                         f"'.[{EXTRA}]', for an installed uam-compare pip install 'uam-compare[{EXTRA}]' (or pip "
+                         f"install rerun-sdk alone)") from None
     return rerun
 
 

@@ -8,17 +8,39 @@ holds each reward term of the step; the final step's info has `outcome` and `is_
     import gymnasium as gym, rl
     env = gym.make("UAMNav-v0")                       # training cities, light turbulence
     env = gym.make("UAMNav-v0", config=NavConfig(city_split="eval"), render_mode="rgb_array")
+    env = gym.make("UAMNav-v0", scenario="my.yaml")   # legs drawn in a scenario's map, in its air (rl.env.ground)
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from rl.env.ground import TRAINING_LEGS, TRAINING_STREAM, ScenarioLike, TrainingGround, load_ground
 from rl.env.world import NavBatch, NavWorld
 from rl.sensing.observation import OBS_CLIP
 from rl.task.config import FixedEpisodes, NavConfig
+from rl.task.vehicles import task_for
+
+
+def scenario_world(scenario: str | Path | ScenarioLike | TrainingGround, config: NavConfig | None = None,
+                   legs_seed: int = 0) -> NavWorld:
+    """The world of `TRAINING_LEGS` legs drawn from `legs_seed` in a scenario's map, in its air (`rl.env.ground`).
+
+    Args:
+        scenario: a scenario file, a checked scenario or its `TrainingGround`.
+        config: the task to fly there (default: the scenario's vehicle's training task).
+    """
+    if isinstance(scenario, TrainingGround):
+        ground = scenario
+    elif isinstance(scenario, (str, Path)):
+        ground = load_ground(scenario)
+    else:
+        ground = TrainingGround.from_scenario(scenario)
+    nav = ground.task(config if config is not None else task_for(ground.vehicle))
+    return ground.world(nav, ground.legs(nav, TRAINING_LEGS, legs_seed, TRAINING_STREAM))
 
 
 def observation_space(size: int) -> gym.spaces.Box:
@@ -36,14 +58,26 @@ class UAMNavEnv(gym.Env):
         render_mode: None or "rgb_array" (a top-down image of the city, the path and the goal).
         fixed: scenario episodes instead of sampled ones.
         world: a prebuilt shared world (saves rebuilding cities and the compiled model).
+        scenario: fly legs drawn in a scenario's map, in its air and at its rates (`rl.env.ground`): a scenario
+            file (read and checked by the comparison's strict loader), a checked scenario or a `TrainingGround`.
+            `config` is then the vehicle's task to fly there (default: the scenario's vehicle's, `task_for`).
+        legs_seed: the seed the scenario's legs are drawn from.
+
+    Raises:
+        ValueError: a bad scenario (naming its file, the key and the reason), or `scenario` with `fixed` or `world`.
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, config: NavConfig | None = None, render_mode: str | None = None,
-                 fixed: FixedEpisodes | None = None, world: NavWorld | None = None) -> None:
+                 fixed: FixedEpisodes | None = None, world: NavWorld | None = None,
+                 scenario: str | Path | ScenarioLike | TrainingGround | None = None, legs_seed: int = 0) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if scenario is not None:
+            if fixed is not None or world is not None:
+                raise ValueError("scenario: give a scenario, fixed episodes or a world, not several")
+            world = scenario_world(scenario, config, legs_seed)
         self.world = world or NavWorld(config or NavConfig(), fixed)
         self.config = self.world.config
         self.batch = NavBatch(self.world, 1)

@@ -79,8 +79,10 @@ def load_model_for_resume(path: Path, venv: VecNormalize, preset: PPOConfig, tb:
                 "clip_range": preset.clip_range, "clip_range_vf": None, "rollout_buffer_class": RolloutBuffer,
                 "_last_obs": None, "_last_episode_starts": None, "_last_original_obs": None,
                 "ep_info_buffer": None, "ep_success_buffer": None}
-    return PPO.load(str(path), env=venv, device="cpu", custom_objects=replaced, force_reset=True,
-                    tensorboard_log=str(tb) if tb is not None else None)
+    model = PPO.load(str(path), env=venv, device="cpu", custom_objects=replaced, force_reset=True,
+                     tensorboard_log=str(tb) if tb is not None else None)
+    model.batch_size = preset.minibatch_size(venv.num_envs)  # the run's vehicles, not the saved run's
+    return model
 
 
 def model_data(path: Path) -> dict[str, Any]:
@@ -159,6 +161,13 @@ def check_resume(folder: Path, cfg: TrainConfig) -> None:
                          f"{CONFIG} gives {n_obs}")
     if src.curriculum.is_file():
         read_curriculum(src.curriculum)
+    trained_on = strict_json_loads(src.config_file.read_text()).get("scenario")
+    if trained_on != cfg.scenario:
+        def said(scenario: Any) -> str:
+            return "generated cities" if scenario is None else repr(scenario)[:200]
+
+        raise ValueError(f"{where}: trained on {said(trained_on)} ({CONFIG}'s scenario); this run trains on "
+                         f"{said(cfg.scenario)} (give the --scenario it was trained on, or none)")
     if saved.nav.vehicle != cfg.nav.vehicle:
         raise ValueError(f"{where}: trained for vehicle {saved.nav.vehicle!r} ({CONFIG}'s nav.vehicle); this run "
                          f"trains {cfg.nav.vehicle!r} (give --vehicle {saved.nav.vehicle})")

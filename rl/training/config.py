@@ -54,6 +54,8 @@ class TrainConfig:
         torch_threads: torch intra-op threads (1: small-tensor work is fastest single-threaded here).
         record_flights: fixed validation tasks flown and recorded at step 0 and at every evaluation
             (`rl.training.recording`; 0 = none).
+        scenario: the scenario file whose map and air the run trains and validates in (`rl.env.ground`; its
+            ground is given to `rl.training.loop.train`), as the user named it; None: generated cities.
     """
 
     preset: str = "paper"
@@ -68,6 +70,7 @@ class TrainConfig:
     checkpoint_every: int = 2_000_000
     torch_threads: int = 1
     record_flights: int = 8
+    scenario: str | None = None
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
@@ -79,11 +82,14 @@ class TrainConfig:
             raise ValueError(f"record_flights must be 0 to {MAX_RECORDED_FLIGHTS}, got {self.record_flights}")
         if not (np.isfinite(self.collision_weight) and self.collision_weight >= 0):
             raise ValueError(f"collision_weight must be a finite number >= 0, got {self.collision_weight!r}")
+        PRESETS[self.preset].minibatch_size(self.n_envs)  # the vehicles split the rollout into whole mini-batches
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d["ppo"] = asdict(PRESETS[self.preset])
-        d["ppo"]["gamma"] = PRESETS[self.preset].gamma(self.nav.decision_hz)
+        preset = PRESETS[self.preset]
+        d["ppo"] = asdict(preset)
+        d["ppo"]["gamma"] = preset.gamma(self.nav.decision_hz)
+        d["ppo"]["batch_size"] = preset.minibatch_size(self.n_envs)  # what PPO took with these vehicles
         return d
 
     @classmethod

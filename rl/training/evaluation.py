@@ -29,6 +29,9 @@ BatchedPilot = Callable[[np.ndarray, NavBatch], np.ndarray]
 """A pilot flying a whole batch, for evaluation (not a `uam_fdm.pilot.Pilot`): (raw observations (N, obs),
 the batch) -> actions (N, 3) in [-1, 1]."""
 
+Progress = Callable[[int, int], object]
+"""Told how an evaluation goes: (episodes ended so far, episodes in all), each time more have ended."""
+
 
 @dataclass(frozen=True)
 class EvalResult:
@@ -78,7 +81,7 @@ def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: s
 
 
 def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
-             world: NavWorld | None = None) -> EvalResult:
+             world: NavWorld | None = None, progress: Progress | None = None) -> EvalResult:
     """Fly `episodes` held-out episodes at once (episode i in pool city i), deterministically.
 
     Args:
@@ -88,6 +91,7 @@ def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, 
         seed: slot i is seeded with seed + i.
         pool: "test" or "validation" (recorded in the result).
         world: a prebuilt world (its cities are used in order).
+        progress: told (ended, episodes) after each decision in which episodes ended.
 
     Raises:
         ValueError: an episode's return or time is not finite (naming the metric; the task's `nav.reward`
@@ -103,11 +107,14 @@ def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, 
     times = np.zeros(episodes)
     while not done.all():
         obs, _, d, infos = venv.step(pilot(obs, venv.batch))
-        for i in np.flatnonzero(d & ~done):
+        ended = np.flatnonzero(d & ~done)
+        for i in ended:
             outcomes[i] = infos[i]["outcome"]
             returns[i] = infos[i]["episode"]["r"]
             times[i] = infos[i]["t_s"]
         done |= d
+        if progress is not None and len(ended):
+            progress(int(done.sum()), episodes)
     for key, values in (("mean_return", returns), ("mean_time_s", times)):
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:  # a mean of them would be inf or NaN, said by a NumPy warning at best
@@ -174,7 +181,8 @@ def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:
 
 
 def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
-                             world: NavWorld | None = None, gains: PotentialFieldConfig | None = None) -> EvalResult:
+                             world: NavWorld | None = None, gains: PotentialFieldConfig | None = None,
+                             progress: Progress | None = None) -> EvalResult:
     """The reactive potential-field pilot (`rl.pilots.potential_field`) on the same tasks as
     `evaluate(..., nav, episodes, seed, pool)`, at the 50 Hz it was tuned for (decision_hz = control_hz: the
     tasks do not depend on it), with the gains the comparison flies it with (`gains_for`: tuned for the
@@ -184,6 +192,7 @@ def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool:
         world: the world whose tasks to fly, sharing its dynamics, fields, turbulence, cities and sensing (e.g. the
             policy's evaluation world).
         gains: other gains (e.g. a candidate while tuning).
+        progress: as `evaluate`'s.
     """
     base_nav = replace(eval_config(nav, episodes, pool) if world is None else world.config,
                        decision_hz=nav.control_hz)
@@ -198,4 +207,4 @@ def evaluate_potential_field(nav: NavConfig, episodes: int, seed: int = 0, pool:
             holder["pilot"] = BatchedPotentialField(batch, flown)
         return holder["pilot"](obs, batch)
 
-    return evaluate(potential_field, base_nav, episodes, seed=seed, pool=pool, world=base_world)
+    return evaluate(potential_field, base_nav, episodes, seed=seed, pool=pool, world=base_world, progress=progress)

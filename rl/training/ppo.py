@@ -37,10 +37,11 @@ def normalized_env(base: VecEnv, preset: PPOConfig, decision_hz: float) -> VecNo
 
 
 def make_model(preset: PPOConfig, venv: VecEnv, seed: int, decision_hz: float, tb: Path | None = None) -> PPO:
-    """A fresh PPO model of `preset` (tanh-bounded mean, separate 2-layer actor and critic) on `venv`."""
+    """A fresh PPO model of `preset` (tanh-bounded mean, separate 2-layer actor and critic) on `venv`, its
+    mini-batch fitted to the vehicles (`PPOConfig.minibatch_size`)."""
     return PPO(
         TanhMeanPolicy, venv, learning_rate=preset.learning_rate_schedule(), n_steps=preset.n_steps,
-        batch_size=preset.batch_size, n_epochs=preset.n_epochs, gamma=preset.gamma(decision_hz),
+        batch_size=preset.minibatch_size(venv.num_envs), n_epochs=preset.n_epochs, gamma=preset.gamma(decision_hz),
         gae_lambda=preset.gae_lambda, clip_range=preset.clip_range, ent_coef=preset.ent_coef,
         vf_coef=preset.vf_coef, max_grad_norm=preset.max_grad_norm, target_kl=preset.target_kl, seed=seed,
         device="cpu", policy_kwargs=preset.network.policy_kwargs(),

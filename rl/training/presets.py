@@ -37,6 +37,26 @@ class PPOConfig:
         return self.learning_rate if self.learning_rate_end is None else \
             LinearSchedule(self.learning_rate, self.learning_rate_end)
 
+    def minibatch_size(self, n_envs: int) -> int:
+        """The mini-batch PPO takes with `n_envs` vehicles: `batch_size`, or the rollout (`n_steps` x `n_envs`
+        decisions) when that is smaller, or else the largest divisor of the rollout under `batch_size`, so that
+        every mini-batch of an epoch is whole.
+
+        Raises:
+            ValueError: no divisor of the rollout reaches half of `batch_size` (an `n_envs` with a large prime
+                factor), naming `n_envs` and counts that work.
+        """
+        rollout = self.n_steps * n_envs
+        if rollout <= self.batch_size:
+            return rollout
+        size = max(d for d in range(1, self.batch_size + 1) if rollout % d == 0)
+        if 2 * size < self.batch_size:
+            raise ValueError(f"n_envs {n_envs}: its rollout of {rollout} decisions ({self.n_steps} per vehicle) "
+                             f"splits into mini-batches of {size} at most, far under {self.batch_size}; give at "
+                             f"most {self.batch_size // self.n_steps} vehicles or a multiple of "
+                             f"{self.batch_size // self.n_steps}")
+        return size
+
     def gamma(self, decision_hz: float) -> float:
         """The discount per decision at `decision_hz` [Hz] (0.99 at 10 Hz): the same horizon in
         seconds at any decision rate, as the reward is per second."""

@@ -116,13 +116,15 @@ class FlightRecorder:
             run): kept (or copied into `folder`) when they flew the same tasks. Anything else already in `folder`'s
             training flights belongs to a policy being replaced and is removed.
         up_to: the timesteps the run resumes from.
+        world: the world whose cities the tasks are drawn in (e.g. a scenario's validation world, `rl.env.ground`);
+            default: the first `n_tasks` validation cities.
     """
 
     def __init__(self, nav: NavConfig, n_tasks: int, seed: int, folder: Path, dynamics_from: NavWorld,
-                 history: Path | None = None, up_to: int = 0) -> None:
+                 history: Path | None = None, up_to: int = 0, world: NavWorld | None = None) -> None:
         self.folder = Path(folder)
-        self.world = NavWorld(eval_config(nav, n_tasks, pool="validation"), dynamics=dynamics_from.dynamics,
-                              atmosphere=dynamics_from.atmospheres, wind_from=dynamics_from)
+        self.world = world or NavWorld(eval_config(nav, n_tasks, pool="validation"), dynamics=dynamics_from.dynamics,
+                                       atmosphere=dynamics_from.atmospheres, wind_from=dynamics_from)
         self.batch = NavBatch(self.world, n_tasks)
         self.episodes = fixed_tasks(self.batch, n_tasks, seed)
         self.tasks = self._describe(seed)
@@ -154,8 +156,9 @@ class FlightRecorder:
         air = w.config.air
         fields = air.fields() if len(air.fields()) == len(w.atmospheres) else None
         n_levels, n_fields = len(w.levels), len(w.atmospheres)
+        where = "task k in validation city k" if w.fixed is None else "in the scenario's map"
         rule = (f"{len(self.episodes)} validation tasks drawn once from the run's seed {seed} (PCG64 stream "
-                f"{RECORDING_STREAM:#x}), task k in validation city k; legs short (the shortest "
+                f"{RECORDING_STREAM:#x}), {where}; legs short (the shortest "
                 f"{SHORT_DIFFICULTY:.0%} of the distance range) or long (the longest of {LONG_DRAWS} draws), "
                 f"alternating every {n_levels} task(s); task k flies turbulence level k mod {n_levels} "
                 f"({', '.join(str(lv.value) for lv in w.levels)}) and field (k div {2 * n_levels}) mod {n_fields} "

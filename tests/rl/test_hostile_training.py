@@ -109,6 +109,16 @@ def test_resume_refuses_an_unreadable_curriculum_state(tmp_path, capsys, no_trai
     fails(_train(folder, tmp_path / "out"), capsys, tmp_path, "curriculum.json", "difficulty", "hard")
 
 
+def test_resume_refuses_another_ground_than_the_policy_was_trained_on(tmp_path, capsys, no_training):
+    """A policy of generated cities resumed on a scenario's map, or one of a scenario resumed without it."""
+    folder = _resumable(tmp_path)
+    tiny = Path(__file__).resolve().parents[1] / "data" / "tiny_scenario.yaml"
+    fails(_train(folder, tmp_path / "out", "--scenario", str(tiny)), capsys, tmp_path, str(folder),
+          "trained on generated cities", repr(str(tiny)), "--scenario")
+    _edit_json(folder / "config.json", lambda d: d.update(scenario="elsewhere.yaml"))
+    fails(_train(folder, tmp_path / "out"), capsys, tmp_path, "trained on 'elsewhere.yaml'", "config.json's scenario")
+
+
 def test_a_given_policy_is_not_called_none_given(tmp_path):
     """A scenario's vehicle file reusing a preset's name with other parameters: the note says why the policy given
     with --policy does not fly it, not that none was given."""

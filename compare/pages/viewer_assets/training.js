@@ -63,11 +63,15 @@
     ];
     const annotations = DATA.curve.kept === null ? [] : [{ x: DATA.curve.kept, y: 1, yref: "paper", text: "kept",
       showarrow: false, font: { color: "#2ca02c" }, xanchor: "left", yanchor: "top" }];
-    const layout = { margin: { l: 55, r: 55, t: 10, b: 40 }, hovermode: "closest", showlegend: true,
-                     legend: { orientation: "h", x: 0, y: 1.12 },
-                     xaxis: { title: { text: "timesteps" } }, yaxis: { title: { text: "training return" } },
+    // the legend under the axes (plotly widens the margin for it) and the toolbar above them, so neither covers
+    // the other or the curves, whatever the width; the success axis at round quarters of its own (plotly would
+    // otherwise sync an overlaying axis to the left axis's ticks)
+    const layout = { margin: { l: 55, r: 55, t: 28, b: 40 }, hovermode: "closest", showlegend: true,
+                     legend: { orientation: "h", x: 0, xanchor: "left", y: -0.28, yanchor: "top", font: { size: 11 } },
+                     xaxis: { title: { text: "timesteps", standoff: 4 } }, yaxis: { title: { text: "training return" } },
                      yaxis2: { title: { text: "success" }, overlaying: "y", side: "right", range: [0, 1.05],
-                               tickformat: ".0%" },
+                               tickmode: "array", tickvals: [0, 0.25, 0.5, 0.75, 1], tickformat: ".0%",
+                               showgrid: false },
                      shapes: curveShapes(), annotations: annotations };
     return Plotly.newPlot(curveDiv, traces, layout, { displaylogo: false, responsive: true }).then(() => {
       curveDiv.on("plotly_hover", (ev) => {

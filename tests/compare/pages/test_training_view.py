@@ -212,3 +212,33 @@ def test_play_moves_the_vehicles(browser_page):
     pg.click("#play")
     assert not pg.evaluate("window.uamTraining.state().playing")
     assert log["errors"] == []
+
+
+def test_the_toolbar_never_covers_the_legend_and_the_success_axis_reads_round(browser_page):
+    """At any width the legend stands under the axes, clear of plotly's toolbar (shown here by hovering) and of the
+    plot; the success axis has ticks of its own at round quarters (not synced to the return axis)."""
+    pg, log = browser_page
+    rects = """(() => { const gd = document.getElementById('curve'), L = gd._fullLayout, r = gd.getBoundingClientRect();
+        const box = (e) => { const b = e.getBoundingClientRect(); return [b.left, b.top, b.right, b.bottom]; };
+        return {legend: box(gd.querySelector('.legend')), buttons: [...gd.querySelectorAll('.modebar-btn')].map(box),
+                plot: [r.left + L._size.l, r.top + L._size.t, r.left + L._size.l + L._size.w,
+                       r.top + L._size.t + L._size.h], div: box(gd)}; })()"""
+
+    def apart(a, b):
+        return a[2] <= b[0] or b[2] <= a[0] or a[3] <= b[1] or b[3] <= a[1]
+
+    try:
+        for width in (1300, 900, 700):
+            pg.set_viewport_size({"width": width, "height": 900})
+            pg.wait_for_timeout(400)  # the plot follows its box (responsive)
+            box = pg.locator("#curve").bounding_box()
+            pg.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 3)
+            pg.wait_for_timeout(300)
+            r = pg.evaluate(rects)
+            assert r["buttons"] and all(apart(r["legend"], b) for b in r["buttons"]), (width, r)
+            assert r["legend"][1] >= r["plot"][3] and r["legend"][3] <= r["div"][3] + 1, (width, r)
+        ticks = pg.evaluate("[...document.querySelectorAll('#curve .y2tick text')].map((t) => t.textContent)")
+        assert ticks == ["0%", "25%", "50%", "75%", "100%"]
+    finally:
+        pg.set_viewport_size({"width": 1300, "height": 900})
+    assert log["errors"] == []

@@ -74,9 +74,10 @@ def test_run_flights_read_back(tmp_path, capsys):
 def test_refusals_are_one_line(tiny_flights_policy, tmp_path, capsys, monkeypatch):
     assert main(["export", str(tmp_path), "--rerun"]) == 2
     assert "neither a run folder" in capsys.readouterr().err
-    assert main(["export", str(tiny_flights_policy)]) == 2
-    assert "give --rerun" in capsys.readouterr().err
+    assert main(["export", str(tiny_flights_policy), "--out", str(tmp_path / "default.rrd")]) == 0  # Rerun: the default
+    assert (tmp_path / "default.rrd").is_file()
     monkeypatch.setitem(sys.modules, "rerun", None)  # rerun-sdk not installed: `import rerun` fails
     assert main(["export", str(tiny_flights_policy), "--rerun", "--out", str(tmp_path / "x.rrd")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "uam-compare[rerun]" in err and err.count("\n") == 0 and not (tmp_path / "x.rrd").exists()
+    assert "uam-compare[rerun]" in err and "pip install -e '.[rerun]'" in err  # an installed package, and a clone
+    assert err.count("\n") == 0 and not (tmp_path / "x.rrd").exists()

@@ -178,8 +178,10 @@ def test_evaluate_policy_cli_prints_both_pilots_and_json(capsys):
     last = json.loads(out[-1])
     assert last["pool"] == "validation" and last["episodes"] == 3
     assert 0.0 <= last["success_rate"] <= 1.0 and len(last["success_ci95"]) == 2
-    assert 0.0 <= last["expert_success_rate"] <= 1.0 and sum(last["paired"].values()) == 3
-    assert any("potential field" in line for line in out)
+    assert 0.0 <= last["apf_success_rate"] <= 1.0 and sum(last["paired"].values()) == 3
+    for old, new in (("expert_success_rate", "apf_success_rate"), ("expert_collision_ci95", "apf_collision_ci95")):
+        assert last[old] == last[new]  # the old keys, until the next release
+    assert any(line.split()[:2] == ["apf", "success"] for line in out)  # the potential field by its one name
     assert main(["evaluate-policy", "--episodes", "0"]) == 2
 
 

@@ -96,6 +96,39 @@ def test_discount_keeps_its_horizon_in_seconds():
     assert TrainConfig().to_dict()["ppo"]["gamma"] == 0.99
 
 
+@pytest.mark.parametrize(("n_envs", "minibatch"), [(1, 64), (32, 2048), (64, 4096), (100, 3200), (256, 4096)])
+def test_the_minibatch_follows_the_vehicles(n_envs, minibatch):
+    """Whole mini-batches of the rollout (n_steps x n_envs decisions), as large as the preset's and no larger."""
+    pr = PRESETS["paper"]
+    size = pr.minibatch_size(n_envs)
+    assert size == minibatch and (pr.n_steps * n_envs) % size == 0
+    assert TrainConfig(n_envs=n_envs).to_dict()["ppo"]["batch_size"] == minibatch  # config.json says what PPO took
+
+
+def test_vehicles_that_split_the_rollout_into_tiny_minibatches_are_refused():
+    with pytest.raises(ValueError, match=r"^n_envs 4099: .*mini-batches of 64"):
+        TrainConfig(n_envs=4099)
+
+
+def test_the_model_takes_the_fitted_minibatch_without_a_warning(recwarn):
+    from rl.env.vec_env import UAMNavVecEnv
+    from rl.training.ppo import make_model, normalized_env
+
+    nav = replace(TINY_NAV, air=CALM, city_pool_size=1)
+    venv = normalized_env(UAMNavVecEnv(32, world=NavWorld(nav, fixed=_open_field(4))), PRESETS["paper"], 10.0)
+    model = make_model(PRESETS["paper"], venv, 0, 10.0)
+    assert model.batch_size == 2048
+    assert [w for w in recwarn.list if "stable_baselines3" in w.filename] == []
+
+
+def test_the_scenario_trained_on_is_kept_in_the_config():
+    cfg = TrainConfig(scenario="my.yaml", curriculum=Curriculum(start=1.0))
+    assert TrainConfig.from_dict(cfg.to_dict()) == cfg
+    old = TrainConfig().to_dict()
+    del old["scenario"]  # written before training took a scenario
+    assert TrainConfig.from_dict(old).scenario is None
+
+
 def test_potential_field_flies_past_a_building_in_the_way():
     city = BuildingMap([Building(0, (60.0, 60.0), (20.0, 18.0), 40.0)], (0, 0, 0), (120, 100, 60), name="block")
     cfg = NavConfig(city_pool_size=1, air=CALM, decision_hz=50.0)

@@ -51,9 +51,11 @@ def test_train_writes_a_loadable_policy_and_resumes(runs):
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["step_00000000512", "step_00000001024"]
     rows = _rows(out / "reward_curve.csv")
     assert tuple(rows[0]) == CURVE_COLUMNS
-    # one row per PPO update (512 decisions each), validation filled where it ran, and the final evaluation
-    assert [int(r["timesteps"]) for r in rows] == [512, 1024, 1024]
+    # one row per PPO update (512 decisions each), validation filled where it ran: the last row holds the final
+    # model's (evaluated after its update), never a second row of the same timesteps
+    assert [int(r["timesteps"]) for r in rows] == [512, 1024]
     assert all(r["eval_episodes"] == "3" for r in rows) and float(rows[0]["difficulty"]) == 0.25
+    assert rows[-1]["train_episodes"] != "" and rows[-1]["mean_episode_reward"] != ""
     prov = json.loads((out / "provenance.json").read_text())
     assert prov["command"] == "test" and prov["seed"] == 5 and prov["validation_of_kept_model"]["episodes"] == 3
     assert prov["method"] == "PPO from scratch" and "validation" in prov["pools"]["selection"]
