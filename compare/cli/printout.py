@@ -14,7 +14,18 @@ from compare.results.failures import FAILED_DIR, describe_failures, read_failure
 from compare.results.level_rates import level_json, level_rates, level_table_lines
 from compare.results.metrics import read_metrics_csv
 from compare.results.run_info import read_run_info
-from compare.results.summary import PairedSummary, PowerConfig, Stat, Summary, pilots_table, read_summary_json
+from compare.results.stats import MIN_INTERVAL_N
+from compare.results.summary import (
+    NO_INTERVAL_NOTE,
+    PairedStat,
+    PairedSummary,
+    PowerConfig,
+    Stat,
+    Summary,
+    mdd_gap,
+    pilots_table,
+    read_summary_json,
+)
 from compare.results.sweep_rates import sweep_json, sweep_rates, sweep_table_lines
 from compare.scenarios.benchmark import BENCHMARK_SETS
 from compare.scenarios.sweep import SWEEP_SETS
@@ -36,22 +47,27 @@ def print_run_results(run_dir: Path) -> None:
 
 def print_summary(run_dir: Path) -> None:
     """Per vehicle (never pooled: a quadrotor's and a multicopter's numbers do not average) one row per pilot,
-    then its scenarios when there are few, then its paired success differences with their MDD; then the files
-    written and the failed cells."""
+    then its scenarios when there are few, then its paired success differences with their MDD; what "no CI"
+    means when a cell says it; then the files written and the failed cells."""
     summary = read_summary_json(run_dir / "summary.json")
     scenarios = summary.by_scenario or {}
     per_vehicle = summary.per_vehicle()
+    printed: list[str] = []
     if per_vehicle is None:  # a summary.json from before per-vehicle summaries: its scenarios, as then
-        _print_lines(_table(list((scenarios or {"all": summary}).items())))
+        printed += _table(list((scenarios or {"all": summary}).items()))
+        _print_lines(printed)
     for vehicle, part in (per_vehicle or {}).items():
         mine = [(name, s) for name, s in scenarios.items() if s.vehicle == vehicle]
         few = 1 < len(mine) <= SCENARIOS_PRINTED
         where = (f"scenario {mine[0][0]}" if len(mine) == 1 else
                  f"{len(mine)} scenarios" + ("" if few else f" (more than {SCENARIOS_PRINTED}: see report.pdf)"))
-        _print_lines(_table([(f"{vehicle}: {where}", part)] + [(f"{vehicle} / {name}", s) for name, s in mine
-                                                                if few]))
+        lines = _table([(f"{vehicle}: {where}", part)] + [(f"{vehicle} / {name}", s) for name, s in mine if few])
+        _print_lines(lines)
+        printed += lines
         for pair in part.paired:
             print("  " + paired_success_line(pair, part.power))
+    if any("no CI)" in line for line in printed):
+        print(NO_INTERVAL_NOTE)
     _print_files(run_dir)
 
 
@@ -74,7 +90,7 @@ def _print_lines(lines: list[str]) -> None:
 
 def _print_files(run_dir: Path) -> None:
     """The run folder's products, its videos, and its failed cells (what they are and how to fly them again)."""
-    for name in ("report.pdf", "viewer.html", "metrics.csv", "summary.json"):
+    for name in ("report.pdf", "report-summary.pdf", "viewer.html", "metrics.csv", "summary.json"):
         if (run_dir / name).exists():
             print(run_dir / name)
     for video in sorted((run_dir / "videos").glob("[!.]*.*")):
@@ -86,7 +102,8 @@ def _print_files(run_dir: Path) -> None:
 
 
 def paired_success_line(pair: PairedSummary, power: PowerConfig) -> str:
-    """One pair's success difference with its 95 % interval, and the smallest difference this many pairs detect."""
+    """One pair's success difference with its 95 % interval and whether it excludes zero (never below
+    `MIN_INTERVAL_N` pairs), and the smallest difference this many pairs detect."""
     st = pair.stats.get("success")
     head = f"{pair.first} - {pair.second}: success difference"
     if st is None or st.mean is None:
@@ -100,10 +117,20 @@ def paired_success_line(pair: PairedSummary, power: PowerConfig) -> str:
 
     both = 100.0 * (power.design_rate or 0.5)
     design = "" if st.mdd_design is None else f"; before any run (both at {both:.0f} %): {detectable(st.mdd_design)}"
-    seen = "n/a from the spread, every pair agreed" if st.sd == 0.0 else detectable(st.mdd)
+    gap = mdd_gap(st)
+    seen = f"n/a ({gap})" if gap else detectable(st.mdd)
     test = "" if power.alpha is None else f" (alpha {power.alpha:g}, power {power.power:g})"
-    return (f"{head} {pct(st.mean)} [{pct(st.ci_low)}, {pct(st.ci_high)}] over {st.n} paired episodes; "
-            f"smallest difference detectable{test}: {seen}{design}")
+    return (f"{head} {pct(st.mean)} [{pct(st.ci_low)}, {pct(st.ci_high)}] over {st.n} paired episodes, "
+            f"{verdict(st)}; smallest difference detectable{test}: {seen}{design}")
+
+
+def verdict(st: PairedStat) -> str:
+    """Whether a paired difference's interval excludes zero, in words (the report's star): never called below
+    `MIN_INTERVAL_N` pairs."""
+    excl = st.excludes_zero
+    if excl is None:
+        return f"too few pairs to call (fewer than {MIN_INTERVAL_N})" if st.n < MIN_INTERVAL_N else "no interval"
+    return "the interval excludes 0" if excl else "the interval includes 0"
 
 
 def print_task_set(run_dir: Path) -> None:
@@ -121,11 +148,16 @@ def print_task_set(run_dir: Path) -> None:
 
 def print_headline_json(run_dir: Path) -> None:
     """The run's headline figures as the last line, one JSON object (for scripts): per vehicle and pilot the
-    episodes, success and collision rates with their 95 % Wilson intervals; the task set and its version (under
-    the key "suite", as scripts read it); the failed cells."""
+    episodes, success and collision rates with their 95 % Wilson intervals; per vehicle and pair of pilots the
+    paired differences of those rates; the task set and its version (under the key "suite", as scripts read it);
+    the failed cells."""
 
     def rate(st: Stat | None) -> dict:
         return {"rate": st.mean, "ci95": [st.ci_low, st.ci_high]} if st is not None else {}
+
+    def difference(st: PairedStat | None) -> dict:
+        return {} if st is None else {"diff": st.mean, "ci95": [st.ci_low, st.ci_high], "pairs": st.n,
+                                      "excludes_zero": st.excludes_zero}
 
     per_vehicle = read_summary_json(run_dir / "summary.json").per_vehicle() or {}
     info = read_run_info(run_dir)
@@ -136,6 +168,10 @@ def print_headline_json(run_dir: Path) -> None:
         "vehicles": {v: {m: {"episodes": ms.episodes, "success": rate(ms.stats.get("success")),
                              "collision": rate(ms.stats.get("collision"))} for m, ms in part.pilots.items()}
                      for v, part in per_vehicle.items()},
+        # per vehicle and pair of pilots: the paired differences of the rates (Newcombe intervals); excludes_zero
+        # null below MIN_INTERVAL_N pairs, as in the report
+        "paired": {v: {p.name: {k: difference(p.stats.get(k)) for k in ("success", "collision")}
+                       for p in part.paired} for v, part in per_vehicle.items()},
         "failed_cells": len(read_failures(run_dir))}
     if task_set is not None and task_set.name in SWEEP_SETS:  # per vehicle, axis, step and pilot (printed above)
         out["sweep"] = sweep_json(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv")))

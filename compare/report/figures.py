@@ -1,9 +1,11 @@
 """Figures of a comparison run: one builder per figure, through matplotlib's Figure API.
 
-Builders take data already loaded from a run folder (`FlightTrace`, tables of strings, a
-`RewardCurve`) and return `matplotlib.figure.Figure` objects sized as A4 landscape pages; they
-never read files, never simulate and never touch pyplot's global state.  `compare.report.report` loads
-the run, calls these builders in order and writes the PDF and PNGs.
+Builders take data already loaded from a run folder (`FlightTrace`, a `RewardCurve`) and return
+`matplotlib.figure.Figure` objects sized as A4 landscape pages; they never read files, never simulate
+and never touch pyplot's global state.  `compare.report.report` loads the run, calls these builders in
+order and writes the PDF and PNGs. Here: the flights reduced for drawing and the region around them,
+the training curves; the flights' own pages are `compare.report.flight_figures`'s, pages of text and
+tables `compare.report.layout`'s.
 
 Colours are fixed per pilot (`PILOT_COLORS`, from `compare.flying.pilots`, with a fallback cycle for
 unknown pilots) so a pilot looks the same on every page.
@@ -12,7 +14,6 @@ from __future__ import annotations
 
 import functools
 import math
-import textwrap
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ParamSpec, TypeVar
@@ -22,21 +23,16 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.colors import is_color_like
 from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Circle, Rectangle
-from matplotlib.ticker import MaxNLocator
-from mpl_toolkits.mplot3d import Axes3D
+from matplotlib.patches import Rectangle
 
 from compare.flying.pilots import PILOTS
+from compare.report.layout import PAGE_SIZE_IN
 from compare.results.trajectory import EpisodeMeta, SavedEpisode
 from uam_fdm.city.buildings import Building, BuildingMap, Prism
-from uam_fdm.city.plot import draw_map_3d, draw_map_topdown
-from uam_fdm.episode import Outcome
 
 PILOT_COLORS: dict[str, str] = {name: entry.color for name, entry in PILOTS.items()}
 FALLBACK_COLORS: tuple[str, ...] = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",
                                     "tab:olive", "tab:cyan", "tab:gray")
-PAGE_SIZE_IN = (11.69, 8.27)  # A4 landscape
 MAX_PLOT_POINTS = 2000
 CROP_MARGIN_M = 30.0
 START_STYLE: dict[str, Any] = {"marker": "^", "color": "tab:green", "markeredgecolor": "k", "markersize": 9,
@@ -306,230 +302,7 @@ def _area(poly: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
-# ---- text and table pages -------------------------------------------------------------------------------
-def text_pages(title: str, blocks: Sequence[tuple[str, str]], *, width_chars: int = 125,
-               lines_per_page: int = 44) -> list[Figure]:
-    """Pages of wrapped text under a title.
-
-    Args:
-        title: page title (continuation pages add "(continued)").
-        blocks: ("h", heading) or ("p", paragraph) items, in order; paragraphs are wrapped.
-        width_chars: wrap width of paragraphs [characters].
-        lines_per_page: lines before a new page starts.
-    """
-    lines: list[tuple[str, str]] = []
-    for kind, text in blocks:
-        if kind == "h":
-            lines += [("gap", ""), ("h", text)]
-        else:
-            for para in str(text).splitlines() or [""]:
-                wrapped = textwrap.wrap(para, width_chars, subsequent_indent="    ") or [""]
-                lines += [("p", w) for w in wrapped]
-    pages = [lines[i:i + lines_per_page] for i in range(0, max(len(lines), 1), lines_per_page)]
-    figs = []
-    for k, page in enumerate(pages):
-        fig = Figure(figsize=PAGE_SIZE_IN)
-        fig.suptitle(title if k == 0 else f"{title} (continued)", fontsize=16, fontweight="bold", y=0.96)
-        y = 0.89
-        for kind, text in page:
-            if kind == "h":
-                fig.text(0.06, y, text, fontsize=11.5, fontweight="bold", va="top")
-            elif kind == "p":
-                fig.text(0.07, y, text, fontsize=9.5, va="top")
-            y -= 0.0185 if kind != "gap" else 0.008
-        figs.append(fig)
-    return figs
-
-
-def table_pages(title: str, header: Sequence[str], rows: Sequence[Sequence[str]], *, rows_per_page: int = 26,
-                notes: Sequence[str] = (), font_size: float = 8.5) -> list[Figure]:
-    """Pages holding one matplotlib table, split every `rows_per_page` rows (header repeated).
-
-    Args:
-        title: page title ("(page k/n)" is appended when the table spans pages).
-        header: column titles (with units).
-        rows: cell texts.
-        notes: lines printed under the table on every page.
-    """
-    chunks = [rows[i:i + rows_per_page] for i in range(0, len(rows), rows_per_page)] or [[]]
-    figs = []
-    for k, chunk in enumerate(chunks):
-        fig = Figure(figsize=PAGE_SIZE_IN)
-        suffix = f" (page {k + 1}/{len(chunks)})" if len(chunks) > 1 else ""
-        fig.suptitle(title + suffix, fontsize=15, fontweight="bold", y=0.96)
-        ax = fig.add_axes((0.04, 0.12, 0.92, 0.78))
-        ax.axis("off")
-        if chunk:
-            # padding by spaces (constant in font units) rather than Cell.PAD (a fraction of the cell width)
-            cells = [[f" {c} " for c in r] for r in chunk]
-            table = ax.table(cellText=cells, colLabels=[f" {h} " for h in header], loc="upper center",
-                             cellLoc="left", colLoc="left")
-            table.auto_set_font_size(False)
-            table.set_fontsize(font_size)
-            table.auto_set_column_width(list(range(len(header))))
-            table.scale(1.0, 1.35)
-            for (r, _), cell in table.get_celld().items():
-                cell.PAD = 0.01
-                if r == 0:
-                    cell.set_text_props(fontweight="bold")
-                    cell.set_facecolor("0.9")
-        else:
-            ax.text(0.5, 0.8, "(no rows)", ha="center", fontsize=11)
-        for i, note in enumerate(notes):
-            fig.text(0.05, 0.09 - 0.022 * i, note, fontsize=8.5, style="italic", va="top")
-        figs.append(fig)
-    return figs
-
-
-# ---- episode pages --------------------------------------------------------------------------------------
-def _draw_city_3d(ax: Axes3D, region_map: BuildingMap | None, lo: np.ndarray, hi: np.ndarray) -> None:
-    ax.computed_zorder = False  # paths drawn after the buildings stay visible in front of them
-    if region_map is not None:
-        draw_map_3d(ax, region_map)
-        return
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(0.0, hi[2])
-    ax.set_box_aspect((float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2])), zoom=0.88)
-    ax.set_xlabel("x east [m]")
-    ax.set_ylabel("y north [m]")
-    ax.set_zlabel("z up [m]")
-
-
-def _draw_city_topdown(ax: Axes, region_map: BuildingMap | None, full_map: BuildingMap | None,
-                       lo: np.ndarray, hi: np.ndarray) -> None:
-    if region_map is not None:
-        coll = draw_map_topdown(ax, region_map, show_bounds=False)
-        ax.figure.colorbar(coll, ax=ax, label="building height [m]", shrink=0.7)
-    if full_map is not None:  # the real flight-volume bounds, where they cross the view
-        blo, bhi = full_map.bounds_min_m, full_map.bounds_max_m
-        ax.add_patch(Rectangle((blo[0], blo[1]), bhi[0] - blo[0], bhi[1] - blo[1], fill=False, ls="--",
-                               lw=0.8, ec="0.4"))
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x east [m]")
-    ax.set_ylabel("y north [m]")
-
-
-def _trace_legend(t: FlightTrace) -> str:
-    return f"{t.label}: {t.episode.outcome}, {t.end_t_s:.1f} s"
-
-
-def episode_paths_figure(title: str, traces: Sequence[FlightTrace], bmap: BuildingMap | None) -> Figure:
-    """3D view of the city around the flights (left) and a top-down view (right), every pilot's path.
-
-    Args:
-        title: page title, e.g. "Episode suburb-quad #0 seed 0".
-        traces: one per pilot, all of the same task.
-        bmap: the scenario's city (None: draw the paths alone).
-    """
-    lo, hi = flight_region(traces)
-    region = crop_map(bmap, lo, hi) if bmap is not None else None
-    meta = traces[0].episode
-    fig = Figure(figsize=PAGE_SIZE_IN)
-    fig.suptitle(title, fontsize=15, fontweight="bold", y=0.97)
-    # fixed panels: a 3D axes' z label reaches past its box, which a layout engine does not see
-    ax3 = fig.add_axes((0.0, 0.08, 0.53, 0.84), projection="3d")
-    _draw_city_3d(ax3, region, lo, hi)
-    ax2 = fig.add_axes((0.63, 0.14, 0.34, 0.72))
-    _draw_city_topdown(ax2, region, bmap, lo, hi)
-    ax2.add_patch(Circle(meta.goal_m[:2], meta.goal_radius_m, fill=False, ec="k", lw=0.8, ls=":"))
-    for t in traces:
-        p = t.pos_m
-        ax3.plot(p[:, 0], p[:, 1], p[:, 2], color=t.color, lw=1.8, label=_trace_legend(t))
-        ax2.plot(p[:, 0], p[:, 1], color=t.color, lw=1.8, label=_trace_legend(t))
-        end = "o" if t.episode.outcome == Outcome.SUCCESS else "X"
-        ax3.plot(*p[-1], marker=end, color=t.color, markeredgecolor="k", markersize=8, linestyle="none")
-        ax2.plot(*p[-1, :2], marker=end, color=t.color, markeredgecolor="k", markersize=8, linestyle="none")
-    s, g = np.asarray(meta.start_m), np.asarray(meta.goal_m)
-    ax3.plot(*s, **START_STYLE, label="start")
-    ax3.plot(*g, **GOAL_STYLE, label="goal")
-    ax2.plot(*s[:2], **START_STYLE, label="start")
-    ax2.plot(*g[:2], **GOAL_STYLE, label=f"goal (radius {meta.goal_radius_m:g} m)")
-    ax3.set_title("3D view (true scale)")
-    ax2.set_title("top-down view")
-    fig.legend(*ax2.get_legend_handles_labels(), loc="lower center", ncol=4, fontsize=9)
-    return fig
-
-
-def episode_timeseries_figure(title: str, traces: Sequence[FlightTrace]) -> Figure:
-    """Clearance (with contact and 2 m / 5 m margins), speed and rotor power (or mean rotor speed) over time.
-
-    Rotor shaft power (the model's, saved per step in the episode file) is drawn only when every trace has
-    it; otherwise (an episode file saved before it was recorded) all show mean rotor speed, and the panel
-    says why.
-    """
-    fig = Figure(figsize=PAGE_SIZE_IN, layout="constrained")
-    fig.suptitle(title, fontsize=15, fontweight="bold")
-    ax_c, ax_v, ax_p = fig.subplots(3, 1, sharex=True)
-    power = all(t.rotor_kw is not None for t in traces)
-    radius = traces[0].episode.collision_radius_m
-    ax_c.axhline(0.0, color="tab:red", lw=1.2,
-                 label=f"contact (collision sphere radius {radius:g} m)")
-    for margin in (2.0, 5.0):
-        ax_c.axhline(margin, color="0.35", lw=0.9, ls="--", label=f"{margin:g} m margin")
-    for t in traces:
-        ax_c.plot(t.t_s, t.clearance_m, color=t.color, lw=1.3, label=t.label)
-        ax_v.plot(t.t_s, t.speed_m_s, color=t.color, lw=1.3, label=t.label)
-        ax_p.plot(t.t_s, t.rotor_kw if power else t.rotor_mean_rad_s, color=t.color, lw=1.1, label=t.label)
-    ax_c.set_ylabel("clearance [m]")
-    ax_c.set_title("clearance of the collision sphere to buildings and ground", fontsize=10)
-    ax_c.legend(loc="upper right", fontsize=8, ncol=2)
-    ax_v.set_ylabel("speed [m/s]")
-    ax_v.set_title("ground speed", fontsize=10)
-    ax_p.set_ylabel("rotor power [kW]" if power else "mean rotor speed [rad/s]")
-    ax_p.set_title("total rotor shaft power Σ Q·Ω (the flight model's, per step)" if power
-                   else "mean rotor speed (shaft power not in this episode file: saved before it was recorded)",
-                   fontsize=10)
-    ax_p.set_xlabel("time [s]")
-    for ax in (ax_c, ax_v, ax_p):
-        ax.grid(alpha=0.3)
-    return fig
-
-
-def episode_snapshots_figure(title: str, traces: Sequence[FlightTrace], bmap: BuildingMap | None,
-                             n_panels: int = 9) -> Figure:
-    """3D snapshots at t = 0, T/(n-1), …, T (T = the longer flight): vehicles as markers with trails so far.
-
-    A vehicle whose flight ended before a snapshot stays where it ended (an "X" if it failed).
-    """
-    lo, hi = flight_region(traces)
-    region = crop_map(bmap, lo, hi) if bmap is not None else None
-    t_end = max(t.end_t_s for t in traces)
-    meta = traces[0].episode
-    fig = Figure(figsize=PAGE_SIZE_IN)
-    fig.suptitle(title, fontsize=15, fontweight="bold", y=0.985)
-    fig.subplots_adjust(left=0.0, right=0.97, bottom=0.06, top=0.92, wspace=0.02, hspace=0.14)
-    cols = math.ceil(math.sqrt(n_panels))
-    rows = math.ceil(n_panels / cols)
-    for k in range(n_panels):
-        when = t_end * k / max(n_panels - 1, 1)
-        ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
-        _draw_city_3d(ax, region, lo, hi)
-        spans = [abs(b - a) for a, b in (ax.get_xlim(), ax.get_ylim(), ax.get_zlim())]
-        ax.set_box_aspect(spans, zoom=1.05)  # true scale as drawn, a little larger in the small panels
-        ax.plot(*meta.start_m, **{**START_STYLE, "markersize": 6})
-        ax.plot(*meta.goal_m, **{**GOAL_STYLE, "markersize": 9})
-        for t in traces:
-            i = max(int(np.searchsorted(t.t_s, when, side="right")) - 1, 0)
-            ended = when > t.end_t_s and t.episode.outcome != Outcome.SUCCESS
-            ax.plot(t.pos_m[:i + 1, 0], t.pos_m[:i + 1, 1], t.pos_m[:i + 1, 2], color=t.color, lw=1.2)
-            ax.plot(*t.pos_m[i], marker="X" if ended else "o", color=t.color, markeredgecolor="k",
-                    markersize=6, linestyle="none")
-        ax.set_title(f"t = {when:.1f} s", fontsize=9)
-        ax.tick_params(labelsize=5.5, pad=0)
-        ax.zaxis.set_major_locator(MaxNLocator(2))  # the true-scale z axis is short in a small panel
-        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-            axis.label.set_size(6.5)
-            axis.labelpad = -2
-    handles = [Line2D([], [], color=t.color, marker="o", markeredgecolor="k", label=t.label) for t in traces]
-    handles += [Line2D([], [], **START_STYLE, label="start"), Line2D([], [], **GOAL_STYLE, label="goal")]
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9)
-    return fig
-
-
-# ---- training and failures ------------------------------------------------------------------------------
+# ---- training ------------------------------------------------------------------------------------------
 RETURN_COLOR = "tab:orange"
 SUCCESS_COLOR = "tab:blue"
 KEPT_COLOR = "tab:green"
@@ -739,34 +512,4 @@ def seed_curves_figure(curves: Sequence[RewardCurve], labels: Sequence[str], *,
     ax_s.set_title("(b) success on held-out validation cities (full difficulty)", fontsize=10)
     ax_r.legend(fontsize=8, loc="lower right")
     ax_s.legend(fontsize=8, loc="lower right")
-    return fig
-
-
-def failure_paths_figure(title: str, items: Sequence[tuple[FlightTrace, BuildingMap | None]]) -> Figure:
-    """Small top-down views of failed flights (up to 6): the path, start, goal and where it ended."""
-    fig = Figure(figsize=PAGE_SIZE_IN, layout="constrained")
-    fig.suptitle(title, fontsize=15, fontweight="bold")
-    n = len(items)
-    cols = min(n, 3)
-    rows = math.ceil(n / cols)
-    for k, (t, bmap) in enumerate(items):
-        ax = fig.add_subplot(rows, cols, k + 1)
-        lo, hi = flight_region([t])
-        region = crop_map(bmap, lo, hi) if bmap is not None else None
-        if region is not None:
-            draw_map_topdown(ax, region, show_bounds=False)
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
-        ax.set_aspect("equal")
-        ax.set_xlabel("x east [m]")
-        ax.set_ylabel("y north [m]")
-        m = t.episode
-        ax.plot(t.pos_m[:, 0], t.pos_m[:, 1], color=t.color, lw=1.5, label=t.label)
-        ax.plot(*np.asarray(m.start_m)[:2], **START_STYLE, label="start")
-        ax.plot(*np.asarray(m.goal_m)[:2], **GOAL_STYLE, label="goal")
-        ax.plot(*t.pos_m[-1, :2], marker="X", color="tab:red", markeredgecolor="k", markersize=10,
-                linestyle="none", label=f"ended: {m.outcome} at {t.end_t_s:.1f} s")
-        k_ = m.key
-        ax.set_title(f"{k_.scenario} #{k_.episode} seed {k_.seed}: {t.label}", fontsize=9)
-        ax.legend(fontsize=7, loc="best")
     return fig

@@ -17,6 +17,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from compare.report import figures as F
+from compare.report.layout import text_pages
 from rl.policies.flights import CheckpointFlights, CityBoxes, TrainingFlights, flights_dir
 from rl.policies.folder import PolicyFolder
 
@@ -64,7 +65,7 @@ def learning_figures(policy_dir: Path | str, title: str = "Learning in pictures"
         steps = chosen_checkpoints(flights.steps, prov.kept_timesteps if prov is not None else None)
         ckpts = [flights.checkpoint(s) for s in steps]
     except ValueError as exc:
-        return F.text_pages(title, [("p", f"The training flights could not be read: {exc}")])
+        return text_pages(title, [("p", f"The training flights could not be read: {exc}")])
     kept = prov.kept_timesteps if prov is not None else None
     n_tasks = len(flights.tasks.tasks)
     return [_page(title, flights, ckpts, kept, list(range(k, min(k + ROWS_PER_PAGE, n_tasks))))

@@ -12,18 +12,28 @@ they return figures and never read files.
 from __future__ import annotations
 
 import math
-import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from compare.report import figures as F
+from compare.report.layout import Block, Paragraph, TableBlock, flow_pages, table_pages
 from compare.report.summary_figures import ForestPanel, ForestRow, difficulty_figure, forest_figure
 from compare.results.difficulty import ScenarioConditions, success_by_difficulty
 from compare.results.metrics import EpisodeMetrics
-from compare.results.summary import RATE_METRICS, BootstrapConfig, PairedStat, PairedSummary, Stat, Summary
+from compare.results.stats import MIN_INTERVAL_N
+from compare.results.summary import (
+    NO_INTERVAL_NOTE,
+    RATE_METRICS,
+    BootstrapConfig,
+    PairedStat,
+    PairedSummary,
+    Stat,
+    Summary,
+    format_stat,
+    mdd_gap,
+)
 
 # (summary key, row label with unit, scale, decimals)
 SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
@@ -104,19 +114,15 @@ class PilotStyle:
 
 
 def format_ci(stat: Stat | None, scale: float = 1.0, digits: int = 2) -> str:
-    """"mean [low, high]" of a summary's `Stat` (a paired one: the mean difference), scaled; "n/a" if missing."""
-    if stat is None or stat.mean is None or not math.isfinite(stat.mean):
-        return "n/a"
-    text = f"{stat.mean * scale:.{digits}f}"
-    if stat.ci_low is not None and stat.ci_high is not None and math.isfinite(stat.ci_low) \
-            and math.isfinite(stat.ci_high):
-        text += f" [{stat.ci_low * scale:.{digits}f}, {stat.ci_high * scale:.{digits}f}]"
-    return text
+    """"mean [low, high]" of a summary's `Stat` (a paired one: the mean difference), scaled; "mean (n=3, no CI)"
+    below `MIN_INTERVAL_N` values without an interval; "n/a" if missing (`compare.results.summary.format_stat`,
+    as the command line prints it)."""
+    return format_stat(stat, lambda v: f"{v * scale:.{digits}f}")
 
 
-def wrapped(notes: Sequence[str], width: int = 160) -> list[str]:
-    """Notes under a table, each wrapped to lines of at most `width` characters (a table page does not wrap)."""
-    return [line for note in notes for line in textwrap.wrap(note, width)]
+def no_interval_notes(table: Sequence[Sequence[str]]) -> list[str]:
+    """`NO_INTERVAL_NOTE` when a cell of `table` says "no CI", else nothing."""
+    return [NO_INTERVAL_NOTE + "."] if any("no CI)" in c for row in table for c in row) else []
 
 
 def _number(v: float | None, scale: float, digits: int) -> str:
@@ -131,7 +137,9 @@ def interval_words(summary: Summary) -> str:
     rates = summary.intervals.rates
     named = {"wilson": "Wilson score"}.get(rates or "", rates)
     head = f"Rates ({', '.join(summary.intervals.rate_metrics)}): {named} interval; the rest: " if rates else ""
-    return head + "percentile bootstrap over episodes" + (f" ({boot})." if boot else ".")
+    few = (f" Below {b.min_n} episodes (or pairs) a mean has no interval: too few to resample."
+           if b.min_n is not None else "")
+    return head + "percentile bootstrap over episodes" + (f" ({boot})." if boot else ".") + few
 
 
 # ---- one vehicle ---------------------------------------------------------------------------------------
@@ -165,8 +173,22 @@ def vehicle_pages(vehicle: str, summary: Summary, scenarios: Mapping[str, Summar
     out.append((f"{slug}_difficulty", [difficulty_figure(f"{vehicle}: where does each pilot break?", axes,
                                                          {m: style.label(m) for m in pilots}, style.colors,
                                                          subtitle=subtitle)]))
-    out.append((f"{slug}_scenarios", _conditions_pages(vehicle, scenarios, rows, conditions)
-                + _scenario_pages(vehicle, scenarios, style)))
+    out.append((f"{slug}_scenarios", scenario_pages(vehicle, scenarios, rows, conditions, style)))
+    return out
+
+
+def vehicle_summary_pages(vehicle: str, summary: Summary, scenarios: Mapping[str, Summary], style: PilotStyle,
+                          source: str) -> list[tuple[str, list[Figure]]]:
+    """The summary report's pages of one vehicle: the per-pilot table and the paired differences' forest plot.
+
+    Args: as `vehicle_pages`'s.
+    """
+    pilots = style.sorted(list(summary.pilots))
+    where = f"{len(scenarios)} scenario{'s' if len(scenarios) != 1 else ''} of vehicle {vehicle}"
+    slug = f"vehicle_{vehicle}"
+    out = [(f"{slug}_methods", _pilots_pages(vehicle, summary, pilots, style, where, source))]
+    if summary.paired:
+        out.append((f"{slug}_paired", _paired_pages(vehicle, summary, style)[:1]))
     return out
 
 
@@ -177,15 +199,15 @@ def _pilots_pages(vehicle: str, summary: Summary, pilots: list[str], style: Pilo
     spec = list(SUMMARY_ROWS) + [(k, k, 1.0, 3) for k in summary.metrics if k not in keys]
     table = [["episodes"] + [str(stats[m].episodes) for m in pilots]]
     for key, label, scale, digits in spec:
-        if any(key in stats[m].stats for m in pilots):
+        if any(key in stats[m].stats and stats[m].stats[key].n for m in pilots):  # no row nobody has a value in
             table.append([label] + [format_ci(stats[m].stats.get(key), scale, digits) for m in pilots])
     reasons = [", ".join(f"{k}: {v}" for k, v in stats[m].failure_reasons.items()) or "none" for m in pilots]
     table.append(["failure reasons"] + reasons)
     notes = [f"Over the {where}, never pooled with another vehicle; {source}",
              "Cells: mean [95 % confidence interval] over episodes (flight time, path length and energy: successful "
-             "ones only). " + interval_words(summary)]
-    return F.table_pages(f"{vehicle}: per pilot, mean [95 % CI]", ["metric"] + [style.label(m) for m in pilots],
-                         table, rows_per_page=30, notes=wrapped(notes), font_size=8.5)
+             "ones only). " + interval_words(summary), *no_interval_notes(table)]
+    return table_pages(f"{vehicle}: per pilot, mean [95 % CI]", ["metric"] + [style.label(m) for m in pilots],
+                       table, notes=notes, font_size=8.5)
 
 
 def _forest_page(vehicle: str, summary: Summary, pilots: list[str], style: PilotStyle, where: str) -> Figure:
@@ -197,11 +219,16 @@ def _forest_page(vehicle: str, summary: Summary, pilots: list[str], style: Pilot
             ok = st is not None and st.mean is not None
             rows.append(ForestRow(style.label(m), style.color(m), _scaled(st, "mean", scale),
                                   _scaled(st, "ci_low", scale), _scaled(st, "ci_high", scale),
-                                  note=f"n {st.n}" if ok and st is not None else "n/a"))
+                                  note=_n_note(st) if ok and st is not None else "n/a"))
         panels.append(ForestPanel(title, tuple(rows), limits=(-4.0, 104.0) if key in RATE_METRICS else None))
-    subtitle = (f"Per pilot over the {where}: mean and 95 % interval (rates: Wilson; the rest: bootstrap); "
-                f"n = episodes used (time and energy: successful ones).")
+    subtitle = (f"Per pilot over the {where}: mean and 95 % interval (rates: Wilson; the rest: bootstrap, none below "
+                f"{MIN_INTERVAL_N} episodes); n = episodes used (time and energy: successful ones).")
     return forest_figure(f"{vehicle}: summary per pilot", panels, subtitle=subtitle)
+
+
+def _n_note(st: Stat) -> str:
+    """A forest row's note: its n, and "no CI" where it has no interval."""
+    return f"n {st.n}" + (" (no CI)" if st.ci_low is None or st.ci_high is None else "")
 
 
 def _scaled(st: Stat | None, name: str, scale: float) -> float | None:
@@ -216,9 +243,10 @@ def mdd_words(summary: Summary) -> str:
         return "MDD: not recorded in this summary.json (written before it was computed)."
     return (f"MDD (minimum detectable difference): the true mean difference that n paired episodes detect with "
             f"probability {p.power:g} at two-sided alpha {p.alpha:g}: (z_{1 - p.alpha / 2:g} + z_{p.power:g}) x "
-            f"sd / sqrt(n), sd the observed standard deviation of the paired differences (0 where every pair "
-            f"agreed). For rates also the design value before any run: both pilots at {p.design_rate or 0.5:g}, "
-            f"outcomes independent. A smaller true difference is likely to go unseen.")
+            f"sd / sqrt(n), sd the observed standard deviation of the paired differences; n/a where every pair "
+            f"agreed (sd 0 says nothing) or below {MIN_INTERVAL_N} pairs. For rates also the design value before "
+            f"any run: both pilots at {p.design_rate or 0.5:g}, outcomes independent. A smaller true difference is "
+            f"likely to go unseen.")
 
 
 def _paired_pages(vehicle: str, summary: Summary, style: PilotStyle) -> list[Figure]:
@@ -230,16 +258,19 @@ def _paired_pages(vehicle: str, summary: Summary, style: PilotStyle) -> list[Fig
         for p in pairs:
             st = p.stats.get(key)
             excl = st.excludes_zero if st is not None else None
-            mdd = "n/a" if st is None else mdd_cell(st, key, scale, digits).replace(" (no spread)", " †")
+            mdd = "n/a" if st is None or mdd_gap(st) else mdd_cell(st, key, scale, digits)
+            note = "n/a" if st is None else f"n {st.n}, " + (
+                "no CI" if st.mean is not None and (st.ci_low is None or st.ci_high is None) else f"MDD {mdd}")
             rows.append(ForestRow(style.pair_label(p), "0.15", _scaled(st, "mean", scale),
                                   _scaled(st, "ci_low", scale), _scaled(st, "ci_high", scale),
-                                  note=f"MDD {mdd}" + (" *" if excl else ""), hollow=not excl))
+                                  note=note + (" *" if excl else ""), hollow=not excl))
         unit = title.replace("success [%]", "success [% points]").replace("collision [%]", "collision [% points]")
         panels.append(ForestPanel(unit, tuple(rows), zero_line=True))
     subtitle = ("Mean paired difference (first − second; same scenario, episode and seed; time and energy where both "
-                "succeeded) with its 95 % interval (rates: Newcombe; the rest: bootstrap). Filled and * : the "
-                "interval excludes 0. MDD: the smallest difference these pairs detect (alpha 0.05, power 0.8); "
-                "†: every pair agreed, so the observed spread says nothing (see the table's design value).")
+                f"succeeded) with its 95 % interval (rates: Newcombe; the rest: bootstrap, none below {MIN_INTERVAL_N} "
+                f"pairs). Filled and *: the interval excludes 0 (never called below {MIN_INTERVAL_N} pairs). MDD: the "
+                "smallest difference these pairs detect (alpha 0.05, power 0.8); n/a where every pair agreed or "
+                "pairs are too few (see the table).")
     figs = [forest_figure(f"{vehicle}: paired differences", panels, subtitle=subtitle, columns=2)]
     table = []
     for p in pairs:
@@ -252,35 +283,41 @@ def _paired_pages(vehicle: str, summary: Summary, style: PilotStyle) -> list[Fig
     header = ["pair (first − second)", "metric", "pairs", "mean difference [95 % CI]", "excludes 0",
               "MDD", "MDD before any run"]
     notes = ["Rates in percentage points. " + mdd_words(summary),
-             "Intervals: " + ("Newcombe's hybrid score interval for rates, the percentile bootstrap for the rest."
-                              if summary.intervals.paired_rates else "the percentile bootstrap.")]
-    figs += F.table_pages(f"{vehicle}: paired differences and minimum detectable differences", header, table,
-                          rows_per_page=26, notes=wrapped(notes), font_size=7.5)
+             "Intervals: " + ("Newcombe's hybrid score interval for rates, the percentile bootstrap for the rest"
+                              if summary.intervals.paired_rates else "the percentile bootstrap")
+             + f"; below {MIN_INTERVAL_N} pairs no bootstrap interval, and no difference is said to exclude 0.",
+             *no_interval_notes(table)]
+    figs += table_pages(f"{vehicle}: paired differences and minimum detectable differences", header, table,
+                        notes=notes, font_size=7.5, keep_columns=2)
     return figs
 
 
 def _paired_row(pair: str, label: str, st: PairedStat, key: str, scale: float, digits: int) -> list[str]:
     excl = st.excludes_zero
     design = mdd_cell(st, key, scale, digits, design=True) if key in RATE_METRICS else ""
-    return [pair, label, str(st.n), format_ci(st, scale, digits),
-            "n/a" if excl is None else ("yes" if excl else "no"), mdd_cell(st, key, scale, digits), design]
+    called = ("yes" if excl else "no") if excl is not None else (
+        f"n/a (n < {MIN_INTERVAL_N})" if 0 < st.n < MIN_INTERVAL_N else "n/a")
+    return [pair, label, str(st.n), format_ci(st, scale, digits), called, mdd_cell(st, key, scale, digits), design]
 
 
 def mdd_cell(st: PairedStat, key: str, scale: float, digits: int, design: bool = False) -> str:
-    """A paired difference's MDD (or its design value) as a cell: "0 (no spread)" when every pair agreed (the
-    observed spread then says nothing: see the design value), "> 100" for a rate no difference can reach."""
+    """A paired difference's MDD (or its design value) as a cell: "n/a (every pair agreed)" or "n/a (fewer than 10
+    pairs)" where the observed spread says nothing (`compare.results.summary.mdd_gap`, as the command line says
+    it), "> 100" for a rate no difference can reach."""
+    gap = "" if design else mdd_gap(st)
+    if gap:
+        return f"n/a ({gap})"
     value = st.mdd_design if design else st.mdd
     if value is None:
         return "n/a"
-    if not design and st.sd == 0.0:
-        return "0 (no spread)"
     if key in RATE_METRICS and value > 1.0:
         return f"> {scale:.0f}"
     return _number(value, scale, digits)
 
 
-def _conditions_pages(vehicle: str, scenarios: Mapping[str, Summary], rows: Sequence[EpisodeMetrics],
-                      conditions: Mapping[str, ScenarioConditions]) -> list[Figure]:
+def scenario_pages(vehicle: str, scenarios: Mapping[str, Summary], rows: Sequence[EpisodeMetrics],
+                   conditions: Mapping[str, ScenarioConditions], style: PilotStyle) -> list[Figure]:
+    """One vehicle's scenarios: their conditions, then each pilot per scenario (mean [95 % CI]), one flow of pages."""
     table = []
     for name in scenarios:
         c = conditions.get(name)
@@ -295,24 +332,25 @@ def _conditions_pages(vehicle: str, scenarios: Mapping[str, Summary], rows: Sequ
                       str(len(cells)), _number(float(np.median(legs)) if legs.size else None, 1.0, 0)])
     header = ["scenario", "building coverage [%]", "turbulence", "air density [kg/m³]", "density altitude [m]",
               "episodes x seeds", "leg length, median [m]"]
-    notes = ["Building coverage: share of the map's area under building footprints (maps/<scenario>.yaml). "
-             "Density altitude: the ISA altitude with the field's air density."]
-    return F.table_pages(f"{vehicle}: scenarios and their conditions", header, table, rows_per_page=26,
-                         notes=wrapped(notes), font_size=8)
-
-
-def _scenario_pages(vehicle: str, scenarios: Mapping[str, Summary], style: PilotStyle) -> list[Figure]:
-    table = []
+    per_pilot = []
     for name, part in scenarios.items():
         for m in style.sorted(list(part.pilots)):
             ms = part.pilots[m]
             reasons = ", ".join(f"{k} {v}" for k, v in ms.failure_reasons.items()) or "none"
-            table.append([name, style.label(m), str(ms.episodes)]
-                         + [format_ci(ms.stats.get(k), scale, digits) for k, _, scale, digits in SCENARIO_COLUMNS]
-                         + [reasons])
-    header = ["scenario", "pilot", "episodes"] + [h for _, h, *_ in SCENARIO_COLUMNS] + ["failures"]
-    notes = ["Cells: mean [95 % CI] within the scenario (rates: Wilson; the rest: bootstrap)."]
-    return F.table_pages(f"{vehicle}: per scenario", header, table, rows_per_page=24, notes=notes, font_size=7)
+            per_pilot.append([name, style.label(m), str(ms.episodes)]
+                             + [format_ci(ms.stats.get(k), scale, digits) for k, _, scale, digits in SCENARIO_COLUMNS]
+                             + [reasons])
+    pilot_header = ["scenario", "pilot", "episodes"] + [h for _, h, *_ in SCENARIO_COLUMNS] + ["failures"]
+    blocks: list[Block] = [TableBlock(tuple(header), tuple(map(tuple, table)), 8.0,
+                                      caption="The scenarios and their conditions")]
+    blocks.append(TableBlock(tuple(pilot_header), tuple(map(tuple, per_pilot)), 7.5, keep_columns=2,
+                             caption="Each pilot per scenario, mean [95 % CI]") if per_pilot
+                  else Paragraph("No scenario summaries."))
+    notes = ["Building coverage: share of the map's area under building footprints (maps/<scenario>.yaml). "
+             "Density altitude: the ISA altitude with the field's air density.",
+             "Per pilot: mean [95 % CI] within the scenario (rates: Wilson; the rest: bootstrap).",
+             *no_interval_notes(per_pilot)]
+    return flow_pages(f"{vehicle}: per scenario", blocks, notes=notes)
 
 
 def episode_table_pages(vehicle: str, rows: Sequence[EpisodeMetrics], style: PilotStyle,
@@ -330,4 +368,4 @@ def episode_table_pages(vehicle: str, rows: Sequence[EpisodeMetrics], style: Pil
     header = ["scenario", "episode", "seed", "pilot", "outcome", "min clearance [m]", "time [s]", "energy [kJ]"]
     note = (f"{len(rows)} rows of metrics.csv." if len(shown) == len(rows) else
             f"The first {len(shown)} of {len(rows)} rows of metrics.csv (run order); every row is in metrics.csv.")
-    return F.table_pages(f"{vehicle}: per episode", header, table, rows_per_page=26, notes=[note])
+    return table_pages(f"{vehicle}: per episode", header, table, notes=[note], keep_columns=4)

@@ -2,10 +2,11 @@
 
 A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes (`store/`, or
 `episodes/*.npz` in a folder saved before the store: `compare.results.episodes`), `metrics.csv` and
-`summary.json`.  `build_report` writes, in order:
+`summary.json`.  `build_report` writes, in order (`compare.report.title_page` for 1):
 
-1. title page(s) "uam-compare report": task set and version (a benchmark run), scenarios, pilots, software
-   versions, command, date, fairness;
+1. "uam-compare report": the headline, per vehicle and pilot success and collisions with Wilson intervals and
+   the pilots' paired differences; "About this run": task set and version (a benchmark run), scenarios, pilots,
+   notes, fairness, software versions, with no path of the machine that made the run;
 2. per vehicle, never pooled across vehicles (`compare.report.metrics_pages`): per-pilot mean [95 % CI]
    table, summary forest plot, paired differences with their minimum detectable differences, success
    along task difficulty, the scenarios' conditions, per-scenario and per-episode tables (bounded);
@@ -24,40 +25,57 @@ The per-vehicle numbers are summary.json's; a summary.json written before per-ve
 run-wide numbers may pool vehicles), or none, is replaced by the same summary computed from metrics.csv,
 and the pages say so. A pilot shows with run.json's label (a plug-in that cannot be imported where the
 report is built too) and its own colour. It works on an interrupted run (the episodes and metric rows
-present are used; a missing `metrics.csv` is noted instead of failing). The PDF is written under a
-temporary name and renamed; every page is also saved as a PNG under `RUN_DIR/figures/`.
+present are used; a missing `metrics.csv` is noted instead of failing). Every page carries its number, every
+table fits its page (`compare.report.layout`), and the PDF's outline has an entry per section (pypdf writes it:
+matplotlib's PdfPages has no outline). The PDF is written under a temporary name and renamed; every page is also
+saved as a PNG under `RUN_DIR/figures/`. `build_report(..., summary=True)` writes the summary report instead,
+RUN_DIR/report-summary.pdf: the first pages, per vehicle the pilots' table and their paired differences, and
+the failures listed.
 """
 from __future__ import annotations
 
-import csv
 import logging
 import math
-import re
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 from matplotlib import rc_context
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from compare.flying import pilots
 from compare.report import figures as F
+from compare.report.flight_figures import (
+    episode_paths_figure,
+    episode_snapshots_figure,
+    episode_timeseries_figure,
+    failure_paths_figure,
+)
+from compare.report.layout import table_pages, text_pages
 from compare.report.learning_pages import learning_figures
-from compare.report.metrics_pages import SUMMARY_ROWS, PilotStyle, episode_table_pages, format_ci, vehicle_pages
+from compare.report.metrics_pages import (
+    SUMMARY_ROWS,
+    PilotStyle,
+    episode_table_pages,
+    format_ci,
+    vehicle_pages,
+    vehicle_summary_pages,
+)
+from compare.report.pdf_pages import PNG_DPI, PageWriter, add_outline
 from compare.report.sweep_pages import sweep_pages
+from compare.report.title_page import TitleFacts, about_pages, headline_pages, shown_path
+from compare.report.tracker_pages import mapping_pages, tracker_pages
+from compare.report.training_pages import ppo_policies, read_reward_curve, training_figure
 from compare.results.difficulty import scenario_conditions
 from compare.results.episodes import EpisodeEntry, RunEpisodes, open_episodes
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
 from compare.results.metrics import EpisodeMetrics, cell_order, read_metrics_csv
-from compare.results.run_info import PolicyRecord, RunInfo, ScenarioInfo, read_run_info
+from compare.results.run_info import RunInfo, read_run_info
 from compare.results.summary import Summary, read_summary_json, summarize_run
-from rl.policies.folder import PolicyFolder, Provenance
-from uam_fdm.air.shear import ShearLaw, WindShear
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.mapfile import load_map_file
-from uam_fdm.city.plot import missing_glyphs_unsaid, save_figure
 from uam_fdm.episode import Outcome
 from uam_fdm.files.atomic import atomic_path
 
@@ -66,10 +84,11 @@ logger = logging.getLogger(__name__)
 MAX_FAILURE_PLOTS = 6
 MAX_FAILURE_ROWS = 130
 """Failures listed one by one (5 pages); every one is in metrics.csv."""
+SUMMARY_FAILURE_ROWS = 25
+"""Failures listed in the summary report (one page); the full report lists `MAX_FAILURE_ROWS`."""
 DRAWN_SCENARIOS_PER_VEHICLE = 3
 DRAWN_FLIGHTS_PER_SCENARIO = 3
 """Flight pages (three per task) are drawn for this many scenarios per vehicle and tasks per scenario."""
-PNG_DPI = 130
 
 
 @dataclass
@@ -118,45 +137,25 @@ class _Run:
         return self.maps[scenario]
 
 
-def read_reward_curve(path: Path) -> F.RewardCurve | None:
-    """A policy's `reward_curve.csv` as a `RewardCurve`, or None if the file is absent.
-
-    Reads `rl.training.loop`'s format (one row per PPO update: timesteps, mean_episode_reward,
-    train_success_rate, train_collision_rate, train_timeout_rate, train_episodes, difficulty,
-    success_rate, collision_rate, eval_episodes, wall_s; the validation columns empty on rows without
-    an evaluation) and older files with only some of these columns: an absent column or an empty or
-    unreadable cell is NaN. Rows without a timestep (e.g. a half-written last line) are left out.
-
-    Raises:
-        ValueError: the file exists but lacks `timesteps` or `mean_episode_reward`, or has no rows,
-            naming the file.
-    """
-    path = Path(path)
-    if not path.is_file():
-        return None
-    with path.open(newline="", encoding="utf-8") as f:
-        rows = list(csv.DictReader(f))
-    need = ("timesteps", "mean_episode_reward")
-    if not rows or any(k not in rows[0] for k in need):
-        raise ValueError(f"{path}: needs columns {', '.join(need)} and at least one row")
-    names = (*need, "success_rate", *F.CURVE_FIELDS)
-    col = {k: np.array([_float(r.get(k)) for r in rows]) for k in names}
-    keep = np.isfinite(col["timesteps"])
-    if not np.any(keep):
-        raise ValueError(f"{path}: no row has a timestep")
-    return F.RewardCurve(**{k: v[keep] for k, v in col.items()})
+REPORT_NAME = "report.pdf"
+SUMMARY_NAME = "report-summary.pdf"
+"""The full report and the summary report (`build_report(..., summary=True)`), in the run folder."""
 
 
 @F.plain_text
-def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: bool = True) -> Path:
-    """Write the run's PDF report (and its pages as PNGs under RUN_DIR/figures/).
+def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: bool = True,
+                 summary: bool = False) -> Path:
+    """Write the run's PDF report (and, the full one, its pages as PNGs under RUN_DIR/figures/).
 
-    An unreadable (corrupt, truncated) episode file is left out, logged and listed on the failures page.
+    Every page carries its number; the PDF's outline (bookmarks) has an entry per section and page group. An
+    unreadable (corrupt, truncated) episode file is left out, logged and listed on the failures page.
 
     Args:
         run_dir: the run folder.
-        out: the PDF path (default RUN_DIR/report.pdf); written atomically.
+        out: the PDF path (default RUN_DIR/report.pdf, or RUN_DIR/report-summary.pdf); written atomically.
         warn_unreadable: log skipped episode files as warnings (False: at INFO, the caller has warned).
+        summary: a report of a few pages: the headline, the run, per vehicle the pilots' table and their paired
+            differences, and the failures listed (no PNGs are written).
 
     Returns:
         The PDF path.
@@ -168,57 +167,72 @@ def build_report(run_dir: Path, out: Path | None = None, *, warn_unreadable: boo
     run = _make_run(run_dir, read_run_info(run_dir))
     run.skip_log_level = logging.WARNING if warn_unreadable else logging.INFO
     root = run_dir if out is None else None  # the run's own report: no link in the run folder followed
-    out = Path(out) if out is not None else run_dir / "report.pdf"
+    out = Path(out) if out is not None else run_dir / (SUMMARY_NAME if summary else REPORT_NAME)
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = _episode_groups(run)
+    rows, why = _read_metrics(run_dir / "metrics.csv")
+    parts, source, why = _parts_or_why(run, rows, why)
     with atomic_path(out, suffix=".pdf.tmp", root=root) as tmp:
         # TrueType (Type 42) fonts: text stays searchable and journals accept the pages
-        metadata = {"Title": "uam-compare report", "Creator": "uam-compare",
+        metadata = {"Title": "uam-compare report" + (" (summary)" if summary else ""), "Creator": "uam-compare",
                     "Subject": run.info.command, "CreationDate": None}
         with rc_context({"pdf.fonttype": 42}), PdfPages(tmp, metadata=metadata) as pdf:
-            pages = _PageWriter(pdf, run_dir / "figures", run_dir)
-            n_present = sum(len(paths) for paths in groups.values())
-            pages.add_all(F.text_pages("uam-compare report", _title_blocks(run, n_present)), "title")
-            rows, why = _read_metrics(run_dir / "metrics.csv")
-            for name, figs in _metrics_pages(run, rows, why):
-                pages.add_all(figs, name)
-            for name, fig in sweep_pages(run.info, rows or [], run.style()):  # a sweep run's rates per step
-                pages.add(fig, name)
-            drawn, left_out = _drawn_groups(run, groups, rows)
-            if left_out:
-                pages.add_all(F.text_pages("Flights", left_out), "flights_drawn")
-            failures = _episode_pages(run, drawn, pages)
-            policies = ppo_policies(run.info)
-            for k, pol in enumerate(policies or [None]):  # one convergence page per policy flown
-                suffix = "" if k == 0 or pol is None else f"_{pol.vehicle or k}"
-                pages.add(_training_figure(pol, len(policies) > 1), f"training_reward_curve{suffix}")
-                if pol is not None and pol.policy_dir:  # beside it, its recorded flights (none: no page)
-                    title = "Learning in pictures" + (f" ({pol.vehicle})" if len(policies) > 1 and pol.vehicle else "")
-                    pages.add_all(learning_figures(Path(pol.policy_dir), title), f"learning_in_pictures{suffix}")
-            _failure_pages(run, failures, rows, pages)
+            pages = _PageWriter(pdf, None if summary else run_dir / "figures", run_dir)
+            facts = TitleFacts(run_dir, run.info, run.label, sum(len(p) for p in groups.values()),
+                               _planned_episodes(run), None if parts is None else
+                               {v: part.summary for v, part in parts.items()}, run.style(), source, why)
+            pages.add_all(headline_pages(facts, summary), "title")
+            pages.add_all(about_pages(facts, compact=summary), "about", "About this run")
+            if summary:
+                _summary_pages(run, rows, parts, source, why, pages)
+            else:
+                _full_pages(run, groups, rows, parts, source, why, pages)
+        add_outline(tmp, pages.outline)
+    pages.remove_stale_pngs()
     logger.info("report %s: %d pages", out, pages.count)
     return out
 
 
+def _full_pages(run: _Run, groups: dict[tuple[str, int, int], list[EpisodeEntry]], rows: list[EpisodeMetrics] | None,
+                parts: dict[str, _VehiclePart] | None, source: str, why: str, pages: _PageWriter) -> None:
+    """The full report after its first pages: metrics per vehicle, tracker, sweep, flights, training, failures."""
+    for section, name, figs in _metrics_pages(run, rows, parts, source, why):
+        pages.add_all(figs, name, section)
+    for name, fig in sweep_pages(run.info, rows or [], run.style()):  # a sweep run's rates per step
+        pages.add(fig, name, "Robustness sweep")
+    drawn, left_out = _drawn_groups(run, groups, rows)
+    if left_out:
+        pages.add_all(text_pages("Flights", left_out), "flights_drawn", "Flights")
+    failures = _episode_pages(run, drawn, pages)
+    policies = ppo_policies(run.info)
+    for k, pol in enumerate(policies or [None]):  # one convergence page per policy flown
+        suffix = "" if k == 0 or pol is None else f"_{pol.vehicle or k}"
+        pages.add(training_figure(pol, len(policies) > 1, lambda p: _shown(run, p)), f"training_reward_curve{suffix}",
+                  "Training")
+        if pol is not None and pol.policy_dir:  # beside it, its recorded flights (none: no page)
+            title = "Learning in pictures" + (f" ({pol.vehicle})" if len(policies) > 1 and pol.vehicle else "")
+            pages.add_all(learning_figures(Path(pol.policy_dir), title), f"learning_in_pictures{suffix}", "Training")
+    _failure_pages(run, failures, rows, pages)
+
+
+def _summary_pages(run: _Run, rows: list[EpisodeMetrics] | None, parts: dict[str, _VehiclePart] | None,
+                   source: str, why: str, pages: _PageWriter) -> None:
+    """The summary report after its first pages: per vehicle the pilots' table and their paired differences, then
+    the failures listed."""
+    if parts is None:
+        pages.add_all(text_pages("Metrics", [("p", why)]), "metrics", "Metrics")
+        return
+    style = run.style()
+    for vehicle, part in parts.items():
+        for name, figs in vehicle_summary_pages(vehicle, part.summary, part.scenarios, style, source):
+            pages.add_all(figs, name, vehicle)
+    _failure_pages(run, [], rows, pages, draw=False)
+
+
+_PageWriter = PageWriter  # its name here before it had a module of its own
+
+
 # ---- assembly helpers -----------------------------------------------------------------------------------
-class _PageWriter:
-    """Adds figures to the PDF and saves each as a PNG, then releases it."""
-
-    def __init__(self, pdf: PdfPages, fig_dir: Path, run_dir: Path | None = None) -> None:
-        self.pdf, self.fig_dir, self.run_dir, self.count = pdf, fig_dir, run_dir, 0  # run_dir: no link in it followed
-
-    def add(self, fig: Figure, name: str) -> None:
-        save_figure(fig, self.fig_dir / f"{_slug(name)}.png", dpi=PNG_DPI, root=self.run_dir)
-        with missing_glyphs_unsaid():
-            self.pdf.savefig(fig)
-        fig.clear()  # Figure-API figures are not registered with pyplot: clearing frees their artists
-        self.count += 1
-
-    def add_all(self, figs: Sequence[Figure], name: str) -> None:
-        for k, fig in enumerate(figs):
-            self.add(fig, name if len(figs) == 1 else f"{name}_{k + 1}")
-
-
 def _make_run(run_dir: Path, info: RunInfo) -> _Run:
     names = list(info.pilots)
     for s in info.scenarios:
@@ -257,10 +271,6 @@ def _pilot_rank(run: _Run, pilot: str) -> int:
     return run.pilots.index(pilot) if pilot in run.pilots else len(run.pilots)
 
 
-def _slug(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
-
-
 def _float(v: object) -> float:
     try:
         return float(v)  # type: ignore[arg-type]
@@ -273,82 +283,21 @@ def _fmt(v: object, digits: int, scale: float = 1.0) -> str:
     return f"{f * scale:.{digits}f}" if math.isfinite(f) else "n/a"
 
 
-def _num(v: float | None) -> str:
-    """A recorded number as written short ("500" for 500.0), "n/a" when not recorded."""
-    return "n/a" if v is None else f"{v:g}"
-
-
 # ---- 1. title -------------------------------------------------------------------------------------------
 def _planned_episodes(run: _Run) -> int:
     return sum((s.episodes or 0) * len(s.seeds or [0]) * len(s.pilots or run.pilots) for s in run.info.scenarios)
-
-
-def _shear_words(shear: WindShear | None) -> str:
-    """The steady wind's profile from run.json's wind.shear (absent in runs before it existed: uniform)."""
-    if shear is None or shear.law is ShearLaw.UNIFORM:
-        return "the same at every height"
-    ref = _fmt(shear.reference_height_m, 0)
-    if shear.law is ShearLaw.POWER:
-        return f"given at {ref} m, power-law shear alpha {_fmt(shear.exponent, 2)}"
-    return f"given at {ref} m, log-law shear z0 {_fmt(shear.roughness_m, 2)} m"
-
-
-def _title_blocks(run: _Run, n_present: int) -> list[tuple[str, str]]:
-    info = run.info
-    planned = _planned_episodes(run)
-    coverage = f"Episodes in this report: {n_present} of {planned} planned."
-    if n_present < planned:
-        coverage += " The run is incomplete (interrupted): the report covers the episodes saved so far."
-    blocks = [("p", f"Created {info.created_utc or 'n/a'} by: {info.command or 'n/a'}"),
-              ("p", f"Run folder: {run.run_dir}"), ("p", coverage), ("h", "Scenarios")]
-    if info.task_set is not None:  # a benchmark set: its version names the exact tasks flown
-        ts = info.task_set
-        blocks.insert(1, ("p", f"Task set {ts.name}, version {ts.version}: {ts.description}"))
-    for s in info.scenarios:
-        blocks += _scenario_blocks(run, s)
-    blocks.append(("h", "Pilots"))
-    for m, cfg in info.pilots.items():
-        blocks.append(("p", f"{run.label(m)} [{m}]: {cfg.description}"))
-        for pol in ppo_policies(info, m):  # a pilot that flies policies: one per vehicle
-            rate = f"; decides at {pol.decision_hz:g} Hz" if pol.decision_hz else ""
-            who = f"for {pol.vehicle}: " if pol.vehicle else ""
-            blocks.append(("p", f"    {who}policy {pol.policy_dir}{rate}"))
-    if info.notes:  # e.g. cells left out, the pilots' decision rates
-        blocks += [("h", "Notes"), *(("p", n) for n in info.notes)]
-    blocks += [("h", "Software versions"),
-               ("p", " · ".join(f"{k} {v}" for k, v in info.versions.items()) or "n/a"),
-               ("h", "Fairness"), ("p", info.fairness or "n/a")]
-    return blocks
-
-
-def _scenario_blocks(run: _Run, s: ScenarioInfo) -> list[tuple[str, str]]:
-    atm, wind = s.atmosphere, s.wind
-    steady = "n/a" if wind.steady_enu_m_s is None else str(list(wind.steady_enu_m_s))
-    return [
-        ("p", f"{s.name}: {s.description}"),
-        ("p", f"    map {s.map_name} · vehicle {s.vehicle} ({s.vehicle_summary or 'n/a'})"),
-        ("p", (f"    atmosphere: field elevation {_fmt(atm.elevation_m, 0)} m, "
-               f"ISA offset {_fmt(atm.isa_offset_k, 1)} K, "
-               f"density {_fmt(atm.density_kg_m3, 3)} kg/m³")),
-        ("p", (f"    wind: steady {steady} m/s (ENU), {_shear_words(wind.shear)}, "
-               f"turbulence {wind.turbulence or 'n/a'}")),
-        ("p", f"    sensing {s.sensing} · map error {s.map_error} (docs/sensing.md)"),
-        ("p", (f"    {_num(s.episodes)} episodes × seeds {list(s.seeds)}; pilots "
-               f"{', '.join(run.label(m) for m in s.pilots)}; "
-               f"physics {_num(s.physics_hz)} Hz, control {_num(s.control_hz)} Hz; "
-               f"source {s.source or 'n/a'}"))]
 
 
 # ---- 2. metrics -----------------------------------------------------------------------------------------
 def _read_metrics(path: Path) -> tuple[list[EpisodeMetrics] | None, str]:
     """The rows of metrics.csv, or None and why (the file is missing or unreadable: logged)."""
     if not path.is_file():
-        return None, f"metrics.csv was not found in {path.parent}"
+        return None, "metrics.csv was not found in the run folder"
     try:
         return read_metrics_csv(path), ""
     except (OSError, ValueError) as exc:
         logger.warning("%s unreadable (%s): the metrics tables are skipped", path, exc)
-        return None, f"metrics.csv could not be read ({exc})"
+        return None, f"metrics.csv could not be read ({str(exc).replace(str(path.parent) + os.sep, '')})"
 
 
 def _read_summary(path: Path) -> Summary | None:
@@ -361,12 +310,12 @@ def _read_summary(path: Path) -> Summary | None:
         return None
 
 
-def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> list[tuple[str, list[Figure]]]:
-    """Per vehicle its metrics pages (`compare.report.metrics_pages`), then the tracker pages."""
+def _parts_or_why(run: _Run, rows: list[EpisodeMetrics] | None, why: str
+                  ) -> tuple[dict[str, _VehiclePart] | None, str, str]:
+    """Each vehicle's part (`_vehicle_parts`) and where its numbers come from; or None and why there are none."""
     if rows is None:
-        note = (f"{why}: the metrics tables are skipped. "
-                "The uam-compare CLI recomputes metrics from the saved episodes before building the report.")
-        return [("metrics", F.text_pages("Metrics", [("p", note)]))]
+        return None, "", (f"{why}: the metrics tables are skipped. The uam-compare CLI recomputes metrics from the "
+                          "saved episodes before building the report.")
     for m in dict.fromkeys(r.method for r in rows):  # a pilot only metrics.csv names still gets a label and colour
         if m not in run.pilots:
             run.add_pilot(m)
@@ -374,16 +323,28 @@ def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, why: str) -> li
         parts, source = _vehicle_parts(run, rows)
     except ValueError as exc:  # e.g. a hand-edited metrics.csv with a cell twice
         logger.warning("metrics not summarised (%s)", exc)
-        return [("metrics", F.text_pages("Metrics", [("p", f"The metrics could not be summarised: {exc}")]))]
+        return None, "", f"The metrics could not be summarised: {exc}"
+    return parts, source, ""
+
+
+def _metrics_pages(run: _Run, rows: list[EpisodeMetrics] | None, parts: dict[str, _VehiclePart] | None,
+                   source: str, why: str) -> list[tuple[str, str, list[Figure]]]:
+    """(section, page name, figures): per vehicle its metrics pages (`compare.report.metrics_pages`), then the
+    tracker pages; a page saying why when there are no metrics."""
+    if rows is None or parts is None:
+        return [("", "metrics", text_pages("Metrics", [("p", why)]))]
     style = run.style()
     conditions = {s.name: scenario_conditions(s, run.map_of(s.name)) for s in run.info.scenarios}
-    out: list[tuple[str, list[Figure]]] = []
+    out: list[tuple[str, str, list[Figure]]] = []
     for vehicle, part in parts.items():
-        out += vehicle_pages(vehicle, part.summary, part.scenarios, part.rows, conditions, style, source)
-        out.append((f"vehicle_{vehicle}_episodes", episode_table_pages(vehicle, part.rows, style, run.scenarios)))
-    tracker = [fig for m in run.pilots for fig in _tracker_pages(run, rows, m)]
+        out += [(vehicle, name, figs) for name, figs in
+                vehicle_pages(vehicle, part.summary, part.scenarios, part.rows, conditions, style, source)]
+        out.append((vehicle, f"vehicle_{vehicle}_episodes",
+                    episode_table_pages(vehicle, part.rows, style, run.scenarios)))
+    tracker = [fig for m in run.pilots for fig in (*tracker_pages(run.label(m), rows, m),
+                                                    *mapping_pages(run.label(m), rows, m))]
     if tracker:
-        out.append(("metrics_tracker", tracker))
+        out.append(("", "metrics_tracker", tracker))
     return out
 
 
@@ -421,64 +382,6 @@ def _vehicle_parts(run: _Run, rows: list[EpisodeMetrics]) -> tuple[dict[str, _Ve
                             {s: by_scenario[s] for s in run.scenarios if vehicle_of.get(s) == v and s in by_scenario},
                             [r for r in rows if r.vehicle == v])
             for v in order if v in per_vehicle}, source
-
-
-def _column(rows: Sequence[EpisodeMetrics], name: str) -> np.ndarray:
-    """One metrics.csv column of `rows` as floats (booleans as 0/1)."""
-    return np.array([float(getattr(r, name)) for r in rows])
-
-
-def _tracker_pages(run: _Run, rows: list[EpisodeMetrics], pilot: str) -> list[Figure]:
-    """A pilot's tracker per scenario (margins flown vs clearance kept, solver, replans), from metrics.csv;
-    nothing for a pilot without tracker columns (e.g. the learned pilot), one that did not fly, or a file
-    that predates the tracker columns."""
-    mine = [r for r in rows if r.method == pilot]
-    if not mine or all(not math.isfinite(r.planner_margin_m) for r in mine):
-        return []
-    table = [_tracker_row(scenario, [r for r in mine if r.scenario == scenario])
-             for scenario in dict.fromkeys(r.scenario for r in mine)]
-    header = ["scenario", "episodes", "success [%]", "margin rest-cruise / MPC [m]", "min clearance [m]",
-              "min clearance / margin", "tracking RMS [m]", "tracking max [m]", "solve median [ms]",
-              "solve p95 max [ms]", "failures", "replans track / clear", "plan attempts max / >1"]
-    notes = [("Margins: from the vehicle's measured tracking error at each reference speed in the scenario's "
-              "forecast turbulence and air, narrowing from cruise towards start and goal (docs/planner.md). "
-              "Min clearance / margin: over the margin in force where the vehicle was. Target: >= 0.5."),
-             ("Plan attempts: planning attempts at reset (1: the first planner found the path; more: the "
-              "escalation ladder of planners/ladder.py), largest / episodes with more than one."),
-             ("Min clearance: least over the episodes. Tracking: distance to the reference curve (RMS: mean over "
-              "episodes; max: over all)."),
-             ("Solve: median of the episodes' medians, largest episode p95. Failures and replans: summed over the "
-              "episodes.")]
-    return F.table_pages(f"Metrics: the {run.label(pilot)} tracker per scenario", header, table,
-                         rows_per_page=26, notes=notes, font_size=7)
-
-
-def _tracker_row(scenario: str, rs: list[EpisodeMetrics]) -> list[str]:
-    """One scenario's row of the tracker table."""
-    def agg(f, x: np.ndarray, digits: int) -> str:
-        x = x[np.isfinite(x)]
-        return f"{f(x):.{digits}f}" if x.size else "n/a"
-
-    col = {k: _column(rs, k) for k in
-           ("success", "min_clearance_m", "planner_margin_m", "mpc_margin_m", "tracking_rms_m", "tracking_max_m",
-            "mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking", "replans_clearance",
-            "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min")}
-    # the margin in force where the vehicle was when recorded (speed-dependent), else the one margin flown
-    local = col["clearance_over_margin_min"]
-    ratio = np.where(np.isfinite(local), local, col["min_clearance_m"] / col["planner_margin_m"])
-    floor = col["planner_margin_floor_m"]
-    margins = (agg(np.max, col["planner_margin_m"], 2) if not np.any(np.isfinite(floor)) else
-               agg(np.min, floor, 2) + "-" + agg(np.max, col["planner_margin_m"], 2))
-    attempts = col["planner_attempts"]
-
-    return [scenario, str(len(rs)), agg(np.mean, 100.0 * col["success"], 0),
-            margins + " / " + agg(np.max, col["mpc_margin_m"], 2),
-            agg(np.min, col["min_clearance_m"], 2), agg(np.min, ratio, 2),
-            agg(np.mean, col["tracking_rms_m"], 3), agg(np.max, col["tracking_max_m"], 2),
-            agg(np.median, col["mpc_solve_ms_median"], 2), agg(np.max, col["mpc_solve_ms_p95"], 2),
-            agg(np.sum, col["mpc_failures"], 0),
-            agg(np.sum, col["replans_tracking"], 0) + " / " + agg(np.sum, col["replans_clearance"], 0),
-            agg(np.max, attempts, 0) + " / " + agg(np.sum, attempts > 1, 0)]
 
 
 # ---- 3. episodes ----------------------------------------------------------------------------------------
@@ -532,88 +435,26 @@ def _episode_pages(run: _Run, groups: Mapping[tuple[str, int, int], list[Episode
         bmap = run.map_of(scenario)
         title = f"Episode {scenario} #{ep} seed {seed}" + ("" if bmap is not None else " (map file missing)")
         name = f"episode_{scenario}__ep{ep:03d}__s{seed}"
-        pages.add(F.episode_paths_figure(f"{title}: paths", traces, bmap), f"{name}_paths")
-        pages.add(F.episode_timeseries_figure(f"{title}: clearance, speed and rotors over time", traces),
-                  f"{name}_timeseries")
-        pages.add(F.episode_snapshots_figure(f"{title}: snapshots over time", traces, bmap),
-                  f"{name}_snapshots")
+        pages.add(episode_paths_figure(f"{title}: paths", traces, bmap), f"{name}_paths", "Flights")
+        pages.add(episode_timeseries_figure(f"{title}: clearance, speed and rotors over time", traces),
+                  f"{name}_timeseries", "Flights", bookmark=False)
+        pages.add(episode_snapshots_figure(f"{title}: snapshots over time", traces, bmap),
+                  f"{name}_snapshots", "Flights", bookmark=False)
     return failures
 
 
-# ---- 4. training ----------------------------------------------------------------------------------------
-def ppo_policies(info: RunInfo, pilot: str | None = None) -> list[PolicyRecord]:
-    """The policies run.json records (vehicle, policy_dir, decision_hz), one per vehicle, of `pilot`
-    (None: of every pilot that flies policies); a run written before policies per vehicle has one,
-    without its vehicle."""
-    return [pol for m in ([pilot] if pilot is not None else list(info.pilots)) for pol in info.policies(m)]
-
-
-def _training_figure(policy: PolicyRecord | None, name_vehicle: bool) -> Figure:
-    title = "PPO training: reward convergence"
-    if name_vehicle and policy is not None and policy.vehicle:
-        title += f" ({policy.vehicle})"
-    policy_dir = policy.policy_dir if policy is not None else ""
-    if not policy_dir:
-        return F.reward_curve_figure(title, None,
-                                     "No PPO policy folder is recorded in run.json: no reward curve.")
-    folder = PolicyFolder(Path(policy_dir))
-    path = folder.reward_curve
-    try:
-        curve = read_reward_curve(path)
-    except (OSError, ValueError) as exc:
-        return F.reward_curve_figure(title, None, f"The reward curve could not be read: {exc}")
-    if curve is None:
-        return F.reward_curve_figure(title, None, f"No reward curve: {path} does not exist.")
-    try:
-        prov = folder.provenance()  # None: an older policy folder without provenance, no marker
-    except ValueError:
-        prov = None  # unreadable: drawn as without
-    kept = prov.kept_timesteps if prov is not None else None
-    return F.reward_curve_figure(title, curve, _training_note(path, curve, prov),
-                                 kept_timesteps=float(kept) if kept is not None else None,
-                                 subtitle=_training_subtitle(prov, curve))
-
-
-def _training_subtitle(prov: Provenance | None, curve: F.RewardCurve) -> str:
-    method = (prov.method if prov is not None else None) or ""
-    # a run still training has no provenance yet; its per-update columns say rl.training.loop wrote it (plain PPO)
-    assert curve.difficulty is not None  # RewardCurve.__post_init__ fills an absent column with NaN
-    per_update = prov is None and bool(np.any(np.isfinite(curve.difficulty)))
-    if method.lower() == "ppo from scratch" or per_update:
-        what = "Plain PPO from scratch (no demonstrations, no pre-trained weights)"
-    elif method:
-        what = f"Training method: {method}"
-    elif prov is not None and prov.preset:
-        what = f"Training preset {prov.preset!r} (an older policy folder: method not recorded)"
-    else:
-        what = "Training method not recorded (an older policy folder)"
-    return (f"{what}.\nTraining episodes (training cities, at the curriculum's difficulty) vs. "
-            "validation (held-out cities, full difficulty).")
-
-
-def _training_note(path: Path, curve: F.RewardCurve, prov: Provenance | None) -> str:
-    parts = [f"from {path}"]
-    steps = _float(prov.timesteps if prov is not None else None)
-    wall = _float(prov.wall_time_s if prov is not None else None)
-    if not math.isfinite(steps):  # no provenance (a run still in progress): its last row
-        steps = float(curve.timesteps[-1])
-        assert curve.wall_s is not None  # RewardCurve.__post_init__ fills an absent column with NaN
-        wall = float(curve.wall_s[-1])
-        parts.append("no provenance.json (run in progress?)")
-    if math.isfinite(steps):
-        parts.append(f"{steps / 1e6:.1f} M timesteps"
-                     + (f" in {wall / 60:.0f} min" if math.isfinite(wall) else ""))
-    seed = prov.seed if prov is not None else None
-    if seed is not None:
-        parts.append(f"seed {seed}")
-    return " · ".join(parts)
+def _shown(run: _Run, path: Path) -> str:
+    """A path as the report shows it (`compare.report.title_page.shown_path`)."""
+    return shown_path(str(path), run.run_dir, run.info.command)
 
 
 # ---- 5. failures ----------------------------------------------------------------------------------------
 def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeMetrics] | None,
-                   pages: _PageWriter) -> None:
-    """The failures table (the first `MAX_FAILURE_ROWS`, run order) and top-down views of up to six; `failures`:
-    the failed flights drawn (their detail is known), the others come from metrics.csv."""
+                   pages: _PageWriter, draw: bool = True) -> None:
+    """The failures table (the first `MAX_FAILURE_ROWS`, run order) and top-down views of up to six; `failures`: the
+    failed flights drawn (their detail is known), the others come from metrics.csv. `draw` False (the summary
+    report): the first `SUMMARY_FAILURE_ROWS` listed, no views."""
+    most = MAX_FAILURE_ROWS if draw else SUMMARY_FAILURE_ROWS
     by_key = {cell_order(r): r for r in rows or []}
     entries: list[tuple[tuple, list[str]]] = []
     traced: dict[tuple[str, int, str, int], F.FlightTrace] = {}
@@ -635,15 +476,17 @@ def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeM
     notes = [f"Unreadable episode files skipped: {', '.join(run.unreadable)}"] if run.unreadable else []
     _failed_cell_pages(run, pages)
     if not entries:
-        pages.add_all(F.text_pages("Failures", [("p", "No failures: every episode in this report succeeded.")]
-                                   + [("p", n) for n in notes]), "failures")
+        pages.add_all(text_pages("Failures", [("p", "No failures: every episode in this report succeeded.")]
+                                 + [("p", n) for n in notes]), "failures", "Failures")
         return
-    if len(entries) > MAX_FAILURE_ROWS:
-        notes.insert(0, f"The first {MAX_FAILURE_ROWS} of {len(entries)} failures (run order); every one is in "
+    if len(entries) > most:
+        notes.insert(0, f"The first {most} of {len(entries)} failures (run order); every one is in "
                         f"metrics.csv.")
     header = ["scenario", "episode", "seed", "pilot", "failure reason", "detail", "time [s]"]
-    pages.add_all(F.table_pages("Failures", header, [e for _, e in entries[:MAX_FAILURE_ROWS]], notes=notes),
-                  "failures_table")
+    pages.add_all(table_pages("Failures", header, [e for _, e in entries[:most]], notes=notes,
+                              keep_columns=4), "failures_table", "Failures")
+    if not draw:
+        return
     shown = list(failures[:MAX_FAILURE_PLOTS])
     for key in sorted((k for k in untraced if k in run.files), key=lambda k: _cell_rank(run, k)):
         if len(shown) >= MAX_FAILURE_PLOTS:
@@ -654,8 +497,9 @@ def _failure_pages(run: _Run, failures: list[F.FlightTrace], rows: list[EpisodeM
     total = len(failures) + len(untraced)
     if shown:
         count = f"{len(shown)} of {total}" if total > len(shown) else f"{len(shown)}"
-        pages.add(F.failure_paths_figure(f"Failures: where the flights ended ({count})",
-                                         [(t, run.map_of(t.episode.key.scenario)) for t in shown]), "failures_paths")
+        pages.add(failure_paths_figure(f"Failures: where the flights ended ({count})",
+                                       [(t, run.map_of(t.episode.key.scenario)) for t in shown]), "failures_paths",
+                  "Failures")
 
 
 def _failed_cell_pages(run: _Run, pages: _PageWriter) -> None:
@@ -674,7 +518,8 @@ def _failed_cell_pages(run: _Run, pages: _PageWriter) -> None:
     if len(failed) > MAX_FAILURE_ROWS:
         notes.append(f"The first {MAX_FAILURE_ROWS} of {len(failed)} (run order).")
     header = ["scenario", "episode", "seed", "pilot", "kind", "reason", "after [s]", "where"]
-    pages.add_all(F.table_pages("Failed cells: no episode", header, table, notes=notes), "failed_cells")
+    pages.add_all(table_pages("Failed cells: no episode", header, table, notes=notes, keep_columns=4), "failed_cells",
+                  "Failures")
 
 
 def _cell_rank(run: _Run, cell: tuple[str, int, str, int]) -> tuple:
@@ -701,4 +546,5 @@ def _short(text: str, n: int = 70) -> str:
     return text if len(text) <= n else text[:n - 1] + "…"
 
 
-__all__ = ["SUMMARY_ROWS", "build_report", "format_ci", "read_reward_curve"]
+__all__ = ["PNG_DPI", "REPORT_NAME", "SUMMARY_NAME", "SUMMARY_ROWS", "build_report", "format_ci", "ppo_policies",
+           "read_reward_curve"]

@@ -17,11 +17,19 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from compare.report.figures import PAGE_SIZE_IN
+from compare.report.layout import PAGE_SIZE_IN, content_width_in, text_width_pt, wrap_to_width
 from compare.results.difficulty import DifficultyAxis
 
+NOTE_PT = 7.5
+LABEL_PT = 8.5
+"""Font sizes of a forest row's note and label [pt]."""
 LABEL_CHARS = 40
 """Row labels of a forest plot are shortened to this many characters."""
+
+
+def subtitle_lines(text: str, size: float = 8.5) -> str:
+    """A figure's subtitle broken into lines that fit the page's text column (italic at `size`)."""
+    return "\n".join(wrap_to_width(text, 72.0 * content_width_in(), size, style="italic"))
 
 
 @dataclass(frozen=True)
@@ -68,12 +76,14 @@ def forest_figure(title: str, panels: Sequence[ForestPanel], *, subtitle: str = 
     fig = Figure(figsize=PAGE_SIZE_IN)
     fig.suptitle(title, fontsize=15, fontweight="bold", y=0.97)
     if subtitle:
-        fig.text(0.5, 0.925, subtitle, ha="center", va="top", fontsize=8.5, style="italic", wrap=True)
+        fig.text(0.5, 0.925, subtitle_lines(subtitle), ha="center", va="top", fontsize=8.5, style="italic")
     rows = max(1, math.ceil(len(panels) / columns))
-    longest = min(max((len(r.label) for p in panels for r in p.rows), default=8), LABEL_CHARS)
-    # room [figure fraction] left of each panel for its row labels (8.5 pt: about 0.0052 a character) and
-    # right of it for the notes
-    label, note = 0.015 + 0.0052 * longest, 0.075
+    # room [figure fraction] left of each panel for its row labels and right of it for the notes, as measured
+    widest_label = max((text_width_pt(_short_label(r.label), LABEL_PT) for p in panels for r in p.rows),
+                       default=text_width_pt("x" * 8, LABEL_PT))
+    widest_note = max((text_width_pt(r.note, NOTE_PT) for p in panels for r in p.rows), default=0.0)
+    label = 0.012 + widest_label / 72.0 / PAGE_SIZE_IN[0]
+    note = max(0.075, 0.012 + widest_note / 72.0 / PAGE_SIZE_IN[0])
     left, right = label + 0.01, 0.99 - note
     width = (right - left - (columns - 1) * (label + note)) / columns
     grid = fig.add_gridspec(rows, columns, left=left, right=right, top=0.84, bottom=0.12,
@@ -86,6 +96,10 @@ def forest_figure(title: str, panels: Sequence[ForestPanel], *, subtitle: str = 
     return fig
 
 
+def _short_label(label: str) -> str:
+    return textwrap.shorten(label, LABEL_CHARS, placeholder="…")
+
+
 def _forest_panel(ax: Axes, panel: ForestPanel) -> None:
     n = len(panel.rows)
     ys = np.arange(n)[::-1]  # first row on top
@@ -96,12 +110,12 @@ def _forest_panel(ax: Axes, panel: ForestPanel) -> None:
             ax.errorbar([row.mean], [y], xerr=[[row.mean - lo], [hi - row.mean]], fmt="o", color=row.color,
                         markerfacecolor="white" if row.hollow else row.color, markersize=7, capsize=4, lw=1.6)
         ax.annotate(row.note or ("n/a" if row.mean is None else ""), xy=(1.0, y), xycoords=("axes fraction", "data"),
-                    xytext=(5, 0), textcoords="offset points", va="center", fontsize=7.5)
+                    xytext=(5, 0), textcoords="offset points", va="center", fontsize=NOTE_PT)
     if panel.zero_line:
         ax.axvline(0.0, color="0.3", lw=0.9, ls="--")
     if panel.limits is not None:
         ax.set_xlim(*panel.limits)
-    ax.set_yticks(ys, [textwrap.shorten(r.label, LABEL_CHARS, placeholder="…") for r in panel.rows], fontsize=8.5)
+    ax.set_yticks(ys, [_short_label(r.label) for r in panel.rows], fontsize=LABEL_PT)
     ax.set_ylim(-0.7, n - 0.3)
     ax.set_title(panel.title, fontsize=10)
     ax.grid(axis="x", color="0.9")
@@ -120,7 +134,7 @@ def difficulty_figure(title: str, axes: Sequence[DifficultyAxis], labels: Mappin
     fig = Figure(figsize=PAGE_SIZE_IN)
     fig.suptitle(title, fontsize=15, fontweight="bold", y=0.97)
     if subtitle:
-        fig.text(0.5, 0.925, subtitle, ha="center", va="top", fontsize=8.5, style="italic", wrap=True)
+        fig.text(0.5, 0.925, subtitle_lines(subtitle), ha="center", va="top", fontsize=8.5, style="italic")
     grid = fig.add_gridspec(2, 2, left=0.07, right=0.98, top=0.84, bottom=0.14, wspace=0.18, hspace=0.6)
     pilots: list[str] = []
     for k, axis in enumerate(axes[:4]):

@@ -33,13 +33,13 @@ CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
                    "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
                    "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min")
-MAPPING_METRICS = ("replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
-                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
-"""The classical pilot's columns of flying on its sensors: mapping and replanning in flight (NaN at perfect sensing
-and for a pilot without them); in metrics.csv, not yet in the summary."""
 """The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
 pilot like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
+MAPPING_METRICS = ("replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
+                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
+"""The classical pilot's columns of flying on its sensors: mapping and replanning in flight (NaN at perfect sensing
+and for a pilot without them)."""
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,12 @@ built from the two Wilson intervals and the correlation of the pairs (as Fagerla
 "Statistical Analysis of Contingency Tables", 2017, ch. 8, give it: "Newcombe square-and-add"). Other
 means get the percentile bootstrap (`Bootstrap`).
 
+Below `MIN_INTERVAL_N` values (episodes, or pairs of episodes) no bootstrap interval is given: resampling one
+value gives a zero-width "interval" and resampling two to five gives little more than their range, which is no
+95 % interval at all. The mean is still reported, with its n; a rate keeps its Wilson interval (and a paired
+difference of rates its Newcombe interval), whose coverage holds at small n; but no difference is said to
+exclude zero and no MDD is derived from the observed spread below it (`compare.results.summary`).
+
 The minimum detectable difference (MDD) of a paired comparison at n pairs is the true mean difference a
 two-sided test at level alpha detects with the given power: (z_{1-alpha/2} + z_{power}) * sd_d / sqrt(n),
 sd_d the standard deviation of the paired differences (normal approximation). Before any run, for a
@@ -23,6 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from uam_fdm.stats import wilson_interval, z_quantile
+
+MIN_INTERVAL_N = 10
+"""Fewest values (episodes, or pairs) for a bootstrap interval, an MDD from the observed spread, or a verdict that a
+difference excludes zero; below it the summary gives the mean and n only (rates keep their score intervals)."""
 
 DESIGN_RATE = 0.5
 """The rate assumed for the design value of a rate's MDD: the largest variance, p (1 - p) = 1/4."""
@@ -117,7 +127,8 @@ def design_mdd_rate(n: int, alpha: float = 0.05, power: float = 0.8, rate: float
 
 @dataclass(frozen=True)
 class Bootstrap:
-    """The percentile bootstrap of a mean: `resamples` (>= 1), two-sided `confidence` in (0, 1), `seed`.
+    """The percentile bootstrap of a mean: `resamples` (>= 1), two-sided `confidence` in (0, 1), `seed`, and the
+    fewest values `min_n` (>= 2) it gives an interval for.
 
     Every interval draws from a fresh `numpy.random.default_rng(seed)`, so a mean's interval depends only
     on its own sample.
@@ -126,15 +137,17 @@ class Bootstrap:
     resamples: int
     confidence: float
     seed: int
+    min_n: int = MIN_INTERVAL_N
 
     def mean_ci(self, x: np.ndarray) -> tuple[float | None, float | None, float | None]:
-        """Mean of `x` and its percentile bootstrap CI (None x 3 for an empty sample; the mean x 3 for one value)."""
+        """Mean of `x` and its percentile bootstrap CI: None x 3 for an empty sample, (mean, None, None) for fewer
+        than `min_n` values (too few to resample)."""
         n = x.size
         if n == 0:
             return None, None, None
         mean = float(np.mean(x))
-        if n == 1:
-            return mean, mean, mean
+        if n < max(self.min_n, 2):
+            return mean, None, None
         rng = np.random.default_rng(self.seed)
         idx = rng.integers(0, n, size=(self.resamples, n))   # one row per resample
         means = x[idx].mean(axis=1)

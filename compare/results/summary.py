@@ -8,6 +8,10 @@ interval (Newcombe's for rates, the bootstrap for the rest) and the minimum dete
 at that many pairs (`compare.results.stats`). `summarize_run` summarises each vehicle and each scenario
 alike; its run-wide block holds statistics only when the run flew one vehicle.
 
+Small samples are reported as such: below `MIN_INTERVAL_N` values a mean has no bootstrap interval (null in the
+file, "n=3, no CI" in a table: `format_stat`), a paired difference neither an MDD from its spread nor a verdict
+that it excludes zero (`PairedStat.excludes_zero`, `mdd_gap`); a rate keeps its Wilson interval at any n.
+
 A `Summary` is written by `write_summary_json` and read by `read_summary_json`, nowhere else. Files
 written before the per-vehicle summaries still read: their keys are unchanged (NaN and infinities as
 null, a paired difference under "mean_diff", pairs keyed "a - b"); what they lack reads as empty (no
@@ -30,6 +34,7 @@ import numpy as np
 from compare.flying import pilots
 from compare.results.metrics import (
     CLEARANCE_THRESHOLDS_M,
+    MAPPING_METRICS,
     TRACKER_METRICS,
     EpisodeMetrics,
     below_field,
@@ -38,6 +43,7 @@ from compare.results.metrics import (
 )
 from compare.results.stats import (
     DESIGN_RATE,
+    MIN_INTERVAL_N,
     Bootstrap,
     PairedCounts,
     design_mdd_rate,
@@ -50,8 +56,8 @@ from uam_fdm.stats import wilson_interval
 
 SUMMARY_METRICS = ("success", "collision", "min_clearance_m", "time_below_2m_s", "time_below_5m_s",
                    "time_s", "path_length_m", "spl", "energy_kj", "compute_ms_mean", "compute_ms_max",
-                   "plan_time_s") + TRACKER_METRICS
-"""Fields aggregated by `summarize`, in report order (the tracker columns are not paired)."""
+                   "plan_time_s") + TRACKER_METRICS + MAPPING_METRICS
+"""Fields aggregated by `summarize`, in report order (the tracker and mapping columns are not paired)."""
 
 SUCCESS_ONLY_METRICS = ("time_s", "path_length_m", "energy_kj")
 """Metrics averaged over successful episodes only (a crash after 3 s is not a fast flight)."""
@@ -69,7 +75,8 @@ class Stat:
 
     Attributes:
         mean: the mean; in a paired summary, the mean of the per-episode differences (`mean_diff` in the file).
-        ci_low, ci_high: the CI of the mean (Wilson for a rate, else the bootstrap's; `Summary.intervals`).
+        ci_low, ci_high: the CI of the mean (Wilson for a rate, else the bootstrap's; `Summary.intervals`); None
+            where there is none (no values, or fewer than `MIN_INTERVAL_N` for the bootstrap).
         n: the values used (episodes, or pairs of episodes).
         over: "successes" (successful episodes only, `SUCCESS_ONLY_METRICS`) or "all" (None where not recorded).
     """
@@ -87,8 +94,9 @@ class PairedStat(Stat):
 
     Attributes:
         sd: standard deviation of the n paired differences (ddof 1; None for n < 2).
-        mdd: the minimum detectable difference at n pairs from `sd` (`Summary.power`; None for n < 2), in
-            the metric's unit (a fraction for rates).
+        mdd: the minimum detectable difference at n pairs from `sd` (`Summary.power`), in the metric's unit (a
+            fraction for rates); None below `MIN_INTERVAL_N` pairs or where every pair agreed (sd 0: the spread
+            says nothing), `mdd_gap` says which.
         mdd_design: for a rate, the MDD at n pairs before any run (both at p = 0.5, independent); else None.
     """
 
@@ -98,8 +106,9 @@ class PairedStat(Stat):
 
     @property
     def excludes_zero(self) -> bool | None:
-        """The interval lies wholly above or below zero (None: no interval, or fewer than two pairs)."""
-        if self.n < 2 or self.ci_low is None or self.ci_high is None:
+        """The interval lies wholly above or below zero (None: no interval, or fewer than `MIN_INTERVAL_N` pairs,
+        too few to call a difference)."""
+        if self.n < MIN_INTERVAL_N or self.ci_low is None or self.ci_high is None:
             return None
         return self.ci_low > 0.0 or self.ci_high < 0.0
 
@@ -130,12 +139,14 @@ class PairedSummary:
 
 @dataclass(frozen=True)
 class BootstrapConfig:
-    """How the intervals were drawn: resamples, confidence level in (0, 1), seed, and the CI method."""
+    """How the intervals were drawn: resamples, confidence level in (0, 1), seed, the CI method, and the fewest
+    values given an interval (`min_n`; None: not recorded, an older file)."""
 
     resamples: int | None = None
     confidence: float | None = None
     seed: int | None = None
     method: str | None = None
+    min_n: int | None = None
 
 
 @dataclass(frozen=True)
@@ -240,14 +251,15 @@ class _StatsConfig:
             mean, *bounds = self.boot.mean_ci(d)
             ci = (bounds[0], bounds[1])
         sd = float(np.std(d, ddof=1)) if n >= 2 else None
+        spread = sd is not None and sd > 0.0 and n >= self.boot.min_n  # else the observed spread says nothing
         return PairedStat(mean, ci[0], ci[1], n, _over(metric), sd=sd,
-                          mdd=None if sd is None else mdd(sd, n, self.alpha, self.power),
+                          mdd=mdd(sd, n, self.alpha, self.power) if spread and sd is not None else None,
                           mdd_design=design_mdd_rate(n, self.alpha, self.power) if metric in RATE_METRICS and n
                           else None)
 
     def describe(self) -> tuple[BootstrapConfig, IntervalMethods, PowerConfig]:
         b = self.boot
-        return (BootstrapConfig(b.resamples, b.confidence, b.seed, "percentile"),
+        return (BootstrapConfig(b.resamples, b.confidence, b.seed, "percentile", b.min_n),
                 IntervalMethods(WILSON, NEWCOMBE, RATE_METRICS), PowerConfig(self.alpha, self.power, DESIGN_RATE))
 
 
@@ -269,14 +281,15 @@ def summarize(rows: Iterable[EpisodeMetrics], *, resamples: int = 2000, confiden
 
     Per pilot and metric in `SUMMARY_METRICS`: the mean over episodes (NaNs dropped per metric) and its
     CI: Wilson's for the rates (`RATE_METRICS`), else a percentile bootstrap (episodes resampled with
-    replacement; with n == 1 the CI is the mean); `n` is the count used, with n == 0 every number is None.
+    replacement; none below `MIN_INTERVAL_N` episodes); `n` is the count used, with n == 0 every number is None.
     `time_s`, `path_length_m` and `energy_kj` are over successful episodes only (`over` "successes"), the
     rest over all episodes (`over` "all").
 
     Paired: for each pair of pilots a before b in table order (`compare.flying.pilots.ordered`), the episodes both
     flew with the same (scenario, episode, seed); per metric (not the tracker's) the mean of the differences
-    a − b and its CI (Newcombe's for rates, else the bootstrap's, pairs resampled), the standard deviation of the
-    differences, the MDD at that many pairs (two-sided `alpha`, `power`) and, for rates, the design MDD.
+    a − b and its CI (Newcombe's for rates, else the bootstrap's, pairs resampled; none below `MIN_INTERVAL_N`
+    pairs), the standard deviation of the differences, the MDD at that many pairs (two-sided `alpha`, `power`;
+    none below `MIN_INTERVAL_N` pairs or where every pair agreed) and, for rates, the design MDD.
     For the success-only metrics only pairs where both succeeded.
 
     Each bootstrap draws from a fresh `numpy.random.default_rng(seed)`, so a pilot's numbers depend only
@@ -375,7 +388,7 @@ def _paired_summary(first: str, second: str, rows_a: list[EpisodeMetrics], rows_
     common = sorted(a.keys() & b.keys())
     stats = {}
     for metric in SUMMARY_METRICS:
-        if metric in TRACKER_METRICS:
+        if metric in TRACKER_METRICS or metric in MAPPING_METRICS:
             continue
         cells = [c for c in common
                  if metric not in SUCCESS_ONLY_METRICS or (a[c].success and b[c].success)]
@@ -406,7 +419,8 @@ def summary_to_json(summary: Summary, within: Summary | None = None) -> dict[str
     out: dict[str, Any] = {}
     if within is None or s.bootstrap != within.bootstrap:
         b = s.bootstrap
-        out["bootstrap"] = {"resamples": b.resamples, "confidence": b.confidence, "seed": b.seed, "method": b.method}
+        out["bootstrap"] = {"resamples": b.resamples, "confidence": b.confidence, "seed": b.seed, "method": b.method,
+                            "min_n": b.min_n}
     if within is None or s.intervals != within.intervals:
         i = s.intervals
         out["intervals"] = {"rates": i.rates, "paired_rates": i.paired_rates, "rate_metrics": list(i.rate_metrics)}
@@ -494,7 +508,8 @@ def _bootstrap_from_json(data: Any, where: str, key: str) -> BootstrapConfig:
     return BootstrapConfig(_integer(boot.get("resamples"), where, f"{key}.resamples"),
                            _number(boot.get("confidence"), where, f"{key}.confidence"),
                            _integer(boot.get("seed"), where, f"{key}.seed"),
-                           None if boot.get("method") is None else str(boot["method"]))
+                           None if boot.get("method") is None else str(boot["method"]),
+                           _integer(boot.get("min_n"), where, f"{key}.min_n"))
 
 
 def _intervals_from_json(data: Any, where: str, key: str) -> IntervalMethods:
@@ -633,14 +648,40 @@ def pilots_table(summary: Summary) -> list[list[str]]:
         row = [name, str(s.episodes)]
         for m in metrics:
             fmt = _TABLE_COLUMNS.get(m, (m, lambda v: f"{v:.3g}"))[1]
-            row.append(_format_stat(s.stats.get(m), fmt))
+            row.append(format_stat(s.stats.get(m), fmt))
         table.append(row)
     return table
 
 
-def _format_stat(stat: Stat | None, fmt: Callable[[float], str]) -> str:
-    if stat is None or stat.mean is None:
+NO_INTERVAL_NOTE = (f"no CI: fewer than {MIN_INTERVAL_N} episodes (or pairs), too few for a bootstrap interval; "
+                    f"rates keep their Wilson interval")
+"""What "no CI" in a table cell means (`format_stat`), for a line under the table."""
+
+
+def format_stat(stat: Stat | None, fmt: Callable[[float], str]) -> str:
+    """A `Stat` as a cell: "mean [low, high]"; "mean (n=3, no CI)" below `MIN_INTERVAL_N` values without an
+    interval (`NO_INTERVAL_NOTE`); the mean alone where a file recorded no interval; "n/a" without a mean.
+
+    Args:
+        stat: the statistic (None: not summarised).
+        fmt: formats one number (scaled and rounded as the table wants).
+    """
+    if stat is None or stat.mean is None or not math.isfinite(stat.mean):
         return "n/a"
-    if stat.ci_low is None or stat.ci_high is None:
-        return fmt(stat.mean)
+    if stat.ci_low is None or stat.ci_high is None or not (math.isfinite(stat.ci_low)
+                                                            and math.isfinite(stat.ci_high)):
+        return fmt(stat.mean) + (f" (n={stat.n}, no CI)" if 0 < stat.n < MIN_INTERVAL_N else "")
     return f"{fmt(stat.mean)} [{fmt(stat.ci_low)}, {fmt(stat.ci_high)}]"
+
+
+def mdd_gap(stat: PairedStat) -> str:
+    """Why a paired difference has no MDD from its observed spread ("" when it has one, or none was recorded for
+    another reason): every pair agreed (sd 0), or fewer than `MIN_INTERVAL_N` pairs. Checked in that order,
+    so a file written before small samples were flagged (its MDD 0 where every pair agreed) reads alike."""
+    if stat.n == 0:
+        return "no pairs"
+    if stat.sd == 0.0:
+        return "every pair agreed"
+    if stat.n < MIN_INTERVAL_N:
+        return f"fewer than {MIN_INTERVAL_N} pairs"
+    return ""

@@ -19,9 +19,6 @@ from compare.report.figures import (
     crop_map,
     curriculum_stages,
     downsample_indices,
-    episode_paths_figure,
-    episode_snapshots_figure,
-    episode_timeseries_figure,
     moving_average,
     pilot_colors,
     reward_curve_figure,
@@ -29,6 +26,7 @@ from compare.report.figures import (
     smoothing_window,
     trace_from_episode,
 )
+from compare.report.flight_figures import episode_paths_figure, episode_snapshots_figure, episode_timeseries_figure
 from compare.report.report import build_report, read_reward_curve
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, load_episode, save_episode
 from synthetic_run import (
@@ -46,10 +44,12 @@ from synthetic_run import (
     write_run,
 )
 
-# 1 title + 8 metrics of the one vehicle (per pilot, forest, paired forest and table, difficulty, conditions,
-# per scenario, per episode) + 2 episodes x 3 + 1 training + 2 failures (table, paths)
-METRICS_PAGES = 8
-EPISODES = 1 + METRICS_PAGES  # the first episode page
+# 2 first pages (the headline, about this run) + 7 metrics pages of the one vehicle (per pilot, forest, paired
+# forest and table, difficulty, per scenario with its conditions, per episode) + 2 episodes x 3 + 1 training
+# + 2 failures (table, paths)
+FIRST_PAGES = 2
+METRICS_PAGES = 7
+EPISODES = FIRST_PAGES + METRICS_PAGES  # the first episode page
 TRAINING = EPISODES + 6
 FULL_PAGES = TRAINING + 3
 
@@ -76,17 +76,25 @@ def test_full_report_pages_text_and_pngs(full_run: tuple[Path, Path]) -> None:
     assert pdf == run_dir / "report.pdf" and pdf.read_bytes()[:5] == b"%PDF-"
     texts = _texts(pdf)
     assert len(texts) == FULL_PAGES
-    assert "uam-compare report" in texts[0]
-    for needle in ("toy-quad", "1500", "0.999", "turbulence light", "uam-compare run toy", "2026-11-21",
-                   "Neither knows the wind", "numpy", "4 of 4 planned"):
-        assert needle in texts[0], needle
-    assert all("small_quad: " in t for t in texts[1:EPISODES])  # the run's one vehicle
+    assert all(f"page {k + 1}" in t for k, t in enumerate(texts))
+    # page 1: the headline, per vehicle and pilot, and the pilots' paired difference
+    head = texts[0].replace("\n", " ")
+    for needle in ("uam-compare report", "uam-compare run toy", "2026-11-21", "4 of 4 planned", "small_quad",
+                   "50 [9, 91]", "100 [34, 100]", "Paired differences on the same tasks", "n/a (n < 10)"):
+        assert needle in head, needle
+    about = texts[1]
+    for needle in ("About this run", "toy-quad", "1500", "0.999", "turbulence light", "Neither knows the wind",
+                   "numpy"):
+        assert needle in about, needle
+    assert all("small_quad: " in t for t in texts[FIRST_PAGES:EPISODES])  # the run's one vehicle
     # its summary.json predates per-vehicle summaries (it may pool vehicles): recomputed from metrics.csv
-    assert "per pilot, mean [95 % CI]" in texts[1] and "predates per-vehicle summaries" in texts[1]
-    assert "50 [9, 91]" in texts[1] and "30.0" in texts[1]  # PPO: 1 of 2 (Wilson), time of its one success
-    assert "paired differences" in texts[3] and "4.0 [4.0, 4.0]" in texts[4] and "MDD" in texts[4]
-    assert "where does each pilot break?" in texts[5] and "leg length [m]" in texts[5]
-    assert "scenarios and their conditions" in texts[6] and "per scenario" in texts[7] and "per episode" in texts[8]
+    pilots = texts[2].replace("\n", " ")
+    assert "per pilot, mean [95 % CI]" in pilots and "predates per-vehicle summaries" in pilots
+    assert "50 [9, 91]" in pilots and "30.0 (n=1, no CI)" in pilots  # PPO: 1 of 2 (Wilson), its one success
+    assert "paired differences" in texts[4] and "4.0 (n=1, no CI)" in texts[5] and "MDD" in texts[5]
+    assert "where does each pilot break?" in texts[6] and "leg length [m]" in texts[6]
+    assert "per scenario" in texts[7] and "The scenarios and their conditions" in texts[7]
+    assert "Each pilot per scenario" in texts[7] and "per episode" in texts[8]
     episode_pages = texts[EPISODES:TRAINING]
     assert all(f"Episode {SCENARIO} #" in t for t in episode_pages)
     assert "#0 seed 0" in episode_pages[0] and "#1 seed 0" in episode_pages[3]
@@ -106,7 +114,7 @@ def test_full_report_pages_text_and_pngs(full_run: tuple[Path, Path]) -> None:
         assert label in whole
     pngs = sorted(p.name for p in (run_dir / "figures").glob("*.png"))
     assert len(pngs) == FULL_PAGES
-    assert {"title.png", "training_reward_curve.png", "failures_paths.png",
+    assert {"title.png", "about.png", "training_reward_curve.png", "failures_paths.png",
             f"episode_{SCENARIO}__ep000__s0_snapshots.png"} <= set(pngs)
     assert _hidden(run_dir) == []
 
@@ -120,10 +128,11 @@ def test_rebuild_incomplete_run_without_reward_curve_or_metrics(tmp_path: Path) 
     assert out == tmp_path / "out" / "r.pdf"
     texts = _texts(out)
     assert len(texts) == FULL_PAGES - METRICS_PAGES + 1  # one metrics note page instead
-    assert "3 of 4 planned" in texts[0] and "interrupted" in texts[0]
-    assert "Metrics" in texts[1] and "metrics.csv was not found" in texts[1]
-    assert "reward convergence" in texts[8] and "No PPO policy folder" in texts[8]
-    assert "Failures" in texts[9] and "synthetic collision" in texts[9]
+    head = texts[0].replace("\n", " ")
+    assert "3 of 4 planned" in head and "interrupted" in head and "No headline: metrics.csv was not found" in head
+    assert "Metrics" in texts[2] and "metrics.csv was not found in the run folder" in texts[2]
+    assert "reward convergence" in texts[9] and "No PPO policy folder" in texts[9]
+    assert "Failures" in texts[10] and "synthetic collision" in texts[10]
     assert _hidden(tmp_path) == []
 
 
@@ -142,11 +151,11 @@ def test_reward_curve_file_absent_and_no_failures(tmp_path: Path) -> None:
         w.writeheader()
         w.writerows(r for r in rows if r["episode"] == "0")
     texts = _texts(build_report(run_dir))
-    # title, the metrics pages (no summary.json: computed from metrics.csv), 3 episode pages, training note,
-    # "No failures"
-    assert len(texts) == 1 + METRICS_PAGES + 3 + 2
-    assert "summary.json is missing" in texts[1] and "100 [21, 100]" in texts[1]  # 1 of 1 (Wilson)
-    assert "reward_curve.csv does not exist" in texts[-2].replace("\n", "")
+    # the first pages, the metrics pages (no summary.json: computed from metrics.csv), 3 episode pages, training
+    # note, "No failures"
+    assert len(texts) == FIRST_PAGES + METRICS_PAGES + 3 + 2
+    assert "summary.json is missing" in texts[2] and "100 [21, 100]" in texts[2]  # 1 of 1 (Wilson)
+    assert "holds no reward_curve.csv here" in texts[-2].replace("\n", " ")
     assert "No failures" in texts[-1]
 
 
@@ -166,9 +175,11 @@ def test_report_reads_an_old_run_folder(tmp_path: Path) -> None:
         assert load_episode(path).trajectory.shaft_power_W is None
     texts = _texts(build_report(run_dir))
     assert len(texts) == FULL_PAGES
-    assert f"policy {tmp_path / 'policy'}; decides at 10 Hz" in texts[0].replace("\n", " ")
-    assert "the same at every height" in texts[0] and "4 of 4 planned" in texts[0]
-    assert "50 [9, 91]" in texts[1] and "4.0 [4.0, 4.0]" in texts[4]
+    # the policy folder lies beside the run folder: shown relative to it, not as this machine's path
+    assert "policy ../policy; decides at 10 Hz" in texts[1].replace("\n", " ")
+    assert str(tmp_path) not in "".join(texts).replace("\n", "")
+    assert "the same at every height" in texts[1] and "4 of 4 planned" in texts[0]
+    assert "50 [9, 91]" in texts[2] and "4.0 (n=1, no CI)" in texts[5]
     for page in (texts[EPISODES + 1], texts[EPISODES + 4]):  # the time series: mean rotor speed, and why
         assert "mean rotor speed [rad/s]" in page and "shaft power not in this episode file" in page.replace("\n", " ")
     assert "reward convergence" in texts[TRAINING] and "kept checkpoint" in texts[TRAINING]

@@ -31,7 +31,8 @@ def _page(texts: list[str], title: str) -> str:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
     run_dir = tmp_path_factory.mktemp("vehicles") / "run"
-    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=3, episodes=3, seeds=(0,), pilots=PILOT_LABELS,
+    # 3 scenarios x 4 episodes: 12 pairs per vehicle, enough (MIN_INTERVAL_N) for bootstrap intervals and MDDs
+    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=3, episodes=4, seeds=(0,), pilots=PILOT_LABELS,
                                samples=60)
     write_summary_json(summarize_run(rows, resamples=200), run_dir / "summary.json")
     with pytest.MonkeyPatch.context() as mp:  # draw few flights: the bound is what is tested, not the drawing
@@ -49,7 +50,7 @@ def test_summary_json_of_the_run_pools_nothing(run):
     for vehicle in VEHICLES:
         part = data["by_vehicle"][vehicle]
         assert part["vehicles"] == [vehicle] and set(part["methods"]) == set(PILOT_LABELS)
-        assert part["methods"]["ppo"]["episodes"] == 3 * 3
+        assert part["methods"]["ppo"]["episodes"] == 3 * 4
     assert all(len(s["vehicles"]) == 1 for s in data["by_scenario"].values())
 
 
@@ -59,13 +60,14 @@ def test_report_has_a_section_per_vehicle_and_no_pooled_table(run):
     for vehicle in VEHICLES:
         for title in (f"{vehicle}: per pilot, mean [95 % CI]", f"{vehicle}: summary per pilot",
                       f"{vehicle}: paired differences", f"{vehicle}: paired differences and minimum detectable",
-                      f"{vehicle}: where does each pilot break?", f"{vehicle}: scenarios and their conditions",
-                      f"{vehicle}: per scenario", f"{vehicle}: per episode"):
+                      f"{vehicle}: where does each pilot break?", f"{vehicle}: per scenario",
+                      f"{vehicle}: per episode"):
             assert title in whole, title
         assert f"Over the 3 scenarios of vehicle {vehicle}, never pooled with another vehicle" in whole
     assert "Metrics: per pilot" not in whole  # the old table over every vehicle at once
     assert "numbers from summary.json" in whole and "Wilson" in whole and "Newcombe" in whole
     assert "minimum detectable difference" in whole and "excludes 0" in whole
+    assert whole.count("The scenarios and their conditions") >= 2 and "Each pilot per scenario" in whole
     names = {p.name for p in (run_dir / "figures").glob("*.png")}
     for vehicle in VEHICLES:
         assert {f"vehicle_{vehicle}_forest.png", f"vehicle_{vehicle}_difficulty.png",
@@ -83,7 +85,7 @@ def test_paired_table_states_the_numbers_of_summary_json(run):
     cell = f"{st['mean_diff']:.2f} [{st['ci_low']:.2f}, {st['ci_high']:.2f}]"
     assert cell in page and f"{st['mdd']:.2f}" in page
     succ = data["by_vehicle"]["uam_multicopter"]["paired"]["ppo - rrt_mpc"]["success"]
-    assert f"{100 * succ['mdd_design']:.0f}" in page and succ["n"] == 9
+    assert f"{100 * succ['mdd_design']:.0f}" in page and succ["n"] == 12
 
 
 def test_flight_pages_are_bounded_and_the_report_says_so(run):
@@ -91,8 +93,8 @@ def test_flight_pages_are_bounded_and_the_report_says_so(run):
     flights = [t for t in texts if t.startswith("Flights\n")]
     assert len(flights) == 1
     note = flights[0].replace("\n", " ")
-    assert "This run flew 18 tasks" in note and "first 1 scenarios of each vehicle and the first 1 tasks" in note
-    assert "bench-small_quad-00 (1 of 3)" in note and "Not drawn" in note and "bench-uam_multicopter-02" in note
+    assert "This run flew 24 tasks" in note and "first 1 scenarios of each vehicle and the first 1 tasks" in note
+    assert "bench-small_quad-00 (1 of 4)" in note and "Not drawn" in note and "bench-uam_multicopter-02" in note
     assert sum("Episode bench-" in t for t in texts) == 3 * 2
     failures = [t for t in texts if "Failures" in t]
     rows = read_metrics_csv(run_dir / "metrics.csv")

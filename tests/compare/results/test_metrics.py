@@ -21,6 +21,7 @@ from compare.results.metrics import (
     read_metrics_csv,
     write_metrics_csv,
 )
+from compare.results.stats import MIN_INTERVAL_N
 from compare.results.summary import (
     BootstrapConfig,
     Stat,
@@ -392,7 +393,8 @@ def comparison_rows() -> list[EpisodeMetrics]:
 def test_summary_per_method_on_known_data():
     rows = comparison_rows()
     s = summarize(rows, resamples=500, seed=3)
-    assert s.bootstrap == BootstrapConfig(resamples=500, confidence=0.95, seed=3, method="percentile")
+    assert s.bootstrap == BootstrapConfig(resamples=500, confidence=0.95, seed=3, method="percentile",
+                                          min_n=MIN_INTERVAL_N)
     assert s.metrics == S.SUMMARY_METRICS and s.by_scenario is None
     assert list(s.pilots) == ["ppo", "rrt_mpc"]
     ppo, mpc = s.pilots["ppo"], s.pilots["rrt_mpc"]
@@ -413,8 +415,11 @@ def test_summary_per_method_on_known_data():
     for stats in (ppo, mpc):
         for metric in S.SUMMARY_METRICS:
             st = stats.stats[metric]
-            if st.n:
+            if st.n >= MIN_INTERVAL_N or (st.n and metric in S.RATE_METRICS):
                 assert st.ci_low <= st.mean <= st.ci_high, (metric, st)
+            elif st.n:  # too few episodes for the bootstrap: the mean alone
+                assert st.ci_low is None and st.ci_high is None, (metric, st)
+    assert mpc.stats["success"].n == 8 and mpc.stats["min_clearance_m"].ci_low is None  # 8 < 10: no bootstrap
     # the CI of a spread sample has width and stays inside the data's range
     clear = ppo.stats["min_clearance_m"]
     assert 1.0 <= clear.ci_low < clear.mean < clear.ci_high <= 5.5
@@ -423,7 +428,7 @@ def test_summary_per_method_on_known_data():
 def test_ci_edge_cases_and_confidence():
     s = summarize([row("ppo", 0, compute_ms_max=7.0), row("ppo", 1, success=False)], resamples=200)
     ppo = s.pilots["ppo"]
-    assert ppo.stats["time_s"] == Stat(mean=20.0, ci_low=20.0, ci_high=20.0, n=1, over="successes")
+    assert ppo.stats["time_s"] == Stat(mean=20.0, ci_low=None, ci_high=None, n=1, over="successes")
     rows = [row("ppo", ep, min_clearance_m=float(ep % 7)) for ep in range(40)]
     wide = summarize(rows, resamples=1000, confidence=0.99).pilots["ppo"].stats["min_clearance_m"]
     narrow = summarize(rows, resamples=1000, confidence=0.5).pilots["ppo"].stats["min_clearance_m"]
@@ -449,7 +454,8 @@ def test_paired_differences_only_over_matched_episodes():
     assert p.stats["success"].mean == pytest.approx(np.mean([ppo_ok[e] - mpc_ok[e] for e in eps]))
     clear = np.mean([(1.0 + 0.5 * e) - (2.0 + 0.25 * e) for e in eps])
     assert p.stats["min_clearance_m"].mean == pytest.approx(clear)
-    assert p.stats["min_clearance_m"].ci_low <= clear <= p.stats["min_clearance_m"].ci_high
+    assert p.stats["min_clearance_m"].ci_low is None  # 8 pairs: too few for the bootstrap
+    assert p.stats["success"].ci_low is not None      # a rate keeps its (Newcombe) interval
     both = [e for e in eps if ppo_ok[e] and mpc_ok[e]]                    # 2, 4, 7, 8, 9
     assert p.stats["time_s"].n == len(both) == 5 and p.stats["time_s"].over == "successes"
     assert p.stats["time_s"].mean == pytest.approx(np.mean([(10.0 + e) - (12.0 + 2 * e) for e in both]))
@@ -470,7 +476,8 @@ def test_summary_json_is_deterministic_and_nan_free(tmp_path):
     assert list(loaded["paired"]) == ["ppo - rrt_mpc", "ppo - a_star", "rrt_mpc - a_star"]  # table order
     assert loaded["methods"]["ppo"]["plan_time_s"]["mean"] is None
     assert loaded["paired"]["ppo - rrt_mpc"]["success"]["mean_diff"] is not None  # the file's name for it
-    assert summarize(rows, seed=1).pilots != summarize(rows, seed=0).pilots   # the seed drives the CIs
+    spread = [row("ppo", ep, min_clearance_m=2.0 + math.sin(1.7 * ep)) for ep in range(20)]
+    assert summarize(spread, seed=1).pilots != summarize(spread, seed=0).pilots   # the seed drives the CIs
 
 
 def test_summary_json_round_trip(tmp_path):
@@ -491,7 +498,7 @@ def test_summary_json_round_trip(tmp_path):
     old = read_summary_json(tmp_path / "old.json")
     assert old.by_scenario is None and old.paired == () and old.bootstrap == BootstrapConfig(resamples=10)
     assert old.pilots["ppo"].stats["success"] == Stat(0.5, None, None, 2) and old.pilots["ppo"].failure_reasons == {}
-    assert isinstance(old, Summary) and pilots_table(old)[1] == ["ppo", "2", "50%"]
+    assert isinstance(old, Summary) and pilots_table(old)[1] == ["ppo", "2", "50% (n=2, no CI)"]
 
 
 def test_bad_summary_json_names_the_file_and_key(tmp_path):
@@ -515,4 +522,5 @@ def test_pilots_table():
     assert ppo["success"].startswith("90% [") and ppo["success"].endswith("%]")
     assert ppo["min clearance [m]"].startswith("3.25 [")
     assert ppo["plan time [s]"] == "n/a"
-    assert ppo["time [s] (successes)"].startswith(f"{np.mean([10.0 + e for e in range(10) if e != 3]):.1f} [")
+    # 9 successes: below MIN_INTERVAL_N, the mean and its n, no bootstrap interval
+    assert ppo["time [s] (successes)"] == f"{np.mean([10.0 + e for e in range(10) if e != 3]):.1f} (n=9, no CI)"

@@ -16,11 +16,12 @@ from compare.results.difficulty import (
     success_by_difficulty,
 )
 from compare.results.metrics import EpisodeMetrics
-from compare.results.stats import PairedCounts, design_mdd_rate, mdd, newcombe_paired_interval
+from compare.results.stats import MIN_INTERVAL_N, PairedCounts, design_mdd_rate, mdd, newcombe_paired_interval
 from compare.results.summary import (
     IntervalMethods,
     PairedStat,
     PowerConfig,
+    mdd_gap,
     read_summary_json,
     summarize,
     summarize_run,
@@ -99,19 +100,30 @@ def test_paired_differences_and_mdd_on_hand_made_numbers():
     clear = p.stats["min_clearance_m"]
     assert isinstance(clear, PairedStat) and clear.mean == pytest.approx(3.0) and clear.n == 5
     assert clear.sd == pytest.approx(math.sqrt(2.5))                       # differences 1, 2, 3, 4, 5
-    assert clear.mdd == pytest.approx(Z_SUM * math.sqrt(2.5) / math.sqrt(5))  # 1.98 m
-    assert clear.mdd_design is None and clear.excludes_zero is True
+    # five pairs: below MIN_INTERVAL_N, so no bootstrap interval, no MDD from the spread, no call on zero
+    assert (clear.ci_low, clear.ci_high, clear.mdd, clear.excludes_zero) == (None, None, None, None)
+    assert mdd_gap(clear) == "fewer than 10 pairs" and clear.mdd_design is None
     succ = p.stats["success"]
     assert succ.mean == pytest.approx(0.4) and succ.n == 5                # differences 0, 1, 1, 0, 0
-    assert (succ.ci_low, succ.ci_high) == newcombe_paired_interval(PairedCounts(2, 2, 0, 1))
-    assert succ.sd == pytest.approx(math.sqrt(0.3)) and succ.mdd == pytest.approx(Z_SUM * math.sqrt(0.3 / 5))
-    assert succ.mdd_design == pytest.approx(Z_SUM * math.sqrt(0.5 / 5))
-    assert succ.excludes_zero is False                                     # 2 of 5 discordant: no evidence
+    assert (succ.ci_low, succ.ci_high) == newcombe_paired_interval(PairedCounts(2, 2, 0, 1))  # a rate's: kept
+    assert succ.sd == pytest.approx(math.sqrt(0.3)) and succ.mdd is None
+    assert succ.mdd_design == pytest.approx(Z_SUM * math.sqrt(0.5 / 5))   # a design value needs no spread
+    assert succ.excludes_zero is None
     time = p.stats["time_s"]                                               # only where both succeeded: 0 and 4
     assert time.n == 2 and time.mean == pytest.approx(((20 - 25) + (24 - 33)) / 2)
     assert time.sd == pytest.approx(np.std([-5.0, -9.0], ddof=1))
     one = summarize([row("ppo", 0), row("rrt_mpc", 0, min_clearance_m=2.0)]).paired[0].stats["min_clearance_m"]
     assert one.n == 1 and one.sd is None and one.mdd is None and one.excludes_zero is None
+    # the same five twice: ten pairs, at MIN_INTERVAL_N, so the MDD and the call by hand
+    (p10,) = summarize(hand_rows(scenario="a") + hand_rows(scenario="b"), resamples=400).paired
+    clear, succ = p10.stats["min_clearance_m"], p10.stats["success"]
+    assert clear.n == MIN_INTERVAL_N == 10 and clear.sd == pytest.approx(math.sqrt(20.0 / 9.0))
+    assert clear.mdd == pytest.approx(Z_SUM * math.sqrt(20.0 / 9.0) / math.sqrt(10))  # 1.32 m
+    assert clear.ci_low is not None and clear.ci_low > 0.0 and clear.excludes_zero is True
+    assert succ.sd == pytest.approx(math.sqrt(2.4 / 9.0))
+    assert succ.mdd == pytest.approx(Z_SUM * math.sqrt(2.4 / 9.0) / math.sqrt(10))
+    low, high = newcombe_paired_interval(PairedCounts(4, 4, 0, 2))
+    assert (succ.ci_low, succ.ci_high) == (low, high) and succ.excludes_zero is (low > 0.0)
 
 
 def two_vehicle_rows() -> list[EpisodeMetrics]:
@@ -187,7 +199,10 @@ def test_cli_summary_is_per_vehicle(tmp_path, capsys):
     assert "uam_multicopter: scenario city-uam" in out and "uam_multicopter / city-uam" not in out
     assert out.count("ppo - rrt_mpc: success difference +40% [") == 2
     assert "over 5 paired episodes" in out and "over 10 paired episodes" in out
-    assert f"detectable (alpha 0.05, power 0.8): {100 * Z_SUM * math.sqrt(0.3 / 5):.0f}%" in out
+    # ten pairs (small_quad): an MDD; five (uam_multicopter): too few, said in words
+    assert f"detectable (alpha 0.05, power 0.8): {100 * Z_SUM * math.sqrt(2.4 / 9.0 / 10):.0f}%" in out
+    assert "detectable (alpha 0.05, power 0.8): n/a (fewer than 10 pairs)" in out
+    assert "too few pairs to call (fewer than 10)" in out
     first = out.splitlines()[0]
     assert first.startswith("small_quad: 2 scenarios") and not any(line.startswith("all") for line in out.splitlines())
 
