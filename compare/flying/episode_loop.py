@@ -9,6 +9,11 @@ collision, leaving the flight volume, a non-finite state or the timeout; a pilot
 the task (e.g. no path found) ends it before the first step. The end rules are `uam_fdm.episode`'s,
 the same the learned pilot's training environment applies.
 
+Every decision is recorded as given: its command (rotor speeds, or a velocity and heading), how long it is held and,
+for a pilot that tells it, the observation vector it decided on (`DecisionRecord`): what imitation learning or
+offline RL trains on. A pilot tells its observation through `ObservingPilot.last_observation`; the shipped learned
+pilot's is read as its policy is given it (`_PolicyTap`), without changing what it computes.
+
 Truth and belief: the loop flies and scores against `Truth` (the city as it stands); the pilot gets the
 `World` (the prior map) and, at `perfect` sensing, the true state; otherwise the vehicle's sensors and navigation
 filter (`uam_fdm.sensing.onboard.Onboard`) turn each flown period into readings and an estimate, the decision acts on
@@ -16,9 +21,11 @@ the estimate of the latency ago, and a velocity command's controller flies on th
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -32,6 +39,38 @@ from uam_fdm.vehicle.model import hover_state
 
 if TYPE_CHECKING:  # the sensors (Embree, the filter) load only when a vehicle senses
     from uam_fdm.sensing.onboard import NavRecord
+
+log = logging.getLogger(__name__)
+
+ROTOR_SPEEDS, VELOCITY_YAW = "rotor_speeds_rad_s", "velocity_enu_m_s_yaw_rad"
+"""What a decision commanded: rotor speeds [rad/s], or a velocity world ENU [m/s] and heading [rad]."""
+
+
+@dataclass(frozen=True)
+class DecisionRecord:
+    """What the pilot commanded at each of an episode's D decisions (in the order of `Trajectory.decision_t_s`).
+
+    Attributes:
+        kinds: per decision, `ROTOR_SPEEDS` or `VELOCITY_YAW`.
+        commands: per decision, the command as flown: (n,) rotor speeds [rad/s], or (4,) [v_east, v_north, v_up]
+            world ENU [m/s] and the heading [rad].
+        hold_periods: (D,) control periods each command is held.
+        observations: per decision, the observation vector the pilot decided on (the learned pilot: its policy's
+            raw input), None where the pilot tells none.
+    """
+
+    kinds: tuple[str, ...]
+    commands: tuple[np.ndarray, ...]
+    hold_periods: np.ndarray
+    observations: tuple[np.ndarray | None, ...]
+
+
+@runtime_checkable
+class ObservingPilot(Protocol):
+    """A pilot that tells the observation vector its last decision was made on (recorded with the decision)."""
+
+    def last_observation(self) -> np.ndarray | None:
+        """The (k,) observation vector of the last `act` (None: none for it)."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +103,9 @@ class Trajectory:
             obstacle); None at perfect sensing or read from a file.
         lidar_hits_m: (H, 4) [t_s, x, y, z] a thinned set of the lidar's true hit points, world ENU [m] (the
             viewer's layer); None at perfect sensing.
+        decisions: what the pilot commanded at each decision, and the observation it decided on where it tells
+            it; None in an episode saved before it was recorded, or read from the store without asking for it
+            (`compare.results.tables.episode_from_tables(..., with_decisions=True)`).
     """
 
     t_s: np.ndarray
@@ -82,6 +124,7 @@ class Trajectory:
     unmapped_clearance_m: np.ndarray | None = None
     nav: NavRecord | None = None
     lidar_hits_m: np.ndarray | None = None
+    decisions: DecisionRecord | None = None
 
     @property
     def success(self) -> bool:
@@ -130,51 +173,53 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
         outcome, detail = Outcome.PLANNER_FAILURE, f"{info.status}: {info.detail}"
     lo, hi = np.asarray(city.bounds_min_m, float), np.asarray(city.bounds_max_m, float)
     held = 0
-    while info.ok and not episode.timed_out(sim.state.t_s, task.timeout_s):
-        s = sim.state
-        if held <= 0:  # a decision (else the previous actuation is still held)
-            obs = Observation(s.t_s, s.x.copy()) if onboard is None else onboard.observation(s.t_s)
-            t0 = time.perf_counter()
-            act = pilot.act(obs)
-            compute.append(time.perf_counter() - t0)
-            decision_t.append(s.t_s)
-            command = _checked_command(pilot_name or pilot.name, act, p.n_rotors, s.t_s)
-            held = act.hold_periods
-        held -= 1
-        # ground effect: the height above the surface below, from the clearance at the period's start
-        height = float(height_above_surface(city, s.x[None, 0:3], clear[-1][-1:], p)[0])
-        env = sim.env(s.x, s.t_s, height)  # built once: flown, and recorded (wind, power)
-        if isinstance(act, RotorCommand):
-            r = sim.advance(command, env=env)
-        else:
-            offset = None if onboard is None else onboard.controller_offset(s.x)
-            r = sim.advance_velocity(command, env=env, seen_offset=offset)
-        n_sub = r.states.shape[0]
-        t_sub = s.t_s + dyn.dt_s * np.arange(1, n_sub + 1)
-        times.append(t_sub)
-        states.append(r.states)
-        cmds.append(r.rotor_commands)
-        winds.append(np.tile(env[:3], (n_sub, 1)))
-        power.append(dyn.shaft_power_batch_W(r.states, env))
-        finite = bool(np.all(np.isfinite(r.states)))
-        c = _clearance(city, r.states[:, 0:3], radius) if finite else np.full(n_sub, np.nan)
-        clear.append(c)
-        if near_unmapped is not None and unmapped is not None:
-            near_unmapped.append(unmapped.obstacle_clearance_m(r.states[:, 0:3], radius) if finite
-                                 else np.full(n_sub, np.nan))
-        if onboard is not None and estimates is not None:
-            held_estimate = np.repeat(estimates[-1][-1:], n_sub, axis=0)
-            if finite:
-                onboard.advance(s.x, r.states, s.t_s)
-                held_estimate[-1] = onboard.estimated_position_m()
-            estimates.append(held_estimate)
-        code = int(episode.period_outcome(r.states[None], episode.collided(c[None]), lo, hi, goal,
-                                          task.goal_radius_m)[0])
-        ended = episode.OUTCOME_OF_CODE[code]  # None while running
-        if ended is not None:
-            outcome = ended
-            detail = _detail(code, r.states, c, t_sub, s.t_s, sim.state.t_s, task, city)
-            break
+    with _DecisionLog(pilot) as decided:  # the shipped learned pilot's observations are read while it flies
+        while info.ok and not episode.timed_out(sim.state.t_s, task.timeout_s):
+            s = sim.state
+            if held <= 0:  # a decision (else the previous actuation is still held)
+                obs = Observation(s.t_s, s.x.copy()) if onboard is None else onboard.observation(s.t_s)
+                t0 = time.perf_counter()
+                act = pilot.act(obs)
+                compute.append(time.perf_counter() - t0)
+                decision_t.append(s.t_s)
+                command = _checked_command(pilot_name or pilot.name, act, p.n_rotors, s.t_s)
+                held = act.hold_periods
+                decided.add(act, command)
+            held -= 1
+            # ground effect: the height above the surface below, from the clearance at the period's start
+            height = float(height_above_surface(city, s.x[None, 0:3], clear[-1][-1:], p)[0])
+            env = sim.env(s.x, s.t_s, height)  # built once: flown, and recorded (wind, power)
+            if isinstance(act, RotorCommand):
+                r = sim.advance(command, env=env)
+            else:
+                offset = None if onboard is None else onboard.controller_offset(s.x)
+                r = sim.advance_velocity(command, env=env, seen_offset=offset)
+            n_sub = r.states.shape[0]
+            t_sub = s.t_s + dyn.dt_s * np.arange(1, n_sub + 1)
+            times.append(t_sub)
+            states.append(r.states)
+            cmds.append(r.rotor_commands)
+            winds.append(np.tile(env[:3], (n_sub, 1)))
+            power.append(dyn.shaft_power_batch_W(r.states, env))
+            finite = bool(np.all(np.isfinite(r.states)))
+            c = _clearance(city, r.states[:, 0:3], radius) if finite else np.full(n_sub, np.nan)
+            clear.append(c)
+            if near_unmapped is not None and unmapped is not None:
+                near_unmapped.append(unmapped.obstacle_clearance_m(r.states[:, 0:3], radius) if finite
+                                     else np.full(n_sub, np.nan))
+            if onboard is not None and estimates is not None:
+                held_estimate = np.repeat(estimates[-1][-1:], n_sub, axis=0)
+                if finite:
+                    onboard.advance(s.x, r.states, s.t_s)
+                    held_estimate[-1] = onboard.estimated_position_m()
+                estimates.append(held_estimate)
+            code = int(episode.period_outcome(r.states[None], episode.collided(c[None]), lo, hi, goal,
+                                              task.goal_radius_m)[0])
+            ended = episode.OUTCOME_OF_CODE[code]  # None while running
+            if ended is not None:
+                outcome = ended
+                detail = _detail(code, r.states, c, t_sub, s.t_s, sim.state.t_s, task, city)
+                break
     record = None if onboard is None else onboard.record()
     return Trajectory(
         t_s=np.concatenate(times), states=np.concatenate(states), rotor_commands=np.concatenate(cmds),
@@ -183,7 +228,75 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
         outcome=outcome, plan_time_s=info.plan_time_s, detail=detail, shaft_power_W=np.concatenate(power),
         estimate_m=None if estimates is None else np.concatenate(estimates),
         unmapped_clearance_m=None if near_unmapped is None else np.concatenate(near_unmapped),
-        nav=record, lidar_hits_m=None if record is None else record.lidar_hits)
+        nav=record, lidar_hits_m=None if record is None else record.lidar_hits, decisions=decided.record())
+
+
+class _PolicyTap:
+    """Stands in for a pilot's `policy` while it flies (the shipped learned pilot's, whose `act` gives its policy
+    the raw observation): passes every call through unchanged and keeps the observation of the last
+    `act_batch` call."""
+
+    def __init__(self, policy: Any) -> None:
+        self.wrapped = policy
+        self.last: np.ndarray | None = None
+
+    def act_batch(self, obs: np.ndarray) -> Any:
+        """The policy's actions for `obs` (N, k), keeping `obs`'s single row (None for a batch of several)."""
+        rows = np.asarray(obs, dtype=float)
+        self.last = rows.reshape(-1).copy() if rows.ndim == 2 and rows.shape[0] == 1 else None
+        return self.wrapped.act_batch(obs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.wrapped, name)
+
+
+class _DecisionLog:
+    """Records each decision's command and hold, and the observation vector the pilot decided on where it tells it
+    (`ObservingPilot`) or where its policy is read (`_PolicyTap`, put in place for the episode and taken out after,
+    whatever happens)."""
+
+    def __init__(self, pilot: Pilot) -> None:
+        self.pilot = pilot
+        self.kinds: list[str] = []
+        self.commands: list[np.ndarray] = []
+        self.holds: list[int] = []
+        self.observations: list[np.ndarray | None] = []
+        self.tap: _PolicyTap | None = None
+        self.observing = isinstance(pilot, ObservingPilot)
+
+    def __enter__(self) -> _DecisionLog:
+        policy = getattr(self.pilot, "policy", None)
+        if not self.observing and callable(getattr(policy, "act_batch", None)):
+            tap = _PolicyTap(policy)
+            try:
+                setattr(self.pilot, "policy", tap)  # noqa: B010 (a Pilot does not declare it)
+                self.tap = tap
+            except AttributeError:  # a pilot whose policy cannot be set: no observation recorded
+                log.debug("pilot %s: its policy's observations are not recorded", getattr(self.pilot, "name", "?"))
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        if self.tap is not None:
+            setattr(self.pilot, "policy", self.tap.wrapped)  # noqa: B010
+            self.tap = None
+
+    def add(self, act: RotorCommand | VelocityCommand, command: np.ndarray) -> None:
+        """Record a decision's actuation `act` (checked: `command` is its vector, `_checked_command`)."""
+        self.kinds.append(ROTOR_SPEEDS if isinstance(act, RotorCommand) else VELOCITY_YAW)
+        self.commands.append(np.array(command, dtype=float))
+        self.holds.append(int(act.hold_periods))
+        seen: np.ndarray | None = None
+        if self.observing:
+            told = self.pilot.last_observation()  # type: ignore[attr-defined]
+            seen = None if told is None else np.array(told, dtype=float).reshape(-1)
+        elif self.tap is not None:
+            seen, self.tap.last = self.tap.last, None
+        self.observations.append(seen)
+
+    def record(self) -> DecisionRecord:
+        """What was recorded, as a `DecisionRecord`."""
+        return DecisionRecord(tuple(self.kinds), tuple(self.commands), np.array(self.holds, dtype=np.int64),
+                              tuple(self.observations))
 
 
 class PilotError(RuntimeError):

@@ -4,6 +4,7 @@
 RUN_DIR/store/episodes.parquet                 the episode table, one row per episode (`tables.EPISODE_SCHEMA`)
 RUN_DIR/store/samples-GGGG-KKK.parquet         the samples of many episodes, in cell order (`tables.SAMPLE_SCHEMA`)
 RUN_DIR/store/parts/<cell>.parquet             one per cell flown since the store was last compacted
+RUN_DIR/store/schema.json, SCHEMA.md           every table's columns: type, unit, frame, meaning (`store_schema`)
 ```
 
 A cell writes its part as it ends (atomically: a part exists whole or not at all), so an interrupted run
@@ -17,7 +18,8 @@ corrupt) is left where it is, named, and flown again by `run --resume`.
 
 Every file is written with the same pinned settings (`WRITE_OPTIONS`: zstd at a fixed level, byte-stream-split
 floats, dictionary-encoded names, fixed row-group and page sizes), so the same episodes give the same bytes.
-pandas, polars or DuckDB read the two tables directly (docs/comparison.md, "The run store").
+pandas, polars or DuckDB read the two tables directly, `compare.results.run_tables.load_run` reads a run's tables
+whole (docs/comparison.md, "The run store").
 """
 from __future__ import annotations
 
@@ -37,11 +39,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from compare.results.store_schema import write_schema
 from compare.results.tables import (
     EPISODE_SCHEMA,
     EPISODE_SCHEMA_BEFORE_SENSING,
     KEY_COLUMNS,
     SAMPLE_SCHEMA,
+    SAMPLE_SCHEMA_BEFORE_DECISIONS,
     SAMPLE_SCHEMA_BEFORE_SENSING,
     upgraded_episodes,
     upgraded_samples,
@@ -355,6 +359,7 @@ def compact(run_dir: Path) -> list[Unreadable]:
         table = [r for r in old if key_of(r) not in fresh] + new_rows
         table.sort(key=cell_rank)
         write_episode_table(folder / EPISODE_TABLE, table, root=Path(run_dir))
+        write_schema(folder, Path(run_dir))  # what every column holds, beside the tables (store_schema)
         for p in done:
             p.unlink(missing_ok=True)
         used = {r["samples_file"] for r in table}
@@ -480,8 +485,9 @@ def open_samples(path: Path) -> pq.ParquetFile:
         source.close()
         raise ValueError(f"{path}: truncated or corrupt samples file ({_why(exc)})") from exc
     weakref.finalize(f, source.close)  # closed with the reader, as a file pyarrow opened itself would be
-    if not f.schema_arrow.remove_metadata().equals(SAMPLE_SCHEMA) and not f.schema_arrow.remove_metadata().equals(
-            SAMPLE_SCHEMA_BEFORE_SENSING):  # a run from before the vehicle sensed: read, without its columns
+    schema = f.schema_arrow.remove_metadata()
+    # a run from before the vehicle sensed, or before the decisions' commands were recorded: read, without them
+    if not any(schema.equals(s) for s in (SAMPLE_SCHEMA, SAMPLE_SCHEMA_BEFORE_DECISIONS, SAMPLE_SCHEMA_BEFORE_SENSING)):
         source.close()
         raise ValueError(f"{path}: not a samples file (its columns differ)")
     return f

@@ -24,15 +24,17 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import astuple, dataclass, fields
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
-from compare.flying.episode_loop import Trajectory
+from compare.flying.episode_loop import ROTOR_SPEEDS, DecisionRecord, Trajectory
 from compare.results.metrics import MAPPING_METRICS, SENSING_METRICS, EpisodeMetrics
+from compare.results.store_schema import CONDITION_COLUMNS as CONDITION_SPECS
+from compare.results.store_schema import DECISION_COLUMNS, EPISODE_COLUMNS, SAMPLE_COLUMNS, schema_of
 from compare.results.trajectory import EpisodeKey, EpisodeMeta, SavedEpisode, meta_from_json, meta_to_json
 from uam_fdm.files.strict import strict_json_loads
 
@@ -40,10 +42,13 @@ STORE_MODES = ("control", "full")
 """Sample rates a run can store: the control rate (default) or the physics rate (`--store full`)."""
 
 QUANTA: dict[str, int] = {
-    "position": 10, "velocity": 10, "quaternion": 16, "body_rates": 12, "rotors": 6, "wind": 10, "power": 4}
+    "position": 10, "velocity": 10, "quaternion": 16, "body_rates": 12, "rotors": 6, "wind": 10, "power": 4,
+    "heading": 16, "observation": 12}
 """Sample quantum as a power of two, 2**-k, per group of columns in "control" mode: position and velocity
 2^-10 m, m/s (~1 mm, mm/s), quaternion 2^-16 (1.5e-5), body rates 2^-12 rad/s, rotor speeds and commands
-2^-6 rad/s (0.016 rad/s of hundreds), wind 2^-10 m/s, shaft power 2^-4 W. Clearance is kept at float32 (the
+2^-6 rad/s (0.016 rad/s of hundreds), wind 2^-10 m/s, shaft power 2^-4 W; a decision's command as its kind's
+(rotor speeds, velocity) and its heading 2^-16 rad; the pilots' observation vectors 2^-12 (the learned pilot's
+features lie in [-1, 1], their training spread at least 0.16: 0.15 % of it). Clearance is kept at float32 (the
 viewer states the least clearance to the millimetre). Times are never rounded."""
 
 KEY_COLUMNS = ("scenario", "episode", "method", "seed")
@@ -56,35 +61,31 @@ ROTOR_SPEED, ROTOR_COMMAND = "rotor_speed_rad_s", "rotor_command_rad_s"
 ESTIMATE = ("est_x_m", "est_y_m", "est_z_m")
 LIDAR_HITS = "lidar_hits_m"
 
-_KEY_FIELDS = [pa.field("scenario", pa.string(), False), pa.field("episode", pa.int32(), False),
-               pa.field("method", pa.string(), False), pa.field("seed", pa.int64(), False)]
 _F32 = pa.float32()
 
-SAMPLE_SCHEMA = pa.schema(
-    _KEY_FIELDS
-    + [pa.field("t_s", pa.float64(), False)]
-    + [pa.field(n, pa.float64(), False) for n in POSITION]
-    + [pa.field(n, _F32, False) for n in (*VELOCITY, *QUATERNION, *BODY_RATES)]
-    + [pa.field(ROTOR_SPEED, pa.list_(_F32), False), pa.field(ROTOR_COMMAND, pa.list_(_F32), False)]
-    + [pa.field(n, _F32, False) for n in WIND]
-    + [pa.field("clearance_m", _F32, False), pa.field("shaft_power_w", _F32),
-       pa.field("decision_t_s", pa.float64()), pa.field("compute_s", _F32)])
-SAMPLE_SCHEMA_BEFORE_SENSING = SAMPLE_SCHEMA  # a store written before the vehicle sensed: still read
-SAMPLE_SCHEMA = SAMPLE_SCHEMA_BEFORE_SENSING.append(pa.field(ESTIMATE[0], pa.float64())).append(
-    pa.field(ESTIMATE[1], pa.float64())).append(pa.field(ESTIMATE[2], pa.float64())).append(
-    pa.field(LIDAR_HITS, pa.list_(_F32)))
-"""One row per kept sample (see the module docstring); world ENU [m, m/s], body FLU [rad/s], quaternion
-body -> world [w, x, y, z]. shaft_power_w is null in an episode saved before it was recorded; decision_t_s and
-compute_s are null except at the row where the pilot decided (the start of that control period). est_*_m: the
-navigation estimate's position (null at perfect sensing: it is the truth); lidar_hits_m: at the first kept row at or
-after each lidar scan, a thinned set of its true hit points, flattened [x, y, z, ...] world ENU (null elsewhere and at
-perfect sensing)."""
+SAMPLE_SCHEMA = schema_of(SAMPLE_COLUMNS)
+"""One row per kept sample (see the module docstring; every column's unit, frame and meaning:
+`compare.results.store_schema.SAMPLE_COLUMNS`): world ENU [m, m/s], body FLU [rad/s], quaternion body -> world
+[w, x, y, z]. shaft_power_w is null in an episode saved before it was recorded; decision_t_s, compute_s and the
+decision's command (action_kind, action, action_hold_periods, and the pilot's observation vector where it has one)
+are null except at the row where the pilot decided (the start of that control period). est_*_m: the navigation
+estimate's position (null at perfect sensing: it is the truth); lidar_hits_m: at the first kept row at or after each
+lidar scan, a thinned set of its true hit points, flattened [x, y, z, ...] world ENU (null elsewhere and at perfect
+sensing)."""
+SAMPLE_SCHEMA_BEFORE_DECISIONS = pa.schema([f for f in SAMPLE_SCHEMA if f.name not in
+                                            {c.name for c in DECISION_COLUMNS}])
+"""The samples of a store written before the decisions' commands were recorded: read, those columns null."""
+SAMPLE_SCHEMA_BEFORE_SENSING = pa.schema([f for f in SAMPLE_SCHEMA_BEFORE_DECISIONS if f.name not in
+                                          (*ESTIMATE, LIDAR_HITS)])
+"""The samples of a store written before the vehicle sensed: read, the sensing columns null."""
+_OLDER_SAMPLES = (SAMPLE_SCHEMA_BEFORE_SENSING, SAMPLE_SCHEMA_BEFORE_DECISIONS)
 
 
 def upgraded_samples(table: pa.Table) -> pa.Table:
-    """A samples table of a store written before the vehicle sensed, with the sensing columns added as nulls (any
-    other table is returned as it is, for the caller's schema check)."""
-    if not table.schema.remove_metadata().equals(SAMPLE_SCHEMA_BEFORE_SENSING):
+    """A samples table of a store written before the vehicle sensed or before the decisions' commands were
+    recorded, with the columns it lacks added as nulls (any other table is returned as it is, for the caller's
+    schema check)."""
+    if not any(table.schema.remove_metadata().equals(s) for s in _OLDER_SAMPLES):
         return table
     for f in SAMPLE_SCHEMA:
         if f.name not in table.column_names:
@@ -111,22 +112,15 @@ class EpisodeConditions:
     building_coverage: float
 
 
-_METRIC_TYPES = {"str": pa.string(), "int": pa.int64(), "float": pa.float64(), "bool": pa.bool_()}
 METRIC_COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
-CONDITION_COLUMNS = ("field_density_kg_m3", "density_altitude_m", "turbulence", "steady_wind_m_s",
-                     "steady_wind_e_m_s", "steady_wind_n_m_s", "steady_wind_u_m_s", "building_coverage")
+CONDITION_COLUMNS = tuple(c.name for c in CONDITION_SPECS)
 
 _ADDED_WITH_SENSING = ("sensing", "map_error", *SENSING_METRICS, *MAPPING_METRICS)
-EPISODE_SCHEMA = pa.schema(
-    [pa.field(f.name, _METRIC_TYPES[str(f.type)], False) for f in fields(EpisodeMetrics)]
-    + [pa.field("turbulence", pa.string())]
-    + [pa.field(n, pa.float64()) for n in CONDITION_COLUMNS if n != "turbulence"]
-    + [pa.field("store", pa.string(), False), pa.field("samples", pa.int64(), False),
-       pa.field("samples_file", pa.string(), False), pa.field("row_start", pa.int64(), False),
-       pa.field("meta_json", pa.string(), False)])
+EPISODE_SCHEMA = schema_of(EPISODE_COLUMNS)
 """One row per episode: the metrics.csv columns (same names and order), the conditions (null where not
 recorded), how its samples were kept ("control" or "full") and how many, the file of the run store holding them
-(relative to the store folder) and the first of them there, and the episode's metadata as JSON."""
+(relative to the store folder) and the first of them there, and the episode's metadata as JSON (every column:
+`compare.results.store_schema.EPISODE_COLUMNS`)."""
 EPISODE_SCHEMA_BEFORE_SENSING = pa.schema([f for f in EPISODE_SCHEMA if f.name not in _ADDED_WITH_SENSING])
 """The episode table of a store written before the vehicle sensed: read, its rows given the metrics' defaults."""
 
@@ -215,7 +209,9 @@ def samples_table(key: EpisodeKey, traj: Trajectory, n_rotors: int, mode: str, p
     cols["clearance_m"] = f32(np.asarray(traj.clearance_m, float)[rows], None)
     power = traj.shaft_power_W
     cols["shaft_power_w"] = pa.nulls(m, _F32) if power is None else f32(np.asarray(power, float)[rows], "power")
-    decided_t, compute = _decisions_on_rows(t, np.asarray(traj.decision_t_s, float), np.asarray(traj.compute_s, float))
+    on_rows = _decision_rows(t, np.asarray(traj.decision_t_s, float))
+    decided_t, compute = np.full(m, np.nan), np.full(m, np.nan)
+    decided_t[on_rows], compute[on_rows] = traj.decision_t_s, traj.compute_s
     cols["decision_t_s"] = pa.array(decided_t, pa.float64(), from_pandas=True)
     cols["compute_s"] = pa.array(compute.astype(np.float32), _F32, from_pandas=True)
     est = traj.estimate_m
@@ -223,7 +219,62 @@ def samples_table(key: EpisodeKey, traj: Trajectory, n_rotors: int, mode: str, p
         cols[name] = pa.nulls(m, pa.float64()) if est is None else pa.array(
             _quantized(np.asarray(est, float)[rows, i], "position", mode))
     cols[LIDAR_HITS] = _lidar_on_rows(t, traj.lidar_hits_m)
+    cols.update(_commands_on_rows(m, on_rows, traj.decisions, mode))
     return pa.table(cols, schema=SAMPLE_SCHEMA)
+
+
+def _commands_on_rows(m: int, on_rows: np.ndarray, record: DecisionRecord | None, mode: str) -> dict[str, pa.Array]:
+    """The decision columns (`store_schema.DECISION_COLUMNS`) of `m` rows: each decision's command, hold and
+    observation on its row `on_rows[i]` (increasing; in "control" mode rounded to `QUANTA`: a command as its kind's
+    samples, an observation to 2^-12), null elsewhere; all null for an episode recorded without them."""
+    kind: list[str | None] = [None] * m
+    if record is None:
+        nulls = pa.nulls(m, pa.list_(_F32))
+        return {"action_kind": pa.array(kind, pa.string()), "action": nulls,
+                "action_hold_periods": pa.nulls(m, pa.int32()), "observation": nulls}
+    if len(record.commands) != len(on_rows):
+        raise ValueError(f"{len(record.commands)} recorded commands for {len(on_rows)} decisions")
+    hold = np.zeros(m, np.int32)
+    hold[on_rows] = record.hold_periods
+    for r, k in zip(on_rows, record.kinds):
+        kind[r] = k
+    rotor = np.array([k == ROTOR_SPEEDS for k in record.kinds], bool)
+    action, sizes = _flat(record.commands)
+    at = np.arange(len(action)) - np.repeat(np.cumsum(sizes) - sizes, sizes)  # each value's index in its command
+    quantum = np.where(np.repeat(rotor, sizes), QUANTA["rotors"],
+                       np.where(at < 3, QUANTA["velocity"], QUANTA["heading"]))
+    seen = on_rows[np.array([o is not None for o in record.observations], bool)]
+    observation, seen_sizes = _flat([o for o in record.observations if o is not None])
+    if mode == "control":
+        action = _rounded(action, 2.0 ** quantum)
+        observation = _rounded(observation, 2.0 ** QUANTA["observation"])
+    return {"action_kind": pa.array(kind, pa.string()), "action": _lists(m, on_rows, sizes, action),
+            "action_hold_periods": pa.array(hold, pa.int32(), mask=~np.isin(np.arange(m), on_rows)),
+            "observation": _lists(m, seen, seen_sizes, observation)}
+
+
+def _flat(vectors: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Vectors one after another (float64), and their lengths."""
+    sizes = np.array([np.size(v) for v in vectors], np.int64)
+    return (np.concatenate([np.asarray(v, float).reshape(-1) for v in vectors]) if len(vectors) else np.zeros(0),
+            sizes)
+
+
+def _rounded(values: np.ndarray, scale: float | np.ndarray) -> np.ndarray:
+    """`values` rounded to 1/`scale` (a non-finite value, or one too large to round, stays as it is)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = np.round(values * scale) / scale
+    return np.where(np.isfinite(out), out, values)
+
+
+def _lists(m: int, rows: np.ndarray, sizes: np.ndarray, values: np.ndarray) -> pa.Array:
+    """A list<float32> column of `m` rows: on row `rows[i]` (increasing) the next `sizes[i]` of `values`, null on
+    every other row."""
+    lengths = np.zeros(m, np.int64)
+    lengths[rows] = sizes
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32)
+    return pa.ListArray.from_arrays(pa.array(offsets), pa.array(values.astype(np.float32)),
+                                    mask=pa.array(~np.isin(np.arange(m), rows)))
 
 
 def _lidar_on_rows(t_s: np.ndarray, hits: np.ndarray | None) -> pa.Array:
@@ -237,9 +288,8 @@ def _lidar_on_rows(t_s: np.ndarray, hits: np.ndarray | None) -> pa.Array:
     return pa.array(per_row, pa.list_(_F32))
 
 
-def _decisions_on_rows(t_s: np.ndarray, decision_t_s: np.ndarray,
-                       compute_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Decision times and compute times spread onto the kept rows (NaN: no decision at that row).
+def _decision_rows(t_s: np.ndarray, decision_t_s: np.ndarray) -> np.ndarray:
+    """The kept row of each decision (D,).
 
     A decision is made at the start of a control period, which is a kept row in either mode (row 0 or the end of
     the period before); it goes to the row nearest its time (the runner's clocks may differ in the last bit).
@@ -247,18 +297,15 @@ def _decisions_on_rows(t_s: np.ndarray, decision_t_s: np.ndarray,
     Raises:
         ValueError: a decision with no row of its own (two on one row), which the runner never makes.
     """
-    at = np.full(len(t_s), np.nan)
-    cost = np.full(len(t_s), np.nan)
     if len(decision_t_s) == 0:
-        return at, cost
+        return np.zeros(0, np.int64)
     right = np.clip(np.searchsorted(t_s, decision_t_s), 1, len(t_s) - 1) if len(t_s) > 1 else np.zeros(
         len(decision_t_s), int)
     left = np.maximum(right - 1, 0)
     nearest = np.where(np.abs(t_s[left] - decision_t_s) <= np.abs(t_s[right] - decision_t_s), left, right)
     if len(np.unique(nearest)) != len(nearest):
         raise ValueError("two decisions fall on one stored row")
-    at[nearest], cost[nearest] = decision_t_s, compute_s
-    return at, cost
+    return nearest.astype(np.int64)
 
 
 def episode_row(meta: EpisodeMeta, metrics: EpisodeMetrics, conditions: EpisodeConditions | None, mode: str,
@@ -295,8 +342,11 @@ def meta_from_row(row: Mapping[str, Any]) -> EpisodeMeta:
         raise ValueError(f"its metadata is not readable ({exc})") from exc
 
 
-def episode_from_tables(meta: EpisodeMeta, samples: pa.Table) -> SavedEpisode:
+def episode_from_tables(meta: EpisodeMeta, samples: pa.Table, *, with_decisions: bool = False) -> SavedEpisode:
     """An episode from its metadata and its samples (as stored: thinned in "control" mode), as float64 arrays.
+
+    `with_decisions`: read the decisions' commands and observations into `Trajectory.decisions` too (by default
+    left as None: the pages never draw them, and `compare.results.run_tables.load_run` reads them as a table).
 
     Raises:
         ValueError: samples that are not a flight (no rows, times not finite and increasing, rotor lists of
@@ -332,8 +382,25 @@ def episode_from_tables(meta: EpisodeMeta, samples: pa.Table) -> SavedEpisode:
                       decision_t_s=decided[has], compute_s=col("compute_s")[has], energy_J=meta.energy_J,
                       outcome=meta.outcome, plan_time_s=meta.plan_time_s, detail=meta.detail,
                       shaft_power_W=None if samples.column("shaft_power_w").null_count == n else power,
-                      estimate_m=est, lidar_hits_m=_lidar_from_samples(samples))
+                      estimate_m=est, lidar_hits_m=_lidar_from_samples(samples),
+                      decisions=_decisions_from_samples(samples, has) if with_decisions else None)
     return SavedEpisode(meta, traj)
+
+
+def _decisions_from_samples(samples: pa.Table, decided: np.ndarray) -> DecisionRecord | None:
+    """The decisions' commands a samples table holds on its decision rows (`decided`: (M,) bool), None where it
+    holds none (a store written before they were recorded)."""
+    if "action_kind" not in samples.column_names:
+        return None
+    rows = pa.array(np.flatnonzero(decided))
+    kinds = samples.column("action_kind").take(rows).to_pylist()
+    if not kinds or any(k is None for k in kinds):
+        return None
+    commands = [np.asarray(v, float) for v in samples.column("action").take(rows).to_pylist()]
+    observations = [None if v is None else np.asarray(v, float)
+                    for v in samples.column("observation").take(rows).to_pylist()]
+    holds = samples.column("action_hold_periods").take(rows).to_numpy(zero_copy_only=False).astype(np.int64)
+    return DecisionRecord(tuple(kinds), tuple(commands), holds, tuple(observations))
 
 
 def _lidar_from_samples(samples: pa.Table) -> np.ndarray | None:

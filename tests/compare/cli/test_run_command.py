@@ -47,9 +47,9 @@ def test_run_writes_every_output(tiny_run):
         duration = max(float(r["time_s"]) for r in read_episode_table(tiny_run))
         assert (stream["width"], stream["height"]) == (1280, 720)
         assert int(stream["nb_read_frames"]) == round(min(duration, 30.0) * 20)
-    # one store: the episode table and one samples file, the cells' parts compacted into them
+    # one store: the episode table and one samples file, the cells' parts compacted into them, and their description
     assert sorted(p.name for p in store_dir(tiny_run).rglob("*") if p.is_file()) == [
-        EPISODE_TABLE, "samples-0001-000.parquet"]
+        "SCHEMA.md", EPISODE_TABLE, "samples-0001-000.parquet", "schema.json"]
     assert not (tiny_run / "episodes").exists()
     episodes = open_episodes(tiny_run)
     assert [e.key.stem for e in episodes.entries] == ["tiny__ep000__ppo__s0", "tiny__ep000__rrt_mpc__s0"]
