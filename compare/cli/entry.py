@@ -56,6 +56,8 @@ COMMANDS: dict[str, Command] = {name: Command(f"compare.cli.{module}", text) for
     ("export", "playback", "write a run's flights, or a policy's recorded training flights, as a Rerun recording "
                            "(.rrd; needs the rerun extra)"),
     ("validate", "validate", "check scenario files strictly without flying anything"),
+    ("list", "catalog", "list the scenario sets, shipped maps, vehicles, pilots (plug-ins too) and shipped policies, "
+                        "one line each (--json for scripts)"),
     ("train", "train", "train the learned pilot with PPO from scratch on the batched environment"),
     ("evaluate-policy", "evaluate", "fly a policy and the potential-field pilot (apf) on the same held-out cities; "
                                     "last line is JSON"),

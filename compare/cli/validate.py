@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 
 from compare.scenarios.sets import resolve_scenarios
 
@@ -20,6 +21,9 @@ def validate(args: argparse.Namespace) -> int:
         levels = "" if sc.sensing.perfect else f", sensing {sc.sensing.label}"
         if not sc.map_error.exact or sc.unmapped_ids:
             levels += f", map error {sc.map_error.label} ({len(sc.unmapped_ids)} obstacles not in the prior map)"
+        drawn = sc.raw.get("episodes")
+        if isinstance(drawn, Mapping):  # `episodes: {random: N, ...}`
+            levels = f", legs drawn at random from seed {drawn.get('seed', sc.seeds[0])}" + levels
         print(f"{sc.source}: ok ({sc.name}: map {sc.city.name or '-'} with {len(sc.city.buildings)} buildings, "
               f"vehicle {sc.vehicle_name}, {len(sc.episodes)} episodes x {len(sc.seeds)} seeds, "
               f"pilots {', '.join(sc.pilots)}, turbulence {sc.wind.turbulence.value}{levels})")

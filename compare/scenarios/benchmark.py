@@ -25,7 +25,8 @@ first blocked candidate; the first free one when none of `MAX_LEG_DRAWS` is bloc
 Determinism and subsets: scenario i's city, air and wind come from its own seed, and leg j from its own
 stream, so a scenario's first legs do not depend on how many it has. "benchmark-quick" is the first
 `quick_scenarios` scenarios of each vehicle with their first `quick_legs` legs: the same names, tasks and
-cell seeds as in "benchmark", so its cells are cells of the full set.
+cell seeds as in "benchmark", so its cells are cells of the full set; "benchmark-validation-quick" is likewise the
+first of "benchmark-validation".
 
 Validation: "benchmark-validation" is the full set's twin on other cities (`VALIDATION_SEED_OFFSET` added to every
 city seed; the same design, levels, leg bins and time limits; scenarios named "benchmark-validation-<tag>-007"). A
@@ -50,6 +51,8 @@ import numpy as np
 from compare.results.difficulty import building_coverage
 from compare.results.run_info import TaskSetInfo
 from compare.scenarios.fingerprint import scenario_fingerprint
+from compare.scenarios.random_legs import LegRanges
+from compare.scenarios.random_legs import draw_leg as random_leg
 from compare.scenarios.scenario import Scenario, scenario_from_dict
 from rl.task.air import AIR_LEVELS as LEVELS_OF_AIR
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, CityMixture, TaskDistribution
@@ -62,8 +65,8 @@ from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 GENERATOR_VERSION = "1"
 """Bumped by hand when the design changes on purpose; the hash in the version catches every change anyway."""
 # the generated sets (`compare.scenarios.sets`)
-BENCHMARK_SETS = ("benchmark", "benchmark-quick", "benchmark-validation")
-FULL, QUICK, VALIDATION = BENCHMARK_SETS
+BENCHMARK_SETS = ("benchmark", "benchmark-quick", "benchmark-validation", "benchmark-validation-quick")
+FULL, QUICK, VALIDATION, VALIDATION_QUICK = BENCHMARK_SETS
 VALIDATION_SEED_OFFSET = 200_000
 """The validation twin's city seeds: the full set's plus this (3,200,000.. for the small quad, 3,300,000.. for the
 UAM: clear of the full set's 36 and of every learned pilot's pool, `_check_design`)."""
@@ -71,7 +74,6 @@ PILOT_NAMES = ("ppo", "rrt_mpc", "apf")
 TURBULENCE_LEVELS = ("none", "light", "moderate")
 DENSITY_LEVELS = ("sparse", "medium", "dense")
 MAX_LEG_DRAWS = 256  # candidate legs per leg before a free straight line is accepted
-_DRAW_BATCH = 32
 _STREAM_AIR, _STREAM_LEG = 0xA1B, 0x1E6  # PCG64 stream tags: a scenario's air and wind, its legs
 LEARNED_PILOT_POOLS: dict[str, range] = {"training": TRAIN_SEEDS, "test and validation": EVAL_SEEDS}
 """The learned pilot's city seed pools (`rl.task.cities`, `rl.training.evaluation`), which the benchmark's seeds
@@ -174,10 +176,10 @@ def build_task_set(name: str, design: BenchmarkDesign = DESIGN) -> TaskSet:
     if name not in BENCHMARK_SETS:
         raise ValueError(f"unknown benchmark set {name!r} (known: {', '.join(BENCHMARK_SETS)})")
     _check_design(design)
-    n_scenarios, n_legs = ((design.quick_scenarios, design.quick_legs) if name == QUICK
+    n_scenarios, n_legs = ((design.quick_scenarios, design.quick_legs) if name in (QUICK, VALIDATION_QUICK)
                            else (design.scenarios_per_vehicle, design.legs_per_scenario))
     flown, prefix = design, "benchmark"
-    if name == VALIDATION:
+    if name in (VALIDATION, VALIDATION_QUICK):
         flown, prefix = validation_design(design), VALIDATION
         _check_design(flown, others={f"{v} benchmark": seeds for v, seeds in city_seed_ranges(design).items()})
     checked = []
@@ -234,8 +236,8 @@ def _describe(name: str, n_scenarios: int, n_legs: int, design: BenchmarkDesign)
     sizes = ", ".join(f"{vb.vehicle} {n_scenarios} cities x {n_legs} legs = {n_scenarios * n_legs} tasks"
                       for vb in design.vehicles)
     subset = {QUICK: f" (the first of {FULL}'s)",
-              VALIDATION: f" for tuning: the validation twin of {FULL} (city seeds +{VALIDATION_SEED_OFFSET:,})"
-              }.get(name, "")
+              VALIDATION: f" for tuning: the validation twin of {FULL} (city seeds +{VALIDATION_SEED_OFFSET:,})",
+              VALIDATION_QUICK: f" for tuning: the first of {VALIDATION}'s"}.get(name, "")
     return (f"Held-out generated tasks per vehicle{subset}: {sizes}; cities of each learned pilot's distribution at "
             f"unseen seeds; buildings {'/'.join(DENSITY_LEVELS)}, turbulence {'/'.join(TURBULENCE_LEVELS)}, air "
             f"{'/'.join(a.name for a in AIR_LEVELS)}, {len(design.vehicles[0].leg_bins_m)} leg-length bins, straight "
@@ -308,52 +310,23 @@ def city_params(cities: CityDistribution | CityMixture, seed: int, density_level
 
 
 def draw_leg(city: BuildingMap, tasks: TaskDistribution, vb: VehicleBenchmark, radius_m: float, seed: int,
-         j: int) -> tuple[list[float], list[float]]:
-    """Leg j of city `seed`: start and goal (ENU, rounded to 0.1 m) from the leg's own stream.
+             j: int) -> tuple[list[float], list[float]]:
+    """Leg j of city `seed`: start and goal (ENU, rounded to 0.1 m) from the leg's own stream
+    (`compare.scenarios.random_legs.draw_leg`: a length in the leg's bin, heights in the vehicle's range, both ends
+    the task's clearance beyond the collision radius from buildings and the ground, inside the bounds less the
+    task's margin; the first candidate whose straight line is blocked wins, else the first free one).
 
-    Candidates: a length in the leg's bin, heights in the vehicle's range, a heading, then a start uniform
-    over the places from which the goal stays inside the flyable area (bounds less the task's margin);
-    both ends at least the task's clearance beyond the collision radius from buildings and the ground.
-    The first candidate whose straight line is blocked wins, else the first free one.
+    Raises:
+        RuntimeError: no free start and goal in `MAX_LEG_DRAWS` candidates.
     """
     rng = np.random.Generator(np.random.PCG64([seed, _STREAM_LEG, j]))
-    d_lo, d_hi = vb.leg_bins_m[j % len(vb.leg_bins_m)]
-    lo = np.asarray(city.bounds_min_m[:2]) + tasks.bounds_margin_m
-    hi = np.asarray(city.bounds_max_m[:2]) - tasks.bounds_margin_m
-    need = tasks.min_clearance_m
-    fallback = None
-    for _ in range(MAX_LEG_DRAWS // _DRAW_BATCH):
-        n = _DRAW_BATCH
-        dist = rng.uniform(d_lo, d_hi, n)
-        z = rng.uniform(*vb.altitude_m, (n, 2))
-        heading = rng.uniform(-math.pi, math.pi, n)
-        u = rng.random((n, 2))
-        horiz = np.sqrt(np.maximum(dist ** 2 - (z[:, 1] - z[:, 0]) ** 2, 1.0))
-        step = horiz[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
-        # the start's range along each axis that keeps start and goal inside [lo, hi]
-        s_lo, s_hi = np.maximum(lo, lo - step), np.minimum(hi, hi - step)
-        fits = np.all(s_hi > s_lo, axis=1)
-        start_xy = s_lo + u * (s_hi - s_lo)
-        starts = np.round(np.column_stack([start_xy, z[:, 0]]), 1)
-        goals = np.round(np.column_stack([start_xy + step, z[:, 1]]), 1)
-        ok = fits & np.all((goals[:, :2] >= lo) & (goals[:, :2] <= hi), axis=1)
-        ok &= np.all((starts[:, :2] >= lo) & (starts[:, :2] <= hi), axis=1)
-        if not np.any(ok):
-            continue
-        clear_a = city.clearance(starts, radius_m).distance_m
-        clear_b = city.clearance(goals, radius_m).distance_m
-        for k in np.flatnonzero(ok & (clear_a >= need) & (clear_b >= need)):
-            d = math.dist(starts[k], goals[k])
-            if not d_lo <= d <= d_hi:  # rounding at the bin's edge
-                continue
-            leg = (starts[k].tolist(), goals[k].tolist())
-            if not city.segment_free(starts[k], goals[k], radius_m):
-                return leg
-            fallback = fallback or leg
-    if fallback is None:
-        raise RuntimeError(f"city {seed}: no free start and goal for leg {j} ({d_lo:g}-{d_hi:g} m) in "
+    bin_m = vb.leg_bins_m[j % len(vb.leg_bins_m)]
+    ranges = LegRanges(bin_m, vb.altitude_m, tasks.min_clearance_m, tasks.bounds_margin_m)
+    leg = random_leg(city, rng, ranges, radius_m, MAX_LEG_DRAWS)
+    if leg is None:
+        raise RuntimeError(f"city {seed}: no free start and goal for leg {j} ({bin_m[0]:g}-{bin_m[1]:g} m) in "
                            f"{MAX_LEG_DRAWS} candidates")
-    return fallback
+    return leg
 
 
 # ---- difficulty measures ------------------------------------------------------------------------------

@@ -1,8 +1,10 @@
 """Scenario files: a strict loader that checks everything before anything flies.
 
 A scenario is one YAML file: a city, a vehicle, the air it flies in, and the episodes (start, goal)
-each pilot flies, once per seed. World frame ENU (x east, y north, z up), metres above the field
-(ground at z = 0), seconds, SI units. Every key, its unit, range and default: docs/scenario_format.md.
+each pilot flies, once per seed; or `episodes: {random: N, ...}`, N legs drawn from a seed
+(`compare.scenarios.random_legs`) and checked as explicit ones. World frame ENU (x east, y north, z up),
+metres above the field (ground at z = 0), seconds, SI units. Every key, its unit, range and default:
+docs/scenario_format.md.
 
 Every value is checked when the file is loaded, and the first problem raises
 `uam_fdm.errors.ConfigError` naming the file, the dotted key and the reason with the bad value,
@@ -21,6 +23,7 @@ generator: this module resolves no names.
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import math
@@ -36,6 +39,7 @@ import numpy as np
 from compare.flying import pilots
 from compare.flying.pilots import DEFAULT_PILOTS, PILOT_NAMES
 from compare.results.run_info import TaskSetInfo
+from compare.scenarios.random_legs import episode_list, named_as_drawn
 from uam_fdm.air.atmosphere import (
     ELEVATION_RANGE_M,
     ISA_OFFSET_RANGE_K,
@@ -128,7 +132,7 @@ class Scenario:
         map_error: how `prior_map` differs from `city` (the `exact` preset by default).
         sensing: what the vehicle senses (the `perfect` level for its mass by default).
         wind: steady wind (ENU, m/s) at its reference height, its shear with height, turbulence level.
-        episodes: the tasks, in file order.
+        episodes: the tasks, in file order (legs drawn by `episodes: {random: N, ...}`: in the order drawn).
         seeds: the seeds each episode is flown with.
         pilots: the pilots to fly, in `compare.flying.pilots.PILOT_NAMES` order.
         physics_hz: physics rate [Hz].
@@ -216,12 +220,14 @@ def scenario_from_dict(data: Any, source: str, base_dir: Path) -> Scenario:
     seeds = _optional(data, "seeds", DEFAULT_SEEDS, source, _seeds)
     flown = _optional(data, pilots_key, DEFAULT_PILOTS, source, _pilots)
     physics_hz, control_hz = _rates(data, source, vehicle)
-    city, prior, unmapped_ids = _true_and_prior(data, source, city, map_error, seeds, vehicle)
-    episodes = _episodes(data["episodes"], source, city, vehicle, goal_radius, timeout)
-    if prior is not city:
-        _check_prior(episodes, prior, vehicle.collision_radius_m, source)
-    air = flight_atmosphere(atmosphere, city)
-    _check_hover(episodes, vehicle, air, source)
+    legs, drawn = episode_list(data, source, city, vehicle.collision_radius_m, goal_radius, seeds[0])
+    with named_as_drawn(source) if drawn else contextlib.nullcontext():  # drawn legs: checked as explicit ones
+        city, prior, unmapped_ids = _true_and_prior(data, source, city, map_error, seeds, vehicle, legs)
+        episodes = _episodes(legs, source, city, vehicle, goal_radius, timeout)
+        if prior is not city:
+            _check_prior(episodes, prior, vehicle.collision_radius_m, source)
+        air = flight_atmosphere(atmosphere, city)
+        _check_hover(episodes, vehicle, air, source)
     return Scenario(name=name, description=description, source=source, vehicle=vehicle,
                     vehicle_name=vehicle_name, city=city, atmosphere=atmosphere, wind=wind,
                     episodes=episodes, seeds=seeds, pilots=flown, physics_hz=physics_hz,
@@ -411,8 +417,8 @@ def _rates(data: Mapping, source: str, vehicle: VehicleParams) -> tuple[float, f
 def _episodes(value: Any, source: str, city: BuildingMap, vehicle: VehicleParams, goal_radius: float,
               timeout: float | None) -> tuple[ScenarioEpisode, ...]:
     if not isinstance(value, list) or not value:
-        raise ConfigError(source, "episodes", f"must be a non-empty list of {{start: [x, y, z], goal: [x, y, z]}}, "
-                                              f"got {value!r}")
+        raise ConfigError(source, "episodes", f"must be a non-empty list of {{start: [x, y, z], goal: [x, y, z]}} "
+                                              f"or a mapping {{random: N, ...}}, got {value!r}")
     radius = vehicle.collision_radius_m
     parsed = []
     for i, item in enumerate(value):
@@ -472,14 +478,14 @@ def _check_point(p: tuple[float, float, float], city: BuildingMap, radius: float
 
 
 def _true_and_prior(data: Mapping, source: str, world: BuildingMap, config: MapErrorConfig, seeds: tuple[int, ...],
-                    vehicle: VehicleParams) -> tuple[BuildingMap, BuildingMap, tuple[int, ...]]:
+                    vehicle: VehicleParams, legs: Any) -> tuple[BuildingMap, BuildingMap, tuple[int, ...]]:
     """The true city, the pilots' prior map and the ids only the truth has, from `map` (`world`), `unmapped` and
-    `map_error` (drawn from `map_error.seed`, else the first of `seeds`, clear of every start and goal by the
-    collision radius plus `KEEP_CLEAR_MARGIN_M`). Without either key: (world, world, ())."""
+    `map_error` (drawn from `map_error.seed`, else the first of `seeds`, clear of every start and goal of `legs`,
+    the episodes, by the collision radius plus `KEEP_CLEAR_MARGIN_M`). Without either key: (world, world, ())."""
     if "unmapped" not in data and config.exact:
         return world, world, ()
     unmapped = unmapped_from_config(data.get("unmapped", []), source, world)
-    keep = _episode_points(data["episodes"], source)
+    keep = _episode_points(legs, source)
     seed = seeds[0] if config.seed is None else config.seed
     result = apply_map_error(world, unmapped, config, seed, keep, vehicle.collision_radius_m + KEEP_CLEAR_MARGIN_M)
     return result.truth, result.prior, result.unmapped_ids

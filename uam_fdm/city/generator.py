@@ -226,7 +226,7 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenConfig, 
     """Strictly parse a `generator` mapping: `{seed: N, preset: name?, name: label?, <CityGenConfig fields>...}`.
 
     Fields not given come from the preset (a shipped map's parameters) or the defaults. `name` labels
-    the generated map (default: the preset's name, else "generated"); `generated_map_name` reads it.
+    the generated map (default: "gen-<preset>-<seed>", else "gen-<seed>"); `generated_map_name` reads it.
 
     Args:
         cfg: the mapping from YAML.
@@ -272,8 +272,13 @@ def params_from_config(cfg: Any, source: str, key: str) -> tuple[CityGenConfig, 
 
 
 def generated_map_name(cfg: Mapping[str, Any]) -> str:
-    """The label of the map a checked `generator` mapping makes: its `name`, else its preset's, else "generated"."""
-    return str(cfg.get("name", cfg.get("preset", "generated")))
+    """The label of the map a checked `generator` mapping makes: its `name`, else the generator and seed it comes
+    from, "gen-<preset>-<seed>" ("gen-suburb-42") or "gen-<seed>" without a preset. Never a shipped map's name
+    alone: a city generated with the suburb's parameters at another seed is another city than the shipped
+    "suburb" (run folders, reports and the viewer label episodes by this name)."""
+    if "name" in cfg:
+        return str(cfg["name"])
+    return f"gen-{cfg['preset']}-{cfg['seed']}" if "preset" in cfg else f"gen-{cfg['seed']}"
 
 
 def _scalar(v: Any, kind: type, source: str, key: str, shown: Any) -> Any:

@@ -15,7 +15,7 @@ from compare.run.campaign import RunConfig
 from run_data import TINY
 
 COMMANDS = ("demo", "maps", "run", "sweep", "report", "animate", "view", "view-training", "export", "validate",
-            "train", "evaluate-policy")
+            "list", "train", "evaluate-policy")
 
 
 def _help(command: str, capsys: pytest.CaptureFixture) -> str:

@@ -27,6 +27,7 @@ from compare.scenarios.benchmark import (
     QUICK,
     TURBULENCE_LEVELS,
     VALIDATION,
+    VALIDATION_QUICK,
     VALIDATION_SEED_OFFSET,
     TaskSet,
     build_task_set,
@@ -185,6 +186,15 @@ def test_the_validation_twin_is_the_same_design_on_other_cities(full: TaskSet) -
             vb = next(v for v in DESIGN.vehicles if v.vehicle == mine.vehicle_name)
             lo, hi = vb.leg_bins_m[a.index % 3]
             assert lo <= math.dist(a.task.start_m, a.task.goal_m) <= hi and a.index == b.index
+    # its quick subset: the twin's first scenarios with their first legs, the same names and tasks
+    quick = build_task_set(VALIDATION_QUICK)
+    assert quick.info.name == VALIDATION_QUICK and "the first of benchmark-validation's" in quick.info.description
+    by_name = {sc.name: sc for sc in twin.scenarios}
+    assert len(quick.scenarios) == len(DESIGN.vehicles) * DESIGN.quick_scenarios
+    for sc in quick.scenarios:
+        whole = by_name[sc.name]
+        assert len(sc.episodes) == DESIGN.quick_legs
+        assert [e.task for e in sc.episodes] == [e.task for e in whole.episodes[:DESIGN.quick_legs]]
     # the twin's seeds may not land on another vehicle's test cities
     crowded = dataclasses.replace(DESIGN.vehicles[1], first_seed=DESIGN.vehicles[0].first_seed + VALIDATION_SEED_OFFSET)
     with pytest.raises(ValueError, match="small_quad: city seeds 3200000-3200035 overlap the uam_multicopter bench"):

@@ -40,11 +40,11 @@ def test_generator_named_and_default_bounds() -> None:
     gen = map_from_config({"generator": {"preset": "canyon", "seed": 4}}, None, "s.yaml", Path("."))
     assert gen.bounds_max_m.tolist() == [700.0, 700.0, 300.0] and len(gen.buildings) > 50
     again = map_from_config({"generator": {"preset": "canyon", "seed": 4}}, None, "s.yaml", Path("."))
-    assert again.buildings == gen.buildings and gen.name == "canyon"
+    assert again.buildings == gen.buildings and gen.name == "gen-canyon-4"  # not the shipped "canyon"
     labelled = map_from_config({"generator": {"preset": "canyon", "seed": 4, "name": "gen-4"}}, None, "s.yaml",
                                Path("."))
     assert labelled.name == "gen-4" and labelled.buildings == gen.buildings
-    assert map_from_config({"generator": {"seed": 4}}, None, "s.yaml", Path(".")).name == "generated"
+    assert map_from_config({"generator": {"seed": 4}}, None, "s.yaml", Path(".")).name == "gen-4"
     named = map_from_config({"named": "suburb"}, None, "s.yaml", Path("."))
     assert named.buildings == load_named_map("suburb").buildings and named.name == "suburb"
     wider = map_from_config({"named": "suburb"}, {"min": [0, 0, 0], "max": [800, 800, 400]}, "s.yaml", Path("."))
