@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from planners.clearance import MarginTaper, endpoint_allowance
-from planners.ladder import LADDER, LadderResult, PlanStep, plan_with_escalation
+from planners.ladder import IN_FLIGHT_LADDER, LADDER, LadderResult, PlanStep, plan_with_escalation
 from planners.margins import (
     MarginRule,
     Margins,
@@ -77,11 +77,13 @@ class ClassicalConfig:
             (the tracker lags the reference); the planning ladder climbs on past a step whose fastest plan does
             not (`planners.ladder`).
         ladder: the planning attempts, in order (`planners.ladder.LADDER`).
+        in_flight_ladder: the attempts of a replan in flight on sensors, in order (`planners.ladder.IN_FLIGHT_LADDER`:
+            smaller budgets, so that they fit `replan_budget_s`).
         mapping: how scans are mapped (flying on sensors).
         uncertainty_k: margins grow by this many σ of the estimate's position (its covariance's largest axis).
         uncertainty_replan_m: replan when k σ exceeds what the flown plan's margins took by this much [m].
         replan_budget_s: flight time a replan in flight takes (braking meanwhile) [s]; calibrated so that the
-            planning ladder fits it on this machine (perf/replanning.py).
+            in-flight ladder and the map refresh before it fit it on this machine (perf/mapping.py).
         hold_retry_s: holding for want of a path, try again after this long [s].
         refuse_margin_m: a newly sensed obstacle blocks the path still to fly when it comes within the collision
             radius plus the margin at rest plus this [m] of it (half a voxel's diagonal covers the voxel's extent).
@@ -102,10 +104,11 @@ class ClassicalConfig:
     replan_cooldown_s: float = 1.0
     time_fraction: float = 0.8
     ladder: tuple[PlanStep, ...] = LADDER
+    in_flight_ladder: tuple[PlanStep, ...] = IN_FLIGHT_LADDER
     mapping: MappingConfig = field(default_factory=MappingConfig)
     uncertainty_k: float = 3.0
     uncertainty_replan_m: float = 0.5
-    replan_budget_s: float = 0.5
+    replan_budget_s: float = 1.1
     hold_retry_s: float = 1.0
     refuse_margin_m: float = 0.9
     fuse_period_s: float = 1.0
@@ -211,6 +214,8 @@ class ClassicalPilot:
         self.margins = self._base_margins.widened(self._planned_extra_m)
         self._pending: tuple | None = None  # a plan made in flight, flown once its budget has passed
         self._hold_retry_t = math.inf  # holding for want of a path: when to try again
+        self._retries = 0  # tries while holding (each plans from another seed)
+        self._on_floor = False  # the plan flown was found at the floor margin (the speed margins did not fit)
         self._blocked = False
         self._extra_now = self._planned_extra_m
         self._map_dirty, self._fused_t = False, -math.inf
@@ -223,8 +228,11 @@ class ClassicalPilot:
         ok, status, detail = self._plan(np.asarray(task.start_m, float), t_start=0.0)
         return ResetInfo(ok=ok, status=status, plan_time_s=self.stats.plan_time_s, detail=detail)
 
-    def _plan(self, start: np.ndarray, t_start: float, velocity_m_s: np.ndarray | None = None
-              ) -> tuple[bool, str, str]:
+    def _plan(self, start: np.ndarray, t_start: float, velocity_m_s: np.ndarray | None = None,
+              in_flight: bool = False) -> tuple[bool, str, str]:
+        """Plan from `start` (ENU m) at `t_start` [s] moving at `velocity_m_s` (None: at rest) to the task's goal
+        with the ladder (in flight: `in_flight_ladder`, no climbing on for time, no reachability search on a
+        failure); on success the plan and its reference become the pilot's. Returns (ok, status, detail)."""
         world, margins = self._flying()
         task, cfg = self._task, self.config
         radius = world.vehicle.collision_radius_m
@@ -244,10 +252,15 @@ class ClassicalPilot:
             return ref.duration_s if ref.ok else math.inf
 
         time_left = cfg.time_fraction * (task.timeout_s - t_start)
+        ladder = cfg.ladder
+        if in_flight:  # the budget allows no climbing on for a faster path
+            time_left, ladder = math.inf, cfg.in_flight_ladder
+            if self._on_floor:  # the speed margins did not fit this route before: no budget spent on them again
+                ladder = tuple(step for step in ladder if step.floor_margin) or ladder
         found = plan_with_escalation(self._known, start, task.goal_m, radius, self._planner_cfg,
-                                     seed=self._seed + sum(self.stats.replans_by_cause.values()),
-                                     floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=cfg.ladder, judge=judge,
-                                     time_available_s=time_left)
+                                     seed=self._seed + sum(self.stats.replans_by_cause.values()) + self._retries,
+                                     floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=ladder, judge=judge,
+                                     time_available_s=time_left, diagnose=not in_flight)
         plan, self.ladder_result = found.plan, found
         self.stats.plan_time_s += found.plan_time_s
         if velocity_m_s is None:  # the plan at reset: which step of the ladder found it
@@ -259,6 +272,7 @@ class ClassicalPilot:
         if not reference.ok:
             return False, "planner_failure", f"time-parameterisation: {reference.status}"
         self.plan, self.reference, self._t_ref0 = plan, reference, t_start
+        self._on_floor = found.margin_m < self._planner_cfg.safety_margin_m - 1e-9
         # near a start or goal closer than the margin at rest the requirement is relaxed (as in the planner)
         self._relaxed_ends, self._promise_ends = [], []
         for end in (np.asarray(plan.path_m[0], float), np.asarray(plan.path_m[-1], float)):
@@ -422,37 +436,47 @@ class ClassicalPilot:
         return False
 
     def _replan_in_flight(self, obs: Observation, cause: str | None) -> None:
-        """Replan on the fused map, flying a braking reference for `replan_budget_s` meanwhile; the new plan starts
-        where the braking leaves the vehicle then. `cause` None: a retry while holding. No path: hold (hover)."""
+        """Replan on the fused map; the new plan starts `replan_budget_s` later, where the vehicle will be then.
+        Meanwhile it brakes when its path is blocked (or it holds), and otherwise flies on along its reference (still
+        clear in what it knows: the cause is a margin, not an obstacle). `cause` None: a retry while holding. No path:
+        hold (hover), trying again every `hold_retry_s`."""
         cfg, s = self.config, self.stats
         assert self._sensed is not None
         if cause is not None:
             s.replans_by_cause[cause] += 1
+        else:
+            self._retries += 1
         self._last_replan_t = obs.t_s
+        t0 = time.perf_counter()
         self._refresh_known(obs.t_s)
-        brake = braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2)
+        refresh_s = time.perf_counter() - t0
         t_switch = obs.t_s + cfg.replan_budget_s
-        p_b, v_b, _ = brake.sample(cfg.replan_budget_s)
+        brake = braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2)
+        flying_on = cause not in ("blocked", None) and self.reference is not None
+        now = (self.reference, self._t_ref0) if flying_on else (brake, obs.t_s)
+        p_b, v_b, _ = now[0].sample(t_switch - now[1])
         self._planned_extra_m = self._extra_now
         self.margins = self._base_margins.widened(self._extra_now)
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         before = s.plan_time_s
-        ok, _, detail = self._plan(np.asarray(p_b, float), t_start=t_switch, velocity_m_s=np.asarray(v_b, float))
+        ok, _, detail = self._plan(np.asarray(p_b, float), t_start=t_switch, velocity_m_s=np.asarray(v_b, float),
+                                   in_flight=True)
         s.replan_time_s += s.plan_time_s - before
-        s.in_flight_replan_s.append(s.plan_time_s - before)
+        s.in_flight_replan_s.append(refresh_s + s.plan_time_s - before)  # what the budget must cover
         if ok:
             self._pending = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends)
             self._hold_retry_t = math.inf
-        elif self._hold_retry_t == math.inf:
-            s.hover_holds += 1
-            log.info("no path in what the pilot knows at t = %.2f s (%s): holding", obs.t_s, detail)
-        if not ok:
+        else:
+            if self._hold_retry_t == math.inf:
+                s.hover_holds += 1
+                log.info("no path in what the pilot knows at t = %.2f s (%s): holding", obs.t_s, detail)
             self._hold_retry_t = obs.t_s + cfg.hold_retry_s
-        # braking until the new plan's start (or holding): the MPC tracks the stop
-        self.reference, self._t_ref0 = brake, obs.t_s
-        self._tracker.reset()
-        self._last_t = None
-        self.last_solution = None
+            now, flying_on = (brake, obs.t_s), False
+        if not flying_on:  # braking (or holding) until the new plan's start: the MPC tracks the stop afresh
+            self._tracker.reset()
+            self._last_t = None
+            self.last_solution = None
+        self.reference, self._t_ref0 = now
 
     def _maybe_replan(self, obs: Observation, reference: Reference) -> None:
         """Replan if `_replan_cause` says so; `reference` is the one flown now (`self.reference`)."""

@@ -100,6 +100,21 @@ LADDER: tuple[PlanStep, ...] = (
 )
 
 
+IN_FLIGHT_ITERATIONS = 3000
+"""The configured planner's iteration budget for a replan in flight: one seed (the reset's plan shares twice 5,000
+over two), so that the ladder's first step fits the pilot's replan budget on this machine (perf/mapping.py)."""
+
+# a replan in flight: the same steps with one seed each, the optimising planner's budget cut to fit the time the
+# vehicle brakes meanwhile, and the last one at twice the quick budget, not four times: a pilot that finds nothing
+# holds and tries again (another seed, a map that has grown) instead of searching for seconds in the air
+IN_FLIGHT_LADDER: tuple[PlanStep, ...] = (
+    PlanStep("configured planner, speed margins, in flight", max_iterations=IN_FLIGHT_ITERATIONS),
+    PlanStep("rrtconnect, speed margins", "rrtconnect", max_iterations=QUICK_ITERATIONS),
+    PlanStep("configured planner, floor margin, in flight", floor_margin=True, max_iterations=IN_FLIGHT_ITERATIONS),
+    PlanStep("rrtconnect, floor margin", "rrtconnect", max_iterations=2 * QUICK_ITERATIONS, floor_margin=True),
+)
+
+
 @dataclass(frozen=True)
 class LadderResult:
     """What the ladder found.
@@ -160,7 +175,7 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
                          goal_m: Sequence[float] | np.ndarray, radius_m: float, config: PlannerConfig,
                          seed: int, floor_margin_m: float, tapers: Sequence[MarginTaper] = (),
                          ladder: Sequence[PlanStep] = LADDER, judge: Judge | None = None,
-                         time_available_s: float = math.inf) -> LadderResult:
+                         time_available_s: float = math.inf, diagnose: bool = True) -> LadderResult:
     """Climb the ladder (module docstring) until a step finds an exact path (that fits the time, with a judge).
 
     Args:
@@ -174,6 +189,9 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         ladder: the steps (`LADDER`).
         judge: a plan's flight time [s] (`Judge`); None: a step's shortest path is flown.
         time_available_s: a step whose fastest path takes longer than this [s] does not end the climb.
+        diagnose: when no step finds a path, say whether one exists at the floor margin (`planners.reachability`,
+            seconds to a minute on a large map); False: the message names the attempts only (a replan in flight,
+            whose time the vehicle spends braking, holds and tries again instead).
 
     Returns:
         A LadderResult; a goal no step reaches is a failure status in it, never an exception.
@@ -238,9 +256,11 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
     last = attempts[-1]
     reach = None
     if last.status not in _FINAL_STATUSES:
-        reach = check_reachable(city, start_m, goal_m, radius_m, floor)
+        verdict = "not checked for a path"
+        if diagnose:
+            reach = check_reachable(city, start_m, goal_m, radius_m, floor)
+            verdict = f"{reach.verdict}: {reach.reason}"
         last = dataclasses.replace(last, message=f"no path at the floor margin {floor:.2f} m in {len(attempts)} "
-                                                 f"attempts ({summary}); {reach.verdict}: {reach.reason}; "
-                                                 f"last: {last.message}")
+                                                 f"attempts ({summary}); {verdict}; last: {last.message}")
     return LadderResult(last, 0, "", tuple(attempts), float(config.safety_margin_m), tuple(tapers), reach,
                         plan_time_s=time.perf_counter() - t0)

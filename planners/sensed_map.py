@@ -3,27 +3,29 @@
 Each scan is placed on the navigation estimate (the pilot knows no truer pose) and compared, beam by beam, with
 what the prior map predicts along the same beam (Embree, `uam_fdm.sensing.raycast.RayCaster` over the prior):
 
-* a return well short of the prior's surface (by more than `front_tolerance_m`) is something the prior lacks: its
-  voxel is marked occupied in an OctoMap octree (log-odds, `octomap-python`);
+* a return well short of the prior's surface (by more than `front_tolerance_m` plus 3 σ of the estimate's position)
+  is something the prior lacks: its voxel is marked occupied in an OctoMap octree (log-odds, `octomap-python`);
 * a return well beyond a prior part's surface (by more than `through_tolerance_m` plus 3 σ of the estimate's
   position) means the beam flew through that part: after `clear_beams` such beams the part is taken out of the
   map (the survey has it where the world does not);
 * every `carve_stride`-th beam is also inserted whole (free space along it up to `carve_range_m`, its end
   occupied), so that voxels marked by noise or by an estimate since corrected are cleared as beams pass through.
 
-Returns on the ground (below `ground_band_m`) are left out: the prior knows the ground. `fused()` gives the map the
-pilot plans and tracks on: the prior parts not cleared, plus the octree's occupied unexplained voxels as obstacles
-standing on the ground (2.5-D: each occupied column as tall as its highest voxel, equal neighbouring columns merged
-into boxes). It is conservative where it must be: the space under a crane's jib is closed. Frames: world ENU
-metres.
+Returns on the ground (below `ground_band_m` plus 3 σ) are left out: the prior knows the ground. `fused()` gives the
+map the pilot plans and tracks on: the prior parts not cleared, grown to cover the occupied voxels next to them (a
+survey's footprint and height errors, `grown_parts`), and the other occupied voxels as obstacles standing on the
+ground (2.5-D columns of `column_m`, each as tall as its highest voxel, equal neighbouring columns merged into boxes).
+It is conservative where it must be: the space under a crane's jib is closed. Frames: world ENU metres.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 import octomap
+from scipy.spatial import cKDTree
 
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.sensing.lidar import LidarScan
@@ -37,28 +39,43 @@ class MappingConfig:
 
     Attributes:
         resolution_m: octree voxel edge [m].
-        front_tolerance_m: a return this much short of the prior's surface is an obstacle the prior lacks [m].
+        front_tolerance_m: a return this much short of the prior's surface (plus 3 σ of the estimate's position) is
+            an obstacle the prior lacks [m].
         through_tolerance_m: a return this much beyond a prior part's surface (plus 3 σ of the estimate's
             position) has passed through it [m].
         clear_beams: beams passing through a prior part before it is taken out of the map.
         carve_stride: every this-many-th returned beam is inserted whole, clearing the free space along it.
         carve_range_m: free space is cleared along a beam up to this range [m].
-        ground_band_m: returns below this height are the ground [m].
+        ground_band_m: returns below this height (plus 3 σ of the estimate's position) are the ground [m].
+        column_m: the fused map's sensed obstacles are columns of this square footprint, their heights rounded up
+            to it [m] (a whole number of voxels: coarser columns merge into fewer boxes, which the planner checks
+            faster, at up to one column of added conservatism).
+        attach_m, attach_height_m: a sensed voxel within `attach_m` of a prior part's footprint (horizontally) and
+            at most `attach_height_m` above its roof is that part's, seen where the survey did not put it: the part
+            grows to cover it (`grown_parts`) instead of a column standing beside it [m].
     """
 
     resolution_m: float = 1.0
     front_tolerance_m: float = 1.0
-    through_tolerance_m: float = 2.0
+    through_tolerance_m: float = 1.0
     clear_beams: int = 20
-    carve_stride: int = 16
-    carve_range_m: float = 40.0
+    carve_stride: int = 32
+    carve_range_m: float = 20.0
     ground_band_m: float = 0.5
+    column_m: float = 2.0
+    attach_m: float = 3.0
+    attach_height_m: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m"):
+        for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m", "column_m",
+                     "attach_m", "attach_height_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"MappingConfig.{name} must be positive and finite, got {value!r}")
+        voxels = self.column_m / self.resolution_m
+        if abs(voxels - round(voxels)) > 1e-9 or round(voxels) < 1:
+            raise ValueError(f"MappingConfig.column_m must be a whole number of voxels ({self.resolution_m} m), got "
+                             f"{self.column_m!r}")
         if self.clear_beams < 1 or self.carve_stride < 1:
             raise ValueError(f"MappingConfig.clear_beams and carve_stride must be >= 1, got {self.clear_beams}, "
                              f"{self.carve_stride}")
@@ -123,9 +140,12 @@ class SensedMap:
         if not len(ranges):
             return ScanUpdate(np.zeros((0, 3)), ())
         expected, part = self._caster.first_hits(origin, dirs, self.max_range_m)
-        above = points[:, 2] > cfg.ground_band_m
-        short = above & (ranges < expected - cfg.front_tolerance_m)
-        through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + 3.0 * position_sigma_m)
+        # the estimate's error moves every return with it: 3 σ more tolerance each way, and a higher ground band (a
+        # grazing ground beam's range changes by the height error over the beam's depression's sine: many metres)
+        spread = 3.0 * position_sigma_m
+        above = points[:, 2] > cfg.ground_band_m + spread
+        short = above & (ranges < expected - cfg.front_tolerance_m - spread)
+        through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
         cleared: list[int] = []
         if np.any(through):
             counts = np.bincount(part[through], minlength=len(self._through))
@@ -139,14 +159,14 @@ class SensedMap:
         topmost = unexplained & (np.asarray(scan.directions_body, float)[:, 2] >= self._top_sin)
         if np.any(topmost):
             self._open_top = np.union1d(self._open_top, pack_keys(np.floor(points[topmost] / res).astype(np.int64)))
-        fresh = np.setdiff1d(packed, self._keys, assume_unique=True)
+        fresh = packed[~_members(self._keys, packed)]
         if len(packed):
             self._tree.updateNodes((unpack_keys(packed) + 0.5) * res, True)
         carve = np.flatnonzero(above)[::cfg.carve_stride]
         if len(carve):
             self._tree.insertPointCloud(points[carve], origin, maxrange=cfg.carve_range_m)
-        if len(fresh):
-            self._keys = np.union1d(self._keys, fresh)
+        if len(fresh):  # sorted and new: an insertion, not a re-sort of the whole set
+            self._keys = np.insert(self._keys, np.searchsorted(self._keys, fresh), fresh)
         if len(fresh) or cleared:
             self._fused = None
         return ScanUpdate((unpack_keys(fresh) + 0.5) * res, tuple(cleared))
@@ -180,54 +200,102 @@ class SensedMap:
         voxels = self.occupied_voxels_m()
         if len(voxels) and len(self._open_top):
             voxels = _open_columns(voxels, self._open_top, res, float(prior.bounds_max_m[2]))
+        cfg = self.config
+        kept, attached = grown_parts(kept, voxels, res, cfg.attach_m, cfg.attach_height_m)
         first = int(max((p.id for p in prior.buildings), default=-1)) + 1
-        sensed = column_boxes(voxels, res, first, prior.bounds_min_m, prior.bounds_max_m)
+        sensed = column_boxes(voxels[~attached], cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m)
         return BuildingMap(kept + sensed, prior.bounds_min_m, prior.bounds_max_m, prior.no_fly, prior.name)
 
 
-def column_boxes(voxels_m: np.ndarray, resolution_m: float, first_id: int, lo_m: np.ndarray, hi_m: np.ndarray
-                 ) -> tuple[Building, ...]:
-    """Occupied voxel centres (K, 3) [m] as boxes standing on the ground: each occupied column (a cell of
-    `resolution_m` in x, y, inside the bounds) as tall as its highest voxel's top, rounded up to whole voxels;
-    runs of equal columns along x, then equal runs along y, merged into one box; ids from `first_id`. Only the
-    cells seen are closed (a building seen from one side is a wall), never the space between them."""
-    r = float(resolution_m)
-    lo = np.asarray(lo_m, float)[0:2]
-    n = np.maximum(np.ceil((np.asarray(hi_m, float)[0:2] - lo) / r).astype(int), 1)
+def grown_parts(parts: tuple, voxels_m: np.ndarray, resolution_m: float, attach_m: float, attach_height_m: float
+                ) -> tuple[tuple, np.ndarray]:
+    """The prior's parts grown to cover the occupied voxels (K, 3) [m] that belong to them, and which voxels did.
+
+    A voxel belongs to the nearest ground-standing box part whose footprint its centre lies within `attach_m` of
+    (horizontally) and whose roof its bottom is at most `attach_height_m` above: what the survey's footprint and
+    height errors look like. The part grows, in its own frame, to the box covering its footprint and the voxels'
+    cells, and up to the highest voxel's top. Other parts (prisms, raised boxes) are left as they are."""
     v = np.asarray(voxels_m, float).reshape(-1, 3)
-    cells = np.floor((v[:, 0:2] - lo) / r).astype(int)
+    attached = np.zeros(len(v), dtype=bool)
+    if not len(v) or not parts:
+        return tuple(parts), attached
+    tree = cKDTree(v[:, 0:2])
+    best = np.full(len(v), np.inf)
+    owner = np.full(len(v), -1, dtype=np.int64)
+    frames = {}
+    for j, part in enumerate(parts):
+        if not isinstance(part, Building) or part.base_m > 0.0:
+            continue
+        c, half = np.asarray(part.center_xy_m, float), 0.5 * np.asarray(part.size_xy_m, float)
+        near = np.asarray(tree.query_ball_point(c, float(np.hypot(*half)) + attach_m), dtype=np.int64)
+        if not len(near):
+            continue
+        co, si = math.cos(part.yaw_rad), math.sin(part.yaw_rad)
+        d = v[near, 0:2] - c
+        local = np.column_stack([d[:, 0] * co + d[:, 1] * si, -d[:, 0] * si + d[:, 1] * co])
+        gap = np.hypot(*np.maximum(np.abs(local) - half, 0.0).T)
+        low = v[near, 2] - 0.5 * resolution_m <= part.height_m + attach_height_m
+        mine = (gap <= attach_m) & low & (gap < best[near])
+        best[near[mine]], owner[near[mine]] = gap[mine], j
+        frames[j] = (c, half, co, si)
+    out = list(parts)
+    for j in np.unique(owner[owner >= 0]).tolist():
+        c, half, co, si = frames[j]
+        mine = v[owner == j]
+        corners = (mine[:, None, 0:2] + 0.5 * resolution_m * np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]])
+                   ).reshape(-1, 2) - c
+        lx, ly = corners[:, 0] * co + corners[:, 1] * si, -corners[:, 0] * si + corners[:, 1] * co
+        x0, x1 = min(-half[0], float(lx.min())), max(half[0], float(lx.max()))
+        y0, y1 = min(-half[1], float(ly.min())), max(half[1], float(ly.max()))
+        mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        part = out[j]
+        out[j] = dataclasses.replace(part, center_xy_m=(float(c[0] + mx * co - my * si), float(c[1] + mx * si + my * co)),
+                                     size_xy_m=(x1 - x0, y1 - y0),
+                                     height_m=max(part.height_m, float(mine[:, 2].max()) + 0.5 * resolution_m))
+    return tuple(out), owner >= 0
+
+
+def column_boxes(voxels_m: np.ndarray, column_m: float, first_id: int, lo_m: np.ndarray, hi_m: np.ndarray
+                 ) -> tuple[Building, ...]:
+    """Occupied voxel centres (K, 3) [m] as boxes standing on the ground: each occupied column (a square of
+    `column_m` in x, y, inside the bounds) as tall as its highest voxel's top, rounded up to whole `column_m` (a
+    multiple of the voxel edge, so that the rounding never cuts a voxel);
+    runs of equal columns along x, then equal runs along y, merged into one box; ids from `first_id`, boxes ordered
+    by their cells. Only the cells seen are closed (a building seen from one side is a wall), never the space
+    between them."""
+    r = c = float(column_m)
+    lo = np.asarray(lo_m, float)[0:2]
+    n = np.maximum(np.ceil((np.asarray(hi_m, float)[0:2] - lo) / c).astype(np.int64), 1)
+    v = np.asarray(voxels_m, float).reshape(-1, 3)
+    cells = np.floor((v[:, 0:2] - lo) / c).astype(np.int64)
     inside = np.all((cells >= 0) & (cells < n), axis=1)
     if not np.any(inside):
         return ()
-    levels = np.floor(v[inside, 2] / r).astype(int) + 1  # the column's top, in voxels
-    top: dict[tuple[int, int], int] = {}
-    for (cx, cy), level in zip(map(tuple, cells[inside]), levels):
-        top[(cx, cy)] = max(top.get((cx, cy), 0), int(level))
-    rows: dict[int, list[tuple[int, int]]] = {}  # y -> sorted (x, level)
-    for (cx, cy), level in sorted(top.items(), key=lambda kv: (kv[0][1], kv[0][0])):
-        rows.setdefault(cy, []).append((cx, level))
-    rects: list[tuple[int, int, int, int, int]] = []  # x0, x1, y0, y1, level
-    open_rects: dict[tuple[int, int, int], int] = {}  # (x0, x1, level) -> y0, for runs continued up to this row
-    last_row = -(1 << 40)  # no row yet
-    for cy in sorted(rows):
-        runs: list[tuple[int, int, int]] = []
-        for cx, level in rows[cy]:
-            if runs and runs[-1][1] == cx - 1 and runs[-1][2] == level:
-                runs[-1] = (runs[-1][0], cx, level)
-            else:
-                runs.append((cx, cx, level))
-        continued = {} if last_row != cy - 1 else {run: open_rects[run] for run in runs if run in open_rects}
-        for run, y0 in open_rects.items():
-            if run not in continued:
-                rects.append((run[0], run[1], y0, last_row, run[2]))
-        open_rects = {run: continued.get(run, cy) for run in runs}
-        last_row = cy
-    rects.extend((run[0], run[1], y0, last_row, run[2]) for run, y0 in open_rects.items())
+    column = cells[inside, 1] * n[0] + cells[inside, 0]  # row-major: by y, then x
+    level = np.floor(v[inside, 2] / r).astype(np.int64) + 1  # the voxel's top, in voxels
+    order = np.argsort(column, kind="stable")
+    column, level = column[order], level[order]
+    first = np.flatnonzero(np.r_[True, column[1:] != column[:-1]])
+    column, level = column[first], np.maximum.reduceat(level, first)  # each column's top
+    cy, cx = np.divmod(column, n[0])
+    # runs of equal neighbouring columns along x
+    run_start = np.r_[True, (cy[1:] != cy[:-1]) | (cx[1:] != cx[:-1] + 1) | (level[1:] != level[:-1])]
+    starts = np.flatnonzero(run_start)
+    ends = np.r_[starts[1:], len(cx)] - 1
+    x0, x1, ry, rl = cx[starts], cx[ends], cy[starts], level[starts]
+    # equal runs in consecutive rows merged into one rectangle
+    order = np.lexsort((ry, rl, x1, x0))
+    x0, x1, ry, rl = x0[order], x1[order], ry[order], rl[order]
+    rect_start = np.r_[True, (x0[1:] != x0[:-1]) | (x1[1:] != x1[:-1]) | (rl[1:] != rl[:-1]) | (ry[1:] != ry[:-1] + 1)]
+    starts = np.flatnonzero(rect_start)
+    ends = np.r_[starts[1:], len(x0)] - 1
+    rect = np.column_stack([x0[starts], x1[starts], ry[starts], ry[ends], rl[starts]])
+    rect = rect[np.lexsort(rect.T[::-1])]
     out: list[Building] = []
-    for x0, x1, y0, y1, level in sorted(rects):
-        xa, xb = max(lo[0] + x0 * r, float(lo_m[0])), min(lo[0] + (x1 + 1) * r, float(hi_m[0]))
-        ya, yb = max(lo[1] + y0 * r, float(lo_m[1])), min(lo[1] + (y1 + 1) * r, float(hi_m[1]))
-        out.append(Building(first_id + len(out), (0.5 * (xa + xb), 0.5 * (ya + yb)), (xb - xa, yb - ya), level * r))
+    for rx0, rx1, y0, y1, top in rect.tolist():
+        xa, xb = max(lo[0] + rx0 * c, float(lo_m[0])), min(lo[0] + (rx1 + 1) * c, float(hi_m[0]))
+        ya, yb = max(lo[1] + y0 * c, float(lo_m[1])), min(lo[1] + (y1 + 1) * c, float(hi_m[1]))
+        out.append(Building(first_id + len(out), (0.5 * (xa + xb), 0.5 * (ya + yb)), (xb - xa, yb - ya), top * r))
     return tuple(out)
 
 
@@ -245,6 +313,15 @@ def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: floa
     extra = voxels_m[raise_].copy()
     extra[:, 2] = max(top_m - 0.5 * r, float(np.max(voxels_m[raise_, 2])))
     return np.vstack([voxels_m, extra])
+
+
+def _members(sorted_keys: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Which of `values` are in the sorted array `sorted_keys` (a binary search each: the set is large, the scan's
+    keys few)."""
+    if not len(sorted_keys):
+        return np.zeros(len(values), dtype=bool)
+    at = np.minimum(np.searchsorted(sorted_keys, values), len(sorted_keys) - 1)
+    return sorted_keys[at] == values
 
 
 _KEY_OFFSET = 1 << 20  # voxel keys within ±2^20 of the origin (±1,000 km at 1 m) pack into one int64

@@ -147,7 +147,11 @@ PILOTS: dict[str, PilotEntry] = {entry.name: entry for entry in (
                     "margin.",
         given="The classical pilot decides at the scenario's control rate, sizes its clearance margins from the "
               "forecast turbulence level, plans on the whole map before take-off and when it replans (its planning "
-              "time is reported separately) and commands rotor speeds through its MPC.",
+              "time is reported separately) and commands rotor speeds through its MPC. Below perfect sensing it "
+              "maps its lidar scans on its estimate into an occupancy octree fused with the prior map, widens its "
+              "margins by 3 sigma of the estimate's position, and replans in flight when a sensed obstacle blocks "
+              "its path or its uncertainty outgrows its margins, braking for a fixed replan budget meanwhile; "
+              "with no path in what it knows it hovers and tries again.",
         build=_classical, default=True, plans=True, report_type=ClassicalReport, wall_s_per_flight_s=1.0),
     PilotEntry(
         name="apf", label="Potential field", color="tab:purple",

@@ -8,7 +8,15 @@ import pytest
 
 from alley import alley_city
 from planners.clearance import MarginTaper
-from planners.ladder import CANDIDATE_SEED_STRIDE, LADDER, PlanStep, plan_with_escalation
+import planners.ladder as ladder_module
+from planners.ladder import (
+    CANDIDATE_SEED_STRIDE,
+    IN_FLIGHT_ITERATIONS,
+    IN_FLIGHT_LADDER,
+    LADDER,
+    PlanStep,
+    plan_with_escalation,
+)
 from planners.margins import SpeedMargins
 from planners.rrt_star import PlannerConfig
 
@@ -61,6 +69,27 @@ def test_a_walled_in_goal_is_a_planner_failure_that_says_so():
     assert "no path at the floor margin 1.00 m in 4 attempts" in found.plan.message
     assert found.reachability is not None and found.reachability.verdict == "unreachable"
     assert "unreachable: no connected free space joins start and goal" in found.plan.message
+
+
+def test_in_flight_the_ladder_is_smaller_and_a_failure_is_not_diagnosed(monkeypatch: pytest.MonkeyPatch):
+    """A replan in flight (`IN_FLIGHT_LADDER`): one seed per step, the optimising planner's budget cut, the floor
+    margin tried by the quick planner only; no path means a hold and another try, not the reachability search."""
+    assert [(s.algorithm, s.max_iterations, s.floor_margin, s.candidates) for s in IN_FLIGHT_LADDER] == [
+        (None, IN_FLIGHT_ITERATIONS, False, 1), ("rrtconnect", 2000, False, 1), (None, IN_FLIGHT_ITERATIONS, True, 1),
+        ("rrtconnect", 4000, True, 1)]
+    city, start, goal = alley_city(R_QUAD)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=IN_FLIGHT_LADDER, diagnose=False)
+    assert found.ok and found.step == 3 and found.margin_m == MARGINS.floor_m  # the alley, at the floor margin
+
+    def searched(*_args, **_kwargs):
+        raise AssertionError("the reachability search ran")
+
+    monkeypatch.setattr(ladder_module, "check_reachable", searched)
+    city, start, goal = alley_city(R_QUAD, closed=True)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal),
+                                 ladder=IN_FLIGHT_LADDER, diagnose=False)
+    assert not found.ok and found.reachability is None and "not checked for a path" in found.plan.message
 
 
 def test_a_step_that_repeats_an_earlier_query_is_skipped():

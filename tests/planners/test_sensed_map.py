@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planners.sensed_map import MappingConfig, SensedMap, column_boxes, pack_keys, unpack_keys
+from planners.sensed_map import MappingConfig, SensedMap, column_boxes, grown_parts, pack_keys, unpack_keys
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.sensing.lidar import Lidar
 from uam_fdm.sensing.raycast import RayCaster
@@ -59,6 +59,28 @@ def test_nothing_sensed_leaves_the_prior_as_it_is():
     assert sensed.fused() is prior
 
 
+def test_an_estimate_off_in_height_does_not_raise_the_ground_into_obstacles():
+    """A 0.6 m height error puts grazing ground returns metres short of the prior's ground along their beams: with the
+    estimate's σ stated, the ground band and the front tolerance widen by 3 σ and nothing is marked."""
+    prior = BuildingMap([KNOWN], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(prior), np.random.default_rng(2))
+    p = np.array([100.0, 100.0, 20.0])
+    scan, _ = lidar.scan(0.0, p, np.eye(3))
+    placed = _state(p + [0.0, 0.0, 0.6])
+    assert not SensedMap(prior, MappingConfig(), VLP16.max_range_m).integrate(scan, placed, 0.25).changed
+    assert SensedMap(prior, MappingConfig(), VLP16.max_range_m).integrate(scan, placed, 0.0).changed  # σ unstated
+
+
+def test_coarser_columns_cover_every_voxel_in_fewer_boxes():
+    rng = np.random.default_rng(3)
+    vox = np.floor(rng.uniform((0.0, 0.0, 0.0), (40.0, 40.0, 15.0), (400, 3))) + 0.5
+    fine = column_boxes(vox, 1.0, 0, np.zeros(3), np.full(3, 50.0))
+    coarse = column_boxes(vox, 2.0, 0, np.zeros(3), np.full(3, 50.0))
+    assert len(coarse) < len(fine)
+    inside = BuildingMap(coarse, np.zeros(3), np.full(3, 50.0)).obstacle_clearance_m(vox + [0.0, 0.0, 0.49])
+    assert np.all(inside <= 0.0)  # each voxel's top corner-to-centre column lies inside a box
+
+
 def test_the_same_scans_give_the_same_map():
     a, _ = _mapped(2)
     b, _ = _mapped(2)
@@ -79,7 +101,29 @@ def test_voxel_keys_pack_and_unpack():
     assert np.array_equal(unpack_keys(pack_keys(keys)), keys)
 
 
-@pytest.mark.parametrize("bad", [{"resolution_m": 0.0}, {"carve_stride": 0}, {"through_tolerance_m": float("nan")}])
+@pytest.mark.parametrize("bad", [{"resolution_m": 0.0}, {"carve_stride": 0}, {"through_tolerance_m": float("nan")},
+                                 {"column_m": 1.5}])
 def test_bad_mapping_settings_are_named(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         MappingConfig(**bad)
+
+
+def test_voxels_beside_a_prior_part_grow_it_and_voxels_farther_off_stand_as_columns():
+    """A survey error (the building 2 m wider and 5 m taller than the prior has it) grows the prior part; an
+    obstacle 10 m off stays a column of its own."""
+    part = Building(7, (50.0, 50.0), (10.0, 10.0), 20.0, yaw_rad=0.3)
+    co, si = np.cos(0.3), np.sin(0.3)
+    beside = np.array([[50.0 + 6.5 * co, 50.0 + 6.5 * si, 24.5]])  # 1.5 m off its +x face, above its roof
+    apart = np.array([[50.0 + 16.5 * co, 50.0 + 16.5 * si, 10.5]])
+    grown, attached = grown_parts((part,), np.vstack([beside, apart]), 1.0, 3.0, 10.0)
+    assert attached.tolist() == [True, False]
+    g = grown[0]
+    assert g.id == 7 and g.yaw_rad == part.yaw_rad and g.height_m == pytest.approx(25.0)
+    assert g.size_xy_m[0] > part.size_xy_m[0] and g.size_xy_m[1] == pytest.approx(part.size_xy_m[1] + 0.0, abs=0.8)
+    bmap = BuildingMap(list(grown), LO, HI)
+    assert bmap.obstacle_clearance_m(beside)[0] <= 0.0 and bmap.obstacle_clearance_m(apart)[0] > 0.0
+    # the part's own footprint is still covered
+    assert bmap.obstacle_clearance_m(np.array([[50.0 - 4.9 * co, 50.0 - 4.9 * si, 19.0]]))[0] <= 0.0
+    # far above its roof: not the part's (a crane's jib over it)
+    _, attached = grown_parts((part,), np.array([[50.0, 50.0, 45.5]]), 1.0, 3.0, 10.0)
+    assert not attached.any()

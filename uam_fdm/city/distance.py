@@ -36,6 +36,7 @@ _Real = np.ndarray | float  # an array, or one value on the plain-Python paths
 
 # Points per chunk of the (points x obstacles) broadcast: ~128 x 200 float64 temporaries stay in L2.
 _CHUNK = 128
+_PRUNE_FROM = 64  # boxes from which nearest_parts first leaves out those that cannot be any point's nearest
 # bound once: the per-point paths call them for every point and candidate
 _floor = math.floor
 _sqrt = math.sqrt
@@ -354,19 +355,50 @@ def nearest_parts(points: np.ndarray, a: PackedPrisms) -> tuple[np.ndarray, np.n
     part = np.full(n, -1, dtype=np.int64)
     if a.n_parts == 0:
         return dist, part
+    boxes_only = len(a.box_part) and not len(a.prism_part)
+    reach = _box_reach(a) if boxes_only and len(a.box_part) > _PRUNE_FROM else None
     for i in range(0, n, _CHUNK):
         p = p_all[i:i + _CHUNK]
         rows = np.arange(len(p))
-        if len(a.box_part) and not len(a.prism_part):
-            keys = _box_keys(p, a)  # the common case: no column scatter needed
-            j = np.argmin(keys, axis=1)
-            part[i:i + _CHUNK] = a.box_part[j]
+        if boxes_only:  # the common case: no column scatter needed
+            near = None if reach is None else _boxes_within_reach(p, a, reach)
+            if near is None:
+                keys = _box_keys(p, a)
+                j = np.argmin(keys, axis=1)
+                part[i:i + _CHUNK] = a.box_part[j]
+            else:
+                keys = box_signed_sq_distance(p[:, 0:1], p[:, 1:2], p[:, 2:3], a.box_cx[near], a.box_cy[near],
+                                              a.box_cos[near], a.box_sin[near], a.box_hx[near], a.box_hy[near],
+                                              a.box_zc[near], a.box_hz[near])
+                j = np.argmin(keys, axis=1)
+                part[i:i + _CHUNK] = a.box_part[near[j]]
         else:
             keys = _keys(p, a)
             j = np.argmin(keys, axis=1)
             part[i:i + _CHUNK] = j
         dist[i:i + _CHUNK] = keys[rows, j]
     return signed_sqrt(dist), part
+
+
+def _box_reach(a: PackedPrisms) -> np.ndarray:
+    """Half extents (B, 3) [m] of each box's world-axis-aligned bounding box (about its centre cx, cy, zc)."""
+    ac, asn = np.abs(a.box_cos), np.abs(a.box_sin)
+    return np.column_stack([ac * a.box_hx + asn * a.box_hy, asn * a.box_hx + ac * a.box_hy, a.box_hz])
+
+
+def _boxes_within_reach(p: np.ndarray, a: PackedPrisms, reach: np.ndarray) -> np.ndarray | None:
+    """The boxes (ascending indices) that can be the nearest to some point of `p` (n, 3), or None when too many
+    are to save work. A box whose bounding box is farther from the points' bounding box than some box's centre
+    is from every point (an upper bound of each point's nearest distance: the centre lies in its box) is nobody's
+    nearest, so leaving it out changes no result, ties included."""
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    centre = np.column_stack([a.box_cx, a.box_cy, a.box_zc])
+    gap = np.maximum(np.maximum(centre - reach - hi, lo - centre - reach), 0.0)
+    lb2 = np.einsum("ij,ij->i", gap, gap)
+    far = np.maximum(np.abs(centre - lo), np.abs(centre - hi))  # the points' bounding box's farthest corner
+    ub2 = float(np.min(np.einsum("ij,ij->i", far, far)))
+    near = np.flatnonzero(lb2 <= ub2)
+    return near if len(near) < 0.5 * len(lb2) else None
 
 
 def nearest_points_on_parts(points: np.ndarray, parts: np.ndarray, a: PackedPrisms) -> np.ndarray:

@@ -282,3 +282,21 @@ def test_invalid_geometry_is_rejected() -> None:
         Prism(0, ((0.0, 0.0), (0.0, 10.0), (10.0, 0.0)), 5.0)  # clockwise
     with pytest.raises(ValueError):
         BuildingMap([Building(0, (5.0, 5.0), (20.0, 2.0), 5.0)], (0, 0, 0), (100, 100, 100))  # leaves bounds
+
+
+def test_leaving_out_boxes_that_cannot_be_nearest_changes_no_answer(monkeypatch):
+    """`nearest_parts` skips, per chunk of points, the boxes that cannot be any point's nearest: the same distances
+    and parts (ties included) as the exhaustive search, for points along a path and scattered ones."""
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(20.0, 280.0, (400, 2))
+    boxes = [Building(i, tuple(c), tuple(rng.uniform(1.0, 12.0, 2)), float(rng.uniform(3.0, 60.0)),
+                      yaw_rad=float(rng.uniform(-3.0, 3.0))) for i, c in enumerate(centres)]
+    boxes.append(Building(400, tuple(centres[0]), boxes[0].size_xy_m, boxes[0].height_m, boxes[0].yaw_rad))  # a tie
+    packed = BuildingMap(boxes, (0.0, 0.0, 0.0), (300.0, 300.0, 100.0))._packed
+    path = np.cumsum(rng.normal(0.0, 0.3, (2000, 3)), axis=0) + (150.0, 150.0, 20.0)
+    points = np.vstack([path, rng.uniform((0.0, 0.0, 0.0), (300.0, 300.0, 80.0), (1000, 3)), [[*centres[0], 1.0]]])
+    pruned = distance.nearest_parts(points, packed)
+    monkeypatch.setattr(distance, "_PRUNE_FROM", 10**9)
+    exhaustive = distance.nearest_parts(points, packed)
+    assert np.array_equal(pruned[0], exhaustive[0]) and np.array_equal(pruned[1], exhaustive[1])
+    assert pruned[1][-1] == 0  # the tie goes to the lower index
