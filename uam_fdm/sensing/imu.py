@@ -79,15 +79,40 @@ class Imu:
         dt = np.diff(np.concatenate(([previous], t)))
         if np.any(dt < 0.0):
             raise ValueError("IMU sample times must not go backwards")
-        spec, k = self.spec, t.size
-        rate_hz = spec.rate_hz
-        white_accel = self._rng.standard_normal((k, 3)) * (spec.accel_noise_density_m_s2_rthz * np.sqrt(rate_hz))
-        white_gyro = self._rng.standard_normal((k, 3)) * (spec.gyro_noise_density_rad_s_rthz * np.sqrt(rate_hz))
-        root_dt = np.sqrt(dt)[:, None]
-        accel_bias = self._accel_bias + np.cumsum(
-            self._rng.standard_normal((k, 3)) * root_dt * spec.accel_bias_walk_m_s3_rthz, axis=0)
-        gyro_bias = self._gyro_bias + np.cumsum(
-            self._rng.standard_normal((k, 3)) * root_dt * spec.gyro_bias_walk_rad_s2_rthz, axis=0)
+        # one draw of (4, K, 3) is the stream four (K, 3) draws would take, in the same order
+        normals = self._rng.standard_normal((4, t.size, 3))
+        accel, gyro, accel_bias, gyro_bias = imu_readings(self.spec, force, rate, dt, self._accel_bias,
+                                                          self._gyro_bias, normals)
         self._accel_bias, self._gyro_bias = accel_bias[-1].copy(), gyro_bias[-1].copy()
         self._t_last = float(t[-1])
-        return ImuSamples(t.copy(), force + accel_bias + white_accel, rate + gyro_bias + white_gyro)
+        return ImuSamples(t.copy(), accel, gyro)
+
+
+def imu_readings(spec: ImuSpec, specific_force_body_m_s2: np.ndarray, rate_body_rad_s: np.ndarray, dt_s: np.ndarray,
+                 accel_bias_m_s2: np.ndarray, gyro_bias_rad_s: np.ndarray, normals: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The error model of K samples, for one IMU or a batch of them (leading axes `...`): shared by `Imu` and
+    `uam_fdm.sensing.batch_sensors.BatchImu`, so both read the same numbers from the same draws.
+
+    Args:
+        spec: the part's noise figures.
+        specific_force_body_m_s2: (..., K, 3) true specific force [m/s²], body FLU.
+        rate_body_rad_s: (..., K, 3) true body rates [rad/s], body FLU.
+        dt_s: (..., K) time from each sample's predecessor [s] (0 for an IMU's first sample).
+        accel_bias_m_s2, gyro_bias_rad_s: (..., 3) the biases before the first sample [m/s², rad/s], body.
+        normals: (..., 4, K, 3) standard normal draws: accelerometer and gyro white noise, then their bias walks.
+
+    Returns:
+        measured specific force (..., K, 3) [m/s²] and rates (..., K, 3) [rad/s], body FLU; the accelerometer and
+        gyro biases after each sample (..., K, 3).
+    """
+    rate_hz = spec.rate_hz
+    white_accel = normals[..., 0, :, :] * (spec.accel_noise_density_m_s2_rthz * np.sqrt(rate_hz))
+    white_gyro = normals[..., 1, :, :] * (spec.gyro_noise_density_rad_s_rthz * np.sqrt(rate_hz))
+    root_dt = np.sqrt(dt_s)[..., None]
+    accel_bias = accel_bias_m_s2[..., None, :] + np.cumsum(
+        normals[..., 2, :, :] * root_dt * spec.accel_bias_walk_m_s3_rthz, axis=-2)
+    gyro_bias = gyro_bias_rad_s[..., None, :] + np.cumsum(
+        normals[..., 3, :, :] * root_dt * spec.gyro_bias_walk_rad_s2_rthz, axis=-2)
+    return (specific_force_body_m_s2 + accel_bias + white_accel, rate_body_rad_s + gyro_bias + white_gyro,
+            accel_bias, gyro_bias)

@@ -179,17 +179,13 @@ class BatchNavFilter:
             raise ValueError("a BatchNavFilter needs at least one vehicle")
         self.imu_spec, self.baro_spec, self.heading_spec = imu, baro, heading
         self.n = len(initial)
-        self.t_s = np.array([e.t_s for e in initial], dtype=np.float64)
-        # the navigation states of the estimates, and the heading-aid disturbance at 0 with its stationary σ
-        self.x = np.stack([np.append(e.nominal(), 0.0) for e in initial])
-        pub = em.NDX_PUBLIC
+        self.t_s = np.zeros(self.n)
+        self.x = np.zeros((self.n, em.NX))
         self.P = np.zeros((self.n, em.NDX, em.NDX))
+        self._last_fix_t = np.full(self.n, np.nan)
+        self._gnss_rejected_since = np.full(self.n, np.nan)
         for i, e in enumerate(initial):
-            cov = np.asarray(e.covariance, dtype=np.float64)
-            if cov.shape != (pub, pub):
-                raise ValueError(f"covariance must be ({pub}, {pub}), got {cov.shape}")
-            self.P[i, :pub, :pub] = cov
-        self.P[:, pub, pub] = heading.disturbance_rad ** 2
+            self.restart(i, e)
         # a heading aid without correlation time: its disturbance is white (decay factor 0 at every step)
         tau = heading.correlation_time_s if heading.correlation_time_s > 0.0 else 1e-12
         self.noise = np.array([imu.accel_noise_density_m_s2_rthz, imu.gyro_noise_density_rad_s_rthz,
@@ -202,11 +198,28 @@ class BatchNavFilter:
                       for m in (1, 6)}
         self.gnss_correlation_time_s = float(gnss_correlation_time_s)
         self.gnss_reset_after_s = float(gnss_reset_after_s)
-        self._last_fix_t = np.full(self.n, np.nan)
-        self._gnss_rejected_since = np.full(self.n, np.nan)
         self.counts = _Counts()
         self.gnss_resets = 0
         self._setup_backend(compiled, cache_dir)
+
+    def restart(self, i: int, initial: NavEstimate) -> None:
+        """Start vehicle i again from `initial` (a new episode in one slot of a batch; the others are untouched):
+        its state, covariance and time, the heading aid's disturbance at 0 with its stationary σ, no GNSS history.
+
+        Raises:
+            ValueError: a covariance that is not (16, 16).
+        """
+        pub = em.NDX_PUBLIC
+        cov = np.asarray(initial.covariance, dtype=np.float64)
+        if cov.shape != (pub, pub):
+            raise ValueError(f"covariance must be ({pub}, {pub}), got {cov.shape}")
+        self.t_s[i] = initial.t_s
+        self.x[i] = np.append(initial.nominal(), 0.0)
+        self.P[i] = 0.0
+        self.P[i, :pub, :pub] = cov
+        self.P[i, pub, pub] = self.heading_spec.disturbance_rad ** 2
+        self._last_fix_t[i] = np.nan
+        self._gnss_rejected_since[i] = np.nan
 
     # -- backend -------------------------------------------------------------------------------------------------
     def _setup_backend(self, compiled: bool | None, cache_dir: Path | None) -> None:
@@ -296,13 +309,17 @@ class BatchNavFilter:
     def _update_scalar(self, kind: str, idx: np.ndarray, z: np.ndarray, r: np.ndarray) -> np.ndarray:
         """`_update` of a scalar aid in one compiled call per batch (the general path's arithmetic, generated)."""
         m = idx.size
-        x_new, p_new, nis = self._eval(f"nav_update_{kind}", m, self.x[idx], self.P[idx].reshape(m, -1),
-                                       z.reshape(m, 1), r.reshape(m, 1))
+        # every vehicle in order (a batch fusing all its barometers): views, not copies of (N, 17, 17)
+        whole = m == self.n and bool((idx == np.arange(m)).all())
+        x_in, p_in = (self.x, self.P.reshape(m, -1)) if whole else (self.x[idx], self.P[idx].reshape(m, -1))
+        x_new, p_new, nis = self._eval(f"nav_update_{kind}", m, x_in, p_in, z.reshape(m, 1), r.reshape(m, 1))
         accepted = nis[:, 0] <= self._gate[1]
         self.counts.accepted[kind] += int(accepted.sum())
         self.counts.rejected[kind] += int(m - accepted.sum())
         rows = idx[accepted]
-        if rows.size:
+        if whole and rows.size == m:
+            self.x, self.P = x_new, p_new.reshape(m, em.NDX, em.NDX)
+        elif rows.size:
             self.x[rows] = x_new[accepted]
             self.P[rows] = p_new[accepted].reshape(rows.size, em.NDX, em.NDX)
         return accepted
@@ -351,20 +368,32 @@ class BatchNavFilter:
         idx = np.array([i for i, r in enumerate(readings) if r is not None], dtype=np.intp)
         fused = np.zeros(self.n, bool)
         if idx.size:
-            z = np.array([[readings[i].altitude_m] for i in idx])
-            r = np.full((idx.size, 1, 1), self.baro_spec.noise_m ** 2)
-            fused[idx] = self._update("baro", idx, z, r)
+            fused[idx] = self.fuse_baro(idx, np.array([readings[i].altitude_m for i in idx]))
         return fused
+
+    def fuse_baro(self, idx: np.ndarray, altitude_m: np.ndarray) -> np.ndarray:
+        """`update_baro` from arrays (a batch's readings, without a reading object each): barometric altitudes
+        altitude_m (M,) [m above take-off] into vehicles idx (M,); returns (M,) True where fused."""
+        idx = np.asarray(idx, dtype=np.intp)
+        z = np.asarray(altitude_m, dtype=np.float64).reshape(idx.size, 1)
+        r = np.full((idx.size, 1, 1), self.baro_spec.noise_m ** 2)
+        return self._update("baro", idx, z, r)
 
     def update_heading(self, readings: Sequence[HeadingReading | None]) -> np.ndarray:
         """Fuse readings[i] (None: none) into vehicle i; returns (N,) True where fused."""
         idx = np.array([i for i, r in enumerate(readings) if r is not None], dtype=np.intp)
         fused = np.zeros(self.n, bool)
         if idx.size:
-            z = np.array([[readings[i].yaw_rad] for i in idx])
-            r = np.full((idx.size, 1, 1), self.heading_spec.noise_rad ** 2)
-            fused[idx] = self._update("heading", idx, z, r)
+            fused[idx] = self.fuse_heading(idx, np.array([readings[i].yaw_rad for i in idx]))
         return fused
+
+    def fuse_heading(self, idx: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
+        """`update_heading` from arrays: headings yaw_rad (M,) [rad, from east, counter-clockwise] into vehicles
+        idx (M,); returns (M,) True where fused."""
+        idx = np.asarray(idx, dtype=np.intp)
+        z = np.asarray(yaw_rad, dtype=np.float64).reshape(idx.size, 1)
+        r = np.full((idx.size, 1, 1), self.heading_spec.noise_rad ** 2)
+        return self._update("heading", idx, z, r)
 
     # -- results -------------------------------------------------------------------------------------------------
     @property
