@@ -17,6 +17,11 @@ whose clearance at the start of a period exceeds its largest displacement within
 cannot have touched anything; only the others are measured substep by substep. Within a decision
 the clearance is carried as that lower bound (clearance minus displacement) and measured exactly
 once per decision, for the observation and the reward.
+
+Map error (`NavConfig.map_error`, `rl.sensing.truth`): each episode draws a level and a draw of its city's bank;
+it collides with and senses the draw's truth (`NavBatch.geometry`: the truth's index in the world's sensing) and
+follows a route field drawn from its prior. At the `exact` level alone nothing is drawn and every number is as
+before the setting existed (tested).
 """
 from __future__ import annotations
 
@@ -37,6 +42,7 @@ from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, flight_levels, grid_shape, max_levels
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
 from rl.sensing.sensor import BoxSensor
+from rl.sensing.truth import MapDraw, MapErrorBank, TruthSensing
 from rl.task.config import FixedEpisodes, NavConfig
 from rl.task.reward import TERMS, reward_terms, stopping_distance
 from uam_fdm import episode
@@ -93,7 +99,10 @@ class NavWorld:
         training world for its validation world: those are shared instead of generated again.
         `geometry_from`: a world of the same cities, sensing and vehicle size (e.g. a policy's evaluation world,
         for another pilot flying its tasks at another decision rate): its cities, clearance sensor and
-        perception are shared instead of built again (a 1,000-city UAM world holds about 6 GB of them).
+        perception are shared instead of built again (a 1,000-city UAM world holds about 6 GB of them), and so is
+        its map-error bank and the truth's sensing.
+
+        Fixed episodes fly their cities as they stand (the `exact` level: a scenario's map error is the runner's).
 
         Raises:
             ValueError: `geometry_from` has other cities, sensing or vehicle size (naming what differs).
@@ -114,11 +123,18 @@ class NavWorld:
             self.cities: list[BuildingMap] = geometry_from.cities
             self.clearance_sensor: BoxSensor = geometry_from.clearance_sensor
             self.perception: Perception = geometry_from.perception
+            self.maps: MapErrorBank = geometry_from.maps
+            self.truth: TruthSensing | None = geometry_from.truth
         else:
-            self.cities = list(fixed.cities) if fixed is not None else \
-                [config.cities.city(s) for s in config.city_seeds()]
+            seeds = list(range(len(fixed.cities))) if fixed is not None else config.city_seeds()
+            self.cities = list(fixed.cities) if fixed is not None else [config.cities.city(s) for s in seeds]
             self.clearance_sensor = clearance_sensor(self.cities, config.scales, radius)
             self.perception = Perception(self.cities, radius, config.perception)
+            levels = ("exact",) if fixed is not None else config.map_error
+            self.maps = MapErrorBank(self.cities, seeds, levels, config.map_error_draws)
+            # the truths' sensing: None when every truth is its city as it stands (the cities' sensors alone)
+            self.truth = TruthSensing(self.clearance_sensor, self.perception, self.maps.added, config.scales, radius,
+                                      config.perception) if self.maps.added else None
         self.lo = np.array([c.bounds_min_m for c in self.cities])
         self.hi = np.array([c.bounds_max_m for c in self.cities])
         shapes = np.array([grid_shape(c, config.route.cell_m) for c in self.cities])
@@ -180,6 +196,13 @@ class NavBatch:
         self.xi = np.zeros((n, 3))
         self.t = np.zeros(n)
         self.city = np.zeros(n, dtype=np.int64)
+        self.geometry = np.zeros(n, dtype=np.int64)  # each slot's truth: an index of the world's truth sensing
+        self.map_level = np.zeros(n, dtype=np.int64)  # each slot's map-error level: an index of world.maps.levels
+        self.map_draw = np.zeros(n, dtype=np.int64)  # and its draw
+        self._truth_maps: list[BuildingMap] = [world.cities[0]] * n  # each slot's truth (ground effect)
+        # the truths' sensing, by geometry index (the cities' own sensors when no truth adds to its city)
+        self._sensor: BoxSensor | TruthSensing = world.truth or world.clearance_sensor
+        self._perception: Perception | TruthSensing = world.truth or world.perception
         self.goal = np.zeros((n, 3))
         self.start = np.zeros((n, 3))
         self.goal_radius = np.ones(n)
@@ -226,22 +249,36 @@ class NavBatch:
             rng = self.rngs[i]
             if w.fixed is not None:
                 ci, task = w.fixed.tasks[int(self.episode_count[i] + i) % len(w.fixed.tasks)]
+                draw = w.maps.exact(ci)
             else:
                 ci = int(rng.integers(len(w.cities)))
                 if self.city_of_slot is not None:
                     ci = int(self.city_of_slot[i])
-                task = cfg.tasks.sample(w.cities[ci], rng, p.collision_radius_m, p.controller.max_speed_m_s,
+                draw = self._draw_map(rng, ci)
+                task = cfg.tasks.sample(draw.truth, rng, p.collision_radius_m, p.controller.max_speed_m_s,
                                         difficulty=self.difficulty,
-                                        max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s)
-            self._place(int(i), ci, task, self._draw_air(rng, task))
+                                        max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s, also=draw.prior)
+            self._place(int(i), ci, task, self._draw_air(rng, task), draw)
         self._begin(np.asarray(idx, dtype=np.int64))
 
-    def place(self, episodes: Sequence[tuple[int, int, Task, SlotAir]]) -> None:
+    def place(self, episodes: Sequence[tuple[int, int, Task, SlotAir]],
+              maps: Sequence[MapDraw] | None = None) -> None:
         """Start the given episodes: (slot, city index, task, its air) each, drawing nothing from any
-        generator (e.g. a fixed set of tasks flown again and again, `rl.training.recording`)."""
-        for i, ci, task, air in episodes:
-            self._place(int(i), int(ci), task, air)
+        generator (e.g. a fixed set of tasks flown again and again, `rl.training.recording`).
+
+        `maps`: each episode's map (`world.maps.draw`); None: every city as it stands (the exact level)."""
+        for k, (i, ci, task, air) in enumerate(episodes):
+            self._place(int(i), int(ci), task, air, self.world.maps.exact(int(ci)) if maps is None else maps[k])
         self._begin(np.array([e[0] for e in episodes], dtype=np.int64))
+
+    def _draw_map(self, rng: np.random.Generator, ci: int) -> MapDraw:
+        """A slot's map in city ci drawn from its generator: a map-error level, then a draw of it.
+
+        Draws only where there is a choice, so a task of one level with one draw (exact) draws as it always did."""
+        maps = self.world.maps
+        level = int(rng.integers(len(maps.levels))) if len(maps.levels) > 1 else 0
+        n = maps.draws_of(level)
+        return maps.draw(ci, level, int(rng.integers(n)) if n > 1 else 0)
 
     def _draw_air(self, rng: np.random.Generator, task: Task) -> SlotAir:
         """A slot's air for `task` drawn from its generator: steady wind, turbulence level and series, field.
@@ -272,8 +309,8 @@ class NavBatch:
                              f"{task.timeout_s} s episode")
         return span
 
-    def _place(self, i: int, ci: int, task: Task, air: SlotAir) -> None:
-        """Slot i's state at the start of `task` in city `ci` and air `air` (`_begin` completes it)."""
+    def _place(self, i: int, ci: int, task: Task, air: SlotAir, draw: MapDraw) -> None:
+        """Slot i's state at the start of `task` in city `ci`, map `draw` and air `air` (`_begin` completes it)."""
         w, cfg = self.world, self.world.config
         p = w.vehicle
         self.winds.assign(i, air.wind_m_s, air.series, air.start)
@@ -281,6 +318,8 @@ class NavBatch:
         if isinstance(self.atmospheres, AtmosphereBank):
             self.atmospheres.assign(i, air.field)
         self.city[i] = ci
+        self.geometry[i], self.map_level[i], self.map_draw[i] = draw.geometry, draw.level, draw.draw
+        self._truth_maps[i] = draw.truth
         self.lo[i], self.hi[i] = w.lo[ci], w.hi[ci]
         self.start[i], self.goal[i] = task.start_m, task.goal_m
         self.goal_radius[i], self.timeout[i], self.yaw[i] = task.goal_radius_m, task.timeout_s, task.start_yaw_rad
@@ -288,18 +327,17 @@ class NavBatch:
                                 density_ratio=w.atmospheres[air.field].density_ratio(task.start_m[2]))
         self.xi[i] = 0.0
         self.t[i] = 0.0
-        self.routes.set(i, route_for(w.cities[ci], task, p.collision_radius_m, cfg.route))
+        self.routes.set(i, route_for(draw.prior, task, p.collision_radius_m, cfg.route))
         self.episode_return[i] = 0.0
         self.episode_len[i] = 0
         self.episode_count[i] += 1
 
     def _begin(self, idx: np.ndarray) -> None:
         """The first sensing and observation of slots idx, just placed."""
-        w = self.world
         if len(idx):
             pos = self.x[idx, 0:3]
             self.route_m[idx] = self.routes.potential(pos, idx)
-            self.clear[idx], self.nearest[idx] = nearest_surface(w.clearance_sensor, pos, self.city[idx])
+            self.clear[idx], self.nearest[idx] = nearest_surface(self._sensor, pos, self.geometry[idx])
             self.memory.start(idx, pos, self.goal[idx], self.route_m[idx])
             self._observe(idx)
 
@@ -330,7 +368,8 @@ class NavBatch:
         w = self.world
         cfg = w.config
         self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
-                                       self.nearest[idx], self.t[idx] / self.timeout[idx], self.city[idx], w.perception,
+                                       self.nearest[idx], self.t[idx] / self.timeout[idx], self.geometry[idx],
+                                       self._perception,
                                        self.routes, self.memory, cfg.perception, cfg.scales, cfg.decision_hz, w.vehicle,
                                        cfg.observe, self._surroundings(idx) if cfg.observe.size() else None)
 
@@ -363,7 +402,7 @@ class NavBatch:
         hit = np.zeros(len(idx), dtype=bool)
         if len(near):
             nsub = pos.shape[1]
-            c = self.world.clearance_sensor.clearance(pos[near].reshape(-1, 3), np.repeat(self.city[idx[near]], nsub))
+            c = self._sensor.clearance(pos[near].reshape(-1, 3), np.repeat(self.geometry[idx[near]], nsub))
             c = c.reshape(len(near), nsub)
             hit[near] = episode.collided(c)
             lb[near] = c[:, -1]
@@ -371,12 +410,12 @@ class NavBatch:
 
     def _heights(self, idx: np.ndarray, pos: np.ndarray, clear_lb: np.ndarray) -> np.ndarray:
         """Heights above the surface below (M,) [m] of slots idx at positions pos (M, 3) for ground effect:
-        the runner's rule (`height_above_surface`) in each slot's city; a slot whose clearance's lower
+        the runner's rule (`height_above_surface`) in each slot's truth; a slot whose clearance's lower
         bound puts every surface out of ground-effect range gets its altitude, as in the runner."""
         w = self.world
         h = pos[:, 2].copy()
         for k in np.flatnonzero(clear_lb + self._radius < self._ground_effect_range_m):
-            h[k] = height_above_surface(w.cities[self.city[idx[k]]], pos[k:k + 1], clear_lb[k:k + 1], w.vehicle)[0]
+            h[k] = height_above_surface(self._truth_maps[idx[k]], pos[k:k + 1], clear_lb[k:k + 1], w.vehicle)[0]
         return h
 
     def _braking_reach(self, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -384,7 +423,7 @@ class NavBatch:
         (the reward's braking term): deceleration g tan(max tilt), lag 1 / velocity gain."""
         ctl = self.world.vehicle.controller
         v_h = np.hypot(vel[:, 0], vel[:, 1])
-        ahead = self.world.perception.free_distance(pos, np.arctan2(vel[:, 1], vel[:, 0]), self.city)
+        ahead = self._perception.free_distance(pos, np.arctan2(vel[:, 1], vel[:, 0]), self.geometry)
         decel = GRAVITY_M_S2 * np.tan(np.radians(ctl.max_tilt_deg))
         return ahead, stopping_distance(v_h, decel, 1.0 / ctl.velocity_gain_1_s)
 
@@ -428,7 +467,7 @@ class NavBatch:
                 self.on_period(idx)
         everyone = np.arange(self.n)
         pos = self.x[:, 0:3]
-        self.clear, self.nearest = nearest_surface(w.clearance_sensor, pos, self.city)
+        self.clear, self.nearest = nearest_surface(self._sensor, pos, self.geometry)
         self.route_m = self.routes.potential(pos, everyone)
         arrived = code == episode.SUCCESS
         crashed = (code == episode.COLLISION) | (code == episode.OUT_OF_BOUNDS) | (code == episode.NONFINITE)
@@ -479,6 +518,8 @@ def _check_same_geometry(world: NavWorld, other: NavWorld) -> None:
                                                           b.city_seeds() if other.fixed is None else None),
             "fixed episodes": (world.fixed, other.fixed), "perception": (a.perception, b.perception),
             "observation scales": (a.scales, b.scales),
+            "map error": ((a.map_error, a.map_error_draws) if world.fixed is None else None,
+                          (b.map_error, b.map_error_draws) if other.fixed is None else None),
             "collision radius": (world.vehicle.collision_radius_m, other.vehicle.collision_radius_m)}
     differ = [name for name, (x, y) in same.items() if x != y]
     if differ:

@@ -18,6 +18,7 @@ from rl.sensing.observation import (
 from rl.sensing.perception import Perception, PerceptionConfig
 from rl.sensing.route import LeveledRoute, RouteBank, RouteConfig, flight_levels, leveled_route
 from rl.sensing.sensor import BoxSensor
+from rl.sensing.truth import TruthSensing
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Task
 from uam_fdm.vehicle.params import VehicleParams
@@ -38,9 +39,11 @@ def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfi
     return leveled_route(city, task.goal_m, levels, radius_m, config)
 
 
-def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def nearest_surface(sensor: BoxSensor | TruthSensing, points_m: np.ndarray,
+                    city: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Clearance (N,) [m] and the vector (N, 3) [m, world] to the nearest surface point (a building
-    within the sensor's range, or the ground; zero when neither is within range)."""
+    within the sensor's range, or the ground; zero when neither is within range). `city`: the points' city
+    indices of a `BoxSensor`, or their truths' indices of a `TruthSensing`."""
     r = sensor.query(points_m, city)
     vec = r.nearest_m[:, 0, :] - points_m  # zero for an empty row (the nearest point is the query point)
     ground = ((points_m[:, 2] - sensor.radius_m < r.distance_m[:, 0])
@@ -51,7 +54,7 @@ def nearest_surface(sensor: BoxSensor, points_m: np.ndarray, city: np.ndarray) -
 
 
 def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
-                  nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception,
+                  nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception | TruthSensing,
                   routes: RouteBank, memory: PilotMemory, perception_config: PerceptionConfig,
                   scales: ObservationScales, decision_hz: float, vehicle: VehicleParams,
                   observe: ObservedContext | None = None, around: Surroundings | None = None) -> np.ndarray:
@@ -61,7 +64,7 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
         idx: (M,) slots of `routes` and `memory`; x: (M, nx) states; goal_m: (M, 3) [m];
         route_m: (M,) Φ [m]; clearance_m: (M,) [m]; nearest_m: (M, 3) vector to the nearest surface [m];
         t_frac: (M,) time used / limit;
-        city: (M,) city indices of `perception`.
+        city: (M,) city indices of `perception` (truth indices of a `TruthSensing`).
         perception_config, scales, decision_hz, observe: the task's (`rl.task.config.NavConfig`).
         around: the vehicles' surroundings, when `observe` asks for the air or the geofence.
     """

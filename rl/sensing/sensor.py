@@ -2,7 +2,8 @@
 
 For each query point (world ENU, metres) in its own city, `BoxSensor.query` returns the K nearest
 distinct buildings within the sensing range (nearest point on each building's surface and the
-signed distance to it) and the clearance to buildings and the ground. Distances are the exact
+signed distance to it) and the clearance to buildings and the ground. A box raised off the ground
+(`Building.base_m` > 0, a crane's jib) spans base_m..height_m, exactly. Distances are the exact
 point-to-box kernel of `uam_fdm.city.distance` (`box_signed_sq_distance`, `box_signed_distance_one`), the
 one `uam_fdm.city.buildings.BuildingMap.clearance` uses (which agrees with FCL to ~1e-12 m;
 tests/rl/env/test_nav_env.py::test_sensor_matches_fcl checks this sensor against FCL directly).
@@ -63,6 +64,7 @@ class BoxSensor:
         self._hx = np.ones((n_city, nb + 1))
         self._hy = np.ones((n_city, nb + 1))
         self._h = np.ones((n_city, nb + 1))
+        self._base = np.zeros((n_city, nb + 1))
         self._id = np.full((n_city, nb + 1), -1, dtype=np.int64)
         self._origin = np.zeros((n_city, 2))
         self._dims = np.zeros((n_city, 2), dtype=np.int64)
@@ -76,6 +78,7 @@ class BoxSensor:
                 self._cos[ci, j], self._sin[ci, j] = math.cos(b.yaw_rad), math.sin(b.yaw_rad)
                 self._hx[ci, j], self._hy[ci, j] = 0.5 * b.size_xy_m[0], 0.5 * b.size_xy_m[1]
                 self._h[ci, j], self._id[ci, j] = b.height_m, b.id
+                self._base[ci, j] = b.base_m
             lo, hi = np.asarray(city.bounds_min_m[:2]), np.asarray(city.bounds_max_m[:2])
             dims = np.maximum(np.ceil((hi - lo) / self.cell_m).astype(np.int64), 1)
             self._origin[ci], self._dims[ci] = lo, dims
@@ -86,14 +89,18 @@ class BoxSensor:
         for ci, c in enumerate(cand_lists):
             self._cand[ci, : c.shape[0], : c.shape[1]] = c
         self._nb1 = nb + 1
-        # One row per box (cities stacked): cx, cy, cos, sin, hx, hy, half height; one gather per query.
-        self._tab = np.stack([a.ravel() for a in (self._cx, self._cy, self._cos, self._sin, self._hx, self._hy,
-                                                  0.5 * self._h)], axis=-1)
+        # One row per box (cities stacked): cx, cy, cos, sin, hx, hy, half height (and, only when some box is
+        # raised, the height range's centre: otherwise it equals the half height, the same doubles); one gather.
+        columns = [self._cx, self._cy, self._cos, self._sin, self._hx, self._hy, 0.5 * (self._h - self._base)]
+        raised = bool(np.any(self._base > 0.0))
+        if raised:
+            columns.append(0.5 * (self._base + self._h))
+        self._zc = 7 if raised else 6  # the column of the height range's centre
+        self._tab = np.stack([a.ravel() for a in columns], axis=-1)
         self._ids_flat = self._id.ravel()
         # For single queries (one vehicle): plain-Python rows (cx, cy, cos, sin, hx, hy, zc, hz, as
-        # `box_signed_distance_one` takes them: the height range's centre and half are both h / 2)
-        # and per-cell lists without padding.
-        self._tab_rows = [(*r, r[6]) for r in self._tab.tolist()]
+        # `box_signed_distance_one` takes them) and per-cell lists without padding.
+        self._tab_rows = [(*r[:6], r[self._zc], r[6]) for r in self._tab.tolist()]
         self._cells_py = [[[int(j) for j in row if j != nb] for row in c] for c in cand_lists]
 
     def _candidates(self, blds: Sequence[Building], lo: np.ndarray, dims: np.ndarray, pad: int) -> np.ndarray:
@@ -136,23 +143,23 @@ class BoxSensor:
 
     def _box_frame(self, points: np.ndarray, flat: np.ndarray):
         """Points in the frames of boxes `flat` (N, C): local x, y, z (z from mid-height) and the box rows."""
-        b = self._tab[flat]  # (N, C, 7)
+        b = self._tab[flat]  # (N, C, 7 or 8)
         lx, ly = box_frame_xy(points[:, 0:1], points[:, 1:2], b[..., 0], b[..., 1], b[..., 2], b[..., 3])
-        return lx, ly, points[:, 2:3] - b[..., 6], b
+        return lx, ly, points[:, 2:3] - b[..., self._zc], b
 
     def _keys(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
         """Signed squared point distances (N, C) to the boxes `flat` (`box_signed_sq_distance`)."""
-        b = self._tab[flat]  # (N, C, 7)
+        b = self._tab[flat]  # (N, C, 7 or 8)
         half_h = b[..., 6]
         return box_signed_sq_distance(points[:, 0:1], points[:, 1:2], points[:, 2:3], b[..., 0], b[..., 1],
-                                      b[..., 2], b[..., 3], b[..., 4], b[..., 5], half_h, half_h)
+                                      b[..., 2], b[..., 3], b[..., 4], b[..., 5], b[..., self._zc], half_h)
 
     def _nearest_points(self, points: np.ndarray, flat: np.ndarray) -> np.ndarray:
         """Nearest points (N, C, 3) on the boxes `flat`: the clamp (inside a box: the point itself)."""
         lx, ly, lz, b = self._box_frame(points, flat)
         hx, hy, hz = b[..., 4], b[..., 5], b[..., 6]
         nx, ny = np.minimum(np.maximum(lx, -hx), hx), np.minimum(np.maximum(ly, -hy), hy)
-        nz = np.minimum(np.maximum(lz, -hz), hz) + hz
+        nz = np.minimum(np.maximum(lz, -hz), hz) + b[..., self._zc]
         co, si = b[..., 2], b[..., 3]
         return np.stack([b[..., 0] + nx * co - ny * si, b[..., 1] + nx * si + ny * co, nz], axis=-1)
 
@@ -201,11 +208,11 @@ class BoxSensor:
         for m, (d, j) in enumerate(found[:k]):
             if d > rng_m:
                 break
-            cx, cy, co, si, hx, hy, _, hz = rows[base + j]
+            cx, cy, co, si, hx, hy, zc, hz = rows[base + j]
             lx, ly = box_frame_xy(x, y, cx, cy, co, si)
-            lz = z - hz
+            lz = z - zc
             nx, ny = min(max(lx, -hx), hx), min(max(ly, -hy), hy)
-            near[0, m] = (cx + nx * co - ny * si, cy + nx * si + ny * co, min(max(lz, -hz), hz) + hz)
+            near[0, m] = (cx + nx * co - ny * si, cy + nx * si + ny * co, min(max(lz, -hz), hz) + zc)
             dist[0, m] = d
             ids[0, m] = self._ids_flat[base + j]
         clearance = np.array([min(dist[0, 0], z - r)])

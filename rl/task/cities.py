@@ -237,8 +237,12 @@ class TaskDistribution:
 
     def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
                attempts: int = MAX_TASK_DRAWS, difficulty: float = 1.0,
-               max_vertical_speed_m_s: float | None = None) -> Task:
+               max_vertical_speed_m_s: float | None = None, also: BuildingMap | None = None) -> Task:
         """A free start/goal pair in `city` drawn from `rng` (ENU metres).
+
+        `also`: a second map of the same bounds the pair must be free in too (a map-error draw's prior, `city`
+        being its truth); a pair free in `city` but not in `also` is drawn again. None (or `city` itself): the
+        draws are those of `city` alone.
 
         `difficulty` in (0, 1] (the training curriculum) shrinks the distance range's upper end
         towards its lower end: d ~ U(d_min, d_min + difficulty x (d_max - d_min)). The draws from
@@ -263,6 +267,10 @@ class TaskDistribution:
                 continue
             if (city.clearance_one(start[0], start[1], start[2], radius_m) < need
                     or city.clearance_one(goal[0], goal[1], goal[2], radius_m) < need):
+                continue
+            if also is not None and also is not city and (
+                    also.clearance_one(start[0], start[1], start[2], radius_m) < need
+                    or also.clearance_one(goal[0], goal[1], goal[2], radius_m) < need):
                 continue
             d = float(np.linalg.norm(goal - start))
             timeout = self.timeout_s(d, dz, max_speed_m_s, max_vertical_speed_m_s)

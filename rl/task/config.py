@@ -15,6 +15,7 @@ from rl.task.air import AirDistribution
 from rl.task.cities import EVAL_SEEDS, TRAIN_SEEDS, CityDistribution, CityMixture, TaskDistribution, cities_from_dict
 from rl.task.reward import RewardConfig
 from uam_fdm.city.buildings import BuildingMap
+from uam_fdm.city.map_error import MAP_ERROR_LEVELS
 from uam_fdm.pilot import Task
 
 _LEGACY_AIR = {"turbulence": "turbulence", "steady_wind_max_m_s": "steady_wind_max_m_s"}
@@ -46,6 +47,11 @@ class NavConfig:
             random sample of one of its level's); wind_series_s: length of each [s]. The steady wind is
             uniform with height.
         reward: reward weights.
+        map_error: the map-error levels (`uam_fdm.city.map_error` presets) an episode draws from, uniformly: it
+            collides with and senses the level's truth and follows a route field drawn from its prior map
+            (`rl.sensing.truth`). ("exact",): every map is its city, as before the setting existed.
+        map_error_draws: draws banked per city of each level that is not exact (each from its own seed, derived
+            from the city seed and the draw index); an episode draws one uniformly.
     """
 
     vehicle: str = "small_quad"
@@ -65,8 +71,18 @@ class NavConfig:
     wind_pool_size: int = 16
     wind_series_s: float = 400.0
     reward: RewardConfig = field(default_factory=RewardConfig)
+    map_error: tuple[str, ...] = ("exact",)
+    map_error_draws: int = 4
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "map_error", tuple(self.map_error))
+        bad = [v for v in self.map_error if v not in MAP_ERROR_LEVELS]
+        if not self.map_error or bad or len(set(self.map_error)) != len(self.map_error):
+            raise ValueError(f"map_error must be distinct levels from {', '.join(MAP_ERROR_LEVELS)}, "
+                             f"got {list(self.map_error)}")
+        if isinstance(self.map_error_draws, bool) or not isinstance(self.map_error_draws, int) \
+                or not 1 <= self.map_error_draws <= 1000:
+            raise ValueError(f"map_error_draws must be an integer in [1, 1000], got {self.map_error_draws!r}")
         if self.city_split not in ("train", "eval"):
             raise ValueError(f"city_split must be 'train' or 'eval', got {self.city_split!r}")
         if self.city_pool_size < 1 or self.wind_pool_size < 1:
