@@ -42,7 +42,7 @@ from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.report import ClassicalReport
 from planners.rrt_star import PlannerConfig, PlanResult
 from planners.sensed_map import MappingConfig, SensedMap
-from planners.timing import Reference, TimingLimits, braking_reference, time_parameterize
+from planners.timing import Reference, TimingLimits, braking_along, braking_reference, time_parameterize
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
 
@@ -437,9 +437,9 @@ class ClassicalPilot:
 
     def _replan_in_flight(self, obs: Observation, cause: str | None) -> None:
         """Replan on the fused map; the new plan starts `replan_budget_s` later, where the vehicle will be then.
-        Meanwhile it brakes when its path is blocked (or it holds), and otherwise flies on along its reference (still
-        clear in what it knows: the cause is a margin, not an obstacle). `cause` None: a retry while holding. No path:
-        hold (hover), trying again every `hold_retry_s`."""
+        Meanwhile it brakes, except when the cause is the estimate's grown uncertainty: then the path is still clear
+        in what it knows and the vehicle on it, and it flies on along its reference. `cause` None: a retry while
+        holding. No path: hold (hover), trying again every `hold_retry_s`."""
         cfg, s = self.config, self.stats
         assert self._sensed is not None
         if cause is not None:
@@ -451,9 +451,14 @@ class ClassicalPilot:
         self._refresh_known(obs.t_s)
         refresh_s = time.perf_counter() - t0
         t_switch = obs.t_s + cfg.replan_budget_s
-        brake = braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2)
-        flying_on = cause not in ("blocked", None) and self.reference is not None
-        now = (self.reference, self._t_ref0) if flying_on else (brake, obs.t_s)
+        flown = self.reference
+        # stop along the path flown (clear in what the pilot knew), not straight along the velocity
+        brake = (braking_along(flown, obs.t_s - self._t_ref0, self._limits.max_accel_m_s2) if flown is not None
+                 else braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2))
+        # only a grown uncertainty leaves the path clear and the vehicle on it: a blocked path, a tracking error or a
+        # predicted clearance short of the margin mean flying on would keep the vehicle where it should not be
+        flying_on = cause == "uncertainty" and flown is not None
+        now: tuple[Reference, float] = (flown, self._t_ref0) if flying_on and flown is not None else (brake, obs.t_s)
         p_b, v_b, _ = now[0].sample(t_switch - now[1])
         self._planned_extra_m = self._extra_now
         self.margins = self._base_margins.widened(self._extra_now)

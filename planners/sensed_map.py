@@ -249,8 +249,8 @@ def grown_parts(parts: tuple, voxels_m: np.ndarray, resolution_m: float, attach_
         y0, y1 = min(-half[1], float(ly.min())), max(half[1], float(ly.max()))
         mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
         part = out[j]
-        out[j] = dataclasses.replace(part, center_xy_m=(float(c[0] + mx * co - my * si), float(c[1] + mx * si + my * co)),
-                                     size_xy_m=(x1 - x0, y1 - y0),
+        centre = (float(c[0] + mx * co - my * si), float(c[1] + mx * si + my * co))
+        out[j] = dataclasses.replace(part, center_xy_m=centre, size_xy_m=(x1 - x0, y1 - y0),
                                      height_m=max(part.height_m, float(mine[:, 2].max()) + 0.5 * resolution_m))
     return tuple(out), owner >= 0
 

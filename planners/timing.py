@@ -568,6 +568,34 @@ def braking_reference(position_m: np.ndarray, velocity_m_s: np.ndarray, decel_m_
                      required_clearance_m=math.nan, refinements=0, stops=1)
 
 
+def braking_along(reference: Reference, t_s: float, decel_m_s2: float, step_s: float = 0.02) -> Reference:
+    """A stop along a reference's own path: from where `reference` is at its time `t_s` [s], at its speed there,
+    slowing at `decel_m_s2` [m/s²] along the same curve until at rest (or at the curve's end), then holding there.
+    The curve was clear in the map it was planned on, a straight line along the velocity need not be (a vehicle
+    braking in a turn). Clearance not checked (NaN), as `braking_reference`'s."""
+    if not (math.isfinite(decel_m_s2) and decel_m_s2 > 0.0):
+        raise ValueError(f"decel_m_s2 must be positive and finite, got {decel_m_s2!r}")
+    pos = np.asarray(reference.pos_m, float)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    tau = min(max(float(t_s), 0.0), reference.duration_s)
+    s0 = float(np.interp(tau, reference.t_s, arc))
+    speed = float(np.linalg.norm(reference.sample(tau)[1]))
+    stop_s = speed / decel_m_s2
+    t = np.append(np.arange(0.0, stop_s, step_s), stop_s) if stop_s > 0.0 else np.zeros(1)
+    s = np.minimum(s0 + speed * t - 0.5 * decel_m_s2 * t * t, arc[-1])  # ends at the curve's end at the latest
+    keep = np.concatenate([[True], np.diff(arc) > 0.0])  # the curve's points where it moves (np.interp's abscissa)
+    p = np.column_stack([np.interp(s, arc[keep], pos[keep, k]) for k in range(3)])
+    ahead = np.column_stack([np.interp(np.minimum(s + 0.01, arc[-1]), arc[keep], pos[keep, k]) for k in range(3)])
+    span = np.linalg.norm(ahead - p, axis=1)
+    unit = np.where(span[:, None] > 0.0, (ahead - p) / np.maximum(span, 1e-12)[:, None], 0.0)
+    v = np.maximum(speed - decel_m_s2 * t, 0.0)
+    v[s >= arc[-1]] = 0.0
+    acc = -decel_m_s2 * unit * (v > 0.0)[:, None]
+    return Reference(t_s=_frozen(t), pos_m=_frozen(p), vel_m_s=_frozen(v[:, None] * unit), acc_m_s2=_frozen(acc),
+                     duration_s=float(t[-1]), status="ok", length_m=float(s[-1] - s0), min_clearance_m=math.nan,
+                     required_clearance_m=math.nan, refinements=0, stops=1)
+
+
 def _at_rest(p: np.ndarray, city: BuildingMap, radius_m: float, margin_m: float) -> Reference:
     z = np.zeros((1, 3))
     clear = float(city.clearance(p[None, :], radius_m).distance_m[0])

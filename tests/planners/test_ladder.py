@@ -6,9 +6,9 @@ import math
 
 import pytest
 
+import planners.ladder as ladder_module
 from alley import alley_city
 from planners.clearance import MarginTaper
-import planners.ladder as ladder_module
 from planners.ladder import (
     CANDIDATE_SEED_STRIDE,
     IN_FLIGHT_ITERATIONS,

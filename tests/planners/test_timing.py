@@ -241,3 +241,26 @@ def test_a_braking_reference_stops_along_the_velocity_and_holds():
     assert at_rest.duration_s == 0.0 and np.allclose(at_rest.sample(1.0)[0], 0.0)
     with pytest.raises(ValueError, match="decel_m_s2"):
         braking_reference(np.zeros(3), np.ones(3), 0.0)
+
+
+def test_braking_along_a_curve_stays_on_it_and_stops():
+    """The stop while a replan runs follows the flown curve (an L-turn here), slowing at the given rate from the
+    reference's speed at that time, and holds at rest; a stop past the curve's end holds at the end."""
+    from planners.timing import Reference, braking_along
+
+    t = np.linspace(0.0, 20.0, 201)
+    corner = np.clip(t * 2.0, 0.0, 20.0)  # 2 m/s: 10 s along +x to (20, 0), then 10 s along +y
+    pos = np.column_stack([corner, np.clip(t * 2.0 - 20.0, 0.0, 20.0), np.full_like(t, 10.0)])
+    vel = np.gradient(pos, t, axis=0)
+    ref = Reference(t_s=t, pos_m=pos, vel_m_s=vel, acc_m_s2=np.zeros_like(pos), duration_s=20.0, status="ok",
+                    length_m=40.0, min_clearance_m=5.0, required_clearance_m=1.0, refinements=0, stops=0)
+    brake = braking_along(ref, 9.5, 1.0)  # 1 m before the corner at 2 m/s: stops 2 m on, 1 m past the corner
+    assert brake.duration_s == pytest.approx(2.0)
+    end, v_end, _ = brake.sample(brake.duration_s + 1.0)
+    assert np.allclose(end, [20.0, 1.0, 10.0], atol=1e-6) and np.allclose(v_end, 0.0)
+    # every point on the curve (x = 20 or y = 0), never cutting the corner
+    p = np.asarray(brake.pos_m)
+    assert np.all(np.minimum(np.abs(p[:, 0] - 20.0), np.abs(p[:, 1])) < 1e-9)
+    assert float(np.linalg.norm(brake.sample(0.0)[1])) == pytest.approx(2.0, rel=1e-6)
+    late = braking_along(ref, 19.8, 0.5)  # 0.4 m from the end at 2 m/s: held at the end
+    assert np.allclose(late.sample(100.0)[0], [20.0, 20.0, 10.0])

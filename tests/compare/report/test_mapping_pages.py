@@ -29,8 +29,8 @@ def test_flights_on_sensors_get_a_mapping_table_and_perfect_flights_none():
     assert mapping_pages("RRT* + MPC", rows, "ppo") == []
     pages = mapping_pages("RRT* + MPC", rows, "rrt_mpc")
     assert len(pages) == 1
-    texts = [t.get_text() for ax in pages[0].axes for t in ax.texts] + [
-        cell.get_text().get_text() for ax in pages[0].axes for table in ax.tables for cell in table.get_celld().values()]
+    cells = [cell for ax in pages[0].axes for table in ax.tables for cell in table.get_celld().values()]
+    texts = [t.get_text() for ax in pages[0].axes for t in ax.texts] + [cell.get_text().get_text() for cell in cells]
     texts = [t.replace("\n", " ") for t in texts]
     joined = " | ".join(texts)
     assert "nominal / wrong" in joined and "perfect / exact" not in joined
