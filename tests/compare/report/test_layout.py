@@ -27,6 +27,8 @@ from compare.report.layout import (
     text_width_pt,
 )
 from compare.report.title_page import shown_path
+from compare.results.summary import summarize_run, write_summary_json
+from synthetic_run import write_benchmark_run
 from uam_fdm.city.buildings import Building, BuildingMap
 
 TOLERANCE_PX = 1.0
@@ -108,6 +110,29 @@ def test_no_table_or_text_crosses_the_page_edge(default_run):
     _, pdf, _, summary = default_run
     assert pdf_text_beyond_page(pdf) == []
     assert pdf_text_beyond_page(summary) == []
+
+
+def test_a_benchmark_quick_shaped_report_fits_its_pages(tmp_path: Path):
+    """The benchmark-quick shape (2 vehicles x 6 scenarios x 3 legs, the three pilots, its difficulty pages): every
+    page's tables and texts inside the page (few flights drawn: their pages' layout does not depend on how many)."""
+    run_dir = tmp_path / "run"
+    rows = write_benchmark_run(run_dir, scenarios_per_vehicle=6, episodes=3, seeds=(0,), samples=60,
+                               pilots={"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC", "apf": "Potential field"})
+    write_summary_json(summarize_run(rows, resamples=200), run_dir / "summary.json")
+    problems: list[str] = []
+    add = R._PageWriter.add
+
+    def checked(self, fig, name, *args, **kwargs):
+        problems.extend(f"{name}: {p}" for p in layout_problems(fig))
+        add(self, fig, name, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(R._PageWriter, "add", checked)
+        mp.setattr(R, "DRAWN_SCENARIOS_PER_VEHICLE", 1)
+        mp.setattr(R, "DRAWN_FLIGHTS_PER_SCENARIO", 1)
+        pdf = R.build_report(run_dir)
+    assert problems == []
+    assert pdf_text_beyond_page(pdf) == []
 
 
 def test_the_tracker_table_shows_every_column_and_note(default_run):
