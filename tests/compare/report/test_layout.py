@@ -84,6 +84,17 @@ def pdf_text_beyond_page(pdf: Path) -> list[tuple[int, str]]:
     return out
 
 
+def _check_every_page(mp: pytest.MonkeyPatch, problems: list[str]) -> None:
+    """While `mp` holds, every page the report writes is checked (`layout_problems`) into `problems`."""
+    add = R._PageWriter.add
+
+    def checked(self, fig, name, *args, **kwargs):
+        problems.extend(f"{name}: {p}" for p in layout_problems(fig))
+        add(self, fig, name, *args, **kwargs)
+
+    mp.setattr(R._PageWriter, "add", checked)
+
+
 # ---- every page of a default-shaped run ----------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def default_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list[str], Path]:
@@ -92,14 +103,8 @@ def default_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, l
     run_dir = tmp_path_factory.mktemp("default") / "run"
     write_default_shaped_run(run_dir)
     problems: list[str] = []
-    add = R._PageWriter.add
-
-    def checked(self, fig, name, *args, **kwargs):
-        problems.extend(f"{name}: {p}" for p in layout_problems(fig))
-        add(self, fig, name, *args, **kwargs)
-
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(R._PageWriter, "add", checked)
+        _check_every_page(mp, problems)
         pdf = R.build_report(run_dir)
         summary = R.build_report(run_dir, summary=True)
     assert problems == []
@@ -120,14 +125,8 @@ def test_a_benchmark_quick_shaped_report_fits_its_pages(tmp_path: Path):
                                pilots={"ppo": "PPO policy", "rrt_mpc": "RRT* + MPC", "apf": "Potential field"})
     write_summary_json(summarize_run(rows, resamples=200), run_dir / "summary.json")
     problems: list[str] = []
-    add = R._PageWriter.add
-
-    def checked(self, fig, name, *args, **kwargs):
-        problems.extend(f"{name}: {p}" for p in layout_problems(fig))
-        add(self, fig, name, *args, **kwargs)
-
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(R._PageWriter, "add", checked)
+        _check_every_page(mp, problems)
         mp.setattr(R, "DRAWN_SCENARIOS_PER_VEHICLE", 1)
         mp.setattr(R, "DRAWN_FLIGHTS_PER_SCENARIO", 1)
         pdf = R.build_report(run_dir)
