@@ -1,15 +1,16 @@
 """The onboard estimation of N vehicles at once: `Onboard`'s sensors and navigation filter for a training batch.
 
 `uam_fdm.sensing.onboard.Onboard` turns one vehicle's flown control periods into sensor readings and a navigation
-estimate. `BatchOnboard` does the same for N slots (the episodes a batched environment steps together), without the
-lidar (the learned pilot senses obstacles elsewhere): per slot its own sensing seed and random streams, its own
-atmosphere (barometer) and city (GNSS lines of sight in the urban canyon), and its own clock; a slot is reset on its
-own when its episode ends. Each control period:
+estimate. `BatchOnboard` does the same for N slots (the episodes a batched environment steps together): per slot its
+own sensing seed and random streams, its own atmosphere (barometer), city (GNSS lines of sight in the urban canyon)
+and, when lidar casters are given, true world for the lidar (`uam_fdm.sensing.batch_lidar.BatchLidar`), and its own
+clock; a slot is reset on its own when its episode ends. Without lidar casters no lidar is simulated (and nothing
+else changes: the lidar draws from its own stream). Each control period:
 
 * the IMU samples the physics substeps every `round(physics_hz / imu.rate_hz)` steps (their mean acceleration and
   rates, as `Onboard.advance` averages them) and the batched filter (`BatchNavFilter`) predicts with each sample;
-* the barometer, heading aid and GNSS receiver sample at the period's end when their epoch has come, and the
-  filter fuses them in that order.
+* the barometer, heading aid, GNSS receiver and lidar sample at the period's end when their epoch has come, in
+  that order, and the filter fuses the first three.
 
 A slot's numbers are `Onboard`'s for the same seed and true states, bit for bit, and do not depend on the other
 slots or on N (tests/uam_fdm/sensing/test_batch_onboard.py): the same Generators drawn in the same order
@@ -17,8 +18,9 @@ slots or on N (tests/uam_fdm/sensing/test_batch_onboard.py): the same Generators
 
 Latency: `Onboard.observation` hands a decision the current estimate (the filter fuses each reading at its own
 time and carries the estimate to the present with the IMU, as EKF2's output predictor does); the sensing latency
-delays only the readings handed over (lidar scans, fixes), and a `BatchOnboard` hands over none. So `estimates`
-is the estimate at the end of the last period sensed, as `Onboard.observation(t).x` is.
+delays only the readings handed over (lidar scans, fixes). So `estimates` is the estimate at the end of the last
+period sensed, as `Onboard.observation(t).x` is, and `lidar_scans(t)` are the scans `Onboard.observation(t)` hands
+over (those at least `latency_s` old not handed over before); a `BatchOnboard` hands over no other readings.
 """
 from __future__ import annotations
 
@@ -30,8 +32,10 @@ import numpy as np
 from uam_fdm.air.atmosphere import Atmosphere
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.sensing.batch_gnss import BatchGnss
+from uam_fdm.sensing.batch_lidar import BatchLidar
 from uam_fdm.sensing.batch_sensors import BatchBarometer, BatchHeading, BatchImu, yaw_rad
 from uam_fdm.sensing.gnss import GnssFix
+from uam_fdm.sensing.lidar import LidarScan
 from uam_fdm.sensing.nav_filter import BatchNavFilter, NavEstimate
 from uam_fdm.sensing.onboard import _STREAMS, GRAVITY_M_S2, filter_tuning, initial_estimate
 from uam_fdm.sensing.raycast import RayCaster
@@ -67,7 +71,7 @@ class SlotEstimates:
 
 
 class BatchOnboard:
-    """The sensors (no lidar) and navigation filters of N vehicle slots.
+    """The sensors (the lidar when asked for) and navigation filters of N vehicle slots.
 
     Args:
         config: the sensing level (not `perfect`: nothing would be simulated).
@@ -79,15 +83,17 @@ class BatchOnboard:
         casters: one ray caster per city of `cities` (GNSS lines of sight; built once per city by the caller);
             needed when `config.gnss.urban_canyon`.
         compiled: the filter's backend (`BatchNavFilter`): None compiles when a compiler exists.
+        lidar_casters: one ray caster per TRUE world the slots may fly in (buildings, unmapped obstacles, ground),
+            for the lidar `config.lidar` (a slot's world is chosen at `reset`); empty: no lidar is simulated.
 
     Raises:
-        ValueError: `perfect` sensing, a non-positive step or slot count, no atmosphere, or an urban canyon
-            without one caster per city.
+        ValueError: `perfect` sensing, a non-positive step or slot count, no atmosphere, an urban canyon
+            without one caster per city, or a lidar spec out of range.
     """
 
     def __init__(self, config: SensingConfig, physics_dt_s: float, n: int, atmospheres: Sequence[Atmosphere], *,
                  cities: Sequence[BuildingMap] = (), casters: Sequence[RayCaster] = (),
-                 compiled: bool | None = None) -> None:
+                 compiled: bool | None = None, lidar_casters: Sequence[RayCaster] = ()) -> None:
         if config.perfect:
             raise ValueError("perfect sensing simulates nothing onboard: fly on the truth instead")
         if not physics_dt_s > 0.0 or not np.isfinite(physics_dt_s):
@@ -102,6 +108,7 @@ class BatchOnboard:
         self.baro = BatchBarometer(config.baro, atmospheres, self.n)
         self.heading = BatchHeading(config.heading, self.n)
         self.gnss = BatchGnss(config.gnss, self.n, cities, casters)
+        self.lidar = BatchLidar(config.lidar, self.n, lidar_casters) if lidar_casters else None
         self.imu_stride = max(1, int(round(1.0 / (config.imu.rate_hz * self.dt))))
         # a placeholder start per slot until its first reset (a slot never reset cannot advance)
         still = NavEstimate.initial(0.0, np.zeros(3), np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]), config.imu)
@@ -116,7 +123,8 @@ class BatchOnboard:
         self._pending_a = np.zeros((self.n, self.imu_stride, 3))
         self._pending_w = np.zeros((self.n, self.imu_stride, 3))
         self._pending = np.zeros(self.n, dtype=np.intp)
-        self._next = {name: np.zeros(self.n) for name in ("baro", "heading", "gnss")}  # each sensor's next epoch
+        sensors = ("baro", "heading", "gnss") + (("lidar",) if self.lidar is not None else ())
+        self._next = {name: np.zeros(self.n) for name in sensors}  # each sensor's next epoch [s]
         self._t_sensed = np.zeros(self.n)  # the end of each slot's last period sensed [s]
 
     @property
@@ -127,9 +135,10 @@ class BatchOnboard:
     # ---- episodes ------------------------------------------------------------------------------------------------
     def reset(self, slots: Sequence[int] | np.ndarray, seeds: Sequence[int] | np.ndarray, x0: np.ndarray, *,
               city: Sequence[int] | np.ndarray | None = None, field: Sequence[int] | np.ndarray | None = None,
-              t0_s: float | np.ndarray = 0.0) -> None:
+              t0_s: float | np.ndarray = 0.0, truth: Sequence[int] | np.ndarray | None = None) -> None:
         """Start a new episode in each of `slots`, as `Onboard.__init__` starts one: the slot's sensors re-seeded
-        from its sensing seed, the first barometer reading taken, the filter started from the pad's survey.
+        from its sensing seed, the first barometer reading taken, the filter started from the pad's survey (and
+        the lidar's scans not handed over dropped).
 
         Args:
             slots: (M,) distinct slot indices.
@@ -138,10 +147,12 @@ class BatchOnboard:
             city: (M,) each slot's city, an index of `cities` (None: 0).
             field: (M,) each slot's atmosphere, an index of `atmospheres` (None: 0).
             t0_s: the start time(s) on each slot's clock [s], scalar or (M,).
+            truth: (M,) each slot's true world for the lidar, an index of `lidar_casters` (None: its city index);
+                only with lidar casters.
 
         Raises:
             ValueError: naming the argument: shapes that do not match `slots`, repeated or out-of-range slots,
-                negative seeds, non-finite states, out-of-range city or field indices.
+                negative seeds, non-finite states, out-of-range city, field or truth indices, a truth without lidar.
         """
         idx = self._slot_array(slots)
         m = len(idx)
@@ -150,6 +161,7 @@ class BatchOnboard:
         where = _integers("city", np.zeros(m, int) if city is None else city, m, 0, max(self.n_cities, 1) - 1)
         air = _integers("field", np.zeros(m, int) if field is None else field, m, 0, self.baro.fields - 1)
         t0 = _times("t0_s", t0_s, m)
+        world = self._lidar_worlds(truth, where, m)
         initial = []
         for k, i in enumerate(idx.tolist()):
             # Onboard's streams: one child of the seed per sensor (`_STREAMS` names them, in Onboard's order)
@@ -159,6 +171,8 @@ class BatchOnboard:
             self.baro.restart(i, rngs["baro"], int(air[k]), float(x[k, 2]))
             self.gnss.restart(i, rngs["gnss"], int(where[k]))
             self.heading.restart(i, rngs["heading"])
+            if self.lidar is not None:
+                self.lidar.restart(i, rngs["lidar"], int(world[k]))
             initial.append(rngs["initial"])
         self._pending[idx], self._has_gyro[idx] = 0, False
         self._rate0[idx], self._t_sensed[idx] = x[:, 10:13], t0
@@ -168,6 +182,15 @@ class BatchOnboard:
         for k, i in enumerate(idx.tolist()):
             self.filter.restart(i, initial_estimate(self.config, x[k], float(t0[k]), first[k], initial[k]))
         self.active[idx] = True
+
+    def _lidar_worlds(self, truth: Sequence[int] | np.ndarray | None, city: np.ndarray, m: int) -> np.ndarray:
+        """Each slot's lidar world (M,) from `reset`'s `truth` (None: the city index), checked."""
+        if self.lidar is None:
+            if truth is not None:
+                raise ValueError("truth picks a lidar world, but no lidar_casters were given (no lidar is simulated)")
+            return city
+        return _integers("truth (None: the city index)", city if truth is None else truth, m, 0,
+                         self.lidar.worlds - 1)
 
     # ---- the truth of one control period in ----------------------------------------------------------------------
     def advance(self, x_start: np.ndarray, states: np.ndarray, t_start_s: float | np.ndarray,
@@ -258,6 +281,10 @@ class BatchOnboard:
                 for i, f in zip(idx[due].tolist(), fixes):
                     every[i] = f
                 nav.update_gnss(every)
+        if self.lidar is not None:
+            due = _due(self._next["lidar"], idx, cfg.lidar.rate_hz, t_end)
+            if due.any():
+                self.lidar.measure(idx[due], t_end[due], x_end[due, 0:3], x_end[due, 6:10])
 
     # ---- belief out ----------------------------------------------------------------------------------------------
     def estimates(self, slots: Sequence[int] | np.ndarray | None = None) -> SlotEstimates:
@@ -266,6 +293,31 @@ class BatchOnboard:
         nav = self.filter
         state = np.concatenate((nav.x[idx, 0:10], self._measured_rate(idx)), axis=1)
         return SlotEstimates(self._t_sensed[idx].copy(), state, nav.P[idx, 0:3, 0:3].copy())
+
+    def lidar_scans(self, t_s: float | np.ndarray, slots: Sequence[int] | np.ndarray | None = None
+                    ) -> list[tuple[LidarScan, ...]]:
+        """The lidar scans handed to a decision at `t_s` on each slot's clock, as `Onboard.observation(t_s)` hands
+        them over: per slot, in time order, its scans at least `latency_s` old that no earlier call took (each is
+        handed over once, then dropped).
+
+        Args:
+            t_s: the decision's time(s) [s], scalar or (M,).
+            slots: (M,) the slots, each reset before (None: all N).
+
+        Returns:
+            per slot a tuple of its scans (body FLU directions, measured ranges [m]).
+
+        Raises:
+            ValueError: no lidar casters were given, or slots not reset, or times that do not match the slots.
+        """
+        if self.lidar is None:
+            raise ValueError("no lidar is simulated: give BatchOnboard lidar_casters to get scans")
+        idx = np.arange(self.n) if slots is None else self._slot_array(slots)
+        if not self.active[idx].all():
+            raise ValueError(f"slots {idx[~self.active[idx]].tolist()} were never reset: call reset first")
+        # the same float expression as `Onboard.observation`'s, so a scan at the boundary goes the same way
+        seen = _times("t_s", t_s, len(idx)) - self.config.latency_s + 1e-9
+        return self.lidar.hand_over(idx, seen)
 
     def _measured_rate(self, idx: np.ndarray) -> np.ndarray:
         """Body rates as the autopilot sees them (M, 3) [rad/s]: the last gyro sample minus the estimated bias."""

@@ -70,6 +70,16 @@ def beam_directions_body(spec: LidarSpec) -> np.ndarray:
     return d.reshape(-1, 3)
 
 
+def check_lidar_spec(spec: LidarSpec) -> None:
+    """Refuse a lidar spec the model cannot scan with (ValueError naming the field)."""
+    if spec.channels < 1 or spec.columns < 1:
+        raise ValueError(f"lidar needs at least one channel and one column: {spec}")
+    if not 0.0 <= spec.dropout <= 1.0:
+        raise ValueError(f"lidar dropout must be in [0, 1], got {spec.dropout}")
+    if not 0.0 <= spec.min_range_m < spec.max_range_m:
+        raise ValueError(f"lidar ranges must satisfy 0 <= min < max, got {spec.min_range_m}, {spec.max_range_m}")
+
+
 class Lidar:
     """A lidar on the vehicle's centre, reading the true city through a `RayCaster`.
 
@@ -80,12 +90,7 @@ class Lidar:
     """
 
     def __init__(self, spec: LidarSpec, caster: RayCaster, rng: np.random.Generator) -> None:
-        if spec.channels < 1 or spec.columns < 1:
-            raise ValueError(f"lidar needs at least one channel and one column: {spec}")
-        if not 0.0 <= spec.dropout <= 1.0:
-            raise ValueError(f"lidar dropout must be in [0, 1], got {spec.dropout}")
-        if not 0.0 <= spec.min_range_m < spec.max_range_m:
-            raise ValueError(f"lidar ranges must satisfy 0 <= min < max, got {spec.min_range_m}, {spec.max_range_m}")
+        check_lidar_spec(spec)
         self.spec = spec
         self._caster = caster
         self._rng = rng
