@@ -49,6 +49,9 @@ from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
 log = logging.getLogger(__name__)
 
 REPLAN_CAUSES = ("tracking", "clearance", "blocked", "uncertainty")
+# the causes after which the path flown is still clear in what the pilot knows and the vehicle on it: it flies on
+# while the replan runs (a blocked path flies on only when the block lies beyond where it could stop then)
+_FLYING_ON = ("uncertainty", "improve")
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,13 @@ class ClassicalConfig:
             radius plus the margin at rest plus this [m] of it (half a voxel's diagonal covers the voxel's extent).
         fuse_period_s: the map the MPC keeps clear of is refreshed with what was sensed at most this often [s]
             (a replan always refreshes it first).
+        uncertainty_check_s: once k σ has grown past the planned margin by `uncertainty_replan_m`, the path still to
+            fly is measured against the widened margin at most this often [s]; it is replanned only when it no
+            longer keeps it (a path with room to spare needs no new plan).
+        improve_period_s: flying a plan found at the floor margin (slow wherever it passes closer than a speed's
+            margin), try this often [s] for a faster one from where the reference will be after the replan budget,
+            flying on meanwhile.
+        improve_gain_s: such a plan replaces the flown one only when it arrives this much earlier [s].
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -112,6 +122,9 @@ class ClassicalConfig:
     hold_retry_s: float = 1.0
     refuse_margin_m: float = 0.9
     fuse_period_s: float = 1.0
+    uncertainty_check_s: float = 1.0
+    improve_period_s: float = 4.0
+    improve_gain_s: float = 1.0
 
 
 @dataclass
@@ -136,6 +149,8 @@ class ClassicalStats:
     planner_candidates: int = 0
     in_flight_replan_s: list[float] = field(default_factory=list)  # wall time of each replan flown through
     hover_holds: int = 0
+    improvements_tried: int = 0  # searches for a faster plan while flying one found at the floor margin
+    improvements_taken: int = 0
     map_update_s: list[float] = field(default_factory=list)
     uncertainty_margin_m: list[float] = field(default_factory=list)
 
@@ -218,6 +233,10 @@ class ClassicalPilot:
         self._on_floor = False  # the plan flown was found at the floor margin (the speed margins did not fit)
         self._blocked = False
         self._extra_now = self._planned_extra_m
+        self._blocked_ref_t = math.inf  # the reference's earliest time within reach of a newly sensed obstacle
+        self._uncertainty_checked_t = -math.inf
+        self._tried_t = 0.0  # the last plan's time (reset or in flight): improvements are spaced from it
+        self._tapers: tuple[MarginTaper, ...] = ()
         self._map_dirty, self._fused_t = False, -math.inf
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         self._stage_mpc_margins = np.full(self._tracker.horizon_steps, self.margins.mpc_m)
@@ -229,10 +248,14 @@ class ClassicalPilot:
         return ResetInfo(ok=ok, status=status, plan_time_s=self.stats.plan_time_s, detail=detail)
 
     def _plan(self, start: np.ndarray, t_start: float, velocity_m_s: np.ndarray | None = None,
-              in_flight: bool = False) -> tuple[bool, str, str]:
+              in_flight: bool = False, lead_in: np.ndarray | None = None, faster: bool = False
+              ) -> tuple[bool, str, str]:
         """Plan from `start` (ENU m) at `t_start` [s] moving at `velocity_m_s` (None: at rest) to the task's goal
         with the ladder (in flight: `in_flight_ladder`, no climbing on for time, no reachability search on a
-        failure); on success the plan and its reference become the pilot's. Returns (ok, status, detail)."""
+        failure); on success the plan and its reference become the pilot's. `lead_in` (3,): the vehicle is there at
+        `t_start` and the path runs straight from it to `start` (where braking along its velocity would stop it),
+        so that the reference starts along the velocity. `faster`: in flight, look for a plan at the speed margins
+        even when the flown plan needed the floor margin. Returns (ok, status, detail)."""
         world, margins = self._flying()
         task, cfg = self._task, self.config
         radius = world.vehicle.collision_radius_m
@@ -241,24 +264,33 @@ class ClassicalPilot:
         moving = 0.0 if velocity_m_s is None else float(np.linalg.norm(velocity_m_s))
         # the reference changes speed by at most the horizontal and vertical limits together
         accel = math.hypot(limits.max_accel_m_s2, limits.max_vertical_accel_m_s2)
+        ends = [(start, moving), (np.asarray(task.goal_m, float), 0.0)]
+        if lead_in is not None:
+            ends.append((np.asarray(lead_in, float), moving))
         tapers = tuple(MarginTaper((float(p[0]), float(p[1]), float(p[2])), *by_speed.taper(accel, v0))
-                       for p, v0 in ((start, moving), (np.asarray(task.goal_m, float), 0.0)))
-        references: dict[int, Reference] = {}
+                       for p, v0 in ends)
+        references: dict[int, tuple[PlanResult, Reference]] = {}
 
         def judge(plan: PlanResult, margin_m: float, plan_tapers: tuple[MarginTaper, ...]) -> float:
             """The plan's flight time: its reference timed as it would be flown [s]."""
-            ref = self._reference(plan, limits, margin_m, plan_tapers, velocity_m_s)
-            references[id(plan)] = ref
+            flown = plan
+            if lead_in is not None and plan.ok:
+                path = np.vstack([np.asarray(lead_in, float)[None, :], plan.path_m])
+                flown = dataclasses.replace(plan, path_m=path, length_m=float(
+                    np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))))
+            ref = self._reference(flown, limits, margin_m, plan_tapers, velocity_m_s)
+            references[id(plan)] = (flown, ref)
             return ref.duration_s if ref.ok else math.inf
 
         time_left = cfg.time_fraction * (task.timeout_s - t_start)
         ladder = cfg.ladder
         if in_flight:  # the budget allows no climbing on for a faster path
             time_left, ladder = math.inf, cfg.in_flight_ladder
-            if self._on_floor:  # the speed margins did not fit this route before: no budget spent on them again
+            if self._on_floor and not faster:  # the speed margins did not fit this route before: no budget on them
                 ladder = tuple(step for step in ladder if step.floor_margin) or ladder
         found = plan_with_escalation(self._known, start, task.goal_m, radius, self._planner_cfg,
-                                     seed=self._seed + sum(self.stats.replans_by_cause.values()) + self._retries,
+                                     seed=(self._seed + sum(self.stats.replans_by_cause.values()) + self._retries
+                                           + self.stats.improvements_tried),
                                      floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=ladder, judge=judge,
                                      time_available_s=time_left, diagnose=not in_flight)
         plan, self.ladder_result = found.plan, found
@@ -268,10 +300,10 @@ class ClassicalPilot:
             self.stats.planner_candidates = len(found.candidates)
         if not plan.ok:
             return False, "planner_failure", f"{plan.status}: {plan.message}"
-        reference = references[id(plan)]
+        plan, reference = references[id(plan)]
         if not reference.ok:
             return False, "planner_failure", f"time-parameterisation: {reference.status}"
-        self.plan, self.reference, self._t_ref0 = plan, reference, t_start
+        self.plan, self.reference, self._t_ref0, self._tapers = plan, reference, t_start, tapers
         self._on_floor = found.margin_m < self._planner_cfg.safety_margin_m - 1e-9
         # near a start or goal closer than the margin at rest the requirement is relaxed (as in the planner)
         self._relaxed_ends, self._promise_ends = [], []
@@ -350,7 +382,8 @@ class ClassicalPilot:
         if self.reference is None:
             return RotorCommand(world.vehicle.hover_rotor_speeds_rad_s(sigma))
         if self._pending is not None and obs.t_s + 1e-9 >= self._pending[2]:
-            self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends = self._pending
+            (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends,
+             self._tapers) = self._pending
             self._pending = None
             self._tracker.reset()
             self._last_t = None
@@ -428,8 +461,10 @@ class ClassicalPilot:
         world, _ = self._flying()
         reach = (world.vehicle.collision_radius_m + self._base_margins.by_speed.widened(self._extra_now).floor_m
                  + self.config.refuse_margin_m)
-        distance, _ = cKDTree(ahead).query(voxels_m, distance_upper_bound=reach)
-        if np.any(np.isfinite(distance)):
+        distance, index = cKDTree(ahead).query(voxels_m, distance_upper_bound=reach)
+        near = np.isfinite(distance)
+        if np.any(near):
+            self._blocked_ref_t = float(times[int(np.min(index[near]))])
             log.info("a sensed obstacle %.1f m from the path still to fly at t = %.2f s: replanning",
                      float(np.min(distance)), obs.t_s)
             return True
@@ -437,39 +472,63 @@ class ClassicalPilot:
 
     def _replan_in_flight(self, obs: Observation, cause: str | None) -> None:
         """Replan on the fused map; the new plan starts `replan_budget_s` later, where the vehicle will be then.
-        Meanwhile it brakes, except when the cause is the estimate's grown uncertainty: then the path is still clear
-        in what it knows and the vehicle on it, and it flies on along its reference. `cause` None: a retry while
-        holding. No path: hold (hover), trying again every `hold_retry_s`."""
+
+        Meanwhile the vehicle flies on along its reference when that stays clear in what it knows (the cause is the
+        estimate's grown uncertainty, a search for a faster plan, or a block beyond where it could stop after the
+        budget), else it brakes along the path flown. The new path begins with a straight lead-in from there to where
+        braking along its velocity would stop it (when that is clear), so that the reference starts along the
+        velocity. `cause` None: a retry while holding. No path: hold (hover), trying again every `hold_retry_s`.
+        "improve" (a faster plan while on one found at the floor margin) replaces the flown plan only when it arrives
+        `improve_gain_s` earlier, and never holds."""
         cfg, s = self.config, self.stats
         assert self._sensed is not None
-        if cause is not None:
+        improving = cause == "improve"
+        if improving:
+            s.improvements_tried += 1
+        elif cause is not None:
             s.replans_by_cause[cause] += 1
+            self._last_replan_t = obs.t_s
         else:
             self._retries += 1
-        self._last_replan_t = obs.t_s
+        self._tried_t = obs.t_s
         t0 = time.perf_counter()
         self._refresh_known(obs.t_s)
         refresh_s = time.perf_counter() - t0
         t_switch = obs.t_s + cfg.replan_budget_s
-        flown = self.reference
+        flown, decel = self.reference, self._limits.max_accel_m_s2
+        flying_on = flown is not None and (cause in _FLYING_ON or (
+            cause == "blocked" and self._stops_short_of_block(flown, t_switch - self._t_ref0)))
+        self._blocked_ref_t = math.inf
         # stop along the path flown (clear in what the pilot knew), not straight along the velocity
-        brake = (braking_along(flown, obs.t_s - self._t_ref0, self._limits.max_accel_m_s2) if flown is not None
-                 else braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2))
-        # only a grown uncertainty leaves the path clear and the vehicle on it: a blocked path, a tracking error or a
-        # predicted clearance short of the margin mean flying on would keep the vehicle where it should not be
-        flying_on = cause == "uncertainty" and flown is not None
+        brake = (braking_along(flown, obs.t_s - self._t_ref0, decel) if flown is not None
+                 else braking_reference(obs.x[0:3], obs.x[3:6], decel))
         now: tuple[Reference, float] = (flown, self._t_ref0) if flying_on and flown is not None else (brake, obs.t_s)
+        previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends, self._tapers,
+                    self._on_floor, self._planned_extra_m, self.margins, self._planner_cfg)
         p_b, v_b, _ = now[0].sample(t_switch - now[1])
+        start, lead_in = self._lead_in(np.asarray(p_b, float), np.asarray(v_b, float), decel)
         self._planned_extra_m = self._extra_now
         self.margins = self._base_margins.widened(self._extra_now)
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         before = s.plan_time_s
-        ok, _, detail = self._plan(np.asarray(p_b, float), t_start=t_switch, velocity_m_s=np.asarray(v_b, float),
-                                   in_flight=True)
+        ok, _, detail = self._plan(start, t_start=t_switch, velocity_m_s=np.asarray(v_b, float), in_flight=True,
+                                   lead_in=lead_in, faster=improving)
         s.replan_time_s += s.plan_time_s - before
         s.in_flight_replan_s.append(refresh_s + s.plan_time_s - before)  # what the budget must cover
+        if improving:
+            assert flown is not None and self.reference is not None
+            faster = ok and t_switch + self.reference.duration_s + cfg.improve_gain_s <= previous[2] + flown.duration_s
+            log.info("a faster plan at t = %.2f s: %s", obs.t_s, "taken" if faster else "none")
+            if faster:
+                s.improvements_taken += 1
+                self._pending = self._adopted()
+                self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends = previous[:5]
+            else:
+                (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends, self._tapers,
+                 self._on_floor, self._planned_extra_m, self.margins, self._planner_cfg) = previous
+            return
         if ok:
-            self._pending = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends)
+            self._pending = self._adopted()
             self._hold_retry_t = math.inf
         else:
             if self._hold_retry_t == math.inf:
@@ -482,6 +541,54 @@ class ClassicalPilot:
             self._last_t = None
             self.last_solution = None
         self.reference, self._t_ref0 = now
+
+    def _adopted(self) -> tuple:
+        """The plan just made, to be flown once its start comes (`_pending`)."""
+        return self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends, self._tapers
+
+    def _stops_short_of_block(self, reference: Reference, t_switch_ref_s: float) -> bool:
+        """True when, flying on along `reference` until its time `t_switch_ref_s` [s] and braking from there, the
+        vehicle would come to rest before the reference reaches the newly sensed block (`_blocked_ref_t`)."""
+        speed = float(np.linalg.norm(reference.sample(t_switch_ref_s)[1]))
+        # braking covers less ground than the reference does in the same time: its time to rest is a bound
+        return t_switch_ref_s + speed / self._limits.max_accel_m_s2 + self.config.replan_budget_s < self._blocked_ref_t
+
+    def _lead_in(self, p_m: np.ndarray, v_m_s: np.ndarray, decel_m_s2: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """Where the new plan starts, and the lead-in to it: from `p_m` moving at `v_m_s`, the point where braking
+        straight along the velocity at `decel_m_s2` would stop it, when that segment keeps the floor margin in the
+        fused map (returns it and `p_m`); else `p_m` itself and None (a slow vehicle, or no room)."""
+        speed = float(np.linalg.norm(v_m_s))
+        stop_m = speed * speed / (2.0 * decel_m_s2)
+        if stop_m < 1.0:
+            return p_m, None
+        q = p_m + v_m_s / speed * stop_m
+        world, margins = self._flying()
+        samples = p_m + np.linspace(0.0, 1.0, max(int(math.ceil(stop_m / 0.5)), 2) + 1)[:, None] * (q - p_m)
+        clearance = self._known.planning_map().clearance(samples, world.vehicle.collision_radius_m).distance_m
+        if float(np.min(clearance)) < self._base_margins.widened(self._extra_now).floor_m:
+            return p_m, None
+        return q, p_m
+
+    def _keeps_widened_margin(self, obs: Observation) -> bool:
+        """True when the reference still to fly keeps, at every sample (every 0.2 s), the margin at its speed
+        widened by k σ now (narrowed towards the start and goal as planned): a grown uncertainty needs no new
+        plan while the path has that room."""
+        ref = self.reference
+        assert ref is not None
+        t_ref = obs.t_s - self._t_ref0
+        times = np.append(np.arange(max(t_ref, 0.0), ref.duration_s, 0.2), ref.duration_s)
+        pos, vel, _ = ref.sample_horizon(float(times[0]), 0.2, len(times))
+        world, _ = self._flying()
+        cruise = self._base_margins.by_speed.widened(self._extra_now).margin_m(np.linalg.norm(vel, axis=1))
+        need = np.array([min((t.margin_at(float(np.linalg.norm(p - np.asarray(t.point_m))), float(m))
+                              for t in self._tapers), default=float(m)) for p, m in zip(pos, cruise, strict=True)])
+        keep = np.ones(len(pos), dtype=bool)
+        for end, zone in self._relaxed_ends:
+            keep &= np.linalg.norm(pos - end, axis=1) > zone
+        if not np.any(keep):
+            return True
+        clearance = self._known.planning_map().clearance(pos[keep], world.vehicle.collision_radius_m).distance_m
+        return bool(np.all(clearance >= need[keep]))
 
     def _maybe_replan(self, obs: Observation, reference: Reference) -> None:
         """Replan if `_replan_cause` says so; `reference` is the one flown now (`self.reference`)."""
@@ -508,18 +615,21 @@ class ClassicalPilot:
             self.last_solution = None   # its prediction belonged to the old reference
 
     def _replan_cause(self, obs: Observation, reference: Reference) -> str | None:
-        """"blocked", "uncertainty", "tracking", "clearance" or None (no replan now; never while a plan made in
-        flight waits for its start)."""
+        """"blocked", "uncertainty", "tracking", "clearance", "improve" (on sensors, a plan found at the floor margin:
+        look for a faster one) or None (no replan now; never while a plan made in flight waits for its start)."""
         cfg, s = self.config, self.stats
         if self._pending is not None:
             return None
         if self._blocked:
             self._blocked = False
             return "blocked"
-        if self._sensed is not None and self._extra_now > self._planned_extra_m + cfg.uncertainty_replan_m:
-            log.info("k sigma %.2f m above the %.2f m planned for at t = %.2f s: replanning", self._extra_now,
-                     self._planned_extra_m, obs.t_s)
-            return "uncertainty"
+        if (self._sensed is not None and self._extra_now > self._planned_extra_m + cfg.uncertainty_replan_m
+                and obs.t_s - self._uncertainty_checked_t >= cfg.uncertainty_check_s):
+            self._uncertainty_checked_t = obs.t_s
+            if not self._keeps_widened_margin(obs):
+                log.info("k sigma %.2f m (planned for %.2f m) leaves the path short of its margin at t = %.2f s: "
+                         "replanning", self._extra_now, self._planned_extra_m, obs.t_s)
+                return "uncertainty"
         t_ref = obs.t_s - self._t_ref0
         if cfg.replan_error_m is not None and s.replans_by_cause["tracking"] < cfg.max_replans:
             ref_now, _, _ = reference.sample(t_ref)
@@ -541,6 +651,9 @@ class ClassicalPilot:
                 log.info("predicted clearance %.2f m below the MPC margin %.2f m at t = %.2f s: replanning",
                          clearances[i], required[i], obs.t_s)
                 return "clearance"
+        if (self._sensed is not None and self._on_floor and obs.t_s - self._tried_t >= cfg.improve_period_s
+                and reference.duration_s - t_ref > cfg.improve_period_s):
+            return "improve"
         return None
 
     def predicted_clearance_m(self, points_m: np.ndarray) -> float:

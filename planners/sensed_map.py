@@ -14,8 +14,10 @@ what the prior map predicts along the same beam (Embree, `uam_fdm.sensing.raycas
 Returns on the ground (below `ground_band_m` plus 3 σ) are left out: the prior knows the ground. `fused()` gives the
 map the pilot plans and tracks on: the prior parts not cleared, grown to cover the occupied voxels next to them (a
 survey's footprint and height errors, `grown_parts`), and the other occupied voxels as obstacles standing on the
-ground (2.5-D columns of `column_m`, each as tall as its highest voxel, equal neighbouring columns merged into boxes).
-It is conservative where it must be: the space under a crane's jib is closed. Frames: world ENU metres.
+ground (2.5-D columns of `column_m`, each as tall as its highest voxel, equal neighbouring columns merged into boxes;
+one whose highest return came from the lidar's highest beam is held `open_above_m` taller, since what lies above it was
+not seen then, unless it is a prior part's: the prior's height stands there). It is conservative where it
+must be: the space under a crane's jib is closed. Frames: world ENU metres.
 """
 from __future__ import annotations
 
@@ -53,6 +55,10 @@ class MappingConfig:
         attach_m, attach_height_m: a sensed voxel within `attach_m` of a prior part's footprint (horizontally) and
             at most `attach_height_m` above its roof is that part's, seen where the survey did not put it: the part
             grows to cover it (`grown_parts`) instead of a column standing beside it [m].
+        open_above_m: a column of an obstacle the prior lacks whose highest return came from the lidar's highest
+            beam is held this much taller (what lies above was not seen then) [m]. Not the flight volume's top: the
+            rest of the unseen is taken as free too, and climbing past such a column brings its face into the
+            lidar's view, where a taller obstacle blocks the path (a replan).
     """
 
     resolution_m: float = 1.0
@@ -65,10 +71,11 @@ class MappingConfig:
     column_m: float = 2.0
     attach_m: float = 3.0
     attach_height_m: float = 10.0
+    open_above_m: float = 10.0
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m", "column_m",
-                     "attach_m", "attach_height_m"):
+                     "attach_m", "attach_height_m", "open_above_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"MappingConfig.{name} must be positive and finite, got {value!r}")
@@ -198,12 +205,15 @@ class SensedMap:
         prior, res = self.prior, self.config.resolution_m
         kept = tuple(p for p, gone in zip(prior.buildings, self._cleared, strict=True) if not gone)
         voxels = self.occupied_voxels_m()
-        if len(voxels) and len(self._open_top):
-            voxels = _open_columns(voxels, self._open_top, res, float(prior.bounds_max_m[2]))
         cfg = self.config
         kept, attached = grown_parts(kept, voxels, res, cfg.attach_m, cfg.attach_height_m)
+        voxels = voxels[~attached]
+        # a part the prior has keeps the prior's height above what was seen of it; only an obstacle the prior lacks
+        # is open above its highest return
+        if len(voxels) and len(self._open_top):
+            voxels = _open_columns(voxels, self._open_top, res, float(prior.bounds_max_m[2]), cfg.open_above_m)
         first = int(max((p.id for p in prior.buildings), default=-1)) + 1
-        sensed = column_boxes(voxels[~attached], cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m)
+        sensed = column_boxes(voxels, cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m)
         return BuildingMap(kept + sensed, prior.bounds_min_m, prior.bounds_max_m, prior.no_fly, prior.name)
 
 
@@ -299,9 +309,11 @@ def column_boxes(voxels_m: np.ndarray, column_m: float, first_id: int, lo_m: np.
     return tuple(out)
 
 
-def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: float, top_m: float) -> np.ndarray:
+def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: float, top_m: float, above_m: float
+                  ) -> np.ndarray:
     """`voxels_m` (K, 3) with each column whose highest voxel was hit by the lidar's highest beam (`open_top`,
-    packed keys) raised to the flight volume's top `top_m` [m]: what lies above it was never seen."""
+    packed keys) raised by `above_m` [m], at most to the flight volume's top `top_m` [m]: what lies above it was not
+    seen then."""
     r = float(resolution_m)
     keys = np.floor(voxels_m / r).astype(np.int64)
     column = keys[:, 0] * (1 << 21) + keys[:, 1]
@@ -311,7 +323,7 @@ def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: floa
     if not len(raise_):
         return voxels_m
     extra = voxels_m[raise_].copy()
-    extra[:, 2] = max(top_m - 0.5 * r, float(np.max(voxels_m[raise_, 2])))
+    extra[:, 2] = np.maximum(np.minimum(extra[:, 2] + above_m, top_m - 0.5 * r), extra[:, 2])
     return np.vstack([voxels_m, extra])
 
 

@@ -291,3 +291,100 @@ def test_no_path_in_what_it_knows_makes_the_pilot_hold(vehicles, compiled_dynami
     assert pilot.stats.hover_holds == 1  # still the same hold; the retry waits for hold_retry_s
     pilot.act(_sensed_obs(pilot, p, 1.0, lidar, np.array(task.start_m)))
     assert pilot.stats.hover_holds == 1 and len(pilot.stats.in_flight_replan_s) == 2  # retried, still no path
+
+
+def _sensing_world(p, dynamics, prior: BuildingMap) -> World:
+    from uam_fdm.sensing.specs import sensing_preset
+
+    return World(p, dynamics, prior, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
+                 sensing=sensing_preset("nominal", p.mass_kg))
+
+
+def test_a_wall_sensed_beyond_where_it_could_stop_lets_the_pilot_fly_on_while_it_replans(vehicles,
+                                                                                      compiled_dynamics):
+    """The wall lies 70 m down the path: flying on through the replan's budget and braking after it would still stop
+    short of it, so the vehicle keeps to its reference meanwhile, and the new plan starts along its velocity there."""
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -40.0, 0.0), (160.0, 40.0, 50.0))
+    truth = BuildingMap([Building(7, (100.0, -2.0), (2.0, 20.0), 25.0)], *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
+    straight = pilot.reference
+    t = 4.0  # under way: the reference is at speed by then
+    pos, vel, _ = straight.sample(t)
+    pilot.act(_sensed_obs(pilot, p, t, lidar, pos))
+    assert pilot.stats.replans_by_cause["blocked"] == 1 and pilot._pending is not None
+    assert pilot.reference is straight  # flying on, no braking
+    plan = pilot._pending[0]
+    at_switch, v_switch, _ = straight.sample(t + cfg.replan_budget_s)
+    assert np.allclose(plan.path_m[0], at_switch)  # the new path leaves from where the reference will be
+    lead = plan.path_m[1] - plan.path_m[0]
+    assert float(lead @ v_switch) / (np.linalg.norm(lead) * np.linalg.norm(v_switch)) > 0.999  # along the velocity
+    assert np.linalg.norm(pilot._pending[1].sample(0.0)[1]) > 0.9 * np.linalg.norm(v_switch)  # at its speed
+    assert truth.clearance(pilot._pending[1].pos_m, p.collision_radius_m).distance_m.min() > 0.5
+
+
+@pytest.mark.parametrize("slack_m, replans", [(0.3, 1), (8.0, 0)])
+def test_a_grown_uncertainty_replans_only_when_the_path_lacks_the_room(slack_m, replans, vehicles,
+                                                                       compiled_dynamics):
+    """k σ grows by 0.9 m (past the 0.5 m that prompts a look): between walls 0.3 m wider than the margin needs the
+    path is replanned for the uncertainty; with 8 m to spare it is kept."""
+    from planners.classical_pilot import position_sigma_m
+    from uam_fdm.pilot import SensorData
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.onboard import initial_covariance
+    from uam_fdm.sensing.raycast import RayCaster
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -40.0, 0.0), (90.0, 40.0, 50.0))
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
+    pilot = ClassicalPilot(cfg)
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(80.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    assert pilot.reset(world, task, seed=3).ok  # only to learn the margin in force
+    gap = p.collision_radius_m + pilot.margins.planner_m + slack_m  # from the line to each wall
+    walls = [Building(7 + i, (40.0, s * (gap + 5.0)), (20.0, 10.0), 40.0) for i, s in enumerate((-1, 1))]
+    city = BuildingMap(walls, *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], city)
+    assert pilot.reset(world, task, seed=3).ok
+    lidar = Lidar(world.sensing.lidar, RayCaster(city), np.random.default_rng(0))
+    sigma0 = position_sigma_m(initial_covariance(world.sensing))  # what the plan was widened for
+    grown = (sigma0 + 0.3) ** 2  # k σ (k = 3) up by 0.9 m
+    for t in (0.0, 0.1):
+        pos = pilot.reference.sample(t)[0]
+        scan, _ = lidar.scan(t, pos, np.eye(3))
+        pilot.act(Observation(t, hover_state(p, pos), covariance=np.eye(16) * grown, sensors=SensorData(lidar=(scan,)),
+                              estimate_t_s=t))
+    assert pilot.stats.replans_by_cause["uncertainty"] == replans
+    assert pilot.stats.replans_by_cause["blocked"] == 0
+
+
+def test_a_plan_found_at_the_floor_margin_looks_for_a_faster_one_while_flying_on(vehicles, compiled_dynamics):
+    """Every `improve_period_s` the pilot on a floor-margin plan searches for a faster one from where its reference
+    will be; in open air the straight line it flies is the fastest, so it keeps it and never stops."""
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -40.0, 0.0), (160.0, 40.0, 50.0))
+    city = BuildingMap([], *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], city)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    pilot._on_floor = True  # as if the speed margins had not fitted
+    lidar = Lidar(world.sensing.lidar, RayCaster(city), np.random.default_rng(0))
+    flown = pilot.reference
+    for t in (cfg.improve_period_s - 0.1, cfg.improve_period_s):
+        pilot.act(_sensed_obs(pilot, p, t, lidar, flown.sample(t)[0]))
+    assert pilot.stats.improvements_tried == 1 and pilot.stats.improvements_taken == 0
+    assert pilot.reference is flown and pilot._pending is None and pilot._on_floor
+    assert sum(pilot.stats.replans_by_cause.values()) == 0

@@ -127,3 +127,28 @@ def test_voxels_beside_a_prior_part_grow_it_and_voxels_farther_off_stand_as_colu
     # far above its roof: not the part's (a crane's jib over it)
     _, attached = grown_parts((part,), np.array([[50.0, 50.0, 45.5]]), 1.0, 3.0, 10.0)
     assert not attached.any()
+
+
+def test_what_the_highest_beam_hits_is_held_taller_by_a_bound_and_a_prior_part_keeps_its_height():
+    """From low down, the lidar's highest beam (15 deg) ends on the faces of an unmapped building and of a prior part
+    the survey drew 2 m too narrow: the unmapped one's columns are held `open_above_m` above the hit (not to the
+    flight volume's top), the prior part grows sideways and keeps the prior's height."""
+    narrow = Building(1, (151.0, 100.0), (18.0, 20.0), 40.0)  # KNOWN as surveyed: west face 2 m off
+    world = BuildingMap([KNOWN, UNMAPPED], LO, HI)
+    prior = BuildingMap([narrow], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(0))
+    config = MappingConfig()
+    sensed = SensedMap(prior, config, VLP16.max_range_m, VLP16.vertical_fov_deg[1])
+    p = np.array([100.0, 100.0, 5.0])
+    for _ in range(3):
+        scan, _ = lidar.scan(0.0, p, np.eye(3))
+        sensed.integrate(scan, _state(p), 0.1)
+    fused = sensed.fused()
+    grown = next(b for b in fused.buildings if b.id == 1)
+    assert grown.height_m == 40.0 and grown.center_xy_m[0] - 0.5 * grown.size_xy_m[0] <= 140.5
+    columns = [b for b in fused.buildings if b.id > 1]
+    assert columns and all(abs(b.center_xy_m[0] - 100.0) < 10.0 and b.center_xy_m[1] > 120.0 for b in columns)
+    top_hit = 5.0 + 25.0 * np.tan(np.radians(15.0))  # the highest beam on the unmapped west face, 25 m off
+    tallest = max(b.height_m for b in columns)
+    assert top_hit + config.open_above_m - 1.0 <= tallest <= top_hit + config.open_above_m + 2.0 * config.column_m
+    assert tallest < HI[2] - 10.0
