@@ -15,9 +15,9 @@ Returns on the ground (below `ground_band_m` plus 3 σ) are left out: the prior 
 map the pilot plans and tracks on: the prior parts not cleared, grown to cover the occupied voxels next to them (a
 survey's footprint and height errors, `grown_parts`), and the other occupied voxels as obstacles standing on the
 ground (2.5-D columns of `column_m`, each as tall as its highest voxel, equal neighbouring columns merged into boxes;
-one whose highest return came from the lidar's highest beam is held `open_above_m` taller, since what lies above it was
-not seen then, unless it is a prior part's: the prior's height stands there). It is conservative where it
-must be: the space under a crane's jib is closed. Frames: world ENU metres.
+what lies above a column is taken as free, as all unseen space is, unless `open_above_m` holds an unmapped obstacle's
+column taller where the lidar's highest beam ended on it; a prior part's height stands above what was seen of it). It
+is conservative where it must be: the space under a crane's jib is closed. Frames: world ENU metres.
 """
 from __future__ import annotations
 
@@ -56,9 +56,12 @@ class MappingConfig:
             at most `attach_height_m` above its roof is that part's, seen where the survey did not put it: the part
             grows to cover it (`grown_parts`) instead of a column standing beside it [m].
         open_above_m: a column of an obstacle the prior lacks whose highest return came from the lidar's highest
-            beam is held this much taller (what lies above was not seen then) [m]. Not the flight volume's top: the
-            rest of the unseen is taken as free too, and climbing past such a column brings its face into the
-            lidar's view, where a taller obstacle blocks the path (a replan).
+            beam is held this much taller (what lies above was not seen then), never above where the vehicle has
+            flown over it [m]. 0 (the default): the space above is taken as free, as all unseen space is; climbing
+            past such a column brings its face into the lidar's view, where a taller obstacle blocks the path and
+            the pilot replans. Measured on tuning legs (docs/planner.md): 10 m held the vehicle out of streets it
+            could fly and, once its reference ran above such a column, inside an obstacle it could not plan out of;
+            the flight volume's top (the earliest rule) closed whole districts seen from low down.
     """
 
     resolution_m: float = 1.0
@@ -71,14 +74,16 @@ class MappingConfig:
     column_m: float = 2.0
     attach_m: float = 3.0
     attach_height_m: float = 10.0
-    open_above_m: float = 10.0
+    open_above_m: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m", "column_m",
-                     "attach_m", "attach_height_m", "open_above_m"):
+                     "attach_m", "attach_height_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"MappingConfig.{name} must be positive and finite, got {value!r}")
+        if not (math.isfinite(self.open_above_m) and self.open_above_m >= 0.0):
+            raise ValueError(f"MappingConfig.open_above_m must be >= 0 and finite, got {self.open_above_m!r}")
         voxels = self.column_m / self.resolution_m
         if abs(voxels - round(voxels)) > 1e-9 or round(voxels) < 1:
             raise ValueError(f"MappingConfig.column_m must be a whole number of voxels ({self.resolution_m} m), got "
@@ -122,6 +127,8 @@ class SensedMap:
         # a column whose highest return came from the lidar's highest beam may reach higher than anything it saw
         self._top_sin = math.sin(math.radians(top_elevation_deg)) - 1e-6
         self._open_top = np.zeros(0, dtype=np.int64)  # packed keys of voxels hit by the highest beam
+        # per column (x, y voxel keys) the lowest the vehicle has flown over it [m]: the space above is free
+        self._flown_over: dict[tuple[int, int], float] = {}
         self._caster = RayCaster(prior)
         self._tree = octomap.OcTree(config.resolution_m)
         self._through = np.zeros(len(prior.buildings), dtype=np.int64)
@@ -150,6 +157,7 @@ class SensedMap:
         # the estimate's error moves every return with it: 3 σ more tolerance each way, and a higher ground band (a
         # grazing ground beam's range changes by the height error over the beam's depression's sine: many metres)
         spread = 3.0 * position_sigma_m
+        self._fly_over(origin, spread)
         above = points[:, 2] > cfg.ground_band_m + spread
         short = above & (ranges < expected - cfg.front_tolerance_m - spread)
         through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
@@ -177,6 +185,19 @@ class SensedMap:
         if len(fresh) or cleared:
             self._fused = None
         return ScanUpdate((unpack_keys(fresh) + 0.5) * res, tuple(cleared))
+
+    def _fly_over(self, origin_m: np.ndarray, spread_m: float) -> None:
+        """Record that the columns around the vehicle at `origin_m` (within `spread_m` plus a voxel) are free from a
+        voxel below it up: an open column there is no taller (the vehicle flies where nothing stands)."""
+        res = self.config.resolution_m
+        reach = int(math.ceil(spread_m / res)) + 1
+        cx, cy = (int(math.floor(float(v) / res)) for v in origin_m[0:2])
+        free_from = float(origin_m[2]) - spread_m - res
+        for ix in range(cx - reach, cx + reach + 1):
+            for iy in range(cy - reach, cy + reach + 1):
+                key = (ix, iy)
+                if free_from < self._flown_over.get(key, math.inf):
+                    self._flown_over[key] = free_from
 
     def occupied_voxels_m(self) -> np.ndarray:
         """Centres (K, 3) [m] of the unexplained voxels the octree holds occupied now."""
@@ -210,8 +231,9 @@ class SensedMap:
         voxels = voxels[~attached]
         # a part the prior has keeps the prior's height above what was seen of it; only an obstacle the prior lacks
         # is open above its highest return
-        if len(voxels) and len(self._open_top):
-            voxels = _open_columns(voxels, self._open_top, res, float(prior.bounds_max_m[2]), cfg.open_above_m)
+        if len(voxels) and len(self._open_top) and cfg.open_above_m > 0.0:
+            voxels = _open_columns(voxels, self._open_top, res, float(prior.bounds_max_m[2]), cfg.open_above_m,
+                                   self._flown_over)
         first = int(max((p.id for p in prior.buildings), default=-1)) + 1
         sensed = column_boxes(voxels, cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m)
         return BuildingMap(kept + sensed, prior.bounds_min_m, prior.bounds_max_m, prior.no_fly, prior.name)
@@ -309,11 +331,11 @@ def column_boxes(voxels_m: np.ndarray, column_m: float, first_id: int, lo_m: np.
     return tuple(out)
 
 
-def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: float, top_m: float, above_m: float
-                  ) -> np.ndarray:
+def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: float, top_m: float, above_m: float,
+                  flown_over: dict[tuple[int, int], float]) -> np.ndarray:
     """`voxels_m` (K, 3) with each column whose highest voxel was hit by the lidar's highest beam (`open_top`,
-    packed keys) raised by `above_m` [m], at most to the flight volume's top `top_m` [m]: what lies above it was not
-    seen then."""
+    packed keys) raised by `above_m` [m], at most to the flight volume's top `top_m` [m] and to below where the vehicle
+    flew over the column (`flown_over`, by the columns' x, y voxel keys) [m]: what lies above it was not seen then."""
     r = float(resolution_m)
     keys = np.floor(voxels_m / r).astype(np.int64)
     column = keys[:, 0] * (1 << 21) + keys[:, 1]
@@ -323,7 +345,9 @@ def _open_columns(voxels_m: np.ndarray, open_top: np.ndarray, resolution_m: floa
     if not len(raise_):
         return voxels_m
     extra = voxels_m[raise_].copy()
-    extra[:, 2] = np.maximum(np.minimum(extra[:, 2] + above_m, top_m - 0.5 * r), extra[:, 2])
+    flown = np.array([flown_over.get((int(k[0]), int(k[1])), math.inf) for k in keys[raise_]])
+    # the raised voxel's top: the hit voxel's top plus `above_m`, under the volume's top and where the vehicle flew
+    extra[:, 2] = np.maximum(np.minimum(extra[:, 2] + above_m, np.minimum(top_m, flown) - 0.5 * r), extra[:, 2])
     return np.vstack([voxels_m, extra])
 
 

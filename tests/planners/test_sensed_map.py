@@ -137,7 +137,7 @@ def test_what_the_highest_beam_hits_is_held_taller_by_a_bound_and_a_prior_part_k
     world = BuildingMap([KNOWN, UNMAPPED], LO, HI)
     prior = BuildingMap([narrow], LO, HI)
     lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(0))
-    config = MappingConfig()
+    config = MappingConfig(open_above_m=10.0)
     sensed = SensedMap(prior, config, VLP16.max_range_m, VLP16.vertical_fov_deg[1])
     p = np.array([100.0, 100.0, 5.0])
     for _ in range(3):
@@ -152,3 +152,19 @@ def test_what_the_highest_beam_hits_is_held_taller_by_a_bound_and_a_prior_part_k
     tallest = max(b.height_m for b in columns)
     assert top_hit + config.open_above_m - 1.0 <= tallest <= top_hit + config.open_above_m + 2.0 * config.column_m
     assert tallest < HI[2] - 10.0
+    # by default what lies above is free, as all unseen space: the columns end at the highest return
+    default = SensedMap(prior, MappingConfig(), VLP16.max_range_m, VLP16.vertical_fov_deg[1])
+    for _ in range(3):
+        scan, _ = lidar.scan(0.0, p, np.eye(3))
+        default.integrate(scan, _state(p), 0.1)
+    assert max(b.height_m for b in default.fused().buildings if b.id > 1) <= top_hit + 2.0 * config.column_m
+
+
+def test_an_open_column_is_never_held_above_where_the_vehicle_flew_over_it():
+    from planners.sensed_map import _open_columns
+
+    voxels = np.array([[0.5, 0.5, 10.5], [5.5, 0.5, 10.5]])
+    open_top = pack_keys(np.array([[0, 0, 10], [5, 0, 10]]))
+    raised = _open_columns(voxels, open_top, 1.0, 80.0, 10.0, {(0, 0): 15.0})
+    tops = {tuple(v[0:2]): v[2] for v in raised[np.argsort(raised[:, 2])]}
+    assert tops[(0.5, 0.5)] == 14.5 and tops[(5.5, 0.5)] == 20.5  # capped under the flight; the other held 10 m up
