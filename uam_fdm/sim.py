@@ -214,7 +214,12 @@ class BatchSimulator:
 
     def step_velocity_batch(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray,
                             t_s: np.ndarray, idx: np.ndarray | None = None,
-                            height_above_surface_m: np.ndarray | None = None) -> PeriodResult:
-        """One control period for vehicles `idx` (default all) under the velocity controller; cmd (M, 4)."""
-        return self.dynamics.period_velocity_batch(x, ctrl_state, cmd,
-                                                   self.env(x, t_s, idx, height_above_surface_m))
+                            height_above_surface_m: np.ndarray | None = None, *,
+                            seen_offset: np.ndarray | None = None) -> PeriodResult:
+        """One control period for vehicles `idx` (default all) under the velocity controller; cmd (M, 4);
+        `seen_offset` (M, `N_SEEN_OFFSET`): the navigation estimates' errors the controller flies on
+        (`VehicleDynamics.period_velocity_seen_batch`), None: it flies on the true states."""
+        env = self.env(x, t_s, idx, height_above_surface_m)
+        if seen_offset is None:
+            return self.dynamics.period_velocity_batch(x, ctrl_state, cmd, env)
+        return self.dynamics.period_velocity_seen_batch(x, ctrl_state, cmd, env, seen_offset)

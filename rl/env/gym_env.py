@@ -9,6 +9,7 @@ holds each reward term of the step; the final step's info has `outcome` and `is_
     env = gym.make("UAMNav-v0")                       # training cities, light turbulence
     env = gym.make("UAMNav-v0", config=NavConfig(city_split="eval"), render_mode="rgb_array")
     env = gym.make("UAMNav-v0", scenario="my.yaml")   # legs drawn in a scenario's map, in its air (rl.env.ground)
+    env = gym.make("UAMNav-v0", config=NavConfig(sensing=("perfect", "nominal")))  # some episodes on its sensors
 """
 from __future__ import annotations
 

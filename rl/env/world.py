@@ -22,162 +22,49 @@ Map error (`NavConfig.map_error`, `rl.sensing.truth`): each episode draws a leve
 it collides with and senses the draw's truth (`NavBatch.geometry`: the truth's index in the world's sensing) and
 follows a route field drawn from its prior. At the `exact` level alone nothing is drawn and every number is as
 before the setting existed (tested).
+
+Sensing (`NavConfig.sensing`, `rl.env.onboard_slots`): each episode draws a level. At `perfect` the policy observes
+the true state and the truth's exact senses; with ("perfect",) alone nothing is drawn and every number is as before
+the setting existed (tested). At another level the policy observes what the vehicle senses, as the runner hands it
+to a pilot: the navigation estimate stands for the state in everything the observation uses (position, velocity,
+goal frame, route distance and direction, the memory, the air at its altitude, the geofence) and the obstacle part
+is the lidar's (`rl.sensing.lidar_view`); the velocity controller flies on the estimate. Everything that scores the
+flight stays on the truth: collisions, bounds, arrival, the reward and `info`.
 """
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
+from rl.env.nav_world import NavWorld, SlotAir, route_levels
+from rl.env.onboard_slots import OnboardSlots
 from rl.sensing.observation import (
     TURBULENCE_VALUE,
     PilotMemory,
     Surroundings,
     action_to_command,
     goal_heading,
-    obs_size,
 )
-from rl.sensing.perception import Perception
-from rl.sensing.route import RouteBank, flight_levels, grid_shape, max_levels
-from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
+from rl.sensing.perception import Perception, PerceptionReading
+from rl.sensing.route import RouteBank
+from rl.sensing.senses import nearest_surface, observe_slots, route_for
 from rl.sensing.sensor import BoxSensor
-from rl.sensing.truth import MapDraw, MapErrorBank, TruthSensing
-from rl.task.config import FixedEpisodes, NavConfig
+from rl.sensing.truth import MapDraw, TruthSensing
 from rl.task.reward import TERMS, reward_terms, stopping_distance
 from uam_fdm import episode
 from uam_fdm.air.atmosphere import Atmosphere, AtmosphereBank
-from uam_fdm.air.wind import (
-    GustStack,
-    TurbulenceLevel,
-    WindBank,
-    WindConditions,
-    WindField,
-    gust_stack,
-    probe_heights_up_to,
-    turbulence_airspeed_m_s,
-)
+from uam_fdm.air.wind import TurbulenceLevel, WindBank, WindField
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Task
 from uam_fdm.sim import BatchSimulator
-from uam_fdm.vehicle.dynamics import VehicleDynamics
+from uam_fdm.vehicle.dynamics import PeriodResult
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.ground_effect import range_m as ground_effect_range_m
 from uam_fdm.vehicle.model import hover_state
-from uam_fdm.vehicle.params import GRAVITY_M_S2, VehicleParams, load_vehicle
+from uam_fdm.vehicle.params import GRAVITY_M_S2
 
-
-@dataclass(frozen=True)
-class SlotAir:
-    """The air of one episode in a slot (indices into its world's pools).
-
-    Attributes:
-        wind_m_s: steady wind (east, north, up) [m/s].
-        series: the turbulence series, an index of `NavWorld.gust_stacks` (0 when the world has no turbulence).
-        start: the series' first sample for this episode.
-        level: the turbulence level, an index of `NavWorld.levels`.
-        field: the atmosphere, an index of `NavWorld.atmospheres`.
-    """
-
-    wind_m_s: tuple[float, float, float]
-    series: int
-    start: int
-    level: int
-    field: int
-
-
-class NavWorld:
-    """What the slots share (built once): vehicle, compiled dynamics, atmosphere, cities, sensors, wind pool."""
-
-    def __init__(self, config: NavConfig, fixed: FixedEpisodes | None = None,
-                 dynamics: VehicleDynamics | None = None, atmosphere: Atmosphere | Sequence[Atmosphere] | None = None,
-                 wind_from: NavWorld | None = None, geometry_from: NavWorld | None = None) -> None:
-        """`atmosphere`: the one atmosphere every episode flies (e.g. a scenario's), or the pool of fields
-        (e.g. another world's `atmospheres`, shared instead of tabulated again); None: the pool of
-        `config.air.fields()`. `wind_from`: a world whose turbulence stacks this one would generate too
-        (same level, seed, series length, probe heights and airspeed; checked stack by stack), e.g. the
-        training world for its validation world: those are shared instead of generated again.
-        `geometry_from`: a world of the same cities, sensing and vehicle size (e.g. a policy's evaluation world,
-        for another pilot flying its tasks at another decision rate): its cities, clearance sensor and
-        perception are shared instead of built again (a 1,000-city UAM world holds about 6 GB of them), and so is
-        its map-error bank and the truth's sensing.
-
-        Fixed episodes fly their cities as they stand (the `exact` level: a scenario's map error is the runner's).
-
-        Raises:
-            ValueError: `geometry_from` has other cities, sensing or vehicle size (naming what differs).
-        """
-        self.config = config
-        self.vehicle: VehicleParams = dynamics.params if dynamics is not None else load_vehicle(config.vehicle)
-        self.dynamics = dynamics or VehicleDynamics(self.vehicle, config.physics_hz, config.control_hz)
-        if abs(self.dynamics.control_hz - config.control_hz) > 1e-9:
-            raise ValueError(f"dynamics run at {self.dynamics.control_hz} Hz control, the task at {config.control_hz}")
-        if atmosphere is None:
-            self.atmospheres = [Atmosphere.from_jsbsim(c, z_max_m=400.0) for c in config.air.fields()]
-        else:
-            self.atmospheres = [atmosphere] if isinstance(atmosphere, Atmosphere) else list(atmosphere)
-        self.fixed = fixed
-        radius = self.vehicle.collision_radius_m
-        if geometry_from is not None:
-            _check_same_geometry(self, geometry_from)
-            self.cities: list[BuildingMap] = geometry_from.cities
-            self.clearance_sensor: BoxSensor = geometry_from.clearance_sensor
-            self.perception: Perception = geometry_from.perception
-            self.maps: MapErrorBank = geometry_from.maps
-            self.truth: TruthSensing | None = geometry_from.truth
-        else:
-            seeds = list(range(len(fixed.cities))) if fixed is not None else config.city_seeds()
-            self.cities = list(fixed.cities) if fixed is not None else [config.cities.city(s) for s in seeds]
-            self.clearance_sensor = clearance_sensor(self.cities, config.scales, radius)
-            self.perception = Perception(self.cities, radius, config.perception)
-            levels = ("exact",) if fixed is not None else config.map_error
-            self.maps = MapErrorBank(self.cities, seeds, levels, config.map_error_draws)
-            # the truths' sensing: None when every truth is its city as it stands (the cities' sensors alone)
-            self.truth = TruthSensing(self.clearance_sensor, self.perception, self.maps.added, config.scales, radius,
-                                      config.perception) if self.maps.added else None
-        self.lo = np.array([c.bounds_min_m for c in self.cities])
-        self.hi = np.array([c.bounds_max_m for c in self.cities])
-        shapes = np.array([grid_shape(c, config.route.cell_m) for c in self.cities])
-        self.route_cells = (int(shapes[:, 0].max()), int(shapes[:, 1].max()))  # the largest city's route grid
-        self.route_levels = route_levels(config, fixed)
-        self.levels = config.air.levels
-        self.turbulent = any(level is not TurbulenceLevel.NONE for level in self.levels)
-        self.gust_stacks: list[GustStack] = []
-        self.level_stacks: list[list[int]] = []  # per turbulence level: its stacks' indices in gust_stacks
-        if self.turbulent:
-            self._make_gust_stacks(wind_from)
-        self.obs_size = obs_size(config.perception, config.observe)
-
-    @property
-    def atmosphere(self) -> Atmosphere:
-        """The one atmosphere of a world that flies a single field.
-
-        Raises:
-            ValueError: the world flies a pool of fields (each episode's is `NavBatch.atmosphere(i)`).
-        """
-        if len(self.atmospheres) != 1:
-            raise ValueError(f"this world flies {len(self.atmospheres)} fields; an episode's is NavBatch.atmosphere(i)")
-        return self.atmospheres[0]
-
-    def _make_gust_stacks(self, wind_from: NavWorld | None) -> None:
-        """The turbulence stacks: `wind_pool_size` per turbulent level (one zero stack for none), each at its
-        own seed, shared with `wind_from` where it holds the same stack."""
-        config = self.config
-        heights = probe_heights_up_to(float(self.hi[:, 2].max()))
-        # one airspeed for the pool: every episode's steady wind is at most steady_wind_max_m_s
-        airspeed = turbulence_airspeed_m_s(self.vehicle.controller.max_speed_m_s, config.air.steady_wind_max_m_s)
-        wanted: list[tuple[TurbulenceLevel, int]] = []
-        for k, level in enumerate(self.levels):
-            n = 1 if level is TurbulenceLevel.NONE else config.wind_pool_size
-            self.level_stacks.append(list(range(len(wanted), len(wanted) + n)))
-            wanted += [(level, 7919 * (j + 1) + 104_729 * k) for j in range(n)]  # level 0: the earlier seeds
-        donor = {}
-        if wind_from is not None and wind_from.config.wind_series_s == config.wind_series_s:
-            donor = {(g.turbulence, g.seed): g for g in wind_from.gust_stacks
-                     if g.heights_m == heights and g.airspeed_m_s == airspeed}
-        self.gust_stacks = [donor.get((level, seed)) or gust_stack(WindConditions((0.0, 0.0, 0.0), level), seed,
-                                                                   config.wind_series_s, airspeed, heights)
-                            for level, seed in wanted]
+__all__ = ["NavBatch", "NavWorld", "SlotAir", "route_levels"]  # the world's parts: where they were always imported
 
 
 class NavBatch:
@@ -231,6 +118,14 @@ class NavBatch:
         self.hi = np.zeros((n, 3))
         self._period = 1.0 / world.dynamics.control_hz
         self.city_of_slot: np.ndarray | None = None  # evaluation: slot i always flies in city city_of_slot[i]
+        self.sensing_level = np.full(n, -1, dtype=np.int64)  # each slot's: an index of config.sensing (-1: perfect)
+        self.sensing_seed = np.zeros(n, dtype=np.int64)  # and its episode's sensing seed (0 at a perfect level)
+        # the slots' navigation estimates and lidar views, when some level senses (`rl.env.onboard_slots`)
+        self.onboard: OnboardSlots | None = None
+        if any(level != "perfect" for level in cfg.sensing):
+            self.onboard = OnboardSlots(cfg.sensing, n, world.vehicle.mass_kg, world.dynamics.dt_s, world.atmospheres,
+                                        len(world.cities) + len(world.maps.added), world.perception,
+                                        cfg.scales.clearance_m)
         self.difficulty = 1.0  # the training curriculum's task difficulty (see TaskDistribution.sample)
         # called after every control period with the slots that flew it (a recorder of flights at control rate)
         self.on_period: Callable[[np.ndarray], None] | None = None
@@ -258,17 +153,21 @@ class NavBatch:
                 task = cfg.tasks.sample(draw.truth, rng, p.collision_radius_m, p.controller.max_speed_m_s,
                                         difficulty=self.difficulty,
                                         max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s, also=draw.prior)
-            self._place(int(i), ci, task, self._draw_air(rng, task), draw)
+            air = self._draw_air(rng, task)
+            self._place(int(i), ci, task, air, draw, self._draw_sensing(rng))
         self._begin(np.asarray(idx, dtype=np.int64))
 
     def place(self, episodes: Sequence[tuple[int, int, Task, SlotAir]],
-              maps: Sequence[MapDraw] | None = None) -> None:
+              maps: Sequence[MapDraw] | None = None, sensing: Sequence[tuple[int, int]] | None = None) -> None:
         """Start the given episodes: (slot, city index, task, its air) each, drawing nothing from any
         generator (e.g. a fixed set of tasks flown again and again, `rl.training.recording`).
 
-        `maps`: each episode's map (`world.maps.draw`); None: every city as it stands (the exact level)."""
+        `maps`: each episode's map (`world.maps.draw`); None: every city as it stands (the exact level).
+        `sensing`: each episode's sensing level (an index of `config.sensing`) and sensing seed; None: every
+        episode flies on the truth (perfect sensing)."""
         for k, (i, ci, task, air) in enumerate(episodes):
-            self._place(int(i), int(ci), task, air, self.world.maps.exact(int(ci)) if maps is None else maps[k])
+            self._place(int(i), int(ci), task, air, self.world.maps.exact(int(ci)) if maps is None else maps[k],
+                        (-1, 0) if sensing is None else sensing[k])
         self._begin(np.array([e[0] for e in episodes], dtype=np.int64))
 
     def _draw_map(self, rng: np.random.Generator, ci: int) -> MapDraw:
@@ -297,6 +196,20 @@ class NavBatch:
         return SlotAir((float(speed * np.cos(heading)), float(speed * np.sin(heading)), 0.0), series, start, level,
                        field)
 
+    def _draw_sensing(self, rng: np.random.Generator) -> tuple[int, int]:
+        """A slot's sensing level (an index of `config.sensing`) and sensing seed drawn from its generator.
+
+        Draws a level only where there is a choice and a seed only for a level that senses, so a task of
+        perfect sensing alone draws as it always did."""
+        levels = self.world.config.sensing
+        level = int(rng.integers(len(levels))) if len(levels) > 1 else 0
+        return level, int(rng.integers(2**31)) if levels[level] != "perfect" else 0
+
+    def sensing(self, i: int) -> str:
+        """Slot i's sensing level ("perfect" when its episode flies on the truth)."""
+        k = int(self.sensing_level[i])
+        return "perfect" if k < 0 else self.world.config.sensing[k]
+
     def wind_start_span(self, task: Task) -> int:
         """How many starting samples of a turbulence series leave room for `task`'s whole episode.
 
@@ -309,8 +222,9 @@ class NavBatch:
                              f"{task.timeout_s} s episode")
         return span
 
-    def _place(self, i: int, ci: int, task: Task, air: SlotAir, draw: MapDraw) -> None:
-        """Slot i's state at the start of `task` in city `ci`, map `draw` and air `air` (`_begin` completes it)."""
+    def _place(self, i: int, ci: int, task: Task, air: SlotAir, draw: MapDraw, sensing: tuple[int, int]) -> None:
+        """Slot i's state at the start of `task` in city `ci`, map `draw`, air `air` and sensing (level index of
+        `config.sensing`, -1: perfect; sensing seed) (`_begin` completes it)."""
         w, cfg = self.world, self.world.config
         p = w.vehicle
         self.winds.assign(i, air.wind_m_s, air.series, air.start)
@@ -328,6 +242,13 @@ class NavBatch:
         self.xi[i] = 0.0
         self.t[i] = 0.0
         self.routes.set(i, route_for(draw.prior, task, p.collision_radius_m, cfg.route))
+        level, seed = int(sensing[0]), int(sensing[1])
+        if not -1 <= level < len(cfg.sensing) or seed < 0:
+            raise ValueError(f"sensing {sensing}: the level must be an index of {cfg.sensing} (-1: perfect) and the "
+                             f"seed non-negative")
+        self.sensing_level[i], self.sensing_seed[i] = level, seed
+        if self.onboard is not None:
+            self.onboard.start(i, level, seed, draw.geometry, draw.truth, draw.prior, ci, (ci, draw.level, draw.draw))
         self.episode_return[i] = 0.0
         self.episode_len[i] = 0
         self.episode_count[i] += 1
@@ -338,8 +259,12 @@ class NavBatch:
             pos = self.x[idx, 0:3]
             self.route_m[idx] = self.routes.potential(pos, idx)
             self.clear[idx], self.nearest[idx] = nearest_surface(self._sensor, pos, self.geometry[idx])
-            self.memory.start(idx, pos, self.goal[idx], self.route_m[idx])
-            self._observe(idx)
+            if self.onboard is not None:
+                sensed = idx[self._sensing(idx)]
+                self.onboard.reset(sensed, self.x[sensed], self.geometry[sensed], self.air[sensed])
+            x, route = self._seen(idx)
+            self.memory.start(idx, x[:, 0:3], self.goal[idx], route)
+            self._observe(idx, x, route)
 
     def task(self, i: int) -> Task:
         """Slot i's current task."""
@@ -363,19 +288,55 @@ class NavBatch:
         return self._obs
 
     # -- stepping ----------------------------------------------------------------------------------
-    def _observe(self, idx: np.ndarray) -> None:
-        """Recompute the observations of slots idx from their current state and memory."""
+    def _sensing(self, idx: np.ndarray) -> np.ndarray:
+        """(M,) which of slots idx fly on what they sense (a level other than perfect)."""
+        return self.onboard.sensed(idx) if self.onboard is not None else np.zeros(len(idx), dtype=bool)
+
+    def _seen(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states (M, nx) and route distances Φ (M,) [m] a decision of slots idx acts on: the truth's at a
+        perfect level, else the navigation estimate (its first 13 elements; the rotor speeds the ESCs report) and
+        Φ at the estimated position (`OnboardSlots.decide`: call once per decision)."""
+        x, route = self.x[idx], self.route_m[idx]
+        rows = np.flatnonzero(self._sensing(idx))
+        if len(rows):
+            assert self.onboard is not None
+            s = idx[rows]
+            x[rows, 0:13] = self.onboard.decide(s, self.t[s])
+            route[rows] = self.routes.potential(x[rows, 0:3], s)
+        return x, route
+
+    def _observe(self, idx: np.ndarray, x: np.ndarray, route_m: np.ndarray) -> None:
+        """Recompute the observations of slots idx from the states (M, nx) and route distances (M,) [m] they act
+        on (`_seen`) and their memory: the truth's exact senses at a perfect level, else the lidar's."""
+        sensed = self._sensing(idx)
+        rows = np.flatnonzero(sensed)
+        if not len(rows):
+            self._obs[idx] = self._observations(idx, x, route_m, self.clear[idx], self.nearest[idx])
+            return
+        assert self.onboard is not None
+        plain = np.flatnonzero(~sensed)
+        if len(plain):
+            s = idx[plain]
+            self._obs[s] = self._observations(s, x[plain], route_m[plain], self.clear[s], self.nearest[s])
+        s = idx[rows]
+        senses = self.onboard.obstacles(s, x[rows], self.memory.heading_rad[s])
+        self._obs[s] = self._observations(s, x[rows], route_m[rows], senses.clearance_m, senses.nearest_m,
+                                          senses.reading)
+
+    def _observations(self, idx: np.ndarray, x: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
+                      nearest_m: np.ndarray, reading: PerceptionReading | None = None) -> np.ndarray:
+        """`observe_slots` of slots idx at states x (M, nx), route distances (M,) [m], clearances (M,) [m] and
+        nearest-surface vectors (M, 3) [m, world]; `reading`: their measured rays and height maps (None: the
+        truth's perception)."""
         w = self.world
         cfg = w.config
-        self._obs[idx] = observe_slots(idx, self.x[idx], self.goal[idx], self.route_m[idx], self.clear[idx],
-                                       self.nearest[idx], self.t[idx] / self.timeout[idx], self.geometry[idx],
-                                       self._perception,
-                                       self.routes, self.memory, cfg.perception, cfg.scales, cfg.decision_hz, w.vehicle,
-                                       cfg.observe, self._surroundings(idx) if cfg.observe.size() else None)
+        return observe_slots(idx, x, self.goal[idx], route_m, clearance_m, nearest_m, self.t[idx] / self.timeout[idx],
+                             self.geometry[idx], self._perception, self.routes, self.memory, cfg.perception,
+                             cfg.scales, cfg.decision_hz, w.vehicle, cfg.observe,
+                             self._surroundings(idx, x[:, 2]) if cfg.observe.size() else None, reading)
 
-    def _surroundings(self, idx: np.ndarray) -> Surroundings:
-        """What the pilot interface tells slots idx about their air and flight volume."""
-        z = self.x[idx, 2]
+    def _surroundings(self, idx: np.ndarray, z: np.ndarray) -> Surroundings:
+        """What the pilot interface tells slots idx at altitudes z (M,) [m] about their air and flight volume."""
         a = self.atmospheres
         sigma = a.density_ratio_clamped(z, idx) if isinstance(a, AtmosphereBank) else a.density_ratio_clamped(z)
         turbulence = np.array([TURBULENCE_VALUE[self.world.levels[k]] for k in self.level[idx]])
@@ -427,6 +388,33 @@ class NavBatch:
         decel = GRAVITY_M_S2 * np.tan(np.radians(ctl.max_tilt_deg))
         return ahead, stopping_distance(v_h, decel, 1.0 / ctl.velocity_gain_1_s)
 
+    def _fly(self, idx: np.ndarray, sel: np.ndarray | slice, cmd: np.ndarray, heights_m: np.ndarray) -> PeriodResult:
+        """One control period of slots idx (`sel`: the same as an index) under commands cmd (N, 4) at heights above
+        the surface (M,) [m]: the controller flies on the truth at a perfect level, else on the estimate."""
+        whole = None if len(idx) == self.n else idx
+        sensed = self._sensing(idx)
+        if not sensed.any():
+            return self.sim.step_velocity_batch(self.x[sel], self.xi[sel], cmd[sel], self.t[sel], whole, heights_m)
+        assert self.onboard is not None
+        if sensed.all():
+            offset = self.onboard.offsets(idx, self.x[sel])
+            return self.sim.step_velocity_batch(self.x[sel], self.xi[sel], cmd[sel], self.t[sel], whole, heights_m,
+                                                seen_offset=offset)
+        parts = []
+        for rows in (np.flatnonzero(~sensed), np.flatnonzero(sensed)):
+            s = idx[rows]
+            seen = self.onboard.offsets(s, self.x[s]) if sensed[rows[0]] else None
+            parts.append((rows, self.sim.step_velocity_batch(self.x[s], self.xi[s], cmd[s], self.t[s], s,
+                                                             heights_m[rows], seen_offset=seen)))
+        first = parts[0][1]
+        m = len(idx)
+        out = PeriodResult(np.empty((m,) + first.states.shape[1:]), np.empty((m,) + first.rotor_commands.shape[1:]),
+                           np.empty((m,) + first.ctrl_state.shape[1:]), np.empty(m))
+        for rows, r in parts:
+            out.states[rows], out.rotor_commands[rows], out.ctrl_state[rows] = r.states, r.rotor_commands, r.ctrl_state
+            np.asarray(out.energy_J)[rows] = r.energy_J
+        return out
+
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         """Advance every slot one decision.
 
@@ -448,10 +436,13 @@ class NavBatch:
                 break
             # every slot still flying (the common case): plain slices instead of gathers, same numbers
             sel = slice(None) if len(idx) == self.n else idx
-            r = self.sim.step_velocity_batch(self.x[sel], self.xi[sel], cmd[sel], self.t[sel],
-                                             None if len(idx) == self.n else idx,
-                                             self._heights(idx, self.x[sel, 0:3], clear_lb[sel]))
+            r = self._fly(idx, sel, cmd, self._heights(idx, self.x[sel, 0:3], clear_lb[sel]))
             finite = np.isfinite(r.states).all(axis=(1, 2))
+            rows = np.flatnonzero(self._sensing(idx) & finite)
+            if len(rows):  # the period sensed and fused, as the runner's `Onboard.advance` after it
+                assert self.onboard is not None
+                s = idx[rows]
+                self.onboard.advance(s, self.x[s], r.states[rows], self.t[s])
             hit, clear_lb[sel] = self._collided(idx, sel, r.states, finite, clear_lb[sel])
             c = episode.period_outcome(r.states, hit, self.lo[sel], self.hi[sel], self.goal[sel], self.goal_radius[sel])
             self.t[sel] = self.t[sel] + self._period
@@ -466,7 +457,7 @@ class NavBatch:
             if self.on_period is not None:
                 self.on_period(idx)
         everyone = np.arange(self.n)
-        pos = self.x[:, 0:3]
+        pos = self.x[:, 0:3]  # the truth: what scores the flight (the policy observes what it senses, `_seen`)
         self.clear, self.nearest = nearest_surface(self._sensor, pos, self.geometry)
         self.route_m = self.routes.potential(pos, everyone)
         arrived = code == episode.SUCCESS
@@ -482,9 +473,10 @@ class NavBatch:
         for k in TERMS[1:]:
             reward += terms[k]
         m = self.memory
-        m.record(everyone, act, self.route_m, vel)
-        m.heading_rad[:] = goal_heading(pos, self.goal, m.heading_rad)
-        self._observe(everyone)
+        x_seen, route_seen = self._seen(everyone)
+        m.record(everyone, act, route_seen, x_seen[:, 3:6])
+        m.heading_rad[:] = goal_heading(x_seen[:, 0:3], self.goal, m.heading_rad)
+        self._observe(everyone, x_seen, route_seen)
         terminated = arrived | crashed
         truncated = code == episode.TIMEOUT
         self.episode_return += reward
@@ -501,27 +493,3 @@ class NavBatch:
                 info["city"] = w.cities[int(self.city[i])].name
             infos.append(info)
         return self._obs.copy(), reward.astype(np.float32), terminated, truncated, infos
-
-
-def route_levels(config: NavConfig, fixed: FixedEpisodes | None) -> int:
-    """The most flight levels a task of this configuration (or of these fixed episodes) needs."""
-    step = config.route.level_step_m
-    if fixed is not None:
-        return max([len(flight_levels(t.start_m[2], t.goal_m[2], step)) for _, t in fixed.tasks] + [1])
-    return max_levels(config.tasks.altitude_m, step)
-
-
-def _check_same_geometry(world: NavWorld, other: NavWorld) -> None:
-    """Raise ValueError naming what differs where `world` (being built) would share `other`'s cities and sensing."""
-    a, b = world.config, other.config
-    same = {"cities": (a.cities, b.cities), "city seeds": (a.city_seeds() if world.fixed is None else None,
-                                                          b.city_seeds() if other.fixed is None else None),
-            "fixed episodes": (world.fixed, other.fixed), "perception": (a.perception, b.perception),
-            "observation scales": (a.scales, b.scales),
-            "map error": ((a.map_error, a.map_error_draws) if world.fixed is None else None,
-                          (b.map_error, b.map_error_draws) if other.fixed is None else None),
-            "collision radius": (world.vehicle.collision_radius_m, other.vehicle.collision_radius_m)}
-    differ = [name for name, (x, y) in same.items() if x != y]
-    if differ:
-        raise ValueError(f"cannot share another world's cities and sensing: {', '.join(differ)} differ")
-

@@ -15,7 +15,7 @@ from rl.sensing.observation import (
     build_observations,
     context_elements,
 )
-from rl.sensing.perception import Perception, PerceptionConfig
+from rl.sensing.perception import Perception, PerceptionConfig, PerceptionReading
 from rl.sensing.route import LeveledRoute, RouteBank, RouteConfig, flight_levels, leveled_route
 from rl.sensing.sensor import BoxSensor
 from rl.sensing.truth import TruthSensing
@@ -57,7 +57,8 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
                   nearest_m: np.ndarray, t_frac: np.ndarray, city: np.ndarray, perception: Perception | TruthSensing,
                   routes: RouteBank, memory: PilotMemory, perception_config: PerceptionConfig,
                   scales: ObservationScales, decision_hz: float, vehicle: VehicleParams,
-                  observe: ObservedContext | None = None, around: Surroundings | None = None) -> np.ndarray:
+                  observe: ObservedContext | None = None, around: Surroundings | None = None,
+                  reading: PerceptionReading | None = None) -> np.ndarray:
     """Observations (M, obs) of slots idx (the env's batch, or the learned pilot's single slot).
 
     Args:
@@ -67,10 +68,13 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
         city: (M,) city indices of `perception` (truth indices of a `TruthSensing`).
         perception_config, scales, decision_hz, observe: the task's (`rl.task.config.NavConfig`).
         around: the vehicles' surroundings, when `observe` asks for the air or the geofence.
+        reading: the rays and height maps when measured (the lidar's, `rl.sensing.lidar_view`); None: the exact
+            ones of `perception` (the truth's slab tests).
     """
     pos = x[:, 0:3]
     heading = memory.heading_rad[idx]
-    reading = perception.observe(pos, heading, city)
+    if reading is None:
+        reading = perception.observe(pos, heading, city)
     obs = build_observations(x, goal_m, heading, route_m, routes.direction(pos, idx), clearance_m, nearest_m,
                              memory.prev_action[idx], memory.route_history_m[idx], t_frac, reading,
                              perception_config, vehicle, decision_hz, scales)

@@ -6,7 +6,7 @@ config.json stores it (`to_dict` / `from_dict`). The per-vehicle tasks are in `r
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 
 from rl.sensing.observation import ObservationScales, ObservedContext
 from rl.sensing.perception import PerceptionConfig
@@ -17,6 +17,8 @@ from rl.task.reward import RewardConfig
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.city.map_error import MAP_ERROR_LEVELS
 from uam_fdm.pilot import Task
+from uam_fdm.sensing.specs import LEVELS as SENSING_LEVELS
+from uam_fdm.sensing.specs import SensingConfig, sensing_preset
 
 _LEGACY_AIR = {"turbulence": "turbulence", "steady_wind_max_m_s": "steady_wind_max_m_s"}
 """Settings of policies trained before `NavConfig.air`: one turbulence level and the wind's top speed."""
@@ -52,6 +54,10 @@ class NavConfig:
             (`rl.sensing.truth`). ("exact",): every map is its city, as before the setting existed.
         map_error_draws: draws banked per city of each level that is not exact (each from its own seed, derived
             from the city seed and the draw index); an episode draws one uniformly.
+        sensing: the sensing levels (`uam_fdm.sensing.specs` presets) an episode draws from, uniformly: at
+            `perfect` the pilot observes the true state and the truth's exact senses; at another level it observes
+            its navigation estimate and its lidar (`learned_pilot_sensing`; `rl.env.onboard_slots`).
+            ("perfect",): every number as before the setting existed.
     """
 
     vehicle: str = "small_quad"
@@ -73,8 +79,14 @@ class NavConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     map_error: tuple[str, ...] = ("exact",)
     map_error_draws: int = 4
+    sensing: tuple[str, ...] = ("perfect",)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "sensing", tuple(self.sensing))
+        bad_sensing = [v for v in self.sensing if v not in SENSING_LEVELS]
+        if not self.sensing or bad_sensing or len(set(self.sensing)) != len(self.sensing):
+            raise ValueError(f"sensing must be distinct levels from {', '.join(SENSING_LEVELS)}, "
+                             f"got {list(self.sensing)}")
         object.__setattr__(self, "map_error", tuple(self.map_error))
         bad = [v for v in self.map_error if v not in MAP_ERROR_LEVELS]
         if not self.map_error or bad or len(set(self.map_error)) != len(self.map_error):
@@ -140,6 +152,27 @@ class NavConfig:
                     raise ValueError(f"unknown {key} settings {bad} (written by another version?)")
                 d[key] = typ(**{k: tuple(v) if isinstance(v, list) else v for k, v in sub.items()})
         return cls(**d)
+
+
+LEARNED_LIDAR_CHANNELS = 8
+LEARNED_LIDAR_AZIMUTH_STEP_DEG = 10.0
+
+
+def learned_pilot_sensing(level: str, mass_kg: float) -> SensingConfig:
+    """What the learned pilot carries at sensing level `level` on a vehicle of `mass_kg` [kg]: the level's preset
+    (`sensing_preset`) with its lidar reduced to `LEARNED_LIDAR_CHANNELS` channels over the part's vertical field of
+    view and a `LEARNED_LIDAR_AZIMUTH_STEP_DEG` azimuth step (8 x 36 beams a scan, where the small quad's VLP-16
+    has 16 x 1800): a full scan per slot would cost a training batch far more than its physics (perf/batch_lidar.py
+    measures 8 x 36 at about 2 % of a full scan's cost). Range, noise, dropout and rate stay the part's.
+
+    Raises:
+        ValueError: an unknown level.
+    """
+    preset = sensing_preset(level, mass_kg)
+    lidar = replace(preset.lidar, channels=LEARNED_LIDAR_CHANNELS,
+                    horizontal_resolution_deg=LEARNED_LIDAR_AZIMUTH_STEP_DEG)
+    return replace(preset, lidar=lidar,
+                   overridden=preset.overridden + ("lidar.channels", "lidar.horizontal_resolution_deg"))
 
 
 @dataclass(frozen=True)

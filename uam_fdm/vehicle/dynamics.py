@@ -269,12 +269,10 @@ class VehicleDynamics:
                              offset: np.ndarray) -> PeriodResult:
         """`period_velocity` with the controller flying on the estimate: `offset` (`N_SEEN_OFFSET`,) is the
         estimate's error at the period's start ([δp m, δv m/s ENU, δq body quaternion, δω rad/s])."""
-        n = 1
-        states, cmds, xi, energy = self._eval("period_velocity_seen", n, np.asarray(x, float)[None],
-                                              np.asarray(ctrl_state, float)[None], np.asarray(cmd, float)[None],
-                                              np.asarray(env, float)[None], self.dt_s, np.asarray(offset, float)[None])
-        return PeriodResult(states.reshape(self.n_substeps, self.layout.nx),
-                            cmds.reshape(self.n_substeps, self.params.n_rotors), xi[0], float(energy[0, 0]))
+        r = self.period_velocity_seen_batch(np.asarray(x, float)[None], np.asarray(ctrl_state, float)[None],
+                                            np.asarray(cmd, float)[None], np.asarray(env, float)[None],
+                                            np.asarray(offset, float)[None])
+        return PeriodResult(r.states[0], r.rotor_commands[0], r.ctrl_state[0], float(np.asarray(r.energy_J)[0]))
 
     # -- batched -------------------------------------------------------------------------------
     def period_rotor_batch(self, x: np.ndarray, u: np.ndarray, env: np.ndarray) -> PeriodResult:
@@ -290,5 +288,14 @@ class VehicleDynamics:
         """`period_velocity` for N vehicles in one call: x (N, nx), ctrl_state (N, 3), cmd (N, 4), env (N, 4)."""
         n = x.shape[0]
         states, cmds, xi, energy = self._eval("period_velocity", n, x, ctrl_state, cmd, env, self.dt_s)
+        return PeriodResult(states.reshape(n, self.n_substeps, self.layout.nx),
+                            cmds.reshape(n, self.n_substeps, self.params.n_rotors), xi, energy[:, 0])
+
+    def period_velocity_seen_batch(self, x: np.ndarray, ctrl_state: np.ndarray, cmd: np.ndarray, env: np.ndarray,
+                                   offset: np.ndarray) -> PeriodResult:
+        """`period_velocity_seen` for N vehicles in one call: x (N, nx), ctrl_state (N, 3), cmd (N, 4), env (N, 5),
+        offset (N, `N_SEEN_OFFSET`) each vehicle's estimate error at the period's start."""
+        n = x.shape[0]
+        states, cmds, xi, energy = self._eval("period_velocity_seen", n, x, ctrl_state, cmd, env, self.dt_s, offset)
         return PeriodResult(states.reshape(n, self.n_substeps, self.layout.nx),
                             cmds.reshape(n, self.n_substeps, self.params.n_rotors), xi, energy[:, 0])
