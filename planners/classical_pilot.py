@@ -41,7 +41,7 @@ from planners.margins import (
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.report import ClassicalReport
 from planners.rrt_star import PlannerConfig, PlanResult
-from planners.sensed_map import MappingConfig, SensedMap
+from planners.sensed_map import MappingConfig, SensedMap, scaled_to_vehicle
 from planners.timing import Reference, TimingLimits, braking_along, braking_reference, time_parameterize
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
@@ -82,7 +82,8 @@ class ClassicalConfig:
         ladder: the planning attempts, in order (`planners.ladder.LADDER`).
         in_flight_ladder: the attempts of a replan in flight on sensors, in order (`planners.ladder.IN_FLIGHT_LADDER`:
             smaller budgets, so that they fit `replan_budget_s`).
-        mapping: how scans are mapped (flying on sensors).
+        mapping: how scans are mapped (flying on sensors; columns widened to the vehicle's radius,
+            `planners.sensed_map.scaled_to_vehicle`).
         uncertainty_k: margins grow by this many σ of the estimate's position (its covariance's largest axis).
         uncertainty_replan_m: replan when k σ exceeds what the flown plan's margins took by this much [m].
         replan_budget_s: flight time a replan in flight takes (braking meanwhile) [s]; calibrated so that the
@@ -222,7 +223,8 @@ class ClassicalPilot:
             from uam_fdm.sensing.onboard import initial_covariance  # the filter's start: what the pad survey gives
 
             lidar = world.sensing.lidar
-            self._sensed = SensedMap(world.city, self.config.mapping, lidar.max_range_m, lidar.vertical_fov_deg[1])
+            mapping = scaled_to_vehicle(self.config.mapping, world.vehicle.collision_radius_m)
+            self._sensed = SensedMap(world.city, mapping, lidar.max_range_m, lidar.vertical_fov_deg[1])
             sigma_m = position_sigma_m(initial_covariance(world.sensing))
         self._base_margins = self.margins_for(world, task)
         self._planned_extra_m = self.config.uncertainty_k * sigma_m

@@ -93,6 +93,15 @@ class MappingConfig:
                              f"{self.carve_stride}")
 
 
+def scaled_to_vehicle(config: MappingConfig, radius_m: float) -> MappingConfig:
+    """`config` with columns as wide as the vehicle's collision radius `radius_m` [m] (whole voxels), when that is
+    wider than `config.column_m`: a passenger vehicle of 6 m radius gains nothing from 2 m columns, and the planner's
+    work grows with the fused map's boxes (docs/planner.md)."""
+    voxels = math.floor(float(radius_m) / config.resolution_m + 1e-9)
+    wide = voxels * config.resolution_m
+    return dataclasses.replace(config, column_m=wide) if wide > config.column_m else config
+
+
 @dataclass(frozen=True)
 class ScanUpdate:
     """What one scan changed.

@@ -168,3 +168,11 @@ def test_an_open_column_is_never_held_above_where_the_vehicle_flew_over_it():
     raised = _open_columns(voxels, open_top, 1.0, 80.0, 10.0, {(0, 0): 15.0})
     tops = {tuple(v[0:2]): v[2] for v in raised[np.argsort(raised[:, 2])]}
     assert tops[(0.5, 0.5)] == 14.5 and tops[(5.5, 0.5)] == 20.5  # capped under the flight; the other held 10 m up
+
+
+def test_columns_widen_to_a_large_vehicles_radius_in_whole_voxels():
+    from planners.sensed_map import scaled_to_vehicle
+
+    config = MappingConfig()
+    assert scaled_to_vehicle(config, 0.42) == config  # a small quad keeps the configured columns
+    assert scaled_to_vehicle(config, 6.0).column_m == 6.0 and scaled_to_vehicle(config, 6.7).column_m == 6.0
