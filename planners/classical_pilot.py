@@ -501,20 +501,36 @@ class ClassicalPilot:
         flying_on = flown is not None and (cause in _FLYING_ON or (
             cause == "blocked" and self._stops_short_of_block(flown, t_switch - self._t_ref0)))
         self._blocked_ref_t = math.inf
-        # stop along the path flown (clear in what the pilot knew), not straight along the velocity
-        brake = (braking_along(flown, obs.t_s - self._t_ref0, decel) if flown is not None
+        # stop along the path flown (clear in what the pilot knew), not straight along the velocity; but a vehicle far
+        # off its reference (a tracking cause) stops from where it is, not from where the reference would have it
+        off_path = cause == "tracking" or (flown is not None and cfg.replan_error_m is not None and float(
+            np.linalg.norm(obs.x[0:3] - flown.sample(obs.t_s - self._t_ref0)[0])) > cfg.replan_error_m)
+        brake = (braking_along(flown, obs.t_s - self._t_ref0, decel) if flown is not None and not off_path
                  else braking_reference(obs.x[0:3], obs.x[3:6], decel))
+        start, lead_in, velocity = np.zeros(3), None, None
+        if flying_on and flown is not None:
+            # from where the reference will be, along its velocity there: a lead-in when it is moving
+            p_b, v_b, _ = flown.sample(t_switch - self._t_ref0)
+            start, lead_in, fits = self._lead_in(np.asarray(p_b, float), np.asarray(v_b, float), decel)
+            velocity = np.asarray(v_b, float)
+            if not fits:  # no room to start along its velocity: no new plan could be flown from there at speed
+                if improving:
+                    return
+                flying_on = False
+        if not flying_on:
+            # braking: the new plan starts at rest where the braking ends (a heavy vehicle braking for the whole
+            # budget is still moving; a plan from there at its speed but across its velocity cannot be tracked)
+            t_switch = max(t_switch, obs.t_s + brake.duration_s)
+            start, lead_in, velocity = np.asarray(brake.pos_m[-1], float), None, None
         now: tuple[Reference, float] = (flown, self._t_ref0) if flying_on and flown is not None else (brake, obs.t_s)
         previous = (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends, self._tapers,
                     self._on_floor, self._planned_extra_m, self.margins, self._planner_cfg)
-        p_b, v_b, _ = now[0].sample(t_switch - now[1])
-        start, lead_in = self._lead_in(np.asarray(p_b, float), np.asarray(v_b, float), decel)
         self._planned_extra_m = self._extra_now
         self.margins = self._base_margins.widened(self._extra_now)
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         before = s.plan_time_s
-        ok, _, detail = self._plan(start, t_start=t_switch, velocity_m_s=np.asarray(v_b, float), in_flight=True,
-                                   lead_in=lead_in, faster=improving)
+        ok, _, detail = self._plan(start, t_start=t_switch, velocity_m_s=velocity, in_flight=True, lead_in=lead_in,
+                                   faster=improving)
         s.replan_time_s += s.plan_time_s - before
         s.in_flight_replan_s.append(refresh_s + s.plan_time_s - before)  # what the budget must cover
         if improving:
@@ -555,21 +571,23 @@ class ClassicalPilot:
         # braking covers less ground than the reference does in the same time: its time to rest is a bound
         return t_switch_ref_s + speed / self._limits.max_accel_m_s2 + self.config.replan_budget_s < self._blocked_ref_t
 
-    def _lead_in(self, p_m: np.ndarray, v_m_s: np.ndarray, decel_m_s2: float) -> tuple[np.ndarray, np.ndarray | None]:
-        """Where the new plan starts, and the lead-in to it: from `p_m` moving at `v_m_s`, the point where braking
-        straight along the velocity at `decel_m_s2` would stop it, when that segment keeps the floor margin in the
-        fused map (returns it and `p_m`); else `p_m` itself and None (a slow vehicle, or no room)."""
+    def _lead_in(self, p_m: np.ndarray, v_m_s: np.ndarray, decel_m_s2: float
+                 ) -> tuple[np.ndarray, np.ndarray | None, bool]:
+        """Where a new plan from `p_m` moving at `v_m_s` starts, the lead-in to it, and whether it fits: the point
+        where braking straight along the velocity at `decel_m_s2` would stop it, when that segment keeps the margin at
+        that speed in the fused map (the reference's timing will ask it there): (it, `p_m`, True); a vehicle that
+        stops within a metre needs none: (`p_m`, None, True); no room: (`p_m`, None, False)."""
         speed = float(np.linalg.norm(v_m_s))
         stop_m = speed * speed / (2.0 * decel_m_s2)
         if stop_m < 1.0:
-            return p_m, None
+            return p_m, None, True
         q = p_m + v_m_s / speed * stop_m
         world, margins = self._flying()
         samples = p_m + np.linspace(0.0, 1.0, max(int(math.ceil(stop_m / 0.5)), 2) + 1)[:, None] * (q - p_m)
         clearance = self._known.planning_map().clearance(samples, world.vehicle.collision_radius_m).distance_m
-        if float(np.min(clearance)) < self._base_margins.widened(self._extra_now).floor_m:
-            return p_m, None
-        return q, p_m
+        if float(np.min(clearance)) < float(self._base_margins.by_speed.widened(self._extra_now).margin_m(speed)):
+            return p_m, None, False
+        return q, p_m, True
 
     def _keeps_widened_margin(self, obs: Observation) -> bool:
         """True when the reference still to fly keeps, at every sample (every 0.2 s), the margin at its speed

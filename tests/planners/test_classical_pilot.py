@@ -230,8 +230,7 @@ def _sensed_obs(pilot: ClassicalPilot, p, t: float, lidar, pos: np.ndarray) -> O
                        estimate_t_s=t)
 
 
-def test_a_wall_the_prior_lacks_blocks_the_path_and_the_pilot_brakes_then_flies_round_it(vehicles,
-                                                                                        compiled_dynamics):
+def test_a_wall_the_prior_lacks_blocks_the_path_and_the_pilot_flies_round_it(vehicles, compiled_dynamics):
     from uam_fdm.sensing.lidar import Lidar
     from uam_fdm.sensing.raycast import RayCaster
     from uam_fdm.sensing.specs import sensing_preset
@@ -239,7 +238,9 @@ def test_a_wall_the_prior_lacks_blocks_the_path_and_the_pilot_brakes_then_flies_
     p = vehicles["small_quad"]
     bounds = ((-10.0, -30.0, 0.0), (80.0, 30.0, 50.0))
     prior = BuildingMap([], *bounds)
-    truth = BuildingMap([Building(7, (30.0, -2.0), (2.0, 20.0), 25.0)], *bounds)  # across the straight line
+    # across the straight line, low enough for the lidar's highest beam to see its top from the start (unseen space
+    # above a wall is free to the planner, as all unseen space is)
+    truth = BuildingMap([Building(7, (30.0, -2.0), (2.0, 20.0), 15.0)], *bounds)
     world = World(p, compiled_dynamics["small_quad"], prior,
                   Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
                   sensing=sensing_preset("nominal", p.mass_kg))
@@ -252,8 +253,8 @@ def test_a_wall_the_prior_lacks_blocks_the_path_and_the_pilot_brakes_then_flies_
     straight = pilot.reference
     pilot.act(_sensed_obs(pilot, p, 0.0, lidar, np.array(task.start_m)))
     assert pilot.stats.replans_by_cause["blocked"] == 1
-    assert pilot._pending is not None and pilot.reference is not straight
-    assert pilot.reference.stops == 1  # braking while the replan's budget runs
+    # 30 m ahead of a vehicle at rest: it flies on while the replan's budget runs, and could still stop short after
+    assert pilot._pending is not None and pilot.reference is straight
     new_plan_t0 = pilot._pending[2]
     assert new_plan_t0 == pytest.approx(cfg.replan_budget_s)
     pilot.act(_sensed_obs(pilot, p, cfg.replan_budget_s, lidar, np.array(task.start_m)))
@@ -272,9 +273,10 @@ def test_no_path_in_what_it_knows_makes_the_pilot_hold(vehicles, compiled_dynami
     from uam_fdm.sensing.specs import sensing_preset
 
     p = vehicles["small_quad"]
-    bounds = ((-10.0, -30.0, 0.0), (80.0, 30.0, 50.0))
+    bounds = ((-10.0, -30.0, 0.0), (80.0, 30.0, 20.0))
     prior = BuildingMap([], *bounds)
-    # a wall across the whole flight volume, taller than its top
+    # a wall across the whole flight volume, taller than its top (its face seen up to 18 m of the volume's 20 m: no
+    # room left above it for the sphere and its margin)
     truth = BuildingMap([Building(7, (30.0, 0.0), (2.0, 60.0), 60.0)], *bounds)
     world = World(p, compiled_dynamics["small_quad"], prior,
                   Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
@@ -388,3 +390,34 @@ def test_a_plan_found_at_the_floor_margin_looks_for_a_faster_one_while_flying_on
     assert pilot.stats.improvements_tried == 1 and pilot.stats.improvements_taken == 0
     assert pilot.reference is flown and pilot._pending is None and pilot._on_floor
     assert sum(pilot.stats.replans_by_cause.values()) == 0
+
+
+def test_a_wall_sensed_too_near_to_fly_on_makes_the_pilot_brake_and_plan_from_where_it_stops(vehicles,
+                                                                                           compiled_dynamics):
+    """The wall lies 30 m ahead of a vehicle at 9.6 m/s: it brakes along its path, and the new plan starts at rest
+    where the braking ends (after the budget when stopping takes longer), never across a velocity it still has."""
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -40.0, 0.0), (160.0, 40.0, 50.0))
+    truth = BuildingMap([Building(7, (60.0, -2.0), (2.0, 20.0), 25.0)], *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
+    straight = pilot.reference
+    t = 4.0
+    pos, vel, _ = straight.sample(t)
+    pilot.act(_sensed_obs(pilot, p, t, lidar, pos))
+    assert pilot.stats.replans_by_cause["blocked"] == 1 and pilot._pending is not None
+    brake = pilot.reference
+    assert brake is not straight and brake.stops == 1
+    stop_s = float(np.linalg.norm(vel)) / pilot._limits.max_accel_m_s2
+    assert stop_s > cfg.replan_budget_s
+    assert pilot._pending[2] == pytest.approx(t + brake.duration_s) and brake.duration_s == pytest.approx(stop_s, 0.02)
+    plan, new = pilot._pending[0], pilot._pending[1]
+    assert np.allclose(plan.path_m[0], brake.pos_m[-1]) and np.linalg.norm(new.sample(0.0)[1]) < 1e-9  # from rest
+    assert truth.clearance(new.pos_m, p.collision_radius_m).distance_m.min() > 0.5
