@@ -28,6 +28,9 @@ No pilot knows the true city, the true state, the wind or its gusts: they are th
 every metric is scored on them. (The classical pilot sizes its clearance margins from the forecast level; the
 learned pilot does not use it.)
 
+A pilot flies with the scenario's sensors unless it states others (`ChoosesSensors.sensing_flown`, looked up with
+that default by `flown_sensing`): the learned pilot carries the reduced lidar it was trained on.
+
 At the end of an episode the runner's caller asks the pilot for its `episode_report()`: a typed
 `PilotReport` of what it did (the classical pilot: planning, replans, its MPC), saved with the
 episode and read back as the same type, or None when the pilot has nothing to add.
@@ -227,7 +230,8 @@ class PilotReport(Protocol):
 class Pilot(Protocol):
     """A pilot. The runner calls `reset` once per episode, then `act` once per decision (every
     control period, or every `hold_periods` of the previous actuation); after the episode its caller
-    asks for `episode_report`."""
+    asks for `episode_report`. Optionally it states the sensors it flies with (`ChoosesSensors.sensing_flown`;
+    without it: the scenario's)."""
 
     name: str
 
@@ -242,6 +246,25 @@ class Pilot(Protocol):
     def episode_report(self) -> PilotReport | None:
         """What the pilot did in the episode flown since `reset` (None: nothing beyond the trajectory)."""
         ...
+
+
+@runtime_checkable
+class ChoosesSensors(Protocol):
+    """A pilot that flies with other sensors than the scenario's at a sensing level (optional: a pilot without
+    `sensing_flown` flies with the scenario's, `flown_sensing`). The learned pilot carries a reduced lidar, the one
+    it was trained on."""
+
+    def sensing_flown(self, scenario: SensingConfig) -> SensingConfig:
+        """The sensors this pilot flies with where the scenario states `scenario` (not `perfect`): its vehicle's
+        `Onboard` is built from them, and its `World.sensing` states them."""
+        ...
+
+
+def flown_sensing(pilot: object, scenario: SensingConfig) -> SensingConfig:
+    """The sensors `pilot` flies with at the scenario's sensing `scenario`: its `sensing_flown` (`ChoosesSensors`)
+    when it has one, else `scenario` itself."""
+    choose = getattr(pilot, "sensing_flown", None)
+    return scenario if choose is None else choose(scenario)
 
 
 if not TYPE_CHECKING:  # hidden from the type checker: our own code must use the new names (`uam_fdm.renamed`)

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from compare.cli.common import check_ranges, one_torch_thread, turbulence_levels
 from compare.cli.printout import json_line
+from compare.scenarios.levels import MAP_ERROR_LEVELS, SENSING_LEVELS
 from compare.scenarios.scenario import MAX_SEED
 from rl.task.air import AIR_LEVELS, AirDistribution
 from uam_fdm.air.atmosphere import ELEVATION_RANGE_M, ISA_OFFSET_RANGE_K
@@ -67,6 +68,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     ev.add_argument("--turbulence", default=None, metavar="LEVELS",
                     help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
                          "(default: the --task's air's)")
+    ev.add_argument("--sensing", choices=SENSING_LEVELS, default=None,
+                    help="fly every episode at this sensing level (docs/sensing.md): below perfect the policy "
+                         "observes its navigation estimate and its reduced lidar, as in training; the potential "
+                         "field still reads its true position and the map (default: the policy's task's levels)")
+    ev.add_argument("--map-error", choices=MAP_ERROR_LEVELS, default=None,
+                    help="fly every episode with this map error (docs/sensing.md): the route is planned on the "
+                         "prior map, collisions are with the city as it stands (default: the policy's task's levels)")
     ev.add_argument("--no-baseline", action="store_true", help="skip the potential-field pilot (apf) on the same "
                                                                "tasks")
     ev.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
@@ -128,7 +136,8 @@ def evaluate_policy(args: argparse.Namespace) -> int:
     air = air_from_options(args)  # before anything is loaded: a bad option is named at once
     policy = load_policy(args.policy)
     own = policy.nav if args.task == "own" else in_task_space(policy.nav, task_for(policy.nav.vehicle, envelope=True))
-    nav = eval_config(own, args.episodes, pool=args.pool, air=air(own.air))
+    nav = eval_config(own, args.episodes, pool=args.pool, air=air(own.air), sensing=args.sensing,
+                      map_error=args.map_error)
     show = not args.no_progress
     _say(f"building {args.episodes} {args.pool} cities, their sensing and air", show)
     world = NavWorld(nav)
@@ -140,6 +149,7 @@ def evaluate_policy(args: argparse.Namespace) -> int:
         "pool": args.pool, "episodes": res.episodes, "seed": args.seed, "task": args.task,
         "turbulence": ",".join(a.turbulence), "steady_wind_max_m_s": a.steady_wind_max_m_s,
         "elevation_m": list(a.elevation_m), "isa_offset_k": list(a.isa_offset_k), "fields": len(world.atmospheres),
+        "sensing": ",".join(nav.sensing), "map_error": ",".join(nav.map_error),
         "policy": str(policy.folder), "success_rate": res.success_rate, "success_ci95": res.success_ci95,
         "collision_rate": res.collision_rate, "collision_ci95": res.collision_ci95, "outcomes": res.outcomes}
     results = {"ppo": res}
@@ -150,7 +160,8 @@ def evaluate_policy(args: argparse.Namespace) -> int:
                                                      progress=ProgressLines(BASELINE, show))
     print(f"{res.episodes} {args.pool} episodes in the {'policy' if args.task == 'own' else 'envelope'}'s task "
           f"({'/'.join(a.turbulence)} turbulence, steady wind up to "
-          f"{a.steady_wind_max_m_s:g} m/s, {describe_fields(a)}, {policy.nav.vehicle}), Wilson 95 % intervals:")
+          f"{a.steady_wind_max_m_s:g} m/s, {describe_fields(a)}, {'/'.join(nav.sensing)} sensing, "
+          f"{'/'.join(nav.map_error)} map, {policy.nav.vehicle}), Wilson 95 % intervals:")
     for name, r in results.items():
         print(_rates_line(name, r))
     if BASELINE in results:

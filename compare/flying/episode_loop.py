@@ -15,15 +15,16 @@ offline RL trains on. A pilot tells its observation through `ObservingPilot.last
 pilot's is read as its policy is given it (`_PolicyTap`), without changing what it computes.
 
 Truth and belief: the loop flies and scores against `Truth` (the city as it stands); the pilot gets the
-`World` (the prior map) and, at `perfect` sensing, the true state; otherwise the vehicle's sensors and navigation
-filter (`uam_fdm.sensing.onboard.Onboard`) turn each flown period into readings and an estimate, the decision acts on
+`World` (the prior map) and, at `perfect` sensing, the true state; otherwise the vehicle's sensors (the scenario's, or
+those the pilot states it flies with, `uam_fdm.pilot.flown_sensing`) and navigation filter
+(`uam_fdm.sensing.onboard.Onboard`) turn each flown period into readings and an estimate, the decision acts on
 the estimate of the latency ago, and a velocity command's controller flies on the current estimate.
 """
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -32,13 +33,24 @@ import numpy as np
 from uam_fdm import episode
 from uam_fdm.air.wind import WindField
 from uam_fdm.episode import Outcome
-from uam_fdm.pilot import Observation, Pilot, ResetInfo, RotorCommand, Task, Truth, VelocityCommand, World
+from uam_fdm.pilot import (
+    Observation,
+    Pilot,
+    ResetInfo,
+    RotorCommand,
+    Task,
+    Truth,
+    VelocityCommand,
+    World,
+    flown_sensing,
+)
 from uam_fdm.sim import Simulator
 from uam_fdm.vehicle.ground_effect import height_above_surface
 from uam_fdm.vehicle.model import hover_state
 
 if TYPE_CHECKING:  # the sensors (Embree, the filter) load only when a vehicle senses
     from uam_fdm.sensing.onboard import NavRecord
+    from uam_fdm.sensing.specs import SensingConfig
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +148,8 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
     """Fly `pilot` on `task` in `world` under `wind` (which must cover `task.timeout_s` + one period).
 
     `truth`: the city as it stands and the sensing level; None: the world's map is the truth and the pilot flies
-    on the true state (perfect sensing).
+    on the true state (perfect sensing). Below perfect sensing the vehicle carries the sensors the pilot flies with
+    (`uam_fdm.pilot.flown_sensing`: the scenario's unless the pilot states others, then its `World.sensing` says so).
 
     Raises:
         PilotError: the pilot commanded what cannot be flown, naming it (`pilot_name`, default `pilot.name`).
@@ -152,8 +165,11 @@ def run_episode(world: World, pilot: Pilot, task: Task, wind: WindField, seed: i
     if not truth.perfect and truth.sensing is not None:
         from uam_fdm.sensing.onboard import Onboard
 
+        sensing = _sensing_flown(pilot_name or pilot.name, pilot, truth.sensing)
+        if sensing is not truth.sensing:  # a pilot flying with other sensors than the scenario's is told them
+            world = replace(world, sensing=sensing)
         lacks = () if truth.unmapped is None else truth.unmapped.building_ids.tolist()
-        onboard = Onboard(truth.sensing, city, truth.ray_caster(), world.atmosphere, x0, dyn.dt_s, truth.sensing_seed,
+        onboard = Onboard(sensing, city, truth.ray_caster(), world.atmosphere, x0, dyn.dt_s, truth.sensing_seed,
                           unmapped_ids=lacks)
     estimates = None if onboard is None else [onboard.estimated_position_m()[None]]
     unmapped = truth.unmapped
@@ -330,6 +346,21 @@ def _checked_command(name: str, act: object, n_rotors: int, t_s: float) -> np.nd
     if not np.all(np.isfinite(command)):
         raise PilotError(f"{where} commanded {_shown(command)}: not finite")
     return command
+
+
+def _sensing_flown(name: str, pilot: Pilot, scenario: SensingConfig) -> SensingConfig:
+    """The sensors `pilot` flies with at the scenario's sensing `scenario` (`uam_fdm.pilot.flown_sensing`).
+
+    Raises:
+        PilotError: the pilot stated something other than sensors of the scenario's level, naming it.
+    """
+    from uam_fdm.sensing.specs import SensingConfig
+
+    flown = flown_sensing(pilot, scenario)
+    if not isinstance(flown, SensingConfig) or flown.level != scenario.level:
+        raise PilotError(f"pilot {name!r}: sensing_flown gave {_shown(flown)}; expected a SensingConfig of the "
+                         f"scenario's level {scenario.level!r}")
+    return flown
 
 
 def _shown(value: object) -> str:

@@ -135,7 +135,10 @@ PILOTS: dict[str, PilotEntry] = {entry.name: entry for entry in (
               "controller in between), does not use the forecast turbulence level, sees only its observation (goal, "
               "a route around the buildings computed from the map at take-off, velocity, altitude, rays and a "
               "roof-height map of the buildings near it) and commands a velocity that the vehicle's low-level "
-              "controller turns into rotor speeds.",
+              "controller turns into rotor speeds. Below perfect sensing it observes its estimate and flies with "
+              "the reduced lidar it was trained with (fewer channels and a coarser azimuth step than the "
+              "scenario's part, rl.task.config.learned_lidar), whose scans it keeps in a height map over the "
+              "prior map's.",
         build=_learned, default=True, needs_policy=True, uses_torch=True, wall_s_per_flight_s=0.2),
     PilotEntry(
         name="rrt_mpc", label="RRT* + MPC", color="tab:blue",

@@ -3,7 +3,11 @@
 Loads a policy folder (the shipped `rl/policies/default` or one written by `uam-compare train`),
 builds the same observation the environment builds (`rl.sensing.senses.observe_slots`: the same perception,
 route field and memory), normalises it with the training statistics and acts deterministically.
-At reset it computes the task's geodesic route field (timed, reported as planning time). It returns
+At reset it computes the task's geodesic route field on the prior map (timed, reported as planning time).
+At `perfect` sensing it observes the state it is handed (the truth) with the prior map's exact senses. Below it,
+it flies with the reduced lidar it was trained on (`sensing_flown`) and observes as a sensing slot of the env does
+(`rl.env.onboard_slots`): the estimate it is handed stands for the state, its lidar scans are integrated on that
+estimate into a one-slot `LidarView` over the prior map's height maps, and the view is read at the estimate. It returns
 a `VelocityCommand` held for the policy's decision period (e.g. 5 control periods at 10 Hz), which
 the runner flies through the same low-level controller, period by period, with the same end
 rules the environment applies; so an episode flown through the runner is bit-identical to the
@@ -21,6 +25,7 @@ import numpy as np
 from rl.policies.flights import TrainingFlights, checkpoint_file
 from rl.policies.folder import PolicyFolder
 from rl.policies.reader import ObsNorm, load_network
+from rl.sensing.lidar_view import LidarView
 from rl.sensing.observation import (
     TURBULENCE_VALUE,
     PilotMemory,
@@ -33,10 +38,12 @@ from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, grid_shape
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
 from rl.task.cities import boxes_only
-from rl.task.config import NavConfig
+from rl.task.config import NavConfig, learned_lidar
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Observation, ResetInfo, Task, VelocityCommand, World
 from uam_fdm.renamed import renamed
+from uam_fdm.sensing.batch_onboard import N_ESTIMATED, SlotEstimates
+from uam_fdm.sensing.specs import SensingConfig
 from uam_fdm.vehicle.params import VehicleParams, load_vehicle
 
 if TYPE_CHECKING:  # the network's module pulls in PyTorch, loaded only with a network
@@ -156,8 +163,15 @@ class PolicyPilot:
         self._world: World | None = None
         self._trained_fingerprint = load_vehicle(self.policy.nav.vehicle).fingerprint()
 
+    def sensing_flown(self, scenario: SensingConfig) -> SensingConfig:
+        """The sensors the learned pilot flies with where a scenario states `scenario`: its sensors with the
+        reduced lidar the policy was trained on (`rl.task.config.learned_lidar`, as the training env's slots carry;
+        `uam_fdm.pilot.ChoosesSensors`)."""
+        return learned_lidar(scenario)
+
     def reset(self, world: World, task: Task, seed: int) -> ResetInfo:
-        """Prepare for `task`: sensors for the city, the route field (timed), fresh memory.
+        """Prepare for `task`: sensors for the city, the route field (timed), fresh memory and, below perfect
+        sensing (`world.sensing`), an empty lidar view.
 
         Deterministic, so `seed` is unused. Refuses (ResetInfo not ok) a vehicle or control rate
         other than the policy's, and maps with non-box obstacles (the perception needs boxes).
@@ -185,27 +199,45 @@ class PolicyPilot:
         route = route_for(world.city, task, radius, nav.route)
         self._routes = RouteBank(1, self._senses.route_cells, nav.route.climb_weight, len(route.fields))
         self._routes.set(0, route)
+        # started at the first decision, where the state it sees is known (the estimate's, below perfect sensing)
         self._memory = PilotMemory.empty(1, nav.decision_hz, nav.observe.history)
-        start = np.asarray(task.start_m, dtype=float)[None]
-        self._memory.start(self._SLOT, start, self._goal, self._routes.potential(start, self._SLOT))
         self._last_action: np.ndarray | None = None
+        self._view: LidarView | None = None
+        if world.sensing is not None and not world.sensing.perfect:
+            # the prior map's height maps, max'ed with what the lidar senses (the env's `OnboardSlots` view)
+            lidar = self.sensing_flown(world.sensing).lidar
+            self._view = LidarView(self._senses.perception, 1, lidar, nav.scales.clearance_m)
+            self._view.reset(self._SLOT, self._CITY)
         return ResetInfo(True, plan_time_s=time.perf_counter() - t0)
 
-    def observe(self, t_s: float, x: np.ndarray) -> np.ndarray:
-        """The raw observation (1, obs) at time t_s [s] in state x (what the environment would return).
+    def observe(self, obs: Observation) -> np.ndarray:
+        """The raw observation (1, obs) of decision `obs` (what the environment would return): at its state
+        `obs.x` (the truth at perfect sensing, else the estimate), with the prior map's exact senses at perfect
+        sensing, else its lidar view after `obs`'s scans are integrated into it (call once per decision: scans
+        are integrated once).
 
-        Advances the memory first when a previous decision exists (as the environment does after a step).
+        Starts the memory at the first decision and advances it at every later one (as the environment does after
+        a step).
         """
         nav, m = self.policy.nav, self._memory
         senses, world = self._flying()
-        xs = np.asarray(x, dtype=float)[None]
+        xs = np.asarray(obs.x, dtype=float)[None]
         pos = xs[:, 0:3]
+        if self._view is not None:
+            self._integrate(obs, xs)
         route = self._routes.potential(pos, self._SLOT)
-        if self._last_action is not None:
+        if self._last_action is None:
+            m.start(self._SLOT, pos, self._goal, route)
+        else:
             m.record(self._SLOT, self._last_action, route, xs[:, 3:6])
             m.heading_rad[:] = goal_heading(pos, self._goal, m.heading_rad)
-        clear, nearest = nearest_surface(senses.clearance, pos, self._CITY)
-        t_frac = np.array([t_s / self._task.timeout_s])
+        reading = None
+        if self._view is None:
+            clear, nearest = nearest_surface(senses.clearance, pos, self._CITY)
+        else:
+            sensed = self._view.read(self._SLOT, xs, m.heading_rad[self._SLOT])
+            clear, nearest, reading = sensed.clearance_m, sensed.nearest_m, sensed.reading
+        t_frac = np.array([obs.t_s / self._task.timeout_s])
         around = None
         if nav.observe.size():  # what the pilot interface states: the air, the forecast, the flight volume
             city = world.city
@@ -215,11 +247,22 @@ class PolicyPilot:
                                   np.asarray(city.bounds_max_m, dtype=float)[None])
         return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY,
                              senses.perception, self._routes, m, nav.perception, nav.scales, nav.decision_hz,
-                             world.vehicle, nav.observe, around)
+                             world.vehicle, nav.observe, around, reading)
+
+    def _integrate(self, obs: Observation, xs: np.ndarray) -> None:
+        """Place decision `obs`'s lidar scans on its estimate xs (1, nx) with the estimate's position sigma along
+        its covariance's longest axis, as the env's `OnboardSlots.decide` does (`SlotEstimates.sigma_max_m`)."""
+        assert self._view is not None
+        if obs.covariance is None:
+            raise ValueError("the learned pilot flies on its sensors here: a decision needs the estimate's covariance")
+        cov = np.asarray(obs.covariance, dtype=float)[None, 0:3, 0:3]
+        t = obs.t_s if obs.estimate_t_s is None else obs.estimate_t_s
+        est = SlotEstimates(np.array([t]), xs[:, 0:N_ESTIMATED], cov)
+        self._view.integrate(self._SLOT, [obs.sensors.lidar], est.state, est.sigma_max_m)
 
     def act(self, obs: Observation) -> VelocityCommand:
         nav = self.policy.nav
-        action = self.policy.act_batch(self.observe(obs.t_s, obs.x))
+        action = self.policy.act_batch(self.observe(obs))
         self._last_action = np.clip(action, -1.0, 1.0)
         _, world = self._flying()
         return velocity_command(action, self._memory.heading_rad, world.vehicle, self._task.start_yaw_rad,

@@ -160,19 +160,31 @@ LEARNED_LIDAR_AZIMUTH_STEP_DEG = 10.0
 
 def learned_pilot_sensing(level: str, mass_kg: float) -> SensingConfig:
     """What the learned pilot carries at sensing level `level` on a vehicle of `mass_kg` [kg]: the level's preset
-    (`sensing_preset`) with its lidar reduced to `LEARNED_LIDAR_CHANNELS` channels over the part's vertical field of
-    view and a `LEARNED_LIDAR_AZIMUTH_STEP_DEG` azimuth step (8 x 36 beams a scan, where the small quad's VLP-16
-    has 16 x 1800): a full scan per slot would cost a training batch far more than its physics (perf/batch_lidar.py
-    measures 8 x 36 at about 2 % of a full scan's cost). Range, noise, dropout and rate stay the part's.
+    (`sensing_preset`) with the learned pilot's lidar (`learned_lidar`).
 
     Raises:
         ValueError: an unknown level.
     """
-    preset = sensing_preset(level, mass_kg)
-    lidar = replace(preset.lidar, channels=LEARNED_LIDAR_CHANNELS,
+    return learned_lidar(sensing_preset(level, mass_kg))
+
+
+_LEARNED_LIDAR_KEYS = ("lidar.channels", "lidar.horizontal_resolution_deg")
+
+
+def learned_lidar(config: SensingConfig) -> SensingConfig:
+    """`config` (a level's preset, or a scenario's with its overrides) with its lidar reduced to what the learned
+    pilot carries: `LEARNED_LIDAR_CHANNELS` channels over the part's vertical field of view and a
+    `LEARNED_LIDAR_AZIMUTH_STEP_DEG` azimuth step (8 x 36 beams a scan, where the small quad's VLP-16 has 16 x 1800).
+    A full scan per slot would cost a training batch far more than its physics (perf/batch_lidar.py measures 8 x 36
+    at about 2 % of a full scan's cost). Range, noise, dropout, rate and every other sensor stay `config`'s; at
+    `perfect` nothing is simulated and `config` is returned as it is. Applied twice it changes nothing more.
+    """
+    if config.perfect:
+        return config
+    lidar = replace(config.lidar, channels=LEARNED_LIDAR_CHANNELS,
                     horizontal_resolution_deg=LEARNED_LIDAR_AZIMUTH_STEP_DEG)
-    return replace(preset, lidar=lidar,
-                   overridden=preset.overridden + ("lidar.channels", "lidar.horizontal_resolution_deg"))
+    added = tuple(k for k in _LEARNED_LIDAR_KEYS if k not in config.overridden)
+    return replace(config, lidar=lidar, overridden=config.overridden + added)
 
 
 @dataclass(frozen=True)

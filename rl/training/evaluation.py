@@ -64,12 +64,18 @@ class EvalResult:
 
 
 def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: str | None = None,
-                air: AirDistribution | None = None) -> NavConfig:
+                air: AirDistribution | None = None, sensing: str | None = None,
+                map_error: str | None = None) -> NavConfig:
     """The task on a held-out pool ("test" or "validation"), one city per episode, and at most one
     turbulence stack per episode and level (each stack costs ~1 s of JSBSim at start-up; `NavWorld`).
 
     Args:
         air: the air to fly in (default: the task's); turbulence: one level replacing its levels.
+        sensing: one sensing level (`uam_fdm.sensing.specs` preset) replacing the task's levels (None: the task's).
+        map_error: one map-error level (`uam_fdm.city.map_error` preset) replacing the task's (None: the task's).
+
+    Raises:
+        ValueError: an unknown pool or level (`NavConfig` names the level).
     """
     if pool not in POOLS:
         raise ValueError(f"pool must be one of {POOLS}, got {pool!r}")
@@ -77,7 +83,9 @@ def eval_config(nav: NavConfig, episodes: int, pool: str = "test", turbulence: s
     if turbulence is not None:
         air = replace(air, turbulence=(turbulence,))
     return replace(nav, city_split="eval", city_pool_size=episodes, wind_pool_size=min(nav.wind_pool_size, episodes),
-                   city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0, air=air)
+                   city_pool_offset=VALIDATION_OFFSET if pool == "validation" else 0, air=air,
+                   sensing=nav.sensing if sensing is None else (sensing,),
+                   map_error=nav.map_error if map_error is None else (map_error,))
 
 
 def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, pool: str = "test",
