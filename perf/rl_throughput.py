@@ -20,7 +20,7 @@ is reported and its figures are null.
 
 Prints a table, then (last line) one JSON object of the figures.
 
-    python perf/rl_throughput.py [--seconds 3] [--ppo-steps 500000] [--episodes 1000] [--skip-eval]
+    python perf/rl_throughput.py [--seconds 3] [--ppo-steps 500000] [--episodes 1000] [--skip-eval] [--sensing LEVEL]
 """
 from __future__ import annotations
 
@@ -42,6 +42,7 @@ from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavWorld
 from rl.policies.folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
 from rl.task.config import NavConfig
+from uam_fdm.sensing.specs import LEVELS as SENSING_LEVELS
 
 BENCH_CITY_POOL = 128  # training cities of the benchmark world (NavConfig trains on 1024): short start-up
 EVAL_SEED = 0          # `uam-compare evaluate-policy`'s default
@@ -202,13 +203,17 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=1000,
                     help="held-out test episodes for the policy and the potential field (default 1000)")
     ap.add_argument("--skip-eval", action="store_true", help="do not evaluate on test tasks (those figures null)")
+    ap.add_argument("--sensing", default="perfect", choices=SENSING_LEVELS,
+                    help="the sensing level every env and PPO episode flies at (default perfect; the shipped "
+                         "policy's evaluation is unaffected)")
     args = ap.parse_args()
     if args.episodes < 1:
         ap.error(f"--episodes {args.episodes}: must be >= 1")
-    nav = replace(NavConfig(), city_pool_size=BENCH_CITY_POOL)
-    world = NavWorld(nav)
-    hz = nav.decision_hz
     fig: dict = {}
+    nav = replace(NavConfig(), city_pool_size=BENCH_CITY_POOL, sensing=(args.sensing,))
+    world = NavWorld(nav)
+    fig["sensing"] = args.sensing
+    hz = nav.decision_hz
     rows = []
 
     def env_figure(key: str, what: str, path: str, rate: float, note: str = "") -> None:
