@@ -452,14 +452,19 @@ class ClassicalPilot:
         self._known = self._sensed.fused()
         self._map_dirty, self._fused_t = False, t_s
 
+    def _still_to_fly(self, obs: Observation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The reference still to fly at `obs`, sampled every 0.2 s and at its end: reference times (K,) [s],
+        positions (K, 3) [m] and velocities (K, 3) [m/s], world ENU."""
+        ref = self.reference
+        assert ref is not None
+        times = np.append(np.arange(max(obs.t_s - self._t_ref0, 0.0), ref.duration_s, 0.2), ref.duration_s)
+        pos, vel, _ = ref.sample_horizon(float(times[0]), 0.2, len(times))
+        return times, pos, vel
+
     def _path_blocked(self, obs: Observation, voxels_m: np.ndarray) -> bool:
         """True when a voxel (K, 3) [m] lies within the collision radius plus the margin at rest plus
         `refuse_margin_m` of the reference still to fly (sampled every 0.2 s)."""
-        ref = self.reference
-        assert ref is not None
-        t_ref = obs.t_s - self._t_ref0
-        times = np.append(np.arange(max(t_ref, 0.0), ref.duration_s, 0.2), ref.duration_s)
-        ahead, _, _ = ref.sample_horizon(float(times[0]), 0.2, len(times))
+        times, ahead, _ = self._still_to_fly(obs)
         world, _ = self._flying()
         reach = (world.vehicle.collision_radius_m + self._base_margins.by_speed.widened(self._extra_now).floor_m
                  + self.config.refuse_margin_m)
@@ -593,11 +598,7 @@ class ClassicalPilot:
         """True when the reference still to fly keeps, at every sample (every 0.2 s), the margin at its speed
         widened by k σ now (narrowed towards the start and goal as planned): a grown uncertainty needs no new
         plan while the path has that room."""
-        ref = self.reference
-        assert ref is not None
-        t_ref = obs.t_s - self._t_ref0
-        times = np.append(np.arange(max(t_ref, 0.0), ref.duration_s, 0.2), ref.duration_s)
-        pos, vel, _ = ref.sample_horizon(float(times[0]), 0.2, len(times))
+        _, pos, vel = self._still_to_fly(obs)
         world, _ = self._flying()
         cruise = self._base_margins.by_speed.widened(self._extra_now).margin_m(np.linalg.norm(vel, axis=1))
         need = np.array([min((t.margin_at(float(np.linalg.norm(p - np.asarray(t.point_m))), float(m))

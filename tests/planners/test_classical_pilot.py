@@ -302,16 +302,15 @@ def _sensing_world(p, dynamics, prior: BuildingMap) -> World:
                  sensing=sensing_preset("nominal", p.mass_kg))
 
 
-def test_a_wall_sensed_beyond_where_it_could_stop_lets_the_pilot_fly_on_while_it_replans(vehicles,
-                                                                                      compiled_dynamics):
-    """The wall lies 70 m down the path: flying on through the replan's budget and braking after it would still stop
-    short of it, so the vehicle keeps to its reference meanwhile, and the new plan starts along its velocity there."""
+def _sensing_a_wall_under_way(vehicles, compiled_dynamics, wall_x_m: float):
+    """A small quad 4 s into a straight 140 m leg (at speed by then) senses a wall the prior lacks across its line at
+    x = `wall_x_m`: (params, truth, config, pilot after that decision, the reference it flew, t, its velocity)."""
     from uam_fdm.sensing.lidar import Lidar
     from uam_fdm.sensing.raycast import RayCaster
 
     p = vehicles["small_quad"]
     bounds = ((-10.0, -40.0, 0.0), (160.0, 40.0, 50.0))
-    truth = BuildingMap([Building(7, (100.0, -2.0), (2.0, 20.0), 25.0)], *bounds)
+    truth = BuildingMap([Building(7, (wall_x_m, -2.0), (2.0, 20.0), 25.0)], *bounds)
     world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
     task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
     cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
@@ -319,9 +318,17 @@ def test_a_wall_sensed_beyond_where_it_could_stop_lets_the_pilot_fly_on_while_it
     assert pilot.reset(world, task, seed=3).ok
     lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
     straight = pilot.reference
-    t = 4.0  # under way: the reference is at speed by then
+    t = 4.0
     pos, vel, _ = straight.sample(t)
     pilot.act(_sensed_obs(pilot, p, t, lidar, pos))
+    return p, truth, cfg, pilot, straight, t, vel
+
+
+def test_a_wall_sensed_beyond_where_it_could_stop_lets_the_pilot_fly_on_while_it_replans(vehicles,
+                                                                                      compiled_dynamics):
+    """The wall lies 70 m down the path: flying on through the replan's budget and braking after it would still stop
+    short of it, so the vehicle keeps to its reference meanwhile, and the new plan starts along its velocity there."""
+    p, truth, cfg, pilot, straight, t, vel = _sensing_a_wall_under_way(vehicles, compiled_dynamics, 100.0)
     assert pilot.stats.replans_by_cause["blocked"] == 1 and pilot._pending is not None
     assert pilot.reference is straight  # flying on, no braking
     plan = pilot._pending[0]
@@ -396,22 +403,7 @@ def test_a_wall_sensed_too_near_to_fly_on_makes_the_pilot_brake_and_plan_from_wh
                                                                                            compiled_dynamics):
     """The wall lies 30 m ahead of a vehicle at 9.6 m/s: it brakes along its path, and the new plan starts at rest
     where the braking ends (after the budget when stopping takes longer), never across a velocity it still has."""
-    from uam_fdm.sensing.lidar import Lidar
-    from uam_fdm.sensing.raycast import RayCaster
-
-    p = vehicles["small_quad"]
-    bounds = ((-10.0, -40.0, 0.0), (160.0, 40.0, 50.0))
-    truth = BuildingMap([Building(7, (60.0, -2.0), (2.0, 20.0), 25.0)], *bounds)
-    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
-    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
-    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
-    pilot = ClassicalPilot(cfg)
-    assert pilot.reset(world, task, seed=3).ok
-    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
-    straight = pilot.reference
-    t = 4.0
-    pos, vel, _ = straight.sample(t)
-    pilot.act(_sensed_obs(pilot, p, t, lidar, pos))
+    p, truth, cfg, pilot, straight, t, vel = _sensing_a_wall_under_way(vehicles, compiled_dynamics, 60.0)
     assert pilot.stats.replans_by_cause["blocked"] == 1 and pilot._pending is not None
     brake = pilot.reference
     assert brake is not straight and brake.stops == 1

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.air.atmosphere import Atmosphere
 from uam_fdm.city.buildings import Building, BuildingMap, Prism
 from uam_fdm.sensing.batch_lidar import CAST_RAYS
 from uam_fdm.sensing.batch_onboard import BatchOnboard
@@ -70,12 +70,6 @@ def _flight(start: tuple[float, float, float], yaw0: float, speed_m_s: float, t0
         states = np.stack([_state(t - t0_s + (j + 1) * DT_S, start, yaw0, speed_m_s) for j in range(STEPS)])
         periods.append((_state(t - t0_s, start, yaw0, speed_m_s), states, t))
     return Flight(_state(0.0, start, yaw0, speed_m_s), tuple(periods))
-
-
-@pytest.fixture(scope="module")
-def air() -> list[Atmosphere]:
-    return [Atmosphere.from_jsbsim(AtmosphereConditions(isa_offset_k=15.0), z_max_m=200.0),
-            Atmosphere.from_jsbsim(AtmosphereConditions(elevation_m=1500.0), z_max_m=200.0)]
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
+from uam_fdm.air.atmosphere import Atmosphere
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.sensing.baro import Barometer, pressure_altitude_m
 from uam_fdm.sensing.batch_onboard import BatchOnboard
@@ -40,13 +40,6 @@ class Flight:
 @pytest.fixture(scope="module")
 def quad(compiled_dynamics):
     return compiled_dynamics["small_quad"]
-
-
-@pytest.fixture(scope="module")
-def air() -> list[Atmosphere]:
-    # a hot day and a high field: the barometer's pressure column differs per slot
-    return [Atmosphere.from_jsbsim(AtmosphereConditions(isa_offset_k=15.0), z_max_m=200.0),
-            Atmosphere.from_jsbsim(AtmosphereConditions(elevation_m=1500.0), z_max_m=200.0)]
 
 
 @pytest.fixture(scope="module")
