@@ -166,7 +166,8 @@ class SensedMap:
         # the estimate's error moves every return with it: 3 σ more tolerance each way, and a higher ground band (a
         # grazing ground beam's range changes by the height error over the beam's depression's sine: many metres)
         spread = 3.0 * position_sigma_m
-        self._fly_over(origin, spread)
+        if cfg.open_above_m > 0.0:  # only an open column is capped by where the vehicle flew
+            self._fly_over(origin, spread)
         above = points[:, 2] > cfg.ground_band_m + spread
         short = above & (ranges < expected - cfg.front_tolerance_m - spread)
         through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
