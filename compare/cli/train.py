@@ -76,6 +76,14 @@ def _add_task_options(tr: argparse.ArgumentParser) -> None:
     tr.add_argument("--turbulence", default=None, metavar="LEVELS",
                     help="none|light|moderate|severe, or several comma-separated, one drawn per episode "
                          "(default: the vehicle's task's)")
+    tr.add_argument("--sensing", default=None, metavar="LEVELS",
+                    help="perfect|nominal|degraded, or several comma-separated, one drawn per episode "
+                         "(docs/sensing.md): below perfect the policy flies on its navigation estimate and its "
+                         "lidar (default: the task's, perfect)")
+    tr.add_argument("--map-error", default=None, metavar="LEVELS",
+                    help="exact|outdated|wrong, or several comma-separated, one drawn per episode (docs/sensing.md): "
+                         "the route and the height map come from the erroneous prior, the truth scores the flight "
+                         "(default: the task's, exact)")
     tr.add_argument("--envelope", action="store_true",
                     help="train in the air and space the vehicle will meet: fields from density altitude -0.6 to "
                          "4.0 km, no to moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn "
@@ -209,12 +217,30 @@ def _task(args: argparse.Namespace, defaults: TrainConfig, ground: TrainingGroun
     task = option("--vehicle", lambda v: task_for(v, envelope=args.envelope), vehicle)
     air = task.air if args.turbulence is None else replace(task.air, turbulence=turbulence_levels(args.turbulence))
     observe = task.observe if args.observe is None else parse_observed(args.observe)
+    sensing = task.sensing if args.sensing is None else _levels("--sensing", args.sensing, "sensing", task)
+    map_error = task.map_error if args.map_error is None else _levels("--map-error", args.map_error, "map_error", task)
     check_output_dir(args.out, "--out")
     if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
         raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
                          f"give another --out, --resume to continue its training, or --overwrite to replace it)")
-    task = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe)
+    task = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe,
+                   sensing=sensing, map_error=map_error)
     return task if ground is None else ground.task(task)
+
+
+def _levels(name: str, text: str, key: str, task: NavConfig) -> tuple[str, ...]:
+    """--sensing's or --map-error's levels ("nominal", or "perfect,nominal,degraded"), checked by the task's own
+    rules (`NavConfig`, field `key`).
+
+    Raises:
+        ValueError: an unknown or repeated level, naming the option.
+    """
+    levels = tuple(t.strip() for t in text.split(","))
+    try:
+        replace(task, **{key: levels})
+    except ValueError as exc:
+        raise ValueError(f"{name} {text}: {str(exc).removeprefix(f'{key} ')}") from None
+    return levels
 
 
 def parse_observed(text: str) -> ObservedContext:

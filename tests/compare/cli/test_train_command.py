@@ -133,3 +133,25 @@ def test_options_the_scenario_states_otherwise_are_refused(tmp_path: Path, capsy
     fails(["train", "--scenario", str(scenario), *argv, "--out", str(tmp_path / "p")], capsys, tmp_path, *expected)
     fails(["train", "--scenario", str(tmp_path / "none.yaml"), "--out", str(tmp_path / "p")], capsys, tmp_path,
           "--scenario", "no such file")
+
+
+def test_train_draws_the_sensing_and_map_error_levels_it_is_given(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                                   quick_training: dict[str, Any]) -> None:
+    out = tmp_path / "sensing"
+    assert main(["train", *QUICK, "--sensing", "perfect,degraded", "--map-error", "exact, wrong",
+                 "--out", str(out)]) == 0
+    nav = quick_training["cfg"].nav
+    assert (nav.sensing, nav.map_error) == (("perfect", "degraded"), ("exact", "wrong"))
+    config = json.loads((out / "config.json").read_text())["nav"]
+    assert (config["sensing"], config["map_error"]) == (["perfect", "degraded"], ["exact", "wrong"])
+
+
+@pytest.mark.parametrize(("argv", "expected"), [
+    (["--sensing", "nominal,foggy"], ("--sensing nominal,foggy", "foggy")),
+    (["--sensing", "nominal,nominal"], ("--sensing nominal,nominal",)),
+    (["--map-error", "stale"], ("--map-error stale", "stale")),
+])
+def test_unknown_or_repeated_levels_are_refused_by_their_option(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                                 argv: list[str], expected: tuple[str, ...]) -> None:
+    fails(["train", *argv, "--out", str(tmp_path / "p")], capsys, tmp_path, *expected)
+    assert not (tmp_path / "p").exists()
