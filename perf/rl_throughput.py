@@ -21,6 +21,7 @@ is reported and its figures are null.
 Prints a table, then (last line) one JSON object of the figures.
 
     python perf/rl_throughput.py [--seconds 3] [--ppo-steps 500000] [--episodes 1000] [--skip-eval] [--sensing LEVEL]
+                                 [--env-processes N]
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ import numpy as np
 
 from compare.report.report import read_reward_curve
 from rl.env.gym_env import UAMNavEnv
+from rl.env.split_vec_env import SplitVecEnv
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavWorld
 from rl.policies.folder import DEFAULT_POLICY_DIR, PolicyFolder, Provenance
@@ -75,16 +77,18 @@ def vec_rate(venv, n_envs: int, seconds: float) -> float:
     return k * n_envs / (time.perf_counter() - t0)
 
 
-def ppo_rate(world: NavWorld, n_envs: int, steps: int) -> float:
-    """PPO (paper preset, as `rl.training.loop` builds it) training timesteps/s on the batched env, after a warm-up."""
+def ppo_rate(base, steps: int) -> float:
+    """PPO (paper preset, as `rl.training.loop` builds it) training timesteps/s on the batched env `base` (a
+    `UAMNavVecEnv` or `SplitVecEnv`), after a warm-up."""
     import torch
 
     from rl.training.ppo import PRESETS, make_model, normalized_env
 
     torch.set_num_threads(1)
     pr = PRESETS["paper"]
-    decision_hz = world.config.decision_hz
-    venv = normalized_env(UAMNavVecEnv(n_envs, world=world, seed=0), pr, decision_hz)
+    decision_hz = base.config.decision_hz
+    n_envs = base.num_envs
+    venv = normalized_env(base, pr, decision_hz)
     model = make_model(pr, venv, 0, decision_hz)
     model.learn(total_timesteps=n_envs * pr.n_steps)  # warm-up rollout + update
     t0 = time.perf_counter()
@@ -203,12 +207,18 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=1000,
                     help="held-out test episodes for the policy and the potential field (default 1000)")
     ap.add_argument("--skip-eval", action="store_true", help="do not evaluate on test tasks (those figures null)")
+    ap.add_argument("--env-processes", type=int, default=1, metavar="N",
+                    help="also measure the env and PPO with the 256 vehicles split over N processes "
+                         "(`rl.env.split_vec_env`, as `train --env-processes N`); ppo_fps is then the split's, "
+                         "ppo_fps_one_process the one process's (default 1: one process only)")
     ap.add_argument("--sensing", default="perfect", choices=SENSING_LEVELS,
                     help="the sensing level every env and PPO episode flies at (default perfect; the shipped "
                          "policy's evaluation is unaffected)")
     args = ap.parse_args()
     if args.episodes < 1:
         ap.error(f"--episodes {args.episodes}: must be >= 1")
+    if not 1 <= args.env_processes <= 256:
+        ap.error(f"--env-processes {args.env_processes}: must be 1 to 256")
     fig: dict = {}
     nav = replace(NavConfig(), city_pool_size=BENCH_CITY_POOL, sensing=(args.sensing,))
     world = NavWorld(nav)
@@ -232,9 +242,22 @@ def main() -> None:
             fig[f"batched_vs_dummyvec_ratio_{n}"] = batched / dummy
             note = f"x{batched / dummy:.1f} vs DummyVecEnv"
         env_figure(f"batched_{n}", f"UAMNavVecEnv N={n}", "one batched call", batched, note)
-    ppo = ppo_rate(world, 256, args.ppo_steps)
-    fig["ppo_fps"] = ppo
+    ppo = ppo_rate(UAMNavVecEnv(256, world=world, seed=0), args.ppo_steps)
+    fig["ppo_fps_one_process"] = ppo
     rows.append(("PPO paper preset, N=256", "SB3 learn()", ppo, ppo / hz, "timesteps/s incl. updates"))
+    fig["env_processes"] = args.env_processes
+    if args.env_processes > 1:
+        split = SplitVecEnv(256, nav, seed=0, processes=args.env_processes)
+        try:
+            rate = vec_rate(split, 256, args.seconds)
+            env_figure("split_256", f"SplitVecEnv N=256, {args.env_processes} processes", "shares in parallel", rate,
+                       f"x{rate / fig['env_steps_per_s_batched_256']:.2f} vs one process")
+            ppo = ppo_rate(split, args.ppo_steps)
+        finally:
+            split.close()
+        rows.append((f"PPO paper preset, N=256, {args.env_processes} proc.", "SB3 learn()", ppo, ppo / hz,
+                     f"x{ppo / fig['ppo_fps_one_process']:.2f} vs one process"))
+    fig["ppo_fps"] = ppo
     fig.update(shipped_training())
     if args.skip_eval:
         fig.update({k: None for k in ("test_success_rate", "test_success_ci95", "test_collision_rate",

@@ -8,7 +8,7 @@ import argparse
 import shlex
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from compare.cli.common import check_ranges, option, turbulence_levels
 from compare.results.outputs import check_output_dir
@@ -28,7 +28,7 @@ MAX_CITY_POOL = 1_000_000
 
 CONFIG_FIELDS = {"preset": "preset", "timesteps": "total_timesteps", "envs": "n_envs", "seed": "seed",
                  "eval_every": "eval_every", "eval_episodes": "eval_episodes", "checkpoint_every": "checkpoint_every",
-                 "record_flights": "record_flights"}
+                 "record_flights": "record_flights", "env_processes": "env_processes"}
 """The options (by their `argparse` name) that set a `TrainConfig` field of their own (their default: the field's)."""
 
 
@@ -40,6 +40,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     tr.add_argument("--timesteps", type=int, default=None, help="decisions, all vehicles (default {timesteps})")
     tr.add_argument("--envs", type=int, default=None, help="vehicles stepped together (default {envs})")
     tr.add_argument("--seed", type=int, default=None, help="the one seed of the run (default {seed})")
+    tr.add_argument("--env-processes", type=int, default=None, metavar="N",
+                    help="processes stepping the vehicles, each its share (the same transitions for any N; about "
+                         "N times the environment's speed on N free cores; generated cities only; default "
+                         "{env_processes})")
     _add_task_options(tr)
     tr.add_argument("--no-curriculum", dest="curriculum", action="store_false",
                     help="full-length legs from the start (default: success-gated curriculum)")
@@ -112,7 +116,7 @@ def _shown_defaults() -> dict[str, str]:
             "city_pools": ", ".join(f"{task.city_pool_size} for {v}" for v, task in TASKS.items()),
             "level_steps": str(c.curriculum.level_steps), "eval_every": _count(c.eval_every),
             "eval_episodes": str(c.eval_episodes), "checkpoint_every": _count(c.checkpoint_every),
-            "record_flights": str(c.record_flights)}
+            "record_flights": str(c.record_flights), "env_processes": str(c.env_processes)}
 
 
 def _count(n: int) -> str:
@@ -126,7 +130,7 @@ def _count(n: int) -> str:
 def train(args: argparse.Namespace) -> int:
     """`train`: every option (and --scenario's file) checked by its own name before anything is built, then PPO; at
     the end the kept model's validation, once, and the next steps (`next_steps`)."""
-    from rl.training.config import MAX_RECORDED_FLIGHTS, TrainConfig
+    from rl.training.config import MAX_ENV_PROCESSES, MAX_RECORDED_FLIGHTS, TrainConfig
     from rl.training.loop import train as train_policy
     from rl.training.presets import PRESETS
 
@@ -140,6 +144,7 @@ def train(args: argparse.Namespace) -> int:
                   "--checkpoint-every": (given["checkpoint_every"], 0, MAX_TIMESTEPS),
                   "--seed": (given["seed"], 0, MAX_SEED),
                   "--record-flights": (given["record_flights"], 0, MAX_RECORDED_FLIGHTS),
+                  "--env-processes": (given["env_processes"], 1, min(given["n_envs"], MAX_ENV_PROCESSES)),
                   **({} if args.city_pool is None else {"--city-pool": (args.city_pool, 1, MAX_CITY_POOL)})})
     if given["preset"] in PRESETS:  # an unknown preset is named below; a known one fits the vehicles, or --envs says
         n = given["n_envs"]
@@ -194,6 +199,9 @@ def _ground(args: argparse.Namespace) -> TrainingGround | None:
 
     if args.scenario is None:
         return None
+    if args.env_processes not in (None, 1):
+        raise ValueError(f"--env-processes {args.env_processes} and --scenario: a scenario's legs are dealt to the "
+                         f"vehicles of one batch; leave --env-processes out")
     given = [name for name, value in (("--envelope", args.envelope), ("--city-pool", args.city_pool),
                                       ("--turbulence", args.turbulence)) if value]
     if given:
@@ -236,8 +244,9 @@ def _levels(name: str, text: str, key: str, task: NavConfig) -> tuple[str, ...]:
         ValueError: an unknown or repeated level, naming the option.
     """
     levels = tuple(t.strip() for t in text.split(","))
+    changes: dict[str, Any] = {key: levels}
     try:
-        replace(task, **{key: levels})
+        replace(task, **changes)
     except ValueError as exc:
         raise ValueError(f"{name} {text}: {str(exc).removeprefix(f'{key} ')}") from None
     return levels

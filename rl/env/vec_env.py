@@ -40,6 +40,15 @@ class UAMNavVecEnv(VecEnv):
         self._base_seed = int(seed)
         self._actions: np.ndarray | None = None
 
+    @property
+    def difficulty(self) -> float:
+        """The curriculum's difficulty in (0, 1] (`NavBatch.difficulty`): the next episodes' leg lengths."""
+        return float(self.batch.difficulty)
+
+    @difficulty.setter
+    def difficulty(self, value: float) -> None:
+        self.batch.difficulty = value
+
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         if seed is not None:
             self._base_seed = int(seed)

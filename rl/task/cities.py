@@ -224,6 +224,10 @@ class TaskDistribution:
         timeout_base_s, timeout_per_speed, timeout_per_climb: timeout = base + per_speed x distance /
             max speed + per_climb x |height difference| / max vertical speed [s] (the last term
             for a vehicle whose climb is much slower than its cruise; 0 for the small quad).
+        timeout_cut_s: each leg's time limit is that rule's less a cut drawn uniformly in [0, timeout_cut_s] [s]
+            (0: the rule's own), so that training covers time limits shorter than its own (a scenario's default
+            rule, `compare.scenarios.scenario`, gives the UAM 11-14 s less). Drawn after the pair, so the pairs
+            are those of no cut.
     """
 
     distance_m: tuple[float, float] = (40.0, 250.0)
@@ -234,6 +238,12 @@ class TaskDistribution:
     timeout_base_s: float = 20.0
     timeout_per_speed: float = 2.5
     timeout_per_climb: float = 0.0
+    timeout_cut_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.timeout_cut_s < self.timeout_base_s:
+            raise ValueError(f"timeout_cut_s must be in [0, timeout_base_s = {self.timeout_base_s:g}) s, got "
+                             f"{self.timeout_cut_s!r}")
 
     def sample(self, city: BuildingMap, rng: np.random.Generator, radius_m: float, max_speed_m_s: float,
                attempts: int = MAX_TASK_DRAWS, difficulty: float = 1.0,
@@ -274,6 +284,8 @@ class TaskDistribution:
                 continue
             d = float(np.linalg.norm(goal - start))
             timeout = self.timeout_s(d, dz, max_speed_m_s, max_vertical_speed_m_s)
+            if self.timeout_cut_s:
+                timeout -= rng.uniform(0.0, self.timeout_cut_s)
             return Task((float(start[0]), float(start[1]), float(start[2])),
                         (float(goal[0]), float(goal[1]), float(goal[2])), self.goal_radius_m, round(timeout, 2))
         raise RuntimeError(f"no free start/goal pair in {city.name!r} after {attempts} draws")

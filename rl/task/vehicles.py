@@ -17,8 +17,9 @@ with the braking term of `rl.task.reward` on.
 **The envelope** (`task_for(vehicle, envelope=True)`, `uam-compare train --envelope`): the air a pilot
 will meet (`ENVELOPE_AIR`) and, for the UAM, the space of the `full` task set too: half its cities at the
 shipped maps' scale (`SHIPPED_SCALE_CITIES`), starts and goals down to 15 m from the flight volume's side,
-which the policy observes (`ObservedContext(geofence=True)`). The small quad's envelope keeps its shipped
-task's space.
+which the policy observes (`ObservedContext(geofence=True)`), and time limits down to 15 s shorter than its
+own (a scenario's default rule gives the UAM 11-14 s less). The small quad's envelope keeps its shipped task's
+space (a scenario's default time limit is its own).
 
 How each number was derived, and the runs that set them: docs/design_notes.md, "rl.task.vehicles".
 """
@@ -90,11 +91,13 @@ ENVELOPE_TASKS: dict[str, NavConfig] = {
     # benchmark flies the first, the full set the second, and neither is favoured before validation says so;
     # start and goal down to 15 m from the flight volume's side (the full set's 16.8 m), which it observes
     # (a geofence every operation has); legs from 250 m (the full set's 265 m) and 8 m of clearance beyond the
-    # 6 m sphere (the full set's 9.1 m)
+    # 6 m sphere (the full set's 9.1 m); time limits down to 15 s shorter than its own rule's (a scenario's
+    # default rule gives the full set's legs 11-14 s less)
     "uam_multicopter": replace(
         UAM_TASK, air=ENVELOPE_AIR["uam_multicopter"],
         cities=CityMixture((UAM_DISTRICTS, SHIPPED_SCALE_CITIES), (0.5, 0.5)),
-        tasks=replace(UAM_TASK.tasks, distance_m=(250.0, 1500.0), min_clearance_m=8.0, bounds_margin_m=15.0),
+        tasks=replace(UAM_TASK.tasks, distance_m=(250.0, 1500.0), min_clearance_m=8.0, bounds_margin_m=15.0,
+                      timeout_cut_s=15.0),
         observe=ObservedContext(geofence=True)),
 }
 

@@ -9,6 +9,7 @@ from rl.task.config import NavConfig
 from rl.training.presets import PRESETS
 
 MAX_RECORDED_FLIGHTS = 64  # the recorded tasks are meant to be looked at, one by one
+MAX_ENV_PROCESSES = 64  # processes stepping a training batch (`rl.env.split_vec_env`): far beyond one machine
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,8 @@ class TrainConfig:
         torch_threads: torch intra-op threads (1: small-tensor work is fastest single-threaded here).
         record_flights: fixed validation tasks flown and recorded at step 0 and at every evaluation
             (`rl.training.recording`; 0 = none).
+        env_processes: processes stepping the vehicles (`rl.env.split_vec_env`; 1: all in this one). The
+            transitions are the same for any count (generated cities; a scenario's run steps in one process).
         scenario: the scenario file whose map and air the run trains and validates in (`rl.env.ground`; its
             ground is given to `rl.training.loop.train`), as the user named it; None: generated cities.
     """
@@ -70,6 +73,7 @@ class TrainConfig:
     checkpoint_every: int = 2_000_000
     torch_threads: int = 1
     record_flights: int = 8
+    env_processes: int = 1
     scenario: str | None = None
 
     def __post_init__(self) -> None:
@@ -78,6 +82,9 @@ class TrainConfig:
         for k in ("total_timesteps", "n_envs", "eval_every", "eval_episodes"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+        if not 1 <= self.env_processes <= min(self.n_envs, MAX_ENV_PROCESSES):
+            raise ValueError(f"env_processes must be 1 to {min(self.n_envs, MAX_ENV_PROCESSES)} (at most one per "
+                             f"vehicle), got {self.env_processes}")
         if not 0 <= self.record_flights <= MAX_RECORDED_FLIGHTS:
             raise ValueError(f"record_flights must be 0 to {MAX_RECORDED_FLIGHTS}, got {self.record_flights}")
         if not (np.isfinite(self.collision_weight) and self.collision_weight >= 0):

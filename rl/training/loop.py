@@ -30,6 +30,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.env.ground import TRAINING_LEGS, TRAINING_STREAM, VALIDATION_STREAM, TrainingGround
+from rl.env.split_vec_env import SplitVecEnv
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.policies.folder import CHECKPOINT_FILES, CHECKPOINTS, CURVE_COLUMNS, PolicyFolder
@@ -93,12 +94,15 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         check_resume(Path(resume), cfg)
     torch.set_num_threads(cfg.torch_threads)
     run = _TrainingRun(cfg, Path(out_dir), Path(resume) if resume is not None else None, log, world, ground, legs)
-    if resume is None:
-        run.record_flights()  # step 0: the untrained policy
-    remaining = cfg.total_timesteps - run.model.num_timesteps
-    if remaining > 0:
-        run.model.learn(total_timesteps=remaining, callback=_Periodic(run), progress_bar=progress,
-                        reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
+    try:
+        if resume is None:
+            run.record_flights()  # step 0: the untrained policy
+        remaining = cfg.total_timesteps - run.model.num_timesteps
+        if remaining > 0:
+            run.model.learn(total_timesteps=remaining, callback=_Periodic(run), progress_bar=progress,
+                            reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
+    finally:
+        run.base.close()  # a split batch's worker processes end here
     final = run.evaluate(final=True)  # the last update's row waits for it (`update_ended`)
     if remaining > 0:
         run.write_row(final)
@@ -140,10 +144,14 @@ class _TrainingRun:
         preset = PRESETS[cfg.preset]
         self.t_start = time.perf_counter()
         self.code = code_version()  # at the start: the code this run imported (HEAD may move while it trains)
+        self.base: UAMNavVecEnv | SplitVecEnv
         if ground is None:
+            split = f", {cfg.env_processes} processes" if cfg.env_processes > 1 and world is None else ""
             log(f"building {cfg.nav.city_pool_size} training cities and the batched environment "
-                f"({cfg.n_envs} vehicles)")
-            self.base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world)
+                f"({cfg.n_envs} vehicles{split})")
+            self.base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world) \
+                if cfg.env_processes == 1 or world is not None else \
+                SplitVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, processes=cfg.env_processes)
             self.eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
                                        dynamics=self.base.world.dynamics, atmosphere=self.base.world.atmospheres,
                                        wind_from=self.base.world)
@@ -166,7 +174,7 @@ class _TrainingRun:
             self.model = make_model(preset, self.venv, cfg.seed, cfg.nav.decision_hz, self.out.tensorboard)
             difficulty = cfg.curriculum.start
             self.level_since = 0  # the timestep the current curriculum level began
-        self.base.batch.difficulty = difficulty
+        self.base.difficulty = difficulty
         # the checkpoints' flights of fixed validation tasks, in a world of their own (rl.training.recording);
         # a resumed run continues the record of the folder it resumes from (a checkpoint's: its policy folder's)
         history = None if resume is None else resume.parent.parent if resume.parent.name == CHECKPOINTS else resume
@@ -197,7 +205,7 @@ class _TrainingRun:
             inside_no_links(self.out_dir, folder / name)
         pf = PolicyFolder(folder)
         _write_json(pf.config_file, self.cfg.to_dict(), self.out_dir)
-        _write_json(pf.curriculum, {"difficulty": self.base.batch.difficulty, "level_since": self.level_since},
+        _write_json(pf.curriculum, {"difficulty": self.base.difficulty, "level_since": self.level_since},
                     self.out_dir)
         with atomic_path(pf.model, suffix=".zip", root=self.out_dir) as tmp:
             self.model.save(str(tmp))
@@ -210,7 +218,7 @@ class _TrainingRun:
         n = len(outs)
         rate = (lambda k: f"{outs.count(k) / n:.4f}") if n else (lambda k: "")
         row = [self.model.num_timesteps, f"{np.mean(rets):.4f}" if rets else "", rate(Outcome.SUCCESS),
-               rate(Outcome.COLLISION), rate(Outcome.TIMEOUT), n, f"{self.base.batch.difficulty:.3f}",
+               rate(Outcome.COLLISION), rate(Outcome.TIMEOUT), n, f"{self.base.difficulty:.3f}",
                f"{res.success_rate:.4f}" if res else "", f"{res.collision_rate:.4f}" if res else "",
                res.episodes if res else "", f"{time.perf_counter() - self.t_start:.1f}"]
         with open(inside_no_links(self.out_dir, self.out.reward_curve), "a", newline="") as f:
@@ -239,14 +247,14 @@ class _TrainingRun:
             model.logger.record("eval/collision_rate", res.collision_rate)
         if not final:
             self.log(f"{model.num_timesteps:>11,d} steps  {time.perf_counter() - self.t_start:7.0f} s  difficulty "
-                     f"{self.base.batch.difficulty:4.2f}  validation success {res.success_rate:6.1%}  collisions "
+                     f"{self.base.difficulty:4.2f}  validation success {res.success_rate:6.1%}  collisions "
                      f"{res.collision_rate:6.1%}  ({res.outcomes})")
 
         def score(r: EvalResult) -> float:
             return r.success_rate - cfg.collision_weight * r.collision_rate
 
         # only full-difficulty checkpoints compete; ties go to the later (more trained) one
-        if self.base.batch.difficulty >= 1.0 and (self.best is None or score(res) >= score(self.best[1])):
+        if self.base.difficulty >= 1.0 and (self.best is None or score(res) >= score(self.best[1])):
             self.best = (model.num_timesteps, res)
             self.save_to(self.out_dir / "best")
         return res
@@ -258,17 +266,17 @@ class _TrainingRun:
                 self.outcomes.append(info["outcome"])
                 self.returns.append(info["episode"]["r"])
                 self.recent.append(info["outcome"])
-        cur, batch, recent = self.cfg.curriculum, self.base.batch, self.recent
-        if batch.difficulty >= 1.0:
+        cur, base, recent = self.cfg.curriculum, self.base, self.recent
+        if base.difficulty >= 1.0:
             return
         gated = len(recent) == recent.maxlen and recent.count(Outcome.SUCCESS) / len(recent) >= cur.gate
         timed = cur.level_steps > 0 and num_timesteps - self.level_since >= cur.level_steps
         if gated or timed:
-            batch.difficulty = min(1.0, batch.difficulty + cur.step)
+            base.difficulty = min(1.0, base.difficulty + cur.step)
             recent.clear()
             self.level_since = num_timesteps
             why = "" if gated else f" (the level's {cur.level_steps:,d} timesteps are over)"
-            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {batch.difficulty:.2f}{why}")
+            self.log(f"{num_timesteps:>11,d} steps  curriculum: difficulty {base.difficulty:.2f}{why}")
 
     def update_ended(self, num_timesteps: int) -> None:
         """After each rollout: the reward curve's row, an evaluation and a checkpoint when due. The last rollout's
@@ -291,7 +299,7 @@ class _TrainingRun:
         if self.best is None:  # the curriculum never reached full difficulty: keep the last model
             self.best = (steps, final)
             self.save_to(self.out_dir / "best")
-            self.log(f"the curriculum never reached full difficulty ({self.base.batch.difficulty:.2f}); keeping the "
+            self.log(f"the curriculum never reached full difficulty ({self.base.difficulty:.2f}); keeping the "
                      f"last model")
         best_steps, kept = self.best
         if kept is not final:

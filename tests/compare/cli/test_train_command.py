@@ -155,3 +155,23 @@ def test_unknown_or_repeated_levels_are_refused_by_their_option(tmp_path: Path, 
                                                                  argv: list[str], expected: tuple[str, ...]) -> None:
     fails(["train", *argv, "--out", str(tmp_path / "p")], capsys, tmp_path, *expected)
     assert not (tmp_path / "p").exists()
+
+
+def test_a_batch_split_over_processes_trains_the_same_policy(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                               quick_training: dict[str, Any]) -> None:
+    runs = {}
+    for processes in (1, 2):
+        out = tmp_path / f"p{processes}"
+        assert main(["train", *QUICK, "--record-flights", "0", "--env-processes", str(processes),
+                     "--out", str(out)]) == 0
+        curve = [{k: v for k, v in row.items() if k != "wall_s"} for row in _rows(out / "reward_curve.csv")]
+        runs[processes] = curve, (out / "obs_norm.npz").read_bytes()
+    assert quick_training["cfg"].env_processes == 2
+    assert runs[1] == runs[2]  # the same episodes, the same statistics, the same updates
+
+
+def test_env_processes_are_checked_by_their_option(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    fails(["train", "--envs", "8", "--env-processes", "9", "--out", str(tmp_path / "p")], capsys, tmp_path,
+          "--env-processes 9", "between 1 and 8")
+    fails(["train", "--scenario", str(_scenario(tmp_path)), "--env-processes", "2", "--out", str(tmp_path / "p")],
+          capsys, tmp_path, "--env-processes 2 and --scenario")

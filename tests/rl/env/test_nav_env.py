@@ -294,6 +294,26 @@ def test_time_limit_adds_the_climb_time_only_when_asked():
         assert b.timeout_s == round(20.0 + 2.5 * d / 12.0 + 2.0 * abs(a.goal_m[2] - a.start_m[2]) / 3.0, 2)
 
 
+def test_a_time_limit_cut_shortens_the_same_legs_by_up_to_the_cut():
+    from dataclasses import replace
+
+    from rl.task.cities import TaskDistribution
+
+    city = CityDistribution().city(3)
+    plain = TaskDistribution()
+    cut = replace(plain, timeout_cut_s=15.0)
+    cuts = []
+    for k in range(40):
+        a = plain.sample(city, np.random.default_rng(k), 0.42, 12.0)
+        b = cut.sample(city, np.random.default_rng(k), 0.42, 12.0)
+        assert (a.start_m, a.goal_m) == (b.start_m, b.goal_m)
+        cuts.append(a.timeout_s - b.timeout_s)
+    assert 0.0 <= min(cuts) < 3.0 and 12.0 < max(cuts) <= 15.01  # spread over the whole cut
+    for bad in (-1.0, 20.0):
+        with pytest.raises(ValueError, match="timeout_cut_s"):
+            replace(plain, timeout_cut_s=bad)
+
+
 def test_braking_cost_starts_at_a_margin_of_the_stopping_distance():
     cfg = RewardConfig(braking_per_s=10.0, braking_margin=1.5)
     d = stopping_distance(np.array([0.0, 20.0]), 4.57, 1.25)

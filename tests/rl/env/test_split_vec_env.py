@@ -1,0 +1,58 @@
+"""`SplitVecEnv`: the batch stepped by several processes gives exactly the transitions of one `UAMNavVecEnv`
+(slot i seeded seed + i whichever process holds it), across resets, sensing levels, map error and a change of
+the curriculum's difficulty; bad process counts are refused before anything is built."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rl.env.split_vec_env import SplitVecEnv, shares
+from rl.env.vec_env import UAMNavVecEnv
+from rl.task.air import AirDistribution
+from rl.task.config import NavConfig
+
+# every sensing level and map-error level drawn, light turbulence: what a training batch meets, small and quick
+TASK = NavConfig(city_pool_size=3, wind_pool_size=2, wind_series_s=150.0, sensing=("perfect", "nominal", "degraded"),
+                 map_error=("exact", "wrong"), map_error_draws=1,
+                 air=AirDistribution(turbulence=("light",), steady_wind_max_m_s=3.0))
+
+
+def test_shares_cover_the_slots_evenly():
+    assert shares(7, 3) == [3, 2, 2] and shares(8, 2) == [4, 4] and sum(shares(256, 5)) == 256
+
+
+def test_split_steps_exactly_as_one_batch():
+    n, seed = 5, 11
+    one = UAMNavVecEnv(n, TASK, seed=seed)
+    split = SplitVecEnv(n, TASK, seed=seed, processes=3)
+    try:
+        for env in (one, split):
+            env.difficulty = 0.3  # short legs: several episodes end and restart in the steps below
+        assert np.array_equal(one.reset(), split.reset())
+        rng = np.random.default_rng(0)
+        ended = 0
+        for step in range(120):
+            if step == 60:
+                one.difficulty = split.difficulty = 0.6
+            act = rng.uniform(-1.0, 1.0, (n, 3))
+            a, b = one.step(act), split.step(act)
+            for x, y in zip(a[:3], b[:3]):
+                assert np.array_equal(x, y), step
+            assert [sorted(i) for i in a[3]] == [sorted(i) for i in b[3]]
+            for ia, ib in zip(a[3], b[3]):
+                if "outcome" in ia:
+                    ended += 1
+                    assert ia["outcome"] == ib["outcome"] and ia["episode"] == ib["episode"]
+                    assert np.array_equal(ia["terminal_observation"], ib["terminal_observation"])
+        assert ended >= 3  # resets were exercised
+        assert split.difficulty == 0.6 and split.num_envs == n and split.world.config == TASK
+    finally:
+        split.close()
+
+
+@pytest.mark.parametrize("processes", [0, 4, 65])
+def test_a_process_count_that_cannot_hold_the_slots_is_refused(processes):
+    with pytest.raises(ValueError, match=f"processes must be in .* got {processes}"):
+        SplitVecEnv(3, replace(TASK, city_pool_size=1), processes=processes)
