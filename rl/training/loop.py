@@ -292,6 +292,14 @@ class _TrainingRun:
             res = self.evaluate()
         self.write_row(res)
 
+    def cap_exploration(self, num_timesteps: int) -> None:
+        """Hold the policy's log std under the preset's cap for this point of the run (`PPOConfig.log_std_cap`),
+        before a rollout is collected with it."""
+        cap = PRESETS[self.cfg.preset].log_std_cap(num_timesteps / self.cfg.total_timesteps)
+        if cap is not None:
+            with torch.no_grad():
+                self.model.policy.log_std.clamp_(max=cap)
+
     def keep_best(self, final: EvalResult) -> tuple[int, EvalResult]:
         """Move the best checkpoint's files into the policy folder: (its timesteps, its validation). `final` is
         the last model's validation (`evaluate(final=True)`), said here only where another model is kept."""
@@ -355,6 +363,9 @@ class _Periodic(BaseCallback):
     def _on_step(self) -> bool:
         self.run.episodes_ended(self.locals["infos"], self.num_timesteps)
         return True
+
+    def _on_rollout_start(self) -> None:
+        self.run.cap_exploration(self.num_timesteps)
 
     def _on_rollout_end(self) -> None:
         self.run.update_ended(self.num_timesteps)

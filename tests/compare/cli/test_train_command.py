@@ -175,3 +175,23 @@ def test_env_processes_are_checked_by_their_option(tmp_path: Path, capsys: pytes
           "--env-processes 9", "between 1 and 8")
     fails(["train", "--scenario", str(_scenario(tmp_path)), "--env-processes", "2", "--out", str(tmp_path / "p")],
           capsys, tmp_path, "--env-processes 2 and --scenario")
+
+
+def test_the_shrinking_noise_preset_caps_the_exploration_by_the_run_s_progress(tmp_path: Path,
+                                                                            capsys: pytest.CaptureFixture,
+                                                                            quick_training: dict[str, Any]) -> None:
+    import io
+    import zipfile
+
+    import torch
+
+    log_std = {}
+    for preset in ("paper", "paper-shrinking-noise"):
+        out = tmp_path / preset
+        assert main(["train", *QUICK, "--record-flights", "0", "--preset", preset, "--out", str(out)]) == 0
+        with zipfile.ZipFile(out / "model.zip") as z:
+            log_std[preset] = torch.load(io.BytesIO(z.read("policy.pth")), map_location="cpu")["log_std"]
+    # the second rollout starts half-way: its cap is -1 + (-3 + 1) x 0.5 = -2; one update moves it by far less
+    assert torch.all(log_std["paper-shrinking-noise"] < -1.99) and torch.all(log_std["paper"] > -1.05)
+    config = json.loads((tmp_path / "paper-shrinking-noise" / "config.json").read_text())
+    assert config["ppo"]["log_std_end"] == -3.0 and config["preset"] == "paper-shrinking-noise"
