@@ -369,7 +369,8 @@ class ClassicalPilot:
             map_update_ms_median=float(np.median(update_ms)) if update_ms.size else math.nan,
             uncertainty_margin_max_m=max(s.uncertainty_margin_m, default=math.nan),
             sensed_obstacles=len(fused.buildings) - (len(sensed.prior.buildings) - len(sensed.cleared_parts)),
-            cleared_prior_parts=len(sensed.cleared_parts))
+            cleared_prior_parts=len(sensed.cleared_parts), improvements_tried=s.improvements_tried,
+            improvements_taken=s.improvements_taken)
 
     # -- flying ---------------------------------------------------------------------------------
     def act(self, obs: Observation) -> RotorCommand:

@@ -48,6 +48,8 @@ class ClassicalReport:
         uncertainty_margin_max_m: the largest k σ added to the margins [m].
         sensed_obstacles: obstacles in the fused map at the end that the prior lacked (clusters of sensed
             columns); cleared_prior_parts: prior parts taken out because beams passed through them.
+        improvements_tried, improvements_taken: searches for a faster path while flying one found at the floor
+            margin, and those that replaced it (arriving at least `improve_gain_s` earlier).
 
     Read from an episode file saved before a field existed, that field is NaN (a count too: the
     counts' `float`), {} or "".
@@ -80,6 +82,8 @@ class ClassicalReport:
     uncertainty_margin_max_m: float = math.nan
     sensed_obstacles: int | float = math.nan
     cleared_prior_parts: int | float = math.nan
+    improvements_tried: int | float = math.nan
+    improvements_taken: int | float = math.nan
 
     @property
     def replans(self) -> int | float:
@@ -129,4 +133,5 @@ class ClassicalReport:
 
 
 _SENSING_FIELDS = ("replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
-                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
+                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts",
+                   "improvements_tried", "improvements_taken")

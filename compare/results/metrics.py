@@ -37,7 +37,8 @@ TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "r
 pilot like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
 MAPPING_METRICS = ("replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
-                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
+                   "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts",
+                   "improvements_tried", "improvements_taken")
 """The classical pilot's columns of flying on its sensors: mapping and replanning in flight (NaN at perfect sensing
 and for a pilot without them)."""
 
@@ -113,6 +114,8 @@ class EpisodeMetrics:
         uncertainty_margin_max_m: the largest k σ the classical pilot added to its margins [m].
         sensed_obstacles, cleared_prior_parts: obstacles in its fused map at the end that the prior lacked, and
             prior parts it took out because beams passed through them [count].
+        improvements_tried, improvements_taken: the classical pilot's searches for a faster path while flying one
+            found at the floor margin, and those it took [count].
     """
 
     scenario: str
@@ -170,6 +173,8 @@ class EpisodeMetrics:
     uncertainty_margin_max_m: float = math.nan
     sensed_obstacles: float = math.nan
     cleared_prior_parts: float = math.nan
+    improvements_tried: float = math.nan
+    improvements_taken: float = math.nan
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))

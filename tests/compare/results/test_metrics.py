@@ -114,7 +114,8 @@ TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures":
            "planner_margin_floor_m": 1.0, "planner_attempts": 2, "planner_step": "rrtconnect, speed margins",
            "clearance_over_margin_min": 0.625, "replans_blocked": 1, "replans_uncertainty": 0, "hover_holds": 0,
            "replan_ms_median": 120.0, "replan_ms_p95": 300.0, "map_update_ms_median": 8.5,
-           "uncertainty_margin_max_m": 0.875, "sensed_obstacles": 4, "cleared_prior_parts": 1}
+           "uncertainty_margin_max_m": 0.875, "sensed_obstacles": 4, "cleared_prior_parts": 1,
+           "improvements_tried": 3, "improvements_taken": 1}
 
 
 def _save_with_extra(tmp_path, extra: dict, pilot: str = "rrt_mpc") -> SavedEpisode:
@@ -294,7 +295,8 @@ def test_csv_columns_are_the_contract_order():
         "est_error_v_max_m", "gnss_availability", "min_clearance_unmapped_m",
         "est_nees_in_bounds", "unmapped_sensed", "unmapped_first_sensed_m_min", "unmapped_first_sensed_m_median",
         "replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
-        "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts")
+        "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts",
+        "improvements_tried", "improvements_taken")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):
