@@ -20,8 +20,10 @@ once per decision, for the observation and the reward.
 
 Map error (`NavConfig.map_error`, `rl.sensing.truth`): each episode draws a level and a draw of its city's bank;
 it collides with and senses the draw's truth (`NavBatch.geometry`: the truth's index in the world's sensing) and
-follows a route field drawn from its prior. At the `exact` level alone nothing is drawn and every number is as
-before the setting existed (tested).
+observes a route field drawn on its prior (distance to go and direction: what the pilot knows), while the reward's
+progress is measured on a route field drawn on the truth (`route_m`; training only: a potential drawn on the prior
+would pay progress straight into a building the prior lacks). At the `exact` level alone nothing is drawn and every
+number is as before the setting existed (tested).
 
 Sensing (`NavConfig.sensing`, `rl.env.onboard_slots`): each episode draws a level. At `perfect` the policy observes
 the true state and the truth's exact senses; with ("perfect",) alone nothing is drawn and every number is as before
@@ -95,7 +97,7 @@ class NavBatch:
         self.goal_radius = np.ones(n)
         self.timeout = np.ones(n)
         self.yaw = np.zeros(n)
-        self.route_m = np.zeros(n)
+        self.route_m = np.zeros(n)  # Φ at the true position on the truth's route field [m] (the reward's)
         self.clear = np.zeros(n)
         self.nearest = np.zeros((n, 3))
         self.episode_return = np.zeros(n)
@@ -109,7 +111,10 @@ class NavBatch:
         self.air = np.zeros(n, dtype=np.int64)  # each slot's field: an index of world.atmospheres
         self.level = np.zeros(n, dtype=np.int64)  # each slot's turbulence level: an index of world.levels
         self.sim = BatchSimulator(world.dynamics, self.atmospheres, self.winds)
-        self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight, world.route_levels)
+        self.routes = RouteBank(n, world.route_cells, cfg.route.climb_weight, world.route_levels)  # on the priors
+        # the reward's potential on the truths, where a map can differ from its truth (else the one bank serves both)
+        self._truth_routes = RouteBank(n, world.route_cells, cfg.route.climb_weight, world.route_levels) \
+            if any(level != "exact" for level in cfg.map_error) else None
         self.memory = PilotMemory.empty(n, cfg.decision_hz, cfg.observe.history)
         self._obs = np.zeros((n, world.obs_size), dtype=np.float32)
         self._radius = world.vehicle.collision_radius_m
@@ -241,7 +246,11 @@ class NavBatch:
                                 density_ratio=w.atmospheres[air.field].density_ratio(task.start_m[2]))
         self.xi[i] = 0.0
         self.t[i] = 0.0
-        self.routes.set(i, route_for(draw.prior, task, p.collision_radius_m, cfg.route))
+        route = route_for(draw.prior, task, p.collision_radius_m, cfg.route)
+        self.routes.set(i, route)
+        if self._truth_routes is not None:
+            self._truth_routes.set(i, route if draw.truth is draw.prior else
+                                   route_for(draw.truth, task, p.collision_radius_m, cfg.route))
         level, seed = int(sensing[0]), int(sensing[1])
         if not -1 <= level < len(cfg.sensing) or seed < 0:
             raise ValueError(f"sensing {sensing}: the level must be an index of {cfg.sensing} (-1: perfect) and the "
@@ -257,7 +266,7 @@ class NavBatch:
         """The first sensing and observation of slots idx, just placed."""
         if len(idx):
             pos = self.x[idx, 0:3]
-            self.route_m[idx] = self.routes.potential(pos, idx)
+            self.route_m[idx] = self._reward_routes.potential(pos, idx)
             self.clear[idx], self.nearest[idx] = nearest_surface(self._sensor, pos, self.geometry[idx])
             if self.onboard is not None:
                 sensed = idx[self._sensing(idx)]
@@ -292,11 +301,17 @@ class NavBatch:
         """(M,) which of slots idx fly on what they sense (a level other than perfect)."""
         return self.onboard.sensed(idx) if self.onboard is not None else np.zeros(len(idx), dtype=bool)
 
+    @property
+    def _reward_routes(self) -> RouteBank:
+        """The route fields the reward's progress is measured on: the truths' (the priors' when no map differs)."""
+        return self.routes if self._truth_routes is None else self._truth_routes
+
     def _seen(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The states (M, nx) and route distances Φ (M,) [m] a decision of slots idx acts on: the truth's at a
         perfect level, else the navigation estimate (its first 13 elements; the rotor speeds the ESCs report) and
-        Φ at the estimated position (`OnboardSlots.decide`: call once per decision)."""
-        x, route = self.x[idx], self.route_m[idx]
+        Φ at the estimated position (`OnboardSlots.decide`: call once per decision); Φ on the prior's route field."""
+        x = self.x[idx]
+        route = self.route_m[idx] if self._truth_routes is None else self.routes.potential(x[:, 0:3], idx)
         rows = np.flatnonzero(self._sensing(idx))
         if len(rows):
             assert self.onboard is not None
@@ -459,7 +474,7 @@ class NavBatch:
         everyone = np.arange(self.n)
         pos = self.x[:, 0:3]  # the truth: what scores the flight (the policy observes what it senses, `_seen`)
         self.clear, self.nearest = nearest_surface(self._sensor, pos, self.geometry)
-        self.route_m = self.routes.potential(pos, everyone)
+        self.route_m = self._reward_routes.potential(pos, everyone)
         arrived = code == episode.SUCCESS
         crashed = (code == episode.COLLISION) | (code == episode.OUT_OF_BOUNDS) | (code == episode.NONFINITE)
         vel = self.x[:, 3:6]

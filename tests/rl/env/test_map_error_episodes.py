@@ -137,7 +137,8 @@ def _crossing(world: NavWorld):
 
 
 def test_route_follows_the_prior_and_the_truth_collides(plain):
-    """A building the prior misses: the route runs straight through it, the vehicle senses it and crashes into it."""
+    """A building the prior misses: the route observed runs straight through it, the vehicle senses it and crashes
+    into it; the reward's progress is measured around it (the truth's route field)."""
     world = NavWorld(replace(SMALL, air=CALM, map_error=("wrong",), map_error_draws=4, city_pool_size=12),
                      dynamics=plain.dynamics)
     ci, draw, task = _crossing(world)
@@ -149,8 +150,10 @@ def test_route_follows_the_prior_and_the_truth_collides(plain):
     truth_bank.set(0, route_for(draw.truth, task, r_m, world.config.route))
     start = np.array([task.start_m])
     straight = math.dist(task.start_m, task.goal_m)
-    assert b.route_m[0] == prior_bank.potential(start)[0]  # the env's route is the prior's
-    assert b.route_m[0] < 1.05 * straight + 1.5 < truth_bank.potential(start)[0]  # straight through; truth detours
+    observed = b.memory.route_history_m[0, -1]  # the route distance the first observation holds
+    assert observed == prior_bank.potential(start)[0]  # the pilot's route is the prior's
+    assert b.route_m[0] == truth_bank.potential(start)[0]  # the reward's, the truth's
+    assert observed < 1.05 * straight + 1.5 < b.route_m[0]  # straight through; the truth's detours
     # the building is sensed: the ray straight ahead (towards it and the goal) ends short of the goal
     assert b.observations[0].shape == (world.obs_size,)
     info: dict = {}
