@@ -96,8 +96,8 @@ def _add_task_options(tr: argparse.ArgumentParser) -> None:
     tr.add_argument("--observe", default=None, metavar="WHAT",
                     help="what the policy observes beyond the base observation, comma-separated: air (density "
                          "ratio and forecast turbulence), geofence (the flight volume's edge), history=N (N past "
-                         "decisions), or none; replaces the task's own (default: the task's; the UAM's --envelope "
-                         "task observes geofence)")
+                         "decisions), uncertainty (the navigation estimate's position sigma), or none; replaces "
+                         "the task's own (default: the task's; the UAM's --envelope task observes geofence)")
 
 
 def _shown_defaults() -> dict[str, str]:
@@ -258,7 +258,7 @@ def parse_observed(text: str) -> ObservedContext:
     Raises:
         ValueError: an unknown item or a bad count, naming the option.
     """
-    air = geofence = False
+    air = geofence = uncertainty = False
     history = 0
     for item in (t.strip() for t in text.split(",")):
         name, _, value = item.partition("=")
@@ -266,8 +266,11 @@ def parse_observed(text: str) -> ObservedContext:
             air = True
         elif item == "geofence":
             geofence = True
+        elif item == "uncertainty":
+            uncertainty = True
         elif name == "history" and value.isdigit() and 1 <= int(value) <= 50:
             history = int(value)
         elif item != "none":
-            raise ValueError(f"--observe {text}: {item!r} is not air, geofence, history=N (N 1 to 50) or none")
-    return ObservedContext(air=air, geofence=geofence, history=history)
+            raise ValueError(f"--observe {text}: {item!r} is not air, geofence, history=N (N 1 to 50), uncertainty "
+                             f"or none")
+    return ObservedContext(air=air, geofence=geofence, history=history, uncertainty=uncertainty)

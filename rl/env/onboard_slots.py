@@ -66,6 +66,8 @@ class OnboardSlots:
             self.view[k] = LidarView(self.priors, self.n, config.lidar, clearance_range_m)
         self.level = np.full(self.n, -1, dtype=np.int64)  # each slot's sensing level (-1: perfect)
         self.seed = np.zeros(self.n, dtype=np.int64)  # each sensing slot's episode sensing seed
+        # each sensing slot's estimate position sigma along its longest axis at its last decision [m]
+        self.sigma_m = np.zeros(self.n)
 
     def sensed(self, idx: np.ndarray) -> np.ndarray:
         """(M,) which of slots idx sense (fly at a non-perfect level)."""
@@ -121,7 +123,9 @@ class OnboardSlots:
             slots = idx[rows]
             onboard = self.onboard[level]
             est = onboard.estimates(slots)
-            self.view[level].integrate(slots, onboard.lidar_scans(t_s[rows], slots), est.state, est.sigma_max_m)
+            sigma = est.sigma_max_m
+            self.view[level].integrate(slots, onboard.lidar_scans(t_s[rows], slots), est.state, sigma)
+            self.sigma_m[slots] = sigma
             out[rows] = est.state
         return out
 

@@ -336,19 +336,21 @@ class NavBatch:
         s = idx[rows]
         senses = self.onboard.obstacles(s, x[rows], self.memory.heading_rad[s])
         self._obs[s] = self._observations(s, x[rows], route_m[rows], senses.clearance_m, senses.nearest_m,
-                                          senses.reading)
+                                          senses.reading, self.onboard.sigma_m[s])
 
     def _observations(self, idx: np.ndarray, x: np.ndarray, route_m: np.ndarray, clearance_m: np.ndarray,
-                      nearest_m: np.ndarray, reading: PerceptionReading | None = None) -> np.ndarray:
+                      nearest_m: np.ndarray, reading: PerceptionReading | None = None,
+                      position_sigma_m: np.ndarray | None = None) -> np.ndarray:
         """`observe_slots` of slots idx at states x (M, nx), route distances (M,) [m], clearances (M,) [m] and
         nearest-surface vectors (M, 3) [m, world]; `reading`: their measured rays and height maps (None: the
-        truth's perception)."""
+        truth's perception); `position_sigma_m`: their estimates' position sigma (M,) [m] (None: the truth's, 0)."""
         w = self.world
         cfg = w.config
         return observe_slots(idx, x, self.goal[idx], route_m, clearance_m, nearest_m, self.t[idx] / self.timeout[idx],
                              self.geometry[idx], self._perception, self.routes, self.memory, cfg.perception,
                              cfg.scales, cfg.decision_hz, w.vehicle, cfg.observe,
-                             self._surroundings(idx, x[:, 2]) if cfg.observe.size() else None, reading)
+                             self._surroundings(idx, x[:, 2]) if cfg.observe.size() else None, reading,
+                             position_sigma_m)
 
     def _surroundings(self, idx: np.ndarray, z: np.ndarray) -> Surroundings:
         """What the pilot interface tells slots idx at altitudes z (M,) [m] about their air and flight volume."""

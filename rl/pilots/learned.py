@@ -203,6 +203,7 @@ class PolicyPilot:
         self._memory = PilotMemory.empty(1, nav.decision_hz, nav.observe.history)
         self._last_action: np.ndarray | None = None
         self._view: LidarView | None = None
+        self._sigma_m = np.zeros(1)  # the estimate's position sigma at the last decision [m] (`_integrate`)
         if world.sensing is not None and not world.sensing.perfect:
             # the prior map's height maps, max'ed with what the lidar senses (the env's `OnboardSlots` view)
             lidar = self.sensing_flown(world.sensing).lidar
@@ -247,7 +248,7 @@ class PolicyPilot:
                                   np.asarray(city.bounds_max_m, dtype=float)[None])
         return observe_slots(self._SLOT, xs, self._goal, route, clear, nearest, t_frac, self._CITY,
                              senses.perception, self._routes, m, nav.perception, nav.scales, nav.decision_hz,
-                             world.vehicle, nav.observe, around, reading)
+                             world.vehicle, nav.observe, around, reading, None if self._view is None else self._sigma_m)
 
     def _integrate(self, obs: Observation, xs: np.ndarray) -> None:
         """Place decision `obs`'s lidar scans on its estimate xs (1, nx) with the estimate's position sigma along
@@ -258,7 +259,8 @@ class PolicyPilot:
         cov = np.asarray(obs.covariance, dtype=float)[None, 0:3, 0:3]
         t = obs.t_s if obs.estimate_t_s is None else obs.estimate_t_s
         est = SlotEstimates(np.array([t]), xs[:, 0:N_ESTIMATED], cov)
-        self._view.integrate(self._SLOT, [obs.sensors.lidar], est.state, est.sigma_max_m)
+        self._sigma_m = est.sigma_max_m
+        self._view.integrate(self._SLOT, [obs.sensors.lidar], est.state, self._sigma_m)
 
     def act(self, obs: Observation) -> VelocityCommand:
         nav = self.policy.nav

@@ -101,11 +101,15 @@ class ObservedContext:
         history: decisions remembered (0: none), each the velocity (goal frame, scaled as the base
             velocity) and the action taken then (6 elements per decision, newest first): from what was
             commanded and what followed the policy can infer its thrust margin and the wind.
+        uncertainty: how far its own position may be off (1 element, after the others): the navigation
+            estimate's position standard deviation along its covariance's longest axis / clearance scale, capped
+            at 1 (0 at perfect sensing: the state is the truth).
     """
 
     air: bool = False
     geofence: bool = False
     history: int = 0
+    uncertainty: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.history <= 50:
@@ -113,7 +117,7 @@ class ObservedContext:
 
     def size(self) -> int:
         """Number of elements it adds."""
-        return 2 * self.air + 4 * self.geofence + 6 * self.history
+        return 2 * self.air + 4 * self.geofence + 6 * self.history + self.uncertainty
 
 
 @dataclass(frozen=True)
@@ -139,13 +143,14 @@ def obs_size(perception: PerceptionConfig, observe: ObservedContext | None = Non
 
 def context_elements(observe: ObservedContext, x: np.ndarray, heading_rad: np.ndarray, memory_vel: np.ndarray,
                      memory_act: np.ndarray, around: Surroundings | None, vehicle: VehicleParams,
-                     scales: ObservationScales) -> np.ndarray:
+                     scales: ObservationScales, position_sigma_m: np.ndarray | None = None) -> np.ndarray:
     """The `ObservedContext` elements (M, observe.size()) of M vehicles in states x (M, nx).
 
     Args:
         heading_rad: (M,) goal-frame headings; memory_vel: (M, K, 3) past world velocities [m/s] and
         memory_act: (M, K, 3) past actions, newest first (K >= observe.history); around: the vehicles'
-        surroundings (needed for air and geofence).
+        surroundings (needed for air and geofence); position_sigma_m: (M,) the estimates' position sigma along
+        their longest axis [m] (for uncertainty; None: 0, the truth).
     """
     m = len(x)
     parts: list[np.ndarray] = []
@@ -176,6 +181,9 @@ def context_elements(observe: ObservedContext, x: np.ndarray, heading_rad: np.nd
         vy = (cos * vel[..., 1] - sin * vel[..., 0]) / c.max_speed_m_s
         vz = vel[..., 2] / c.max_vertical_speed_m_s
         parts.append(np.concatenate([np.stack([vx, vy, vz], axis=2), memory_act[:, :k]], axis=2).reshape(m, 6 * k))
+    if observe.uncertainty:
+        sigma = np.zeros(m) if position_sigma_m is None else np.asarray(position_sigma_m, dtype=float).reshape(m)
+        parts.append(np.minimum(sigma / scales.clearance_m, 1.0)[:, None])
     return np.concatenate(parts, axis=1) if parts else np.zeros((m, 0))
 
 

@@ -58,7 +58,7 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
                   routes: RouteBank, memory: PilotMemory, perception_config: PerceptionConfig,
                   scales: ObservationScales, decision_hz: float, vehicle: VehicleParams,
                   observe: ObservedContext | None = None, around: Surroundings | None = None,
-                  reading: PerceptionReading | None = None) -> np.ndarray:
+                  reading: PerceptionReading | None = None, position_sigma_m: np.ndarray | None = None) -> np.ndarray:
     """Observations (M, obs) of slots idx (the env's batch, or the learned pilot's single slot).
 
     Args:
@@ -70,6 +70,8 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
         around: the vehicles' surroundings, when `observe` asks for the air or the geofence.
         reading: the rays and height maps when measured (the lidar's, `rl.sensing.lidar_view`); None: the exact
             ones of `perception` (the truth's slab tests).
+        position_sigma_m: (M,) the estimates' position sigma along their longest axis [m], when `observe` asks for
+            the uncertainty (None: 0, flying on the truth).
     """
     pos = x[:, 0:3]
     heading = memory.heading_rad[idx]
@@ -81,5 +83,5 @@ def observe_slots(idx: np.ndarray, x: np.ndarray, goal_m: np.ndarray, route_m: n
     if observe is None or not observe.size():
         return obs
     extra = context_elements(observe, x, heading, memory.velocity_history[idx], memory.action_history[idx], around,
-                             vehicle, scales)
+                             vehicle, scales, position_sigma_m)
     return np.concatenate([obs, np.clip(extra, -OBS_CLIP, OBS_CLIP).astype(np.float32)], axis=1)

@@ -4,6 +4,7 @@ the same bit for bit: observations, actions and true states at every decision.""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from compare.flying.episode_loop import PilotError, run_episode
 from rl.env.world import NavBatch, NavWorld, SlotAir
 from rl.pilots.learned import Policy, PolicyPilot, load_policy
 from rl.policies.folder import SHIPPED_POLICIES
+from rl.policies.reader import ObsNorm
 from rl.sensing.truth import MapDraw
 from rl.task.config import learned_lidar, learned_pilot_sensing
 from rl.training.evaluation import eval_config
@@ -133,6 +135,31 @@ def test_env_slot_and_runner_fly_the_same_episode_on_sensors_over_a_wrong_map(wr
     drawn = _episode(wrong_maps, seed).map
     assert drawn.prior is not drawn.truth
     assert _assert_env_equals_runner(wrong_maps, policy, seed, level, 321) == outcome
+
+
+@dataclass(frozen=True)
+class _Blind:
+    """A network fed all but the last observation element (the shipped one, reading the uncertainty's layout)."""
+
+    inner: Any
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.inner.act(obs[:, :-1])
+
+
+def test_the_estimates_uncertainty_is_observed_the_same_by_env_and_runner(world, policy):
+    """`observe.uncertainty`: the estimate's position sigma along its longest axis / clearance scale, the same in the
+    env's slot and the runner's pilot at every decision (the shipped network acts on the rest)."""
+    nav = replace(policy.nav, observe=replace(policy.nav.observe, uncertainty=True))
+    unsure = NavWorld(replace(world.config, observe=nav.observe), dynamics=world.dynamics, wind_from=world,
+                      atmosphere=world.atmospheres)
+    n = policy.obs_norm
+    norm = ObsNorm(np.append(n.mean, 0.0), np.append(n.var, 1.0), n.count, n.epsilon, n.clip_obs)
+    blind = Policy(policy.folder, _Blind(policy.network), norm, nav)  # type: ignore[arg-type]
+    _assert_env_equals_runner(unsure, blind, 8, 1, 99)
+    _, seen, _, _, _ = _fly_env(unsure, blind, _episode(unsure, 8), 1, 99)
+    sigma = np.array([o[-1] for o in seen]) * nav.scales.clearance_m
+    assert np.all(sigma > 0.0) and np.ptp(sigma) > 0.0  # the filter's sigma, moving with its fixes
 
 
 class _Watched(PolicyPilot):

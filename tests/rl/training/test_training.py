@@ -191,3 +191,12 @@ def test_train_names_a_bad_observe_option(capsys):
 
     assert main(["train", "--observe", "air,wings", "--out", "unused"]) == 2
     assert "--observe air,wings: 'wings' is not air, geofence, history=N" in capsys.readouterr().err
+
+
+def test_observe_parses_every_item():
+    from compare.cli.train import parse_observed
+    from rl.sensing.observation import ObservedContext
+
+    assert parse_observed("air, geofence,history=3,uncertainty") == ObservedContext(True, True, 3, True)
+    assert parse_observed("none") == ObservedContext()
+    assert ObservedContext(uncertainty=True).size() == 1
