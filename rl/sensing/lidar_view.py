@@ -2,8 +2,11 @@
 slots (the env's batch, or the runner's single pilot), from the scans a decision receives and the navigation
 ESTIMATE, with the same meaning and layout as the exact senses (`rl.sensing.perception`, `rl.sensing.senses`).
 
-Every scan is placed in the world on the estimate it is integrated with (position p, attitude q: a returned point
-is p + R(q) d rho, d its body FLU direction, rho its measured range); the pilot knows no truer pose. A return is
+Every scan is placed in the world on the pose the vehicle estimated when the scan was taken (its stamp,
+`LidarScan.pose_estimate`; an unstamped scan on the estimate it is integrated with): position p, attitude q, a
+returned point is p + R(q) d rho, d its body FLU direction, rho its measured range; the pilot knows no truer pose. (A
+scan placed on the newer estimate of the decision that receives it lands metres off at range: the small quad turns
+by several degrees in the 0.1 s between, and phantom columns rose 10-20 m above open ground.) A return is
 **ground** when its height is at most `ground_band_m` plus `ground_sigmas` sigma of the estimate's position (the
 estimate's height error lifts every ground return with it); ground returns are never obstacles (the ground is
 z = 0 in this project, and it is sensed at the estimated altitude instead). Of each slot's newest scan the
@@ -73,6 +76,7 @@ _STEP_M = 0.1  # the height memory's resolution [m]
 _TOP_STEPS = 65535  # heights are held as uint16 steps of _STEP_M (0: nothing sensed; 6,553 m at most)
 _NOWHERE = -(1 << 40)  # a reset slot's window origin [cells]: the first scan's window shares no cell with it
 _TOL_M = 1e-7  # a map cell's bounding box is shrunk by this: an edge on a cell line does not reach the next cell
+_POSE = np.r_[0:3, 6:10]  # a pose's elements in the vehicle-state layout: position, attitude quaternion
 
 
 @dataclass(frozen=True)
@@ -222,7 +226,7 @@ class LidarView:
         if len(scans_per_slot) != m or len(sigma) != m or not np.all(np.isfinite(sigma)):
             raise ValueError(f"integrate: {m} slots need as many scan tuples ({len(scans_per_slot)}) and finite "
                              f"position sigmas ({len(sigma)})")
-        dirs, ranges, owner, newest, sizes = [], [], [], [], []
+        dirs, ranges, owner, newest, sizes, poses = [], [], [], [], [], []
         cap = self._points.shape[1]
         for k, taken in enumerate(scans_per_slot):
             for j, scan in enumerate(taken):
@@ -233,6 +237,7 @@ class LidarView:
                 owner.append(k)
                 newest.append(j == len(taken) - 1)
                 sizes.append(len(scan.ranges_m))
+                poses.append(x[k, _POSE] if scan.pose_estimate is None else scan.pose_estimate)
         has_scan = np.zeros(m, dtype=bool)
         has_scan[owner] = True
         self._points[idx[has_scan]] = _FAR_M
@@ -240,7 +245,10 @@ class LidarView:
         if not dirs:
             return
         rows = np.repeat(np.array(owner, dtype=np.intp), sizes)
-        world = _place(np.concatenate(dirs), np.concatenate(ranges), rows, x)
+        # each scan on the pose it was taken at, as the vehicle estimated it then (its stamp; else the estimate here)
+        stamped = np.zeros((len(poses), 10))
+        stamped[:, _POSE] = poses
+        world = _place(np.concatenate(dirs), np.concatenate(ranges), np.repeat(np.arange(len(poses)), sizes), stamped)
         p = x[:, 0:3]
         ground = self.config.ground_band_m + self.config.ground_sigmas * sigma
         solid = np.flatnonzero(world[:, 2] > ground[rows])
@@ -353,6 +361,17 @@ class LidarView:
         at_y += (idx * (g + 1) ** 2)[:, None, None]
         steps = self._memory.reshape(-1).take(at_y[:, None] + at_x[None, :])  # (nl_y, nl_x, M, a, b)
         return steps.reshape(nl * nl, m * pc.grid_cells ** 2).max(axis=0).reshape(m, pc.grid_cells ** 2) * _STEP_M
+
+    def columns(self, slot: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The height memory of `slot` as columns: world cell indices ix, iy (K,) (cell (ix, iy) spans
+        [ix, ix + 1) x [iy, iy + 1) times `sensed_cell_m` [m], world ENU) and the highest return in each (K,) [m],
+        for the cells its window holds that something was sensed in (row-major in the ring)."""
+        g = self.window
+        memory = self._memory[slot, :g, :g]
+        ry, rx = np.nonzero(memory)
+        ox, oy = (int(v) for v in self._origin[slot])
+        # ring entry r holds world cell o + (r - o) mod g under origin o (`_follow`)
+        return ox + (rx - ox) % g, oy + (ry - oy) % g, memory[ry, rx] * _STEP_M
 
     def _slots(self, slots: Sequence[int] | np.ndarray) -> np.ndarray:
         """Slot indices (M,) checked: distinct and in range."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -81,7 +82,7 @@ class BatchLidar:
         self._queued[i].clear()
 
     def measure(self, slots: np.ndarray, t_s: np.ndarray, position_m: np.ndarray,
-                quaternion: np.ndarray) -> list[LidarScan]:
+                quaternion: np.ndarray, pose_estimate: np.ndarray | None = None) -> list[LidarScan]:
         """One scan of each of `slots` from its true pose (`Lidar.scan`), queued for `hand_over`.
 
         Args:
@@ -89,6 +90,8 @@ class BatchLidar:
             t_s: (M,) scan times on each slot's clock [s].
             position_m: (M, 3) true positions of the lidars, world ENU [m].
             quaternion: (M, 4) true attitudes [w, x, y, z], body FLU -> world ENU.
+            pose_estimate: (M, 7) each vehicle's own estimate of its pose now (`LidarScan.pose_estimate`), stamped
+                on its scan; None: not stamped.
 
         Returns:
             per slot its scan (returned beams only).
@@ -108,6 +111,10 @@ class BatchLidar:
                                                                    pos[g], rot[g])):
                     scans[k] = scan
         out = [scans[k] for k in range(len(slots))]
+        if pose_estimate is not None:
+            poses = np.array(pose_estimate, dtype=float).reshape(len(out), 7)
+            poses.setflags(write=False)
+            out = [replace(scan, pose_estimate=poses[k]) for k, scan in enumerate(out)]
         for i, scan in zip(slots.tolist(), out):
             self._queued[i].append(scan)
         return out

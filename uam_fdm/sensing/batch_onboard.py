@@ -284,7 +284,9 @@ class BatchOnboard:
         if self.lidar is not None:
             due = _due(self._next["lidar"], idx, cfg.lidar.rate_hz, t_end)
             if due.any():
-                self.lidar.measure(idx[due], t_end[due], x_end[due, 0:3], x_end[due, 6:10])
+                at = idx[due]  # stamped with each filter's pose now, the period's readings fused (as `Onboard`)
+                self.lidar.measure(at, t_end[due], x_end[due, 0:3], x_end[due, 6:10],
+                                   np.concatenate((nav.x[at, 0:3], nav.x[at, 6:10]), axis=1))
 
     # ---- belief out ----------------------------------------------------------------------------------------------
     def estimates(self, slots: Sequence[int] | np.ndarray | None = None) -> SlotEstimates:

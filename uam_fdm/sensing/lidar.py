@@ -27,11 +27,17 @@ class LidarScan:
         t_s: time of the scan [s].
         directions_body: (K, 3) unit beam directions of the returned beams, body FLU.
         ranges_m: (K,) measured ranges [m] (noisy).
+        pose_estimate: (7,) the vehicle's own estimate of its pose when the scan was taken, as a driver's timestamp
+            and the navigation filter give it: position [m] world ENU and attitude quaternion [w, x, y, z] body FLU
+            -> world ENU (`uam_fdm.sensing.onboard` stamps it; None: not stamped). A scan handed over later is
+            placed on this pose, not on the newer estimate of the decision that receives it (the vehicle turns in
+            between: up to several degrees in 0.1 s, metres at the lidar's range).
     """
 
     t_s: float
     directions_body: np.ndarray
     ranges_m: np.ndarray
+    pose_estimate: np.ndarray | None = None
 
     def points_body_m(self) -> np.ndarray:
         """The returned points: (K, 3), body FLU metres, from the lidar (the vehicle's centre)."""

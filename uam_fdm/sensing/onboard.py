@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -192,6 +192,8 @@ class Onboard:
                 self._readings.append((t_s, "gnss", fix))
         if self._due("lidar", cfg.lidar.rate_hz, t_s):
             scan, truth = self.lidar.scan(t_s, x[0:3], rotation_matrix(x[6:10]), truth_points=LIDAR_HITS_KEPT)
+            est = self.filter.estimate  # its pose as the filter has it now, the period's readings fused
+            scan = replace(scan, pose_estimate=np.concatenate((est.position_m, est.quaternion)))
             self._readings.append((t_s, "lidar", scan))
             if len(truth.points_m):
                 self._hits.append(np.column_stack([np.full(len(truth.points_m), t_s), truth.points_m]))

@@ -218,6 +218,22 @@ def test_kept_points_are_read_from_the_current_estimate_until_the_next_scan() ->
     np.testing.assert_array_equal(got.nearest_m[0], [0.0, 0.0, -10.0])
 
 
+def test_a_stamped_scan_is_placed_on_its_stamp_not_on_the_decisions_estimate() -> None:
+    """The vehicle turned and moved between its scan and the decision: the scan's points land where its stamp (the
+    pose estimated at the scan) puts them, as a scan placed on that pose at the decision itself would."""
+    then = _state(CX, CY, 10.0)[None]
+    scan = _scan(WEDGES, then[0])
+    stamped = dataclasses.replace(scan, pose_estimate=np.concatenate((then[0, 0:3], then[0, 6:10])))
+    now = _state(CX + 1.5, CY - 0.5, 10.4, yaw=0.3)[None]
+    on_stamp, at_then = _view(WEDGES, 1), _view(WEDGES, 1)
+    on_stamp.integrate([0], [(stamped,)], now)
+    at_then.integrate([0], [(scan,)], then)
+    np.testing.assert_array_equal(on_stamp._points, at_then._points)
+    unstamped = _view(WEDGES, 1)
+    unstamped.integrate([0], [(scan,)], now)  # without its stamp: placed on the decision's estimate, elsewhere
+    assert not np.array_equal(unstamped._points, at_then._points)
+
+
 def _decisions(poses: np.ndarray) -> list[tuple[list[tuple[LidarScan, ...]], np.ndarray, np.ndarray]]:
     """Two decisions of the three poses: the first with one, two and no scans, the second moved, one scan each."""
     first = [(_scan(TRUTH, poses[0]),), (_scan(WEDGES, poses[1]), _scan(TRUTH, poses[1], 0.1)), ()]

@@ -92,6 +92,9 @@ def _assert_scans_equal(got: tuple[LidarScan, ...], expected: tuple[LidarScan, .
         np.testing.assert_array_equal(a.directions_body, b.directions_body)
         np.testing.assert_array_equal(a.ranges_m, b.ranges_m)
         assert a.ranges_m.dtype == b.ranges_m.dtype and not a.ranges_m.flags.writeable
+        # stamped alike with the vehicle's own pose estimate at the scan
+        assert a.pose_estimate is not None and b.pose_estimate is not None
+        np.testing.assert_array_equal(a.pose_estimate, b.pose_estimate)
 
 
 def _onboard(cfg: SensingConfig, world: int, casters: list[RayCaster], atmosphere: Atmosphere, flight: Flight,

@@ -106,7 +106,9 @@ def test_same_seed_same_scan_and_the_scan_holds_no_truth():
     assert np.array_equal(a[0][0].ranges_m, a[1][0].ranges_m)
     assert np.array_equal(a[0][0].directions_body, a[1][0].directions_body)
     assert not (len(b[0].ranges_m) == len(a[0][0].ranges_m) and np.array_equal(b[0].ranges_m, a[0][0].ranges_m))
-    assert {f.name for f in dataclasses.fields(LidarScan)} == {"t_s", "directions_body", "ranges_m"}
+    # no truth: what it measured, and the vehicle's own estimate of its pose (stamped by the onboard, not here)
+    assert {f.name for f in dataclasses.fields(LidarScan)} == {"t_s", "directions_body", "ranges_m", "pose_estimate"}
+    assert a[0][0].pose_estimate is None
     with pytest.raises(ValueError):
         a[0][0].ranges_m[0] = 1.0  # read-only
 
