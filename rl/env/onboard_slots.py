@@ -104,14 +104,14 @@ class OnboardSlots:
         """The estimates' errors (M, `N_SEEN_OFFSET`) of sensing slots idx against their true states x_true
         (M, nx), for the controller flying on the estimate (`BatchOnboard.controller_offset`)."""
         out = np.empty((len(idx), N_SEEN_OFFSET))
-        for level, rows in self._by_level(idx):
+        for level, rows in self.by_level(idx):
             out[rows] = self.onboard[level].controller_offset(x_true[rows], idx[rows])
         return out
 
     def advance(self, idx: np.ndarray, x_start: np.ndarray, states: np.ndarray, t_start_s: np.ndarray) -> None:
         """Sense and fuse one flown control period of sensing slots idx (M,): true states at its start (M, nx),
         after each physics step (M, S, nx) (finite), its start on each slot's clock (M,) [s]."""
-        for level, rows in self._by_level(idx):
+        for level, rows in self.by_level(idx):
             self.onboard[level].advance(x_start[rows], states[rows], t_start_s[rows], idx[rows])
 
     def decide(self, idx: np.ndarray, t_s: np.ndarray) -> np.ndarray:
@@ -119,7 +119,7 @@ class OnboardSlots:
         [m/s] world ENU, attitude body FLU -> ENU, body rates [rad/s]), after the scans handed over at t_s are
         integrated into the slots' lidar views on them. Call once per decision: scans are handed over once."""
         out = np.empty((len(idx), N_ESTIMATED))
-        for level, rows in self._by_level(idx):
+        for level, rows in self.by_level(idx):
             slots = idx[rows]
             onboard = self.onboard[level]
             est = onboard.estimates(slots)
@@ -133,7 +133,7 @@ class OnboardSlots:
         """The lidar-measured obstacle senses of sensing slots idx (M,) at their estimates x_est (M, 3+) [m, ENU]
         in goal frames at headings (M,) [rad] (`LidarView.read`)."""
         parts = [(rows, self.view[level].read(idx[rows], x_est[rows], heading_rad[rows]))
-                 for level, rows in self._by_level(idx)]
+                 for level, rows in self.by_level(idx)]
         if len(parts) == 1:
             return parts[0][1]
         m = len(idx)
@@ -146,7 +146,7 @@ class OnboardSlots:
             clearance[rows], nearest[rows] = s.clearance_m, s.nearest_m
         return ObstacleSenses(PerceptionReading(rays, roofs), clearance, nearest)
 
-    def _by_level(self, idx: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    def by_level(self, idx: np.ndarray) -> list[tuple[int, np.ndarray]]:
         """(level, rows of idx at it) for each level some of sensing slots idx fly at."""
         lv = self.level[idx]
         if np.any(lv < 0):

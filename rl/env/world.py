@@ -50,6 +50,7 @@ from rl.sensing.observation import (
 )
 from rl.sensing.perception import Perception, PerceptionReading
 from rl.sensing.route import RouteBank
+from rl.sensing.route_refresh import RouteRefresh
 from rl.sensing.senses import nearest_surface, observe_slots, route_for
 from rl.sensing.sensor import BoxSensor
 from rl.sensing.truth import MapDraw, TruthSensing
@@ -131,6 +132,9 @@ class NavBatch:
             self.onboard = OnboardSlots(cfg.sensing, n, world.vehicle.mass_kg, world.dynamics.dt_s, world.atmospheres,
                                         len(world.cities) + len(world.maps.added), world.perception,
                                         cfg.scales.clearance_m)
+        # the sensing slots' routes redrawn around what their lidar sensed (`rl.sensing.route_refresh`)
+        self._refresh = RouteRefresh(n, cfg.route, cfg.decision_hz, world.vehicle.collision_radius_m) \
+            if self.onboard is not None and cfg.route.refresh_s > 0.0 else None
         self.difficulty = 1.0  # the training curriculum's task difficulty (see TaskDistribution.sample)
         # called after every control period with the slots that flew it (a recorder of flights at control rate)
         self.on_period: Callable[[np.ndarray], None] | None = None
@@ -246,15 +250,17 @@ class NavBatch:
                                 density_ratio=w.atmospheres[air.field].density_ratio(task.start_m[2]))
         self.xi[i] = 0.0
         self.t[i] = 0.0
+        level, seed = int(sensing[0]), int(sensing[1])
+        if not -1 <= level < len(cfg.sensing) or seed < 0:
+            raise ValueError(f"sensing {sensing}: the level must be an index of {cfg.sensing} (-1: perfect) and the "
+                             f"seed non-negative")
         route = route_for(draw.prior, task, p.collision_radius_m, cfg.route)
         self.routes.set(i, route)
         if self._truth_routes is not None:
             self._truth_routes.set(i, route if draw.truth is draw.prior else
                                    route_for(draw.truth, task, p.collision_radius_m, cfg.route))
-        level, seed = int(sensing[0]), int(sensing[1])
-        if not -1 <= level < len(cfg.sensing) or seed < 0:
-            raise ValueError(f"sensing {sensing}: the level must be an index of {cfg.sensing} (-1: perfect) and the "
-                             f"seed non-negative")
+        if self._refresh is not None and level >= 0 and cfg.sensing[level] != "perfect":
+            self._refresh.start(i, draw.prior, task, route)
         self.sensing_level[i], self.sensing_seed[i] = level, seed
         if self.onboard is not None:
             self.onboard.start(i, level, seed, draw.geometry, draw.truth, draw.prior, ci, (ci, draw.level, draw.draw))
@@ -302,6 +308,12 @@ class NavBatch:
         return self.onboard.sensed(idx) if self.onboard is not None else np.zeros(len(idx), dtype=bool)
 
     @property
+    def route_redraws(self) -> np.ndarray:
+        """(N,) the routes redrawn around sensed columns in each slot's episode so far (`RouteConfig.refresh_s`;
+        zeros when none is)."""
+        return np.zeros(self.n, dtype=np.int64) if self._refresh is None else self._refresh.redraws.copy()
+
+    @property
     def _reward_routes(self) -> RouteBank:
         """The route fields the reward's progress is measured on: the truths' (the priors' when no map differs)."""
         return self.routes if self._truth_routes is None else self._truth_routes
@@ -317,6 +329,11 @@ class NavBatch:
             assert self.onboard is not None
             s = idx[rows]
             x[rows, 0:13] = self.onboard.decide(s, self.t[s])
+            if self._refresh is not None:  # the scans are in the views now: redraw the routes they block
+                for level, at in self.onboard.by_level(s):
+                    for slot, redrawn in self._refresh.decide(s[at], self.onboard.view[level], s[at],
+                                                              x[rows[at], 0:3], self.onboard.sigma_m[s[at]]):
+                        self.routes.set(slot, redrawn)
             route[rows] = self.routes.potential(x[rows, 0:3], s)
         return x, route
 

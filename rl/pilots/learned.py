@@ -36,6 +36,7 @@ from rl.sensing.observation import (
 )
 from rl.sensing.perception import Perception
 from rl.sensing.route import RouteBank, grid_shape
+from rl.sensing.route_refresh import RouteRefresh
 from rl.sensing.senses import clearance_sensor, nearest_surface, observe_slots, route_for
 from rl.task.cities import boxes_only
 from rl.task.config import NavConfig, learned_lidar
@@ -209,6 +210,10 @@ class PolicyPilot:
             lidar = self.sensing_flown(world.sensing).lidar
             self._view = LidarView(self._senses.perception, 1, lidar, nav.scales.clearance_m)
             self._view.reset(self._SLOT, self._CITY)
+        self._refresh: RouteRefresh | None = None
+        if self._view is not None and nav.route.refresh_s > 0.0:  # its route redrawn around what it senses
+            self._refresh = RouteRefresh(1, nav.route, nav.decision_hz, radius)
+            self._refresh.start(0, world.city, task, route)
         return ResetInfo(True, plan_time_s=time.perf_counter() - t0)
 
     def observe(self, obs: Observation) -> np.ndarray:
@@ -226,6 +231,9 @@ class PolicyPilot:
         pos = xs[:, 0:3]
         if self._view is not None:
             self._integrate(obs, xs)
+            if self._refresh is not None:  # as the env's sensing slots, after the scans are in the view
+                for _, redrawn in self._refresh.decide(self._SLOT, self._view, self._SLOT, pos, self._sigma_m):
+                    self._routes.set(0, redrawn)
         route = self._routes.potential(pos, self._SLOT)
         if self._last_action is None:
             m.start(self._SLOT, pos, self._goal, route)

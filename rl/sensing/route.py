@@ -73,6 +73,9 @@ class RouteConfig:
             G at a point interpolates linearly in altitude between the two levels around it
             (clamped at the ends), so a building taller than the lower end blocks the route at the
             altitudes it stands in instead of being flown through.
+        refresh_s: below perfect sensing, the pilot's route is redrawn around the columns its lidar sensed
+            (`rl.sensing.route_refresh`) at decisions this far apart [s], when a sensed column stands where the
+            route is open (0: the prior map's route all episode).
     """
 
     cell_m: float = 4.0
@@ -80,6 +83,7 @@ class RouteConfig:
     blocked_speed: float = 0.1
     climb_weight: float = 1.0
     level_step_m: float | None = None
+    refresh_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.cell_m > 0 and math.isfinite(self.cell_m)):
@@ -92,6 +96,8 @@ class RouteConfig:
             raise ValueError(f"climb_weight must be positive and finite, got {self.climb_weight}")
         if self.level_step_m is not None and not (self.level_step_m > 0 and math.isfinite(self.level_step_m)):
             raise ValueError(f"level_step_m must be None or positive and finite, got {self.level_step_m}")
+        if not (self.refresh_s >= 0 and math.isfinite(self.refresh_s)):
+            raise ValueError(f"refresh_s must be >= 0 and finite, got {self.refresh_s}")
 
 
 def flight_levels(z_a_m: float, z_b_m: float, step_m: float | None) -> tuple[float, ...]:
@@ -163,10 +169,11 @@ class LeveledRoute:
 
 
 def leveled_route(city: BuildingMap, goal_m: Sequence[float], levels_m: Sequence[float], radius_m: float,
-                  config: RouteConfig = RouteConfig()) -> LeveledRoute:
-    """`route_field` at each flight level of `levels_m` [m] (increasing, evenly spaced)."""
+                  config: RouteConfig = RouteConfig(), columns: np.ndarray | None = None) -> LeveledRoute:
+    """`route_field` at each flight level of `levels_m` [m] (increasing, evenly spaced), with `columns` standing
+    beside the city's buildings (see `route_field`)."""
     levels = tuple(float(z) for z in levels_m)
-    return LeveledRoute(levels, tuple(route_field(city, goal_m, z, radius_m, config) for z in levels))
+    return LeveledRoute(levels, tuple(route_field(city, goal_m, z, radius_m, config, columns) for z in levels))
 
 
 def grid_shape(city: BuildingMap, cell_m: float = RouteConfig.cell_m) -> tuple[int, int]:
@@ -237,7 +244,7 @@ def _rasterise(boxes: np.ndarray, reach_m: float, origin: np.ndarray, cell_m: fl
 
 
 def route_field(city: BuildingMap, goal_m: Sequence[float], ref_altitude_m: float, radius_m: float,
-                config: RouteConfig = RouteConfig()) -> RouteField:
+                config: RouteConfig = RouteConfig(), columns: np.ndarray | None = None) -> RouteField:
     """The geodesic horizontal distance to `goal_m` over `city`, flying at `ref_altitude_m`.
 
     Blocked cells: centre within radius_m + margin_m of the footprint of a building with
@@ -254,6 +261,8 @@ def route_field(city: BuildingMap, goal_m: Sequence[float], ref_altitude_m: floa
         ref_altitude_m: flight level [m] above the ground deciding which buildings block.
         radius_m: the vehicle's collision radius [m].
         config: grid and cost settings.
+        columns: (K, 5) more obstacles standing on the ground, axis-aligned: x0, y0, x1, y1 [m] (their footprint's
+            corners) and height [m] (e.g. what a lidar sensed, `rl.sensing.route_refresh`); None: the city alone.
 
     Raises:
         ValueError: non-box buildings, a goal outside the horizontal bounds, non-finite inputs.
@@ -276,6 +285,11 @@ def route_field(city: BuildingMap, goal_m: Sequence[float], ref_altitude_m: floa
     origin = lo + 0.5 * h
     reach = float(radius_m) + float(config.margin_m)
     boxes = _blocking_boxes(city, float(ref_altitude_m) - reach)
+    if columns is not None and len(columns):
+        tall = columns[columns[:, 4] > float(ref_altitude_m) - reach]
+        half_x, half_y = 0.5 * (tall[:, 2] - tall[:, 0]), 0.5 * (tall[:, 3] - tall[:, 1])
+        boxes = np.concatenate([boxes, np.stack([tall[:, 0] + half_x, tall[:, 1] + half_y, np.ones(len(tall)),
+                                                 np.zeros(len(tall)), half_x, half_y], axis=1)])
     blocked = _rasterise(boxes, reach, origin, h, shape)
 
     # Distance of every cell centre to the goal; the source circle (zero level set) around it.

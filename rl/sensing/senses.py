@@ -32,11 +32,13 @@ def clearance_sensor(cities: Sequence[BuildingMap], scales: ObservationScales, r
     return BoxSensor(cities, 1, rng, radius_m, cell_m=max(10.0, rng / 3.0))
 
 
-def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig) -> LeveledRoute:
+def route_for(city: BuildingMap, task: Task, radius_m: float, config: RouteConfig,
+              columns: np.ndarray | None = None) -> LeveledRoute:
     """The geodesic route fields of a task at its flight levels (`rl.sensing.route.flight_levels`: the
-    higher of start and goal alone, or levels from the lower to the higher)."""
+    higher of start and goal alone, or levels from the lower to the higher), with `columns` (K, 5) standing
+    beside the city's buildings (`rl.sensing.route.route_field`)."""
     levels = flight_levels(task.start_m[2], task.goal_m[2], config.level_step_m)
-    return leveled_route(city, task.goal_m, levels, radius_m, config)
+    return leveled_route(city, task.goal_m, levels, radius_m, config, columns)
 
 
 def nearest_surface(sensor: BoxSensor | TruthSensing, points_m: np.ndarray,

@@ -162,6 +162,19 @@ def test_the_estimates_uncertainty_is_observed_the_same_by_env_and_runner(world,
     assert np.all(sigma > 0.0) and np.ptp(sigma) > 0.0  # the filter's sigma, moving with its fixes
 
 
+@pytest.mark.parametrize(("level", "seed"), [(0, 9), (1, 7)])
+def test_routes_redrawn_around_sensed_columns_are_the_same_in_env_and_runner(wrong_maps, policy, level, seed):
+    """With the route redrawn every second around what the lidar sensed (`RouteConfig.refresh_s`), over priors that
+    lack buildings and cranes: env and runner still fly the same episode bit for bit, and routes were redrawn."""
+    nav = replace(policy.nav, route=replace(policy.nav.route, refresh_s=1.0))
+    refreshed = NavWorld(replace(wrong_maps.config, route=nav.route), dynamics=wrong_maps.dynamics,
+                         wind_from=wrong_maps, atmosphere=wrong_maps.atmospheres)
+    redrawing = Policy(policy.folder, policy.network, policy.obs_norm, nav)
+    _assert_env_equals_runner(refreshed, redrawing, seed, level, 321)
+    b, *_ = _fly_env(refreshed, redrawing, _episode(refreshed, seed), level, 321)
+    assert b.route_redraws[0] > 0
+
+
 class _Watched(PolicyPilot):
     """The learned pilot, keeping the world it is given and its observations."""
 
