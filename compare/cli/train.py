@@ -18,6 +18,7 @@ from rl.sensing.observation import ObservedContext
 
 if TYPE_CHECKING:
     from rl.env.ground import TrainingGround
+    from rl.sensing.route import RouteConfig
     from rl.task.config import NavConfig
     from rl.training.config import TrainConfig
 
@@ -93,6 +94,10 @@ def _add_task_options(tr: argparse.ArgumentParser) -> None:
                          "4.0 km, no to moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn "
                          "per episode; the UAM also in cities at the shipped maps' scale (15-30 m streets), with goals "
                          "down to 15 m from the flight volume's side, observing that side (geofence)")
+    tr.add_argument("--route-refresh", type=float, default=None, metavar="SECONDS",
+                    help="below perfect sensing, redraw the route the policy observes around the obstacles its "
+                         "lidar sensed, checking every SECONDS of flight (a whole number of decisions; 0: the prior "
+                         "map's route all episode; default: the task's, 0)")
     tr.add_argument("--observe", default=None, metavar="WHAT",
                     help="what the policy observes beyond the base observation, comma-separated: air (density "
                          "ratio and forecast turbulence), geofence (the flight volume's edge), history=N (N past "
@@ -227,13 +232,28 @@ def _task(args: argparse.Namespace, defaults: TrainConfig, ground: TrainingGroun
     observe = task.observe if args.observe is None else parse_observed(args.observe)
     sensing = task.sensing if args.sensing is None else _levels("--sensing", args.sensing, "sensing", task)
     map_error = task.map_error if args.map_error is None else _levels("--map-error", args.map_error, "map_error", task)
+    route = task.route if args.route_refresh is None else option(
+        "--route-refresh", lambda v: _refresh_every(task, float(v)), str(args.route_refresh))
     check_output_dir(args.out, "--out")
     if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
         raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
                          f"give another --out, --resume to continue its training, or --overwrite to replace it)")
     task = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe,
-                   sensing=sensing, map_error=map_error)
+                   sensing=sensing, map_error=map_error, route=route)
     return task if ground is None else ground.task(task)
+
+
+def _refresh_every(task: NavConfig, seconds: float) -> RouteConfig:
+    """The task's route settings checking for sensed obstacles every `seconds` (`rl.sensing.route_refresh`).
+
+    Raises:
+        ValueError: a negative or non-finite period, or one that is not a whole number of the task's decisions.
+    """
+    from rl.sensing.route_refresh import refresh_decisions
+
+    route = replace(task.route, refresh_s=seconds)
+    refresh_decisions(route, task.decision_hz)
+    return route
 
 
 def _levels(name: str, text: str, key: str, task: NavConfig) -> tuple[str, ...]:

@@ -139,9 +139,9 @@ def test_train_draws_the_sensing_and_map_error_levels_it_is_given(tmp_path: Path
                                                                    quick_training: dict[str, Any]) -> None:
     out = tmp_path / "sensing"
     assert main(["train", *QUICK, "--sensing", "perfect,degraded", "--map-error", "exact, wrong",
-                 "--out", str(out)]) == 0
+                 "--route-refresh", "1", "--out", str(out)]) == 0
     nav = quick_training["cfg"].nav
-    assert (nav.sensing, nav.map_error) == (("perfect", "degraded"), ("exact", "wrong"))
+    assert (nav.sensing, nav.map_error, nav.route.refresh_s) == (("perfect", "degraded"), ("exact", "wrong"), 1.0)
     config = json.loads((out / "config.json").read_text())["nav"]
     assert (config["sensing"], config["map_error"]) == (["perfect", "degraded"], ["exact", "wrong"])
 
@@ -150,6 +150,8 @@ def test_train_draws_the_sensing_and_map_error_levels_it_is_given(tmp_path: Path
     (["--sensing", "nominal,foggy"], ("--sensing nominal,foggy", "foggy")),
     (["--sensing", "nominal,nominal"], ("--sensing nominal,nominal",)),
     (["--map-error", "stale"], ("--map-error stale", "stale")),
+    (["--route-refresh", "0.25"], ("--route-refresh 0.25", "whole number of decisions")),
+    (["--route-refresh", "-1"], ("--route-refresh -1.0", "refresh_s")),
 ])
 def test_unknown_or_repeated_levels_are_refused_by_their_option(tmp_path: Path, capsys: pytest.CaptureFixture,
                                                                  argv: list[str], expected: tuple[str, ...]) -> None:
