@@ -74,7 +74,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                          "field still reads its true position and the map (default: the policy's task's levels)")
     ev.add_argument("--map-error", choices=MAP_ERROR_LEVELS, default=None,
                     help="fly every episode with this map error (docs/sensing.md): the route is planned on the "
-                         "prior map, collisions are with the city as it stands (default: the policy's task's levels)")
+                         "prior map, collisions are with the city as it stands; not with --sensing perfect, whose "
+                         "senses in the environment are the truth's (default: the policy's task's levels)")
     ev.add_argument("--no-baseline", action="store_true", help="skip the potential-field pilot (apf) on the same "
                                                                "tasks")
     ev.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
@@ -131,6 +132,11 @@ def evaluate_policy(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes}: must be >= 1")
+    if args.sensing == "perfect" and args.map_error not in (None, "exact"):
+        raise ValueError(f"--sensing perfect --map-error {args.map_error}: with nothing sensed, the comparison's "
+                         f"pilots see only the prior map, while the environment's perfect senses are the truth's; "
+                         f"fly it with `uam-compare run SCENARIO --sensing perfect --map-error {args.map_error}`, or "
+                         f"evaluate at nominal or degraded sensing")
     check_ranges({"--episodes": (args.episodes, 1, pool_cities(args.pool)), "--seed": (args.seed, 0, MAX_SEED)})
     one_torch_thread()
     air = air_from_options(args)  # before anything is loaded: a bad option is named at once

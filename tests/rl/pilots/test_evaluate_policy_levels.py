@@ -28,6 +28,18 @@ def test_a_bad_level_is_refused_naming_the_option_and_value(capsys, monkeypatch,
     assert f"argument {option}: invalid choice: '{value}'" in line
 
 
+def test_perfect_sensing_over_a_wrong_map_is_sent_to_the_runner(capsys, monkeypatch):
+    import rl.env.world
+
+    def built(*_args, **_kwargs):  # pragma: no cover (reached only if the combination were let through)
+        raise AssertionError("a world was built for a refused combination")
+
+    monkeypatch.setattr(rl.env.world, "NavWorld", built)
+    assert main(["evaluate-policy", "--episodes", "2", "--sensing", "perfect", "--map-error", "wrong"]) == 2
+    err = capsys.readouterr().err
+    assert "--sensing perfect --map-error wrong" in err and "uam-compare run" in err and "Traceback" not in err
+
+
 def test_eval_config_replaces_the_tasks_levels_or_keeps_them():
     nav = NavConfig(sensing=("perfect", "nominal"), map_error=("exact", "wrong"))
     kept = eval_config(nav, 2)
