@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
-from compare.results.level_rates import level_json, level_rates, level_table_lines
+from compare.results.level_rates import level_json, level_pairs, level_rates, level_table_lines
 from compare.results.metrics import read_metrics_csv
 from compare.results.run_info import read_run_info
 from compare.results.stats import MIN_INTERVAL_N
@@ -135,13 +135,14 @@ def verdict(st: PairedStat) -> str:
 
 def print_task_set(run_dir: Path) -> None:
     """The task set a run flew, with its version (nothing for scenario files); a sweep's rates per step, a
-    benchmark's per air and turbulence level."""
+    benchmark's per air, turbulence, sensing and map-error level with paired differences."""
     info = read_run_info(run_dir)
     task_set = info.task_set
     if task_set is not None and task_set.name in SWEEP_SETS:
         _print_lines(sweep_table_lines(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv"))))
     if task_set is not None and task_set.name in BENCHMARK_SETS and (run_dir / "metrics.csv").exists():
-        _print_lines(level_table_lines(level_rates(info, read_metrics_csv(run_dir / "metrics.csv"))))
+        rows = read_metrics_csv(run_dir / "metrics.csv")
+        _print_lines(level_table_lines(level_rates(info, rows), level_pairs(info, rows)))
     if task_set is not None:
         print(f"task set {task_set.name}, version {task_set.version}: {task_set.description}")
 
@@ -176,8 +177,9 @@ def print_headline_json(run_dir: Path) -> None:
     if task_set is not None and task_set.name in SWEEP_SETS:  # per vehicle, axis, step and pilot (printed above)
         out["sweep"] = sweep_json(sweep_rates(info, read_metrics_csv(run_dir / "metrics.csv")))
     if task_set is not None and task_set.name in BENCHMARK_SETS and (run_dir / "metrics.csv").exists():
-        # per vehicle, air and turbulence level (printed above)
-        out["by_level"] = level_json(level_rates(info, read_metrics_csv(run_dir / "metrics.csv")))
+        # per vehicle, air, turbulence, sensing and map-error level, with paired differences (printed above)
+        rows = read_metrics_csv(run_dir / "metrics.csv")
+        out["by_level"] = level_json(level_rates(info, rows), level_pairs(info, rows))
     print(json_line(out))
 
 

@@ -318,11 +318,15 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp
     """Every scenario's levels are read from the air it flew; each level pools its scenarios' episodes, counted
     by outcome, with Wilson intervals; a benchmark run prints the table and its JSON carries it."""
     from compare.cli.printout import print_task_set
-    from compare.results.level_rates import level_json, level_rates
+    from compare.results.level_rates import level_json, level_pairs, level_rates
     from compare.results.metrics import EpisodeMetrics, write_metrics_csv
+    from compare.scenarios.levels import with_levels
     from uam_fdm.stats import wilson_interval
 
-    scenarios = list(quick.scenarios)
+    # every other scenario flown at nominal sensing, every third over an outdated map: the levels cross
+    scenarios = [with_levels(sc, "nominal" if k % 2 else None, "outdated" if k % 3 == 0 else None)
+                 for k, sc in enumerate(quick.scenarios)]
+    flown = {sc.name: sc for sc in scenarios}
     opts = RunConfig(out_dir=tmp_path, pilots=("apf", "ppo"), progress=False)
     cells, notes = plan_cells(scenarios, opts, None)
     write_run_files(scenarios, opts, cells, notes, {})
@@ -352,12 +356,40 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp
                 assert r.success_ci95 == wilson_interval(r.successes, r.episodes)
         (whole,) = [r for r in rates if r.vehicle == vehicle and r.axis == "all" and r.pilot == "ppo"]
         assert whole.episodes == 3 * len(mine) and whole.level == "all"
-    data = level_json(rates)
-    assert set(data) == set(VEHICLES) and set(data["small_quad"]) == {"all", "air", "turbulence"}
+        for axis in ("sensing", "map_error", "sensing_map"):
+            got = [r for r in rates if r.vehicle == vehicle and r.axis == axis and r.pilot == "ppo"]
+            assert sorted(r.level for r in got) == sorted({_flown_level(flown, axis, n) for n in index})
+            for r in got:
+                assert r.episodes == 3 * sum(_flown_level(flown, axis, n) == r.level for n in index)
+    pairs = level_pairs(info, rows)
+    for p in pairs:  # the two pilots, in run order, on the same cells of the level
+        assert {p.first, p.second} == {"apf", "ppo"}
+        (a,) = [r for r in rates if (r.vehicle, r.axis, r.level, r.pilot) == (p.vehicle, p.axis, p.level, p.first)]
+        (b,) = [r for r in rates if (r.vehicle, r.axis, r.level, r.pilot) == (p.vehicle, p.axis, p.level, p.second)]
+        assert p.pairs == a.episodes == b.episodes
+        assert p.success_diff == pytest.approx(a.success - b.success)
+        assert p.collision_diff == pytest.approx(a.collision - b.collision)
+        assert p.success_ci95[0] <= p.success_diff <= p.success_ci95[1]
+        assert (p.success_excludes_zero is None) == (p.pairs < 10)
+    assert {(p.axis, p.level) for p in pairs if p.vehicle == "small_quad"} == {
+        (r.axis, r.level) for r in rates if r.vehicle == "small_quad"}
+    data = level_json(rates, pairs)
+    assert set(data) == set(VEHICLES) and set(data["small_quad"]) == {"all", "air", "turbulence", "sensing",
+                                                                      "map_error", "sensing_map"}
+    assert set(data["small_quad"]["sensing"]) == {"perfect", "nominal"}
+    assert f"{pairs[0].first} - {pairs[0].second}" in data["small_quad"]["all"]["all"]["paired"]
     print_task_set(tmp_path)
     out = capsys.readouterr().out
-    assert "small_quad, per air and turbulence level (Wilson 95 % intervals):" in out
-    assert "air hot-and-high" in out and "turbulence moderate" in out
+    assert "small_quad, per air, turbulence, sensing and map-error level (Wilson 95 % intervals; paired" in out
+    assert "air hot-and-high" in out and "turbulence moderate" in out and "sensing_map nominal/outdated" in out
+    assert f"{pairs[0].first} - {pairs[0].second}: " in out
+
+
+def _flown_level(flown: dict, axis: str, name: str) -> str:
+    """Scenario `name`'s sensing, map-error or sensing/map level as flown."""
+    sc = flown[name]
+    return {"sensing": sc.sensing.label, "map_error": sc.map_error.label,
+            "sensing_map": f"{sc.sensing.label}/{sc.map_error.label}"}[axis]
 
 
 def test_a_field_outside_every_air_level_is_other() -> None:
