@@ -11,7 +11,8 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes
    table, summary forest plot, paired differences with their minimum detectable differences, success
    along task difficulty, the scenarios' conditions, per-scenario and per-episode tables (bounded);
    then the classical pilot's tracker per scenario; a robustness-sweep run's rates against density altitude
-   and wind per vehicle (`compare.report.sweep_pages`);
+   and wind per vehicle (`compare.report.sweep_pages`); a run flown at several sensing or map-error levels, its
+   rates against them per vehicle (`compare.report.degradation_pages`);
 3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
    3D snapshots over time, for the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios of each vehicle and
    the first `DRAWN_FLIGHTS_PER_SCENARIO` tasks of each (a benchmark run has hundreds: a page says which);
@@ -47,6 +48,7 @@ from matplotlib.figure import Figure
 
 from compare.flying import pilots
 from compare.report import figures as F
+from compare.report.degradation_pages import degradation_pages
 from compare.report.flight_figures import (
     episode_paths_figure,
     episode_snapshots_figure,
@@ -200,6 +202,8 @@ def _full_pages(run: _Run, groups: dict[tuple[str, int, int], list[EpisodeEntry]
         pages.add_all(figs, name, section)
     for name, fig in sweep_pages(run.info, rows or [], run.style()):  # a sweep run's rates per step
         pages.add(fig, name, "Robustness sweep")
+    for name, fig in degradation_pages(run.info, rows or [], run.style()):  # rates per sensing and map level
+        pages.add(fig, name, "Degradation")
     drawn, left_out = _drawn_groups(run, groups, rows)
     if left_out:
         pages.add_all(text_pages("Flights", left_out), "flights_drawn", "Flights")
