@@ -67,6 +67,7 @@ from uam_fdm.vehicle.ground_effect import range_m as ground_effect_range_m
 from uam_fdm.vehicle.model import hover_state
 from uam_fdm.vehicle.params import GRAVITY_M_S2
 
+_IDLE = -1  # a slot `step` leaves where it is (not an `uam_fdm.episode` code)
 __all__ = ["NavBatch", "NavWorld", "SlotAir", "route_levels"]  # the world's parts: where they were always imported
 
 
@@ -449,8 +450,11 @@ class NavBatch:
             np.asarray(out.energy_J)[rows] = r.energy_J
         return out
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
-        """Advance every slot one decision.
+    def step(self, actions: np.ndarray, active: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        """Advance every slot one decision (with `active` (N,) bool, only those: the others, e.g. episodes an
+        evaluation has seen end, stay where they are, flying and sensing nothing, and end nothing; the flying slots'
+        numbers are the same).
 
         Returns:
             observations (N, obs) after the step (before any reset), rewards (N,), terminated (N,),
@@ -461,6 +465,8 @@ class NavBatch:
         act = np.minimum(np.maximum(np.asarray(actions, dtype=np.float64).reshape(self.n, 3), -1.0), 1.0)
         cmd = action_to_command(act, self.memory.heading_rad, w.vehicle, self.yaw)
         code = np.full(self.n, episode.RUNNING, dtype=np.int64)
+        if active is not None:
+            code[~np.asarray(active, dtype=bool).reshape(self.n)] = _IDLE
         elapsed = np.zeros(self.n)
         route_before, clear_before = self.route_m.copy(), self.clear.copy()
         clear_lb = self.clear.copy()
@@ -521,7 +527,7 @@ class NavBatch:
         for i in range(self.n):
             info = {"reward_terms": {k: float(terms[k][i]) for k in TERMS}, "clearance_m": float(self.clear[i]),
                     "distance_to_goal_m": float(dist[i]), "route_m": float(self.route_m[i]), "t_s": float(self.t[i])}
-            if code[i] != episode.RUNNING:
+            if code[i] != episode.RUNNING and code[i] != _IDLE:
                 info["outcome"] = episode.OUTCOME_OF_CODE[int(code[i])]
                 info["is_success"] = bool(arrived[i])
                 info["city"] = w.cities[int(self.city[i])].name

@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.pilots.potential_field import BatchedPotentialField, PotentialFieldConfig, gains_for
 from rl.task.air import AirDistribution
@@ -106,19 +105,23 @@ def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, 
             bounds its weights so that none is).
     """
     world = world or NavWorld(eval_config(nav, episodes, pool))
-    venv = UAMNavVecEnv(episodes, world=world, seed=seed)
-    venv.batch.city_of_slot = np.arange(episodes) % len(world.cities)
-    obs = venv.reset()
+    batch = NavBatch(world, episodes)
+    batch.city_of_slot = np.arange(episodes) % len(world.cities)
+    batch.seed([seed + i for i in range(episodes)])
+    batch.reset_slots(range(episodes))
+    obs = batch.observations.copy()
     done = np.zeros(episodes, dtype=bool)
     outcomes: list[str] = [""] * episodes
     returns = np.zeros(episodes)
     times = np.zeros(episodes)
     while not done.all():
-        obs, _, d, infos = venv.step(pilot(obs, venv.batch))
+        # an episode that ended stays where it ended: only those still flying fly (their numbers are the same)
+        obs, _, term, trunc, infos = batch.step(pilot(obs, batch), active=~done)
+        d = term | trunc
         ended = np.flatnonzero(d & ~done)
         for i in ended:
             outcomes[i] = infos[i]["outcome"]
-            returns[i] = infos[i]["episode"]["r"]
+            returns[i] = batch.episode_return[i]
             times[i] = infos[i]["t_s"]
         done |= d
         if progress is not None and len(ended):
