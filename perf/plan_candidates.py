@@ -1,6 +1,6 @@
 """The classical pilot's planning candidates, measured on the benchmark's validation twin.
 
-For every leg of `benchmark-validation` (the test set's design on other cities:
+For every leg of `benchmark-perfect-validation` (the test set's design on other cities:
 `compare.scenarios.benchmark`), the pilot's plan at reset (`ClassicalPilot.reset`: margins for the scenario's air
 and turbulence, the planning ladder, the reference timed as it will be flown) under each variant of the ladder,
 paired by leg:
@@ -11,7 +11,7 @@ paired by leg:
 * `whole`: as shipped, but each of RRT*'s two seeds gets the whole budget (twice the plan time).
 
 The figure of merit is the reference's flight time (what the tracker is asked to take), the plan time and the legs
-whose plan takes more than 80 % of their time limit. The test set (`benchmark`) is never planned here.
+whose plan takes more than 80 % of their time limit. The test set (`benchmark-perfect`) is never planned here.
 
     OMP_NUM_THREADS=1 python perf/plan_candidates.py --vehicle small_quad              # 432 legs, ~15 min
     OMP_NUM_THREADS=1 python perf/plan_candidates.py --vehicle uam_multicopter --scenarios 9
@@ -35,7 +35,9 @@ import numpy as np  # noqa: E402
 
 from compare.flying.seeding import cell_seed  # noqa: E402
 from compare.run.cells import CellRunner  # noqa: E402
-from compare.scenarios.benchmark import VALIDATION, build_task_set  # noqa: E402
+from compare.scenarios.benchmark import PERFECT_SETS, build_task_set  # noqa: E402
+
+VALIDATION = PERFECT_SETS[2]  # benchmark-perfect-validation: the set its figures were measured on
 from planners.classical_pilot import ClassicalConfig, ClassicalPilot  # noqa: E402
 from planners.ladder import LADDER  # noqa: E402
 from planners.rrt_star import DEFAULT_ITERATIONS, FIRST_PATH, PlannerConfig  # noqa: E402

@@ -122,14 +122,16 @@ def _folder_set(folder: Path) -> str:
 def _generated_set(name: str) -> str:
     """A generated set's line from its design (`compare.scenarios.benchmark`, `compare.scenarios.sweep`)."""
     if name in benchmark.BENCHMARK_SETS:
-        d = benchmark.DESIGN
+        d = benchmark.design_of(name)
         quick = name.endswith("quick")
         cities, legs = (d.quick_scenarios, d.quick_legs) if quick else (d.scenarios_per_vehicle, d.legs_per_scenario)
         role = ("for tuning: the test set's twin on other cities" if "validation" in name
                 else "the held-out test pool, versioned")
         subset = f" (the first of {name.removesuffix('-quick')}'s)" if quick else ""
+        tiers = ("sensing and map-error tiers" if d.tiers
+                 else "perfect sensing over exact maps (the headline set before the tiers)")
         return (f"generated, {role}: per vehicle ({', '.join(vb.vehicle for vb in d.vehicles)}) "
-                f"{_count(cities, 'city')} x {_count(legs, 'leg')}{subset}; pilots {', '.join(d.pilots)}")
+                f"{_count(cities, 'city')} x {_count(legs, 'leg')}{subset}, {tiers}; pilots {', '.join(d.pilots)}")
     if name in sweep.SWEEP_SETS:
         s = sweep.DESIGN
         cities, legs = (s.cities, s.legs_per_city) if name == sweep.FULL else (s.quick_cities, s.quick_legs)

@@ -481,11 +481,12 @@ def _true_and_prior(data: Mapping, source: str, world: BuildingMap, config: MapE
                     vehicle: VehicleParams, legs: Any) -> tuple[BuildingMap, BuildingMap, tuple[int, ...]]:
     """The true city, the pilots' prior map and the ids only the truth has, from `map` (`world`), `unmapped` and
     `map_error` (drawn from `map_error.seed`, else the first of `seeds`, clear of every start and goal of `legs`,
-    the episodes, by the collision radius plus `KEEP_CLEAR_MARGIN_M`). Without either key: (world, world, ())."""
+    the episodes, and of `map_error.keep_clear`, by the collision radius plus `KEEP_CLEAR_MARGIN_M`). Without either
+    key: (world, world, ())."""
     if "unmapped" not in data and config.exact:
         return world, world, ()
     unmapped = unmapped_from_config(data.get("unmapped", []), source, world)
-    keep = _episode_points(legs, source)
+    keep = _episode_points(legs, source) + list(config.keep_clear)
     seed = seeds[0] if config.seed is None else config.seed
     result = apply_map_error(world, unmapped, config, seed, keep, vehicle.collision_radius_m + KEEP_CLEAR_MARGIN_M)
     return result.truth, result.prior, result.unmapped_ids

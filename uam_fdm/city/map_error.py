@@ -71,6 +71,8 @@ class MapErrorConfig:
         cranes: tower cranes in the true world and in no map, per city.
         masts: masts in the true world and in no map, per city.
         seed: the seed of the draws; None: the scenario's first seed.
+        keep_clear: more points (x, y, z) [m, ENU] the drawn errors keep clear of, beside every start and goal (e.g.
+            the legs a generated set's quick subset leaves out, so that its maps are its full set's).
         overridden: the keys a scenario changed from the preset (empty: the preset as it is).
     """
 
@@ -81,6 +83,7 @@ class MapErrorConfig:
     cranes: int = 0
     masts: int = 0
     seed: int | None = None
+    keep_clear: tuple[tuple[float, float, float], ...] = ()
     overridden: tuple[str, ...] = ()
 
     @property
@@ -354,7 +357,8 @@ def _axis_samples(box: Building) -> tuple[np.ndarray, float]:
 
 
 # ---- scenario keys -----------------------------------------------------------------------------------
-_CONFIG_KEYS = ("preset", "missing_fraction", "height_error_m", "shift_m", "cranes", "masts", "seed")
+_CONFIG_KEYS = ("preset", "missing_fraction", "height_error_m", "shift_m", "cranes", "masts", "seed", "keep_clear")
+MAX_KEEP_CLEAR = 10_000  # points a scenario's map error keeps clear of, beside its legs
 
 
 def map_error_from_config(value: Any, source: str, key: str = "map_error") -> MapErrorConfig:
@@ -374,7 +378,7 @@ def map_error_from_config(value: Any, source: str, key: str = "map_error") -> Ma
     for name in _CONFIG_KEYS[1:]:
         if name in cfg:
             changes[name] = _field(name, cfg[name], source, f"{key}.{name}")
-    changed = tuple(k for k, v in changes.items() if k != "seed" and v != getattr(base, k))
+    changed = tuple(k for k, v in changes.items() if k not in ("seed", "keep_clear") and v != getattr(base, k))
     return dataclasses.replace(base, **changes, overridden=changed)
 
 
@@ -384,7 +388,9 @@ def _preset(value: Any, source: str, key: str) -> MapErrorConfig:
     return MAP_ERROR_PRESETS[value]
 
 
-def _field(name: str, value: Any, source: str, key: str) -> float | int:
+def _field(name: str, value: Any, source: str, key: str) -> Any:
+    if name == "keep_clear":
+        return _points(value, source, key)
     if name == "missing_fraction":
         return number_in_range(value, (0.0, 1.0), "fraction of the buildings", source, key)
     if name == "height_error_m":
@@ -393,6 +399,22 @@ def _field(name: str, value: Any, source: str, key: str) -> float | int:
         return number_in_range(value, (0.0, MAX_SHIFT_M), "m", source, key)
     limit = {"cranes": MAX_CRANES, "masts": MAX_MASTS, "seed": MAX_SEED}[name]
     return integer_in_range(value, 0, limit, source, key)
+
+
+def _points(value: Any, source: str, key: str) -> tuple[tuple[float, float, float], ...]:
+    """A list of at most `MAX_KEEP_CLEAR` finite points [x, y, z] (m, ENU), else a ConfigError naming the first bad
+    one."""
+    if not isinstance(value, list) or len(value) > MAX_KEEP_CLEAR:
+        raise ConfigError(source, key, f"must be a list of at most {MAX_KEEP_CLEAR} points [x, y, z] (m, ENU), got "
+                                       f"{str(value)[:80]}")
+    out = []
+    for i, p in enumerate(value):
+        if not (isinstance(p, list) and len(p) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                          and math.isfinite(v) for v in p)):
+            raise ConfigError(source, f"{key}[{i}]", f"must be a point [x, y, z] of finite numbers (m, ENU), got "
+                                                     f"{str(p)[:80]}")
+        out.append((float(p[0]), float(p[1]), float(p[2])))
+    return tuple(out)
 
 
 def integer_in_range(value: Any, low: int, high: int, source: str, key: str) -> int:

@@ -1,5 +1,7 @@
-"""The benchmark sets: generated the same every time, versioned by what they hold, held out from the learned
-pilot's cities, per vehicle, quick a subset of full, every scenario through the strict loader, axes that vary."""
+"""The benchmark sets, both families (the tiered benchmark and benchmark-perfect, today's set before the tiers):
+generated the same every time, versioned by what they hold, held out from the learned pilot's cities and from each
+other, per vehicle, quick a subset of full, every scenario through the strict loader, axes that vary; the tiers'
+sensing and map-error levels balanced against the air and turbulence; benchmark-perfect's versions unchanged."""
 from __future__ import annotations
 
 import dataclasses
@@ -24,12 +26,14 @@ from compare.scenarios.benchmark import (
     DENSITY_LEVELS,
     DESIGN,
     FULL,
+    PERFECT_DESIGN,
     QUICK,
     TURBULENCE_LEVELS,
     VALIDATION,
-    VALIDATION_QUICK,
     VALIDATION_SEED_OFFSET,
+    BenchmarkDesign,
     TaskSet,
+    VehicleBenchmark,
     build_task_set,
     levels,
     task_set_version,
@@ -47,14 +51,24 @@ VEHICLES = ("small_quad", "uam_multicopter")
 ROOT = Path(__file__).resolve().parents[3]
 
 
-@pytest.fixture(scope="module")
-def full() -> TaskSet:
-    return build_task_set(FULL)
+@pytest.fixture(scope="module", params=[DESIGN, PERFECT_DESIGN], ids=["tiered", "perfect"])
+def family(request: pytest.FixtureRequest) -> BenchmarkDesign:
+    return request.param
 
 
 @pytest.fixture(scope="module")
-def quick() -> TaskSet:
-    return build_task_set(QUICK)
+def full(family: BenchmarkDesign) -> TaskSet:
+    return build_task_set(family.sets[0])
+
+
+@pytest.fixture(scope="module")
+def quick(family: BenchmarkDesign) -> TaskSet:
+    return build_task_set(family.sets[1])
+
+
+def _bins(vb: VehicleBenchmark, index: int) -> tuple[tuple[float, float], ...]:
+    """The leg bins of scenario `index` of a vehicle (its city component's, when its cities are a mixture)."""
+    return vb.component_leg_bins_m[index % len(vb.component_leg_bins_m)] if vb.component_leg_bins_m else vb.leg_bins_m
 
 
 def _seed(sc) -> int:
@@ -69,18 +83,18 @@ def _by_vehicle(task_set: TaskSet) -> dict[str, list]:
 
 
 # ---- determinism and version ---------------------------------------------------------------------------
-def test_same_tasks_and_version_twice(full: TaskSet, quick: TaskSet) -> None:
-    again = build_task_set(QUICK)
+def test_same_tasks_and_version_twice(family: BenchmarkDesign, full: TaskSet, quick: TaskSet) -> None:
+    again = build_task_set(family.sets[1])
     assert again.info == quick.info and [s.raw for s in again.scenarios] == [s.raw for s in quick.scenarios]
     assert [scenario_fingerprint(s) for s in again.scenarios] == [scenario_fingerprint(s) for s in quick.scenarios]
-    assert task_set_version(full.scenarios) == full.info.version != quick.info.version
-    assert full.info.version.startswith(f"{bench.GENERATOR_VERSION}+") and len(full.info.version) == 12
-    assert {sc.task_set for sc in full.scenarios} == {full.info} and full.info.name == FULL
+    assert task_set_version(full.scenarios, family.generator_version) == full.info.version != quick.info.version
+    assert full.info.version.startswith(f"{family.generator_version}+") and len(full.info.version) == 12
+    assert {sc.task_set for sc in full.scenarios} == {full.info} and full.info.name == family.sets[0]
 
 
-def test_same_in_a_fresh_process(quick: TaskSet) -> None:
+def test_same_in_a_fresh_process(family: BenchmarkDesign, quick: TaskSet) -> None:
     code = ("import json; from compare.scenarios.benchmark import build_task_set; "
-            "s = build_task_set('benchmark-quick'); "
+            f"s = build_task_set('{family.sets[1]}'); "
             "print(json.dumps([s.info.version, [sc.raw for sc in s.scenarios]]))")
     env = {**os.environ, "PYTHONHASHSEED": "12345", "PYTHONPATH": str(ROOT)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
@@ -88,11 +102,13 @@ def test_same_in_a_fresh_process(quick: TaskSet) -> None:
     assert version == quick.info.version and raws == json.loads(json.dumps([sc.raw for sc in quick.scenarios]))
 
 
-def test_version_changes_with_the_output(quick: TaskSet, monkeypatch: pytest.MonkeyPatch) -> None:
-    fewer = build_task_set(QUICK, dataclasses.replace(DESIGN, quick_legs=2))
+def test_version_changes_with_the_output(family: BenchmarkDesign, quick: TaskSet,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    name = family.sets[1]
+    fewer = build_task_set(name, dataclasses.replace(family, quick_legs=2))
     assert fewer.info.version != quick.info.version
-    bins = dataclasses.replace(DESIGN.vehicles[0], leg_bins_m=((50.0, 110.0), (110.0, 180.0), (180.0, 240.0)))
-    other = build_task_set(QUICK, dataclasses.replace(DESIGN, vehicles=(bins, DESIGN.vehicles[1])))
+    bins = dataclasses.replace(family.vehicles[0], leg_bins_m=((50.0, 110.0), (110.0, 180.0), (180.0, 240.0)))
+    other = build_task_set(name, dataclasses.replace(family, vehicles=(bins, family.vehicles[1])))
     assert other.info.version != quick.info.version
 
     # the city generator changes (the loader's cities lose their last building) while the mappings, which
@@ -104,13 +120,13 @@ def test_version_changes_with_the_output(quick: TaskSet, monkeypatch: pytest.Mon
         return type(city)(city.buildings[:-1], city.bounds_min_m, city.bounds_max_m, city.no_fly, name=city.name)
 
     monkeypatch.setattr(citygen, "generate_city", fewer_buildings)
-    changed = build_task_set(QUICK)
+    changed = build_task_set(name)
     assert [s.raw for s in changed.scenarios] == [s.raw for s in quick.scenarios]
     assert changed.info.version != quick.info.version
 
 
 # ---- held out, per vehicle, subsets --------------------------------------------------------------------
-def test_city_seeds_are_held_out(full: TaskSet) -> None:
+def test_city_seeds_are_held_out(family: BenchmarkDesign, full: TaskSet) -> None:
     seeds = [_seed(sc) for sc in full.scenarios]
     assert len(set(seeds)) == len(seeds)
     test_pool = range(EVAL_SEEDS.start, EVAL_SEEDS.start + VALIDATION_OFFSET)
@@ -118,30 +134,37 @@ def test_city_seeds_are_held_out(full: TaskSet) -> None:
     for pool in (TRAIN_SEEDS, test_pool, validation_pool, EVAL_SEEDS):
         assert not any(s in pool for s in seeds)
     assert all(s >= 3_000_000 for s in seeds)
-    for v, seed_range in bench.city_seed_ranges().items():
+    for v, seed_range in bench.city_seed_ranges(family).items():
         assert sorted(_seed(sc) for sc in full.scenarios if sc.vehicle_name == v) == list(seed_range)
+    # and from the other family's sets and twins
+    others = set()
+    for other in (DESIGN, PERFECT_DESIGN):
+        if other is not family:
+            for twin in (other, bench.validation_design(other)):
+                others |= {s for r in bench.city_seed_ranges(twin).values() for s in r}
+    assert not others & set(seeds) and not others & {s + VALIDATION_SEED_OFFSET for s in seeds}
     # the cities are the learned pilot's distribution (its generator parameters) at the levels' density
     sc = full.scenarios[0]
-    drawn = task_for(sc.vehicle_name).cities.params(_seed(sc))
+    drawn = task_for(sc.vehicle_name, envelope=family.vehicles[0].envelope).cities.params(_seed(sc))
     made = citygen.params_from_config(sc.raw["map"]["generator"], "x", "map.generator")[0]
     assert dataclasses.replace(made, density=drawn.density, fill_range=drawn.fill_range) == drawn
     assert sc.city.name == f"gen-{_seed(sc)}"
 
 
-def test_per_vehicle_sets_at_the_vehicles_scale(full: TaskSet) -> None:
+def test_per_vehicle_sets_at_the_vehicles_scale(family: BenchmarkDesign, full: TaskSet) -> None:
     per = _by_vehicle(full)
-    for vb in DESIGN.vehicles:
+    for vb in family.vehicles:
         scenarios = per[vb.vehicle]
-        assert len(scenarios) == DESIGN.scenarios_per_vehicle
-        assert sum(len(s.episodes) for s in scenarios) == DESIGN.scenarios_per_vehicle * DESIGN.legs_per_scenario
-        nav = task_for(vb.vehicle)
-        for sc in scenarios:
-            assert sc.name.startswith(f"benchmark-{vb.tag}-") and sc.pilots == ("ppo", "rrt_mpc", "apf")
-            assert sc.seeds == DESIGN.seeds
+        assert len(scenarios) == family.scenarios_per_vehicle
+        assert sum(len(s.episodes) for s in scenarios) == family.scenarios_per_vehicle * family.legs_per_scenario
+        nav = task_for(vb.vehicle, envelope=vb.envelope)
+        for i, sc in enumerate(scenarios):
+            assert sc.name.startswith(f"{family.prefix}-{vb.tag}-") and sc.pilots == ("ppo", "rrt_mpc", "apf")
+            assert sc.seeds == family.seeds
             for ep in sc.episodes:
                 task = ep.task
                 a, b = task.start_m, task.goal_m
-                lo, hi = vb.leg_bins_m[ep.index % 3]
+                lo, hi = _bins(vb, i)[ep.index % 3]
                 assert lo <= math.dist(a, b) <= hi
                 assert all(vb.altitude_m[0] <= z <= vb.altitude_m[1] for z in (a[2], b[2]))
                 assert task.goal_radius_m == nav.tasks.goal_radius_m
@@ -153,52 +176,57 @@ def test_per_vehicle_sets_at_the_vehicles_scale(full: TaskSet) -> None:
     assert {s.goal_radius_m for s in (e.task for e in per["uam_multicopter"][0].episodes)} == {10.0}
 
 
-def test_quick_is_a_subset_of_full(full: TaskSet, quick: TaskSet) -> None:
+def test_quick_is_a_subset_of_full(family: BenchmarkDesign, full: TaskSet, quick: TaskSet) -> None:
     named = {sc.name: sc for sc in full.scenarios}
     per = _by_vehicle(quick)
-    assert all(len(per[v]) == DESIGN.quick_scenarios for v in VEHICLES)
+    assert all(len(per[v]) == family.quick_scenarios for v in VEHICLES)
     for sc in quick.scenarios:
         big = named[sc.name]
-        assert len(sc.episodes) == DESIGN.quick_legs < len(big.episodes)
+        assert len(sc.episodes) == family.quick_legs < len(big.episodes)
         assert sc.episodes == big.episodes[:len(sc.episodes)]  # same indices, same tasks: the same cells
         assert {k: v for k, v in sc.raw.items() if k != "episodes"} == \
                {k: v for k, v in big.raw.items() if k != "episodes"}
         assert scenario_fingerprint(sc)["map"] == scenario_fingerprint(big)["map"]
         assert scenario_fingerprint(sc)["conditions"] == scenario_fingerprint(big)["conditions"]
-    assert quick.info.description.startswith("Held-out generated tasks per vehicle (the first of benchmark's)")
+    assert quick.info.description.startswith(f"Held-out generated tasks per vehicle (the first of {family.sets[0]}'s)")
 
 
-def test_the_validation_twin_is_the_same_design_on_other_cities(full: TaskSet) -> None:
-    """`benchmark-validation`: where a pilot's choices are tuned. Scenario i has the test set's levels, leg bins and
+def test_the_validation_twin_is_the_same_design_on_other_cities(family: BenchmarkDesign, full: TaskSet) -> None:
+    """The validation twin: where a pilot's choices are tuned. Scenario i has the test set's levels, leg bins and
     time-limit rule in city seed + 200,000: disjoint from the test set and every learned pilot's pool."""
-    twin = build_task_set(VALIDATION)
-    assert twin.info.name == VALIDATION and twin.info.version != full.info.version
-    assert "validation twin of benchmark (city seeds +200,000)" in twin.info.description
+    name, _, validation, validation_quick = family.sets
+    twin = build_task_set(validation)
+    assert twin.info.name == validation and twin.info.version != full.info.version
+    assert f"validation twin of {name} (city seeds +200,000)" in twin.info.description
     assert len(twin.scenarios) == len(full.scenarios)
     test_seeds = {_seed(sc) for sc in full.scenarios}
     for mine, theirs in zip(twin.scenarios, full.scenarios, strict=True):
-        assert mine.name == theirs.name.replace("benchmark-", "benchmark-validation-", 1)
+        assert mine.name == theirs.name.replace(f"{family.prefix}-", f"{family.prefix}-validation-", 1)
         assert _seed(mine) == _seed(theirs) + VALIDATION_SEED_OFFSET and _seed(mine) not in test_seeds
         assert not any(_seed(mine) in pool for pool in (TRAIN_SEEDS, EVAL_SEEDS))
         assert mine.wind.turbulence == theirs.wind.turbulence and len(mine.episodes) == len(theirs.episodes)
+        assert (mine.sensing.label, mine.map_error.label) == (theirs.sensing.label, theirs.map_error.label)
         assert mine.city.buildings != theirs.city.buildings
+        i = int(mine.name.rsplit("-", 1)[1])
         for a, b in zip(mine.episodes, theirs.episodes, strict=True):  # the same leg-length bin
-            vb = next(v for v in DESIGN.vehicles if v.vehicle == mine.vehicle_name)
-            lo, hi = vb.leg_bins_m[a.index % 3]
+            vb = next(v for v in family.vehicles if v.vehicle == mine.vehicle_name)
+            lo, hi = _bins(vb, i)[a.index % 3]
             assert lo <= math.dist(a.task.start_m, a.task.goal_m) <= hi and a.index == b.index
     # its quick subset: the twin's first scenarios with their first legs, the same names and tasks
-    quick = build_task_set(VALIDATION_QUICK)
-    assert quick.info.name == VALIDATION_QUICK and "the first of benchmark-validation's" in quick.info.description
+    quick = build_task_set(validation_quick)
+    assert quick.info.name == validation_quick and f"the first of {validation}'s" in quick.info.description
     by_name = {sc.name: sc for sc in twin.scenarios}
-    assert len(quick.scenarios) == len(DESIGN.vehicles) * DESIGN.quick_scenarios
+    assert len(quick.scenarios) == len(family.vehicles) * family.quick_scenarios
     for sc in quick.scenarios:
         whole = by_name[sc.name]
-        assert len(sc.episodes) == DESIGN.quick_legs
-        assert [e.task for e in sc.episodes] == [e.task for e in whole.episodes[:DESIGN.quick_legs]]
+        assert len(sc.episodes) == family.quick_legs
+        assert [e.task for e in sc.episodes] == [e.task for e in whole.episodes[:family.quick_legs]]
     # the twin's seeds may not land on another vehicle's test cities
-    crowded = dataclasses.replace(DESIGN.vehicles[1], first_seed=DESIGN.vehicles[0].first_seed + VALIDATION_SEED_OFFSET)
-    with pytest.raises(ValueError, match="small_quad: city seeds 3200000-3200035 overlap the uam_multicopter bench"):
-        build_task_set(VALIDATION, dataclasses.replace(DESIGN, vehicles=(DESIGN.vehicles[0], crowded)))
+    first = family.vehicles[0].first_seed + VALIDATION_SEED_OFFSET
+    crowded = dataclasses.replace(family.vehicles[1], first_seed=family.vehicles[0].first_seed + VALIDATION_SEED_OFFSET)
+    with pytest.raises(ValueError, match=f"small_quad: city seeds {first}-{first + 35} overlap the uam_multicopter "
+                                         f"{name} cities"):
+        build_task_set(validation, dataclasses.replace(family, vehicles=(family.vehicles[0], crowded)))
 
 
 # ---- strict checks and the CLI -------------------------------------------------------------------------
@@ -215,24 +243,33 @@ def test_every_scenario_passes_the_strict_checks_as_a_file(full: TaskSet, tmp_pa
         scenario_from_dict(bad, "benchmark:benchmark-quad-000", Path("."))
 
 
-def test_sets_resolve_and_validate(quick: TaskSet, capsys: pytest.CaptureFixture[str]) -> None:
-    assert {FULL, QUICK, VALIDATION} <= set(builtin_sets())
-    resolved = resolve_scenarios(QUICK)
+def test_sets_resolve_and_validate(family: BenchmarkDesign, quick: TaskSet,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    name = family.sets[1]
+    assert set(family.sets) <= set(builtin_sets()) and {FULL, QUICK, VALIDATION} <= set(builtin_sets())
+    resolved = resolve_scenarios(name)
     assert [s.name for s in resolved] == [s.name for s in quick.scenarios] and resolved[0].task_set == quick.info
-    assert resolved[0].source == f"{QUICK}:{resolved[0].name}"
-    assert main(["validate", QUICK]) == 0
+    assert resolved[0].source == f"{name}:{resolved[0].name}"
+    assert main(["validate", name]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == len(quick.scenarios) and all(": ok (benchmark-" in line for line in lines)
+    assert len(lines) == len(quick.scenarios) and all(f": ok ({family.prefix}-" in line for line in lines)
     with pytest.raises(ValueError, match="unknown benchmark set"):
         build_task_set("benchmark-huge")
-    leaky = dataclasses.replace(DESIGN.vehicles[0], first_seed=1_049_990)
+    with pytest.raises(ValueError, match="is not one of the design's"):
+        build_task_set(name, PERFECT_DESIGN if family is DESIGN else DESIGN)
+    leaky = dataclasses.replace(family.vehicles[0], first_seed=1_049_990)
     with pytest.raises(ValueError, match="small_quad: city seeds 1049990-1050025 overlap the test and validation"):
-        build_task_set(QUICK, dataclasses.replace(DESIGN, vehicles=(leaky, DESIGN.vehicles[1])))
+        build_task_set(name, dataclasses.replace(family, vehicles=(leaky, family.vehicles[1])))
+    onto = dataclasses.replace(family.vehicles[0], first_seed=(PERFECT_DESIGN if family is DESIGN else DESIGN
+                                                               ).vehicles[0].first_seed)
+    with pytest.raises(ValueError, match="small_quad: city seeds .* overlap the small_quad benchmark"):
+        build_task_set(name, dataclasses.replace(family, vehicles=(onto, family.vehicles[1])))
     with pytest.raises(ValueError, match="must be a non-empty subset"):
-        build_task_set(QUICK, dataclasses.replace(DESIGN, quick_legs=13))
+        build_task_set(name, dataclasses.replace(family, quick_legs=13))
 
 
-def test_run_json_records_the_task_set(quick: TaskSet, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_run_json_records_the_task_set(family: BenchmarkDesign, quick: TaskSet, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
     from compare.cli.printout import print_task_set
 
     scenarios = list(quick.scenarios)
@@ -240,15 +277,17 @@ def test_run_json_records_the_task_set(quick: TaskSet, tmp_path: Path, capsys: p
     cells, notes = plan_cells(scenarios, opts, None)
     write_run_files(scenarios, opts, cells, notes, {})
     info = read_run_info(tmp_path)
-    assert info.task_set == quick.info and info.scenarios[0].source == f"{QUICK}:benchmark-quad-000"
+    name = family.sets[1]
+    assert info.task_set == quick.info and info.scenarios[0].source == f"{name}:{family.prefix}-quad-000"
     print_task_set(tmp_path)
-    assert capsys.readouterr().out == f"task set {QUICK}, version {quick.info.version}: {quick.info.description}\n"
+    assert capsys.readouterr().out == f"task set {name}, version {quick.info.version}: {quick.info.description}\n"
     mixed = [*scenarios[:1], dataclasses.replace(scenarios[1], task_set=None)]
     write_run_files(mixed, RunConfig(out_dir=tmp_path / "mixed"), plan_cells(mixed, opts, None)[0], [], {})
     assert read_run_info(tmp_path / "mixed").task_set is None
 
 
-def test_the_report_names_the_task_set_on_its_title_page(quick: TaskSet, tmp_path: Path) -> None:
+def test_the_report_names_the_task_set_on_its_title_page(family: BenchmarkDesign, quick: TaskSet,
+                                                         tmp_path: Path) -> None:
     from pypdf import PdfReader
 
     from compare.report.report import build_report
@@ -256,10 +295,11 @@ def test_the_report_names_the_task_set_on_its_title_page(quick: TaskSet, tmp_pat
 
     write_run(tmp_path, None)
     data = json.loads((tmp_path / "run.json").read_text())
-    data["suite"] = {"name": QUICK, "version": quick.info.version, "description": quick.info.description}
+    name = family.sets[1]
+    data["suite"] = {"name": name, "version": quick.info.version, "description": quick.info.description}
     (tmp_path / "run.json").write_text(json.dumps(data))
     title = PdfReader(build_report(tmp_path)).pages[0].extract_text()
-    assert f"Task set {QUICK}, version {quick.info.version}: Held-out" in " ".join(title.split())
+    assert f"Task set {name}, version {quick.info.version}: Held-out" in " ".join(title.split())
 
 
 # ---- the difficulty axes -------------------------------------------------------------------------------
@@ -293,6 +333,19 @@ def test_the_levels_are_an_orthogonal_array() -> None:
     for a, b in (("turbulence", "density"), ("turbulence", "air"), ("density", "air")):
         assert len({(getattr(x, a), getattr(x, b)) for x in first9}) == 9
     assert len({(x.turbulence, x.density, x.air) for x in map(levels, range(27))}) == 27
+    # the tiers: every pair of levels of any two axes equally often in 27 scenarios; balanced against the air and
+    # the turbulence in every block of 9 too (sensing moves with density there), each level 12 times in 36
+    axes = ("turbulence", "density", "air", "sensing", "map_error")
+    block = [levels(i) for i in range(27)]
+    for k, a in enumerate(axes):
+        for b in axes[k + 1:]:
+            assert set(Counter((getattr(x, a), getattr(x, b)) for x in block).values()) == {3}, (a, b)
+    for tier in ("sensing", "map_error"):
+        for other in ("turbulence", "air"):
+            assert len({(getattr(x, tier), getattr(x, other)) for x in first9}) == 9, (tier, other)
+        assert Counter(getattr(levels(i), tier) for i in range(36)) == {0: 12, 1: 12, 2: 12}
+        assert {getattr(levels(i), tier) for i in range(6)} == {0, 1, 2} or tier == "map_error"
+    assert {levels(i).map_error for i in range(6)} == {0, 2}  # the quick subset: exact and wrong maps
     assert density_altitude_m(1.225) == pytest.approx(0.0, abs=1e-9)
     assert density_altitude_m(0.9091) == pytest.approx(3000.0, abs=5.0)  # ISA density at 3 km
 
@@ -308,8 +361,41 @@ def test_a_benchmark_run_animates_nothing_unless_asked(quick: TaskSet) -> None:
 
 def test_the_quick_set_stays_the_version_reported() -> None:
     """The sets are made from fixed settings (not the learned pilots' current training tasks): retraining a pilot
-    in other air or cities leaves the benchmark, and before-and-after figures, comparable."""
-    assert build_task_set("benchmark-quick").info.version == "1+b27f29cc25"  # docs/benchmark.md
+    in other air or cities leaves the benchmark, and before-and-after figures, comparable; benchmark-perfect is
+    the headline set before the tiers, task for task (its version then was benchmark-quick's)."""
+    assert build_task_set("benchmark-perfect-quick").info.version == "1+b27f29cc25"  # docs/benchmark.md
+    assert build_task_set("benchmark-quick").info.version == "2+8e99cc8cc4"
+
+
+def test_the_tiers_at_their_levels_and_the_uam_in_both_kinds_of_city(full: TaskSet, family: BenchmarkDesign) -> None:
+    """The tiered benchmark: each scenario at its sensing and map-error level (the map error drawn from its city's
+    seed), each level on 144 tasks per vehicle; winds to the envelopes'; the UAM's cities alternating between its
+    districts and the shipped maps' scale. benchmark-perfect: perfect sensing over exact maps, no such keys."""
+    for vb in family.vehicles:
+        mine = _by_vehicle(full)[vb.vehicle]
+        speeds = [math.hypot(*sc.wind.steady_enu_m_s[:2]) for sc in mine]
+        assert max(speeds) <= vb.steady_wind_max_m_s + 0.1
+        if not family.tiers:
+            assert all("sensing" not in sc.raw and "map_error" not in sc.raw for sc in mine)
+            assert {(sc.sensing.label, sc.map_error.label) for sc in mine} == {("perfect", "exact")}
+            continue
+        assert max(speeds) > 0.7 * vb.steady_wind_max_m_s
+        for i, sc in enumerate(mine):
+            lv = levels(i)
+            assert sc.sensing.label == ("perfect", "nominal", "degraded")[lv.sensing]
+            assert sc.map_error.label == ("exact", "outdated", "wrong")[lv.map_error]
+            if sc.map_error.label != "exact":
+                points = [p for e in sc.episodes for p in (list(e.task.start_m), list(e.task.goal_m))]
+                assert sc.raw["map_error"] == {"preset": sc.map_error.label, "seed": _seed(sc), "keep_clear": points}
+                assert sc.prior_map is not sc.city
+        for tier in ("sensing", "map_error"):
+            tasks = Counter()
+            for sc in mine:
+                tasks[getattr(sc, tier).label] += len(sc.episodes)
+            assert set(tasks.values()) == {144}, (vb.vehicle, tier, tasks)
+        if vb.component_leg_bins_m:  # every other city at the shipped maps' scale: smaller, narrower streets
+            extents = [sc.city.bounds_max_m[0] - sc.city.bounds_min_m[0] for sc in mine]
+            assert max(extents[1::2]) <= 1100.0 + 1e-6 and min(extents[0::2]) >= 1000.0 - 1e-6
 
 
 # ---- the rates per level ---------------------------------------------------------------------------------
@@ -376,7 +462,8 @@ def test_a_benchmark_runs_rates_per_air_and_turbulence_level(quick: TaskSet, tmp
     data = level_json(rates, pairs)
     assert set(data) == set(VEHICLES) and set(data["small_quad"]) == {"all", "air", "turbulence", "sensing",
                                                                       "map_error", "sensing_map"}
-    assert set(data["small_quad"]["sensing"]) == {"perfect", "nominal"}
+    assert set(data["small_quad"]["sensing"]) == {_flown_level(flown, "sensing", sc.name) for sc in scenarios
+                                                  if sc.vehicle_name == "small_quad"}
     assert f"{pairs[0].first} - {pairs[0].second}" in data["small_quad"]["all"]["all"]["paired"]
     print_task_set(tmp_path)
     out = capsys.readouterr().out
@@ -401,3 +488,16 @@ def test_a_field_outside_every_air_level_is_other() -> None:
 
     assert at(0.0, 0.0) == "sea-level" and at(1200.0, 10.0) == "warm-and-raised" and at(2600.0, 30.0) == "hot-and-high"
     assert at(0.0, -10.0) == OTHER and at(1500.0, 15.0) == OTHER and at(None, 0.0) == OTHER
+
+
+def test_a_map_error_keeps_clear_of_the_points_it_is_given(tmp_path: Path) -> None:
+    """`map_error.keep_clear`: the errors keep clear of the points as of a leg's ends; bad points are named."""
+    from uam_fdm.city.map_error import map_error_from_config
+    from uam_fdm.errors import ConfigError
+
+    cfg = map_error_from_config({"preset": "wrong", "seed": 3, "keep_clear": [[1, 2, 3], [4.5, 5, 6]]}, "f.yaml")
+    assert cfg.keep_clear == ((1.0, 2.0, 3.0), (4.5, 5.0, 6.0)) and cfg.label == "wrong"  # not an override
+    for bad, key in (([[1, 2]], "map_error.keep_clear[0]"), ([[1, 2, float("nan")]], "map_error.keep_clear[0]"),
+                     ("here", "map_error.keep_clear")):
+        with pytest.raises(ConfigError, match=key.replace("[", r"\[").replace("]", r"\]")):
+            map_error_from_config({"preset": "wrong", "keep_clear": bad}, "f.yaml")

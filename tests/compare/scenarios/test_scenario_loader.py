@@ -54,8 +54,10 @@ DELETE = object()
 # ---- shipped scenarios -------------------------------------------------------------------------------
 def test_builtin_sets() -> None:
     # benchmark* and sweep* are generated
-    assert builtin_sets() == ["benchmark", "benchmark-quick", "benchmark-validation", "benchmark-validation-quick",
-                              "default", "full", "sweep", "sweep-quick"]
+    assert builtin_sets() == ["benchmark", "benchmark-perfect", "benchmark-perfect-quick",
+                              "benchmark-perfect-validation", "benchmark-perfect-validation-quick", "benchmark-quick",
+                              "benchmark-validation", "benchmark-validation-quick", "default", "full", "sweep",
+                              "sweep-quick"]
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: f"{p.parent.name}/{p.name}")
@@ -386,8 +388,9 @@ def test_resolve_rejects_duplicate_names_and_empty_folders(tmp_path: Path) -> No
 
 @pytest.mark.parametrize("spec", ["no-such-set", "missing/dir", "gone.yaml"])
 def test_resolve_missing_path_lists_builtin_sets(tmp_path: Path, spec: str) -> None:
-    sets = (r"\(benchmark, benchmark-quick, benchmark-validation, benchmark-validation-quick, default, full, sweep, "
-            r"sweep-quick\)")
+    sets = (r"\(benchmark, benchmark-perfect, benchmark-perfect-quick, benchmark-perfect-validation, "
+            r"benchmark-perfect-validation-quick, benchmark-quick, benchmark-validation, benchmark-validation-quick, "
+            r"default, full, sweep, sweep-quick\)")
     with pytest.raises(ValueError, match=rf"built-in scenario set {sets}") as exc:
         resolve_scenarios(str(tmp_path / spec) if "/" in spec or spec.endswith(".yaml") else spec)
     assert not isinstance(exc.value, ConfigError)

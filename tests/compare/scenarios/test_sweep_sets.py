@@ -15,7 +15,7 @@ from compare.results.run_info import AirEnvelope
 from compare.run.campaign import RunConfig, plan_cells, policy_facts
 from compare.run.trained_air import outside_trained_air, scenario_outside
 from compare.scenarios import sweep
-from compare.scenarios.benchmark import LEARNED_PILOT_POOLS, city_seed_ranges
+from compare.scenarios.benchmark import FAMILIES, LEARNED_PILOT_POOLS, city_seed_ranges
 from compare.scenarios.sets import builtin_sets, resolve_scenarios
 from compare.scenarios.sweep import DA_TOLERANCE_M, DENSITY_ALTITUDES_M, DESIGN, build_sweep, sweep_seed_ranges
 from rl.policies.folder import shipped_policy_dir
@@ -67,12 +67,13 @@ def test_the_steps_hit_their_density_altitudes_and_winds(quick) -> None:
 
 
 def test_city_seeds_are_held_out() -> None:
-    taken = {**LEARNED_PILOT_POOLS, **{f"{v} benchmark": r for v, r in city_seed_ranges().items()}}
+    taken = {**LEARNED_PILOT_POOLS, **{f"{v} {family.sets[0]}": r for family in FAMILIES
+                                       for v, r in city_seed_ranges(family).items()}}
     ranges = sweep_seed_ranges()
     for vehicle, seeds in ranges.items():
         for other in [*taken.values(), *(r for v, r in ranges.items() if v != vehicle)]:
             assert not set(seeds) & set(other), vehicle
-    with pytest.raises(ValueError, match="overlap the small_quad benchmark"):
+    with pytest.raises(ValueError, match="overlap the small_quad benchmark-perfect"):
         tasks = DESIGN.vehicles[0].tasks
         clash = sweep.SweepVehicle(sweep.VehicleBenchmark(tasks.vehicle, tasks.tag, 3_000_010, tasks.leg_bins_m,
                                                           tasks.altitude_m, 0.0), (0.0, 2.0), 2.0)

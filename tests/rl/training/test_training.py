@@ -78,8 +78,14 @@ def test_a_curriculum_level_ends_after_its_timesteps(tmp_path):
 
 
 def test_presets_keep_the_paper_network():
-    assert set(PRESETS) == {"paper"}
-    assert PRESETS["paper"].net_arch == (128, 128) and PRESETS["paper"].clip_range == 0.2
+    assert set(PRESETS) == {"paper", "paper-shrinking-noise"}
+    for preset in PRESETS.values():  # every preset is PPO with the paper's network and clip
+        assert preset.net_arch == (128, 128) and preset.clip_range == 0.2
+    shrinking = PRESETS["paper-shrinking-noise"]
+    assert PRESETS["paper"].log_std_cap(0.5) is None
+    assert (shrinking.log_std_cap(0.0), shrinking.log_std_cap(0.5), shrinking.log_std_cap(1.0)) == (-1.0, -2.0, -3.0)
+    with pytest.raises(ValueError, match="log_std_end"):
+        replace(shrinking, log_std_end=0.5)
     with pytest.raises(ValueError, match="preset"):
         TrainConfig(preset="huge")
     with pytest.raises(ValueError, match="curriculum"):
