@@ -25,7 +25,6 @@ from rl.env.gym_env import ACTION_SPACE, observation_space
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavWorld
 from rl.task.config import NavConfig
-from rl.training.config import MAX_ENV_PROCESSES
 
 
 def shares(n_envs: int, processes: int) -> list[int]:
@@ -69,7 +68,7 @@ class SplitVecEnv(VecEnv):
         processes: processes stepping the slots, this one included (1: all here, as `UAMNavVecEnv`).
 
     Raises:
-        ValueError: `processes` outside [1, min(n_envs, MAX_ENV_PROCESSES)].
+        ValueError: `processes` outside [1, n_envs].
         RuntimeError: a worker process failed (its traceback in the message).
     """
 
@@ -78,9 +77,8 @@ class SplitVecEnv(VecEnv):
         self._procs: list[Any] = []
         self._closed = False
         n_envs, processes = int(n_envs), int(processes)
-        if not 1 <= processes <= min(n_envs, MAX_ENV_PROCESSES):
-            raise ValueError(f"processes must be in [1, {min(n_envs, MAX_ENV_PROCESSES)}] for {n_envs} vehicles, "
-                             f"got {processes}")
+        if not 1 <= processes <= n_envs:
+            raise ValueError(f"processes must be in [1, {n_envs}] for {n_envs} vehicles, got {processes}")
         sizes = shares(n_envs, processes)
         firsts = np.cumsum([0] + sizes).tolist()
         ctx = mp.get_context("spawn")

@@ -52,7 +52,7 @@ def test_split_steps_exactly_as_one_batch():
         split.close()
 
 
-@pytest.mark.parametrize("processes", [0, 4, 65])
+@pytest.mark.parametrize("processes", [0, 4])
 def test_a_process_count_that_cannot_hold_the_slots_is_refused(processes):
     with pytest.raises(ValueError, match=f"processes must be in .* got {processes}"):
         SplitVecEnv(3, replace(TASK, city_pool_size=1), processes=processes)
