@@ -1,6 +1,7 @@
 """`SplitVecEnv`: the batch stepped by several processes gives exactly the transitions of one `UAMNavVecEnv`
-(slot i seeded seed + i whichever process holds it), across resets, sensing levels, map error and a change of
-the curriculum's difficulty; bad process counts are refused before anything is built."""
+(slot i seeded seed + i whichever process holds it), across resets, sensing levels, map error, routes redrawn
+around sensed obstacles and a change of the curriculum's difficulty; bad process counts are refused before anything
+is built."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -10,12 +11,13 @@ import pytest
 
 from rl.env.split_vec_env import SplitVecEnv, shares
 from rl.env.vec_env import UAMNavVecEnv
+from rl.sensing.route import RouteConfig
 from rl.task.air import AirDistribution
 from rl.task.config import NavConfig
 
 # every sensing level and map-error level drawn, light turbulence: what a training batch meets, small and quick
 TASK = NavConfig(city_pool_size=3, wind_pool_size=2, wind_series_s=150.0, sensing=("perfect", "nominal", "degraded"),
-                 map_error=("exact", "wrong"), map_error_draws=1,
+                 map_error=("exact", "wrong"), map_error_draws=1, route=RouteConfig(refresh_s=0.5),
                  air=AirDistribution(turbulence=("light",), steady_wind_max_m_s=3.0))
 
 
