@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,24 +133,29 @@ class LevelPair:
     collision_excludes_zero: bool | None
 
 
-def level_pairs(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[LevelPair]:
-    """Every vehicle's paired differences per axis, level and pair of pilots (in run order), on the cells
-    (scenario, episode, seed) both pilots flew at the level."""
+def _groups(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> Iterator[tuple[str, str, str, set[str], list[str]]]:
+    """Each (vehicle, axis, level) flown, with its scenarios' names and the run's pilots (in run order)."""
     vehicles, flown = info.run_order(r.method for r in rows)
-    by_cell = {(r.method, r.scenario, r.episode, r.seed): r for r in rows}
-    out = []
     for vehicle in vehicles:
         mine = [s for s in info.scenarios if s.vehicle == vehicle]
         for axis in AXES:
             for level, names in _levels(axis, mine):
-                wanted = set(names)
-                for i, a in enumerate(flown):
-                    for b in flown[i + 1:]:
-                        cells = sorted(k[1:] for k in by_cell if k[0] == a and k[1] in wanted
-                                       and (b,) + k[1:] in by_cell)
-                        if cells:
-                            out.append(_pair(vehicle, axis, level, a, b, [by_cell[(a,) + c] for c in cells],
-                                             [by_cell[(b,) + c] for c in cells]))
+                yield vehicle, axis, level, set(names), list(flown)
+
+
+def level_pairs(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[LevelPair]:
+    """Every vehicle's paired differences per axis, level and pair of pilots (in run order), on the cells
+    (scenario, episode, seed) both pilots flew at the level."""
+    out = []
+    for vehicle, axis, level, wanted, flown in _groups(info, rows):
+        cells = {p: {(r.scenario, r.episode, r.seed): r for r in rows if r.method == p and r.scenario in wanted}
+                 for p in flown}
+        for i, a in enumerate(flown):
+            for b in flown[i + 1:]:
+                both = sorted(cells[a].keys() & cells[b].keys())
+                if both:
+                    out.append(_pair(vehicle, axis, level, a, b, [cells[a][c] for c in both],
+                                     [cells[b][c] for c in both]))
     return out
 
 
@@ -174,17 +179,12 @@ def level_rates(info: RunInfo, rows: Sequence[EpisodeMetrics]) -> list[LevelRate
         info: the run's run.json (the scenarios' air and turbulence, the pilots).
         rows: its metrics rows.
     """
-    vehicles, flown = info.run_order(r.method for r in rows)
     out = []
-    for vehicle in vehicles:
-        mine = [s for s in info.scenarios if s.vehicle == vehicle]
-        for axis in AXES:
-            for level, names in _levels(axis, mine):
-                wanted = set(names)
-                for pilot in flown:
-                    cells = [r for r in rows if r.method == pilot and r.scenario in wanted]
-                    if cells:
-                        out.append(_rate(vehicle, axis, level, pilot, cells))
+    for vehicle, axis, level, wanted, flown in _groups(info, rows):
+        for pilot in flown:
+            cells = [r for r in rows if r.method == pilot and r.scenario in wanted]
+            if cells:
+                out.append(_rate(vehicle, axis, level, pilot, cells))
     return out
 
 
