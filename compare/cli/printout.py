@@ -11,7 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from compare.results.failures import FAILED_DIR, describe_failures, read_failures
-from compare.results.level_rates import level_json, level_pairs, level_rates, level_table_lines
+from compare.results.level_rates import (
+    level_json,
+    level_mdd_json,
+    level_mdds,
+    level_pairs,
+    level_rates,
+    level_table_lines,
+)
 from compare.results.metrics import read_metrics_csv
 from compare.results.run_info import read_run_info
 from compare.results.stats import MIN_INTERVAL_N
@@ -151,7 +158,8 @@ def print_headline_json(run_dir: Path) -> None:
     """The run's headline figures as the last line, one JSON object (for scripts): per vehicle and pilot the
     episodes, success and collision rates with their 95 % Wilson intervals; per vehicle and pair of pilots the
     paired differences of those rates; the task set and its version (under the key "suite", as scripts read it);
-    the failed cells."""
+    the failed cells; a sweep's rates per step ("sweep"), a benchmark's per level ("by_level") and its success MDDs
+    per pair of pilots ("by_level_mdd")."""
 
     def rate(st: Stat | None) -> dict:
         return {"rate": st.mean, "ci95": [st.ci_low, st.ci_high]} if st is not None else {}
@@ -179,7 +187,10 @@ def print_headline_json(run_dir: Path) -> None:
     if task_set is not None and task_set.name in BENCHMARK_SETS and (run_dir / "metrics.csv").exists():
         # per vehicle, air, turbulence, sensing and map-error level, with paired differences (printed above)
         rows = read_metrics_csv(run_dir / "metrics.csv")
-        out["by_level"] = level_json(level_rates(info, rows), level_pairs(info, rows))
+        pairs = level_pairs(info, rows)
+        out["by_level"] = level_json(level_rates(info, rows), pairs)
+        # beside by_level, not in it: a vehicle's keys there are its axes (docs/benchmark.md), which readers iterate
+        out["by_level_mdd"] = level_mdd_json(level_mdds(pairs))
     print(json_line(out))
 
 

@@ -11,7 +11,8 @@ A run folder holds `run.json` (provenance), `maps/<scenario>.yaml`, the episodes
    table, summary forest plot, paired differences with their minimum detectable differences, success
    along task difficulty, the scenarios' conditions, per-scenario and per-episode tables (bounded);
    then the classical pilot's tracker per scenario; a robustness-sweep run's rates against density altitude
-   and wind per vehicle (`compare.report.sweep_pages`); a run flown at several sensing or map-error levels, its
+   and wind, then against the map's missing share, the GNSS sky and the lidar range, per vehicle
+   (`compare.report.sweep_pages`); a run flown at several sensing or map-error levels, its
    rates against them per vehicle (`compare.report.degradation_pages`);
 3. per (scenario, episode, seed): paths in 3D and top-down, clearance/speed/rotor time series,
    3D snapshots over time, for the first `DRAWN_SCENARIOS_PER_VEHICLE` scenarios of each vehicle and

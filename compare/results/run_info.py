@@ -4,7 +4,8 @@
 (version 1) is unchanged since the first runs; folders written by older versions read too: a key they
 lack reads as empty (None, "", no entries), and a run that recorded the learned pilot's one policy as
 `methods.ppo.policy_dir` (before policies per vehicle) reads as one `PolicyRecord` without a vehicle.
-Optional keys (`fingerprints`, `suite`, a policy's `trained_air`) are written only when set, so rewriting an
+Optional keys (`fingerprints`, `suite`, a policy's `trained_air` and `trained_sensing`, a scenario's `sensing`,
+`map_error`, `sensed` and `missing_fraction`) are written only when set, so rewriting an
 older file gives it back byte for byte. The pilots stand under the key `methods` and the task set under `suite`,
 their first names (`RunInfo.pilots`, `RunInfo.task_set` here): older readers and scripts look for them.
 """
@@ -18,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from compare.results.sensing_facts import SensedFacts, SensingEnvelope
 from uam_fdm.air.shear import WindShear
 from uam_fdm.files.atomic import write_text_atomic
 from uam_fdm.files.strict import strict_json_loads
@@ -63,6 +65,9 @@ class ScenarioInfo:
         physics_hz, control_hz: physics and control rates [Hz].
         sensing, map_error: the sensing level and map-error level flown ("perfect", "exact" in a run before either
             existed; a "+" marks overrides of the level's preset).
+        sensed: what it sensed with (GNSS sky, lidar range); None at `perfect` or where not recorded.
+        missing_fraction: the share of the city's buildings its prior map lacks (0 on an exact map; None where
+            not recorded).
     """
 
     name: str
@@ -80,6 +85,8 @@ class ScenarioInfo:
     control_hz: float | None = None
     sensing: str = "perfect"
     map_error: str = "exact"
+    sensed: SensedFacts | None = None
+    missing_fraction: float | None = 0.0
 
 
 @dataclass(frozen=True)
@@ -100,6 +107,10 @@ class AirEnvelope:
     DENSITY_ALTITUDE_SLACK_M = 50.0
     """A field this close to the trained range counts as inside it [m] (a standard day at sea level is 0 m
     give or take the atmosphere tables' rounding)."""
+    WIND_SLACK_M_S = 0.01
+    """A steady wind this little over the trained top counts as inside it [m/s] (scenario files, the generated
+    sets among them, give the wind's components to the centimetre per second, so its speed may land a few mm/s
+    over a round step)."""
 
     def outside(self, density_altitude_m: float | None, steady_wind_m_s: float | None,
                 turbulence: str | None) -> tuple[str, ...]:
@@ -116,7 +127,7 @@ class AirEnvelope:
         if density_altitude_m is not None and not (lo - self.DENSITY_ALTITUDE_SLACK_M <= density_altitude_m
                                                    <= hi + self.DENSITY_ALTITUDE_SLACK_M):
             why.append(f"density altitude {round(density_altitude_m):d} m")
-        if steady_wind_m_s is not None and steady_wind_m_s > self.steady_wind_max_m_s + 1e-6:
+        if steady_wind_m_s is not None and steady_wind_m_s > self.steady_wind_max_m_s + self.WIND_SLACK_M_S:
             why.append(f"steady wind {steady_wind_m_s:.1f} m/s")
         if turbulence is not None and turbulence not in self.turbulence:
             why.append(f"{turbulence} turbulence")
@@ -132,13 +143,15 @@ class AirEnvelope:
 @dataclass(frozen=True)
 class PolicyRecord:
     """A learned pilot's policy a run flew: the vehicle it was trained for (None in runs saved before
-    policies per vehicle), its folder, its decision rate [Hz] (None where not recorded) and the air it was
-    trained in (None in runs saved before it was recorded)."""
+    policies per vehicle), its folder, its decision rate [Hz] (None where not recorded), the air it was
+    trained in and the sensing and map error it was trained across (None in runs saved before each was
+    recorded)."""
 
     vehicle: str | None
     policy_dir: str
     decision_hz: float | None = None
     envelope: AirEnvelope | None = None
+    sensing: SensingEnvelope | None = None
 
 
 @dataclass(frozen=True)
@@ -262,6 +275,11 @@ def _scenario_json(s: ScenarioInfo) -> dict[str, Any]:
         "physics_hz": s.physics_hz, "control_hz": s.control_hz,
         **({} if s.sensing == "perfect" else {"sensing": s.sensing}),  # an older run's file rewrites byte for byte
         **({} if s.map_error == "exact" else {"map_error": s.map_error}),
+        **({} if s.sensed is None else {"sensed": {"gnss_urban_canyon": s.sensed.gnss_urban_canyon,
+                                                   "gnss_max_outage_s": s.sensed.gnss_max_outage_s,
+                                                   "lidar_range_m": s.sensed.lidar_range_m}}),
+        # beside a map error only (an exact map's is 0), so that an older run's file rewrites byte for byte
+        **({} if s.map_error == "exact" or s.missing_fraction is None else {"missing_fraction": s.missing_fraction}),
     }
 
 
@@ -280,6 +298,11 @@ def _policy_json(p: PolicyRecord) -> dict[str, Any]:
         e = p.envelope
         out["trained_air"] = {"density_altitude_m": list(e.density_altitude_m),
                               "steady_wind_max_m_s": e.steady_wind_max_m_s, "turbulence": list(e.turbulence)}
+    if p.sensing is not None:
+        se = p.sensing
+        out["trained_sensing"] = {"sensed": se.sensed, "gnss_urban_canyon": se.gnss_urban_canyon,
+                                  "gnss_max_outage_s": se.gnss_max_outage_s, "lidar_range_m": se.lidar_range_m,
+                                  "missing_fraction_max": se.missing_fraction_max}
     return out
 
 
@@ -336,6 +359,7 @@ def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:
     wind = r.mapping(s.get("wind"), f"{key}.wind")
     if isinstance(s.get("episodes"), list):  # tolerated: the episodes listed rather than counted
         s = {**s, "episodes": len(s["episodes"])}
+    map_error = _level(r.text(s, "map_error", f"{key}.map_error"), "exact")
     return ScenarioInfo(
         name=r.text(s, "name", f"{key}.name"), source=r.text(s, "source", f"{key}.source"),
         description=r.text(s, "description", f"{key}.description"),
@@ -353,8 +377,20 @@ def _scenario_info(r: _Reader, value: Any, key: str) -> ScenarioInfo:
         physics_hz=r.number(s, "physics_hz", f"{key}.physics_hz"),
         control_hz=r.number(s, "control_hz", f"{key}.control_hz"),
         sensing=_level(r.text(s, "sensing", f"{key}.sensing"), "perfect"),
-        map_error=_level(r.text(s, "map_error", f"{key}.map_error"), "exact"),
+        map_error=map_error,
+        sensed=_sensed(r, s.get("sensed"), f"{key}.sensed"),
+        missing_fraction=0.0 if map_error == "exact" else r.number(s, "missing_fraction", f"{key}.missing_fraction"),
     )
+
+
+def _sensed(r: _Reader, value: Any, key: str) -> SensedFacts | None:
+    if value is None:
+        return None
+    d = r.mapping(value, key)
+    outage, lidar = (r.number(d, k, f"{key}.{k}") for k in ("gnss_max_outage_s", "lidar_range_m"))
+    if outage is None or lidar is None:
+        raise r.fail(key, value, "gnss_urban_canyon, gnss_max_outage_s and lidar_range_m")
+    return SensedFacts(r.flag(d, "gnss_urban_canyon", f"{key}.gnss_urban_canyon"), outage, lidar)
 
 
 def _level(text: str, default: str) -> str:
@@ -381,7 +417,8 @@ def _policy(r: _Reader, value: Any, key: str) -> PolicyRecord:
     p = r.mapping(value, key)
     return PolicyRecord(r.text(p, "vehicle", f"{key}.vehicle") or None, r.text(p, "policy_dir", f"{key}.policy_dir"),
                         r.number(p, "decision_hz", f"{key}.decision_hz"),
-                        _envelope(r, p.get("trained_air"), f"{key}.trained_air"))
+                        _envelope(r, p.get("trained_air"), f"{key}.trained_air"),
+                        _sensing_envelope(r, p.get("trained_sensing"), f"{key}.trained_sensing"))
 
 
 def _envelope(r: _Reader, value: Any, key: str) -> AirEnvelope | None:
@@ -394,6 +431,18 @@ def _envelope(r: _Reader, value: Any, key: str) -> AirEnvelope | None:
     if len(da) != 2 or wind is None:
         raise r.fail(key, value, "density_altitude_m [low, high] and steady_wind_max_m_s")
     return AirEnvelope((da[0], da[1]), wind, tuple(str(t) for t in r.sequence(e, "turbulence", f"{key}.turbulence")))
+
+
+def _sensing_envelope(r: _Reader, value: Any, key: str) -> SensingEnvelope | None:
+    if value is None:
+        return None
+    e = r.mapping(value, key)
+    outage, missing = (r.number(e, k, f"{key}.{k}") for k in ("gnss_max_outage_s", "missing_fraction_max"))
+    if outage is None or missing is None:
+        raise r.fail(key, value, "gnss_max_outage_s and missing_fraction_max")
+    return SensingEnvelope(r.flag(e, "sensed", f"{key}.sensed"), r.flag(e, "gnss_urban_canyon",
+                                                                         f"{key}.gnss_urban_canyon"),
+                           outage, r.number(e, "lidar_range_m", f"{key}.lidar_range_m"), missing)
 
 
 @dataclass(frozen=True)
@@ -436,6 +485,15 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise self.fail(key, value, "a finite number")
         return float(value)
+
+    def flag(self, d: Mapping[str, Any], name: str, key: str) -> bool:
+        """A boolean (absent or null reads as False)."""
+        value = d.get(name)
+        if value is None:
+            return False
+        if not isinstance(value, bool):
+            raise self.fail(key, value, "true or false")
+        return value
 
     def integer(self, d: Mapping[str, Any], name: str, key: str) -> int | None:
         value = d.get(name)

@@ -19,7 +19,9 @@ The minimum detectable difference (MDD) of a paired comparison at n pairs is the
 two-sided test at level alpha detects with the given power: (z_{1-alpha/2} + z_{power}) * sd_d / sqrt(n),
 sd_d the standard deviation of the paired differences (normal approximation). Before any run, for a
 rate, `design_mdd_rate` takes the worst case p = 0.5 for both pilots with independent outcomes
-(sd_d = sqrt(2 p (1 - p))); pairing only narrows it when the two pilots' outcomes correlate.
+(sd_d = sqrt(2 p (1 - p))); pairing only narrows it when the two pilots' outcomes correlate. After a run, a
+paired difference of rates gets `paired_mdd`: Connor's (1987) sample size of McNemar's test solved for the
+difference, from the observed share of discordant pairs (the pairs on which only one of the two had the outcome).
 """
 from __future__ import annotations
 
@@ -123,6 +125,49 @@ def design_mdd_rate(n: int, alpha: float = 0.05, power: float = 0.8, rate: float
     """The MDD of a paired difference of rates before any run: both pilots at `rate`, outcomes independent
     (sd_d = sqrt(2 rate (1 - rate)); at 0.5 the largest). A fraction, like the rates."""
     return mdd(math.sqrt(2.0 * rate * (1.0 - rate)), n, alpha, power)
+
+
+def paired_mdd(counts: PairedCounts, alpha: float = 0.05, power: float = 0.8) -> float:
+    """The minimum detectable difference of two paired rates from their observed discordance: the smallest true
+    difference, first - second in either direction, that a two-sided McNemar test at `alpha` detects with
+    probability `power` on `counts.n` pairs. A fraction, like the rates (0.03 is 3 points).
+
+    It solves Connor's (1987, Biometrics 43, "Sample size for testing differences in proportions for the
+    paired-sample design") n delta^2 = (z_{1-alpha/2} sqrt(psi) + z_power sqrt(psi - delta^2))^2 for delta in
+    (0, 1], with psi = max((first_only + second_only) / n, delta). The floor is there because a difference delta
+    needs at least delta of the pairs discordant: a run whose pilots always agreed gives about
+    (z_{1-alpha/2} + z_power)^2 / n, the least any n pairs can detect, never 0.
+
+    Args:
+        counts: the paired outcomes (n >= 1).
+        alpha: two-sided significance level in (0, 1). power: in [0.5, 1).
+
+    Returns:
+        The difference as a fraction in (0, 1]; infinity when even a difference of 1 is not detected (n below
+        z_{1-alpha/2}^2: 3 pairs or fewer at alpha 0.05).
+    """
+    n = counts.n
+    if n < 1:
+        raise ValueError(f"an MDD needs at least one pair, got {n}")
+    if not 0.0 < alpha < 1.0 or not 0.5 <= power < 1.0:
+        # below power 0.5 z_power is negative and the equation's root need not be unique
+        raise ValueError(f"a paired MDD needs alpha in (0, 1) and power in [0.5, 1), got {alpha}, {power}")
+    z_a, z_b = z_quantile(1.0 - alpha / 2.0), z_quantile(power)
+    observed = (counts.first_only + counts.second_only) / n
+
+    def detected(delta: float) -> bool:
+        psi = max(observed, delta)
+        return n * delta * delta >= (z_a * math.sqrt(psi) + z_b * math.sqrt(max(0.0, psi - delta * delta))) ** 2
+
+    # n delta^2 minus the right side changes sign once on (0, 1]: with psi fixed it grows with delta, and where
+    # psi = delta, divided by delta it is n delta - (z_a + z_b sqrt(1 - delta))^2, which grows too; so bisect
+    if not detected(1.0):
+        return math.inf
+    low, high = 0.0, 1.0
+    while high - low > 1e-12:
+        mid = 0.5 * (low + high)
+        low, high = (low, mid) if detected(mid) else (mid, high)
+    return high
 
 
 @dataclass(frozen=True)

@@ -65,13 +65,14 @@ from compare.results.run_info import (
     WindInfo,
     write_run_info,
 )
+from compare.results.sensing_facts import SensingEnvelope
 from compare.results.store import compact, part_path
 from compare.results.summary import summarize_run, write_summary_json
 from compare.results.tables import STORE_MODES
 from compare.run.backends import check_backend, open_backend
 from compare.run.backends.base import Backend, CellFlown, CellJob, WorkerSetup
 from compare.run.cells import Cell, cell_key
-from compare.run.trained_air import air_envelope, outside_trained_air
+from compare.run.trained_air import air_envelope, outside_trained_air, sensed_facts, sensing_envelope
 from compare.scenarios.fingerprint import check_resume, run_fingerprints
 from compare.scenarios.scenario import Scenario, seeds_problem
 from rl.policies.folder import shipped_policy_dir
@@ -196,6 +197,7 @@ class PolicyFacts:
         control_hz: the low-level controller rate it was trained with [Hz].
         decision_hz: the rate at which it chooses a command [Hz] (held for the control periods between).
         envelope: the air it was trained in (None: not known).
+        sensing: the sensing and map error it was trained across (None: not known).
     """
 
     folder: Path
@@ -204,6 +206,7 @@ class PolicyFacts:
     control_hz: float
     decision_hz: float
     envelope: AirEnvelope | None = None
+    sensing: SensingEnvelope | None = None
 
 
 def plan_cells(scenarios: Sequence[Scenario], opts: RunConfig,
@@ -342,7 +345,7 @@ def write_run_files(scenarios: Sequence[Scenario], opts: RunConfig, cells: Seque
                           f"{p.control_hz / p.decision_hz:g} control periods)" for p in policies)
         rest = f"; {', '.join(at_control_rate)} at each scenario's control rate" if at_control_rate else ""
         notes = [*notes, *(f"{s.name} decides at its policy's rate: {rates}{rest}" for s in entries if s.needs_policy)]
-    records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz, p.envelope) for p in policies)
+    records = tuple(PolicyRecord(p.vehicle, str(p.folder), p.decision_hz, p.envelope, p.sensing) for p in policies)
     info = RunInfo(
         created_utc=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), command=opts.command,
         scenarios=tuple(scenario_info(sc, [c for c in cells if c.scenario == si]) for si, sc in enumerate(scenarios)),
@@ -372,7 +375,8 @@ def scenario_info(sc: Scenario, cells: Sequence[Cell]) -> ScenarioInfo:
         wind=WindInfo(sc.wind.steady_enu_m_s, sc.wind.turbulence.value, sc.wind.shear),
         episodes=len(sc.episodes), seeds=tuple(sorted({c.seed for c in cells})),
         pilots=tuple(pilots.ordered(c.pilot for c in cells)), physics_hz=sc.physics_hz, control_hz=sc.control_hz,
-        sensing=sc.sensing.label, map_error=sc.map_error.label)
+        sensing=sc.sensing.label, map_error=sc.map_error.label, sensed=sensed_facts(sc.sensing),
+        missing_fraction=sc.map_error.missing_fraction)
 
 
 def fairness(flown: Sequence[str], sensing_levels: Sequence[str] = ("perfect",)) -> str:
@@ -406,7 +410,8 @@ def run_comparison(scenarios: Sequence[Scenario], opts: RunConfig) -> Path:
     used = [f for fp, f in policies.items() if fp in flown]
     # air outside a policy's training is flown all the same (where it breaks is the finding), warned and noted
     notes += outside_trained_air(scenarios, cells, {f.vehicle_fingerprint: f.envelope for f in used
-                                                    if f.envelope is not None})
+                                                    if f.envelope is not None},
+                                 {f.vehicle_fingerprint: f.sensing for f in used if f.sensing is not None})
     fingerprints = run_fingerprints(scenarios, {f.vehicle: f.folder for f in used})
     if opts.resume:  # before anything is written: a refused folder stays as it was
         # the seeds and pilots of each scenario as run.json records them (`scenario_info`)
@@ -489,7 +494,7 @@ def policy_facts(policy: Path | None) -> PolicyFacts:
     loaded = load_policy(policy)  # None: the shipped default
     nav = loaded.nav
     return PolicyFacts(loaded.folder.resolve(), nav.vehicle, load_vehicle(nav.vehicle).fingerprint(),
-                       float(nav.control_hz), float(nav.decision_hz), air_envelope(nav.air))
+                       float(nav.control_hz), float(nav.decision_hz), air_envelope(nav.air), sensing_envelope(nav))
 
 
 def _why_no_policy(sc: Scenario, opts: RunConfig, policies: Mapping[str, PolicyFacts]) -> str:

@@ -141,3 +141,43 @@ def test_a_policys_trained_air_round_trips(tmp_path: Path) -> None:
     (tmp_path / "run.json").write_text(json.dumps(data))
     with pytest.raises(ValueError, match="trained_air: expected density_altitude_m"):
         read_run_info(tmp_path)
+
+
+def test_sensed_facts_and_a_policys_trained_sensing_round_trip(tmp_path: Path) -> None:
+    """Below perfect sensing a scenario records its GNSS sky and lidar range, on a map with error the share of
+    buildings missing; a policy its trained sensing. Written only when set, read back exactly, bad values named."""
+    from compare.results.sensing_facts import SensedFacts, SensingEnvelope
+
+    trained = SensingEnvelope(True, True, 30.0, 100.0, 0.25)
+    base = full_info()
+    sensed = replace(base.scenarios[0], sensing="nominal+", map_error="exact+",
+                     sensed=SensedFacts(True, 60.0, 40.0), missing_fraction=0.5)
+    info = replace(base, scenarios=(sensed,), pilots={"ppo": PilotInfo("PPO policy", "", (PolicyRecord(
+        "small_quad", "/p", 10.0, None, trained),))})
+    data = json.loads(write_run_info(info, tmp_path).read_text())
+    s = data["scenarios"][0]
+    assert s["sensed"] == {"gnss_urban_canyon": True, "gnss_max_outage_s": 60.0, "lidar_range_m": 40.0}
+    assert s["missing_fraction"] == 0.5 and s["sensing"] == "nominal+"
+    assert data["methods"]["ppo"]["policies"][0]["trained_sensing"] == {
+        "sensed": True, "gnss_urban_canyon": True, "gnss_max_outage_s": 30.0, "lidar_range_m": 100.0,
+        "missing_fraction_max": 0.25}
+    back = read_run_info(tmp_path)
+    assert back == info and back.scenarios[0].sensed.gnss_label() == "urban canyon, outages to 60 s"
+    # at perfect sensing on an exact map nothing is written, and an exact map reads as nothing missing
+    plain = json.loads(write_run_info(base, tmp_path / "plain").read_text())["scenarios"][0]
+    assert "sensed" not in plain and "missing_fraction" not in plain
+    assert read_run_info(tmp_path / "plain").scenarios[0].missing_fraction == 0.0
+    # a run from before the facts: a wrong map's share is not known (None), not 0
+    del s["sensed"], s["missing_fraction"]
+    s["map_error"] = "wrong"
+    (tmp_path / "run.json").write_text(json.dumps(data))
+    older = read_run_info(tmp_path).scenarios[0]
+    assert older.sensed is None and older.missing_fraction is None
+    s["sensed"] = {"gnss_urban_canyon": "yes", "gnss_max_outage_s": 1.0, "lidar_range_m": 40.0}
+    (tmp_path / "run.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"scenarios\[0\]\.sensed\.gnss_urban_canyon: expected true or false"):
+        read_run_info(tmp_path)
+    s["sensed"] = {"gnss_urban_canyon": True}
+    (tmp_path / "run.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"scenarios\[0\]\.sensed: expected gnss_urban_canyon, gnss_max_outage_s"):
+        read_run_info(tmp_path)

@@ -1,6 +1,6 @@
-"""The robustness sweep: the same tasks at every step, the density altitudes it claims, held-out cities, a
-version that is repeatable and moves with the output; a learned pilot warned (and still flown) where the air
-leaves its training."""
+"""The robustness sweep: the same tasks at every step, the density altitudes, winds, missing shares, GNSS skies and
+lidar ranges it claims, held-out cities, a version that is repeatable and moves with the output; a learned pilot
+warned (and still flown) where the air, sensing or map leaves its training."""
 from __future__ import annotations
 
 import logging
@@ -12,12 +12,23 @@ import pytest
 
 from compare.results.episodes import open_episodes
 from compare.results.run_info import AirEnvelope
+from compare.results.sensing_facts import SensedFacts, SensingEnvelope
 from compare.run.campaign import RunConfig, plan_cells, policy_facts
-from compare.run.trained_air import outside_trained_air, scenario_outside
+from compare.run.trained_air import outside_trained_air, scenario_outside, sensed_facts
 from compare.scenarios import sweep
-from compare.scenarios.benchmark import FAMILIES, LEARNED_PILOT_POOLS, city_seed_ranges
+from compare.scenarios.benchmark import FAMILIES, LEARNED_PILOT_POOLS, city_seed_ranges, validation_design
 from compare.scenarios.sets import builtin_sets, resolve_scenarios
-from compare.scenarios.sweep import DA_TOLERANCE_M, DENSITY_ALTITUDES_M, DESIGN, build_sweep, sweep_seed_ranges
+from compare.scenarios.sweep import (
+    DA_TOLERANCE_M,
+    DENSITY_ALTITUDES_M,
+    DESIGN,
+    GNSS_STEPS,
+    LIDAR_RANGE_FRACTIONS,
+    MISSING_FRACTIONS,
+    build_sweep,
+    sensed_points,
+    sweep_seed_ranges,
+)
 from rl.policies.folder import shipped_policy_dir
 from uam_fdm.air.atmosphere import density_altitude_m
 
@@ -41,9 +52,12 @@ def test_the_same_tasks_at_every_step(quick) -> None:
         assert len(legs) == 1 and len(next(iter(legs))) == DESIGN.quick_legs
         assert len({sc.city.buildings for sc in scenarios}) == 1
         assert {tuple(sc.pilots) for sc in scenarios} == {("ppo", "rrt_mpc", "apf")}
-        # one axis at a time: raised fields fly one wind; winds vary at sea level only
+        # one axis at a time: raised fields fly one wind; winds vary at sea level only; the sensed steps fly the
+        # raised fields' wind at sea level
         raised = [sc for sc in scenarios if sc.atmosphere.elevation_m > 0.0]
-        assert len({round(math.hypot(*sc.wind.steady_enu_m_s), 1) for sc in raised}) == 1
+        sensed = [sc for sc in scenarios if not sc.sensing.perfect]
+        assert len({round(math.hypot(*sc.wind.steady_enu_m_s), 1) for sc in raised + sensed}) == 1
+        assert {sc.atmosphere.elevation_m for sc in sensed} == {0.0}
         headings = {round(math.atan2(sc.wind.steady_enu_m_s[1], sc.wind.steady_enu_m_s[0]), 2)
                     for sc in scenarios if math.hypot(*sc.wind.steady_enu_m_s) > 0}
         assert len(headings) == 1
@@ -52,7 +66,8 @@ def test_the_same_tasks_at_every_step(quick) -> None:
 
 def test_the_steps_hit_their_density_altitudes_and_winds(quick) -> None:
     for sv in DESIGN.vehicles:
-        mine = [sc for sc in quick.scenarios if sc.vehicle_name == sv.tasks.vehicle]
+        mine = [sc for sc in quick.scenarios if sc.vehicle_name == sv.tasks.vehicle and sc.sensing.perfect]
+        assert all(sc.map_error.exact for sc in mine)
         assert len(mine) == len(DENSITY_ALTITUDES_M) + len(sv.wind_steps_m_s) - 1  # the sea-level point shared
         das = sorted({density_altitude_m(float(sc.air.density_kg_m3(0.0))) for sc in mine})
         assert len(das) == len(DENSITY_ALTITUDES_M) >= 7 and max(DENSITY_ALTITUDES_M) >= 4500.0
@@ -66,9 +81,40 @@ def test_the_steps_hit_their_density_altitudes_and_winds(quick) -> None:
     assert max(quad.wind_steps_m_s) == 12.0 and max(uam.wind_steps_m_s) == 16.0
 
 
+def test_the_sensed_steps_move_one_thing_each(quick) -> None:
+    """Nominal sensing at every sensed step; each axis moves its own figure from the shared point, and the prior map
+    lacks the step's share of the buildings."""
+    points = sensed_points()
+    assert len(points) == 1 + (len(MISSING_FRACTIONS) - 1) + (len(GNSS_STEPS) - 1) + (len(LIDAR_RANGE_FRACTIONS) - 1)
+    for sv in DESIGN.vehicles:
+        mine = [sc for sc in quick.scenarios if sc.vehicle_name == sv.tasks.vehicle and not sc.sensing.perfect]
+        assert len(mine) == len(points) == 11
+        assert {sc.sensing.level for sc in mine} == {"nominal"}
+        part = max(sc.sensing.lidar.max_range_m for sc in mine)
+        assert part == (100.0 if sv.tasks.vehicle == "small_quad" else 200.0)
+        facts = {sc.name: (sensed_facts(sc.sensing), sc.map_error.missing_fraction) for sc in mine}
+        missing = sorted(m for f, m in facts.values() if f == SensedFacts(False, 0.0, part))
+        assert missing == [0.0, 0.1, 0.25, 0.5]
+        skies = sorted((f.gnss_urban_canyon, f.gnss_max_outage_s) for f, m in facts.values()
+                       if m == 0.0 and f.lidar_range_m == part)
+        assert skies == [(False, 0.0), (True, 0.0), (True, 10.0), (True, 30.0), (True, 60.0)]
+        ranges = sorted(f.lidar_range_m for f, m in facts.values() if m == 0.0 and not f.gnss_urban_canyon)
+        assert ranges == pytest.approx([0.2 * part, 0.4 * part, 0.6 * part, part])
+        outages = [sc.sensing.gnss for sc in mine if sc.sensing.gnss.max_outage_s]
+        assert {g.outage_rate_per_min for g in outages} == {sweep.GNSS_OUTAGE_RATE_PER_MIN}
+        for sc in mine:
+            n = len(sc.city.buildings)
+            lacking = n - len(sc.prior_map.buildings)
+            assert lacking == math.floor(sc.map_error.missing_fraction * n + 0.5), sc.name
+        half = next(sc for sc in mine if sc.map_error.missing_fraction == 0.5)
+        assert half.name.endswith("-sensed-m50-g0-l100") and half.map_error.seed == half.raw["map"]["generator"]["seed"]
+
+
 def test_city_seeds_are_held_out() -> None:
-    taken = {**LEARNED_PILOT_POOLS, **{f"{v} {family.sets[0]}": r for family in FAMILIES
-                                       for v, r in city_seed_ranges(family).items()}}
+    taken = {**LEARNED_PILOT_POOLS, **{f"{v} {name}": r for family in FAMILIES
+                                       for twin, name in ((family, family.sets[0]),
+                                                          (validation_design(family), family.sets[2]))
+                                       for v, r in city_seed_ranges(twin).items()}}
     ranges = sweep_seed_ranges()
     for vehicle, seeds in ranges.items():
         for other in [*taken.values(), *(r for v, r in ranges.items() if v != vehicle)]:
@@ -78,6 +124,11 @@ def test_city_seeds_are_held_out() -> None:
         clash = sweep.SweepVehicle(sweep.VehicleBenchmark(tasks.vehicle, tasks.tag, 3_000_010, tasks.leg_bins_m,
                                                           tasks.altitude_m, 0.0), (0.0, 2.0), 2.0)
         build_sweep("sweep-quick", sweep.SweepDesign(vehicles=(clash,)))
+    with pytest.raises(ValueError, match="overlap the small_quad benchmark-perfect-validation"):  # the twins too
+        tasks = DESIGN.vehicles[0].tasks
+        clash = sweep.SweepVehicle(sweep.VehicleBenchmark(tasks.vehicle, tasks.tag, 3_200_005, tasks.leg_bins_m,
+                                                          tasks.altitude_m, 0.0), (0.0, 2.0), 2.0)
+        build_sweep("sweep-quick", sweep.SweepDesign(vehicles=(clash,)))
 
 
 def test_version_is_repeatable_and_quick_is_a_subset(quick) -> None:
@@ -85,7 +136,7 @@ def test_version_is_repeatable_and_quick_is_a_subset(quick) -> None:
     assert again.info.version == quick.info.version and [s.raw for s in again.scenarios] == [s.raw for s in
                                                                                               quick.scenarios]
     assert quick.info.version.startswith(f"{sweep.GENERATOR_VERSION}+")
-    assert quick.info.version == "1+c72ac2382a"  # docs/benchmark.md
+    assert quick.info.version == "2+c50b13dab8"  # docs/benchmark.md
     bigger = build_sweep("sweep-quick", sweep.SweepDesign(quick_legs=3))
     assert bigger.info.version != quick.info.version
     for small, big in zip(quick.scenarios, bigger.scenarios):
@@ -116,14 +167,58 @@ def test_a_shipped_policy_is_warned_in_thin_air_not_at_sea_level(quick) -> None:
     assert scenario_outside(sea, env) == () and scenario_outside(inside, env) == ()
     assert scenario_outside(thin, env) == ("density altitude 4497 m",)
     assert scenario_outside(windy, env) == ("steady wind 10.0 m/s",)
-    cells, _ = plan_cells(quad, RunConfig(Path("unused")), None)
-    notes = outside_trained_air(quad, cells, {facts.vehicle_fingerprint: env})
+    air = [sc for sc in quad if sc.sensing.perfect]
+    cells, _ = plan_cells(air, RunConfig(Path("unused")), None)
+    notes = outside_trained_air(air, cells, {facts.vehicle_fingerprint: env})
     # past the envelope: 4.5 km, and wind 10 and 12 m/s
     assert len(notes) == 1 and notes[0].startswith("ppo flies 3 of 13 small_quad scenarios outside")
     assert thin.name in notes[0] and windy.name in notes[0] and sea.name not in notes[0]
     assert inside.name not in notes[0]
     assert outside_trained_air([sea], plan_cells([sea], RunConfig(Path("unused")), None)[0],
                                {facts.vehicle_fingerprint: env}) == []
+    # it trained on the truth and exact maps: every sensed step is outside, said once for the sensing
+    assert facts.sensing == SensingEnvelope(False, False, 0.0, None, 0.0)
+    sensed = [sc for sc in quad if not sc.sensing.perfect]
+    base = next(sc for sc in sensed if sc.name.endswith("-sensed-m00-g0-l100"))
+    half = next(sc for sc in sensed if sc.name.endswith("-sensed-m50-g0-l100"))
+    canyon = next(sc for sc in sensed if sc.name.endswith("-sensed-m00-g4-l100"))
+    assert scenario_outside(base, env, facts.sensing) == ("nominal sensing",)
+    assert scenario_outside(half, env, facts.sensing) == ("nominal sensing", "50 % of the buildings unmapped")
+    assert scenario_outside(canyon, env, facts.sensing) == ("nominal+ sensing",)
+    assert scenario_outside(canyon, env) == ()  # no sensing envelope: not compared
+    cells, _ = plan_cells(quad, RunConfig(Path("unused")), None)
+    notes = outside_trained_air(quad, cells, {facts.vehicle_fingerprint: env}, {facts.vehicle_fingerprint:
+                                                                                facts.sensing})
+    assert len(notes) == 1 and notes[0].startswith("ppo flies 14 of 24 small_quad scenarios outside")
+    assert "sensing perfect only, maps missing up to 0 % of the buildings" in notes[0]
+
+
+def test_a_policy_trained_across_sensing_is_warned_past_its_levels(quick) -> None:
+    """Trained at every sensing and map-error level: the open sky, the canyon, outages to 30 s, the part's range
+    and a quarter of the map missing are inside; 60 s outages, a shorter range and half the map missing are not."""
+    from dataclasses import replace
+
+    from compare.run.trained_air import sensing_envelope
+    from rl.task.vehicles import task_for
+
+    nav = replace(task_for("small_quad"), sensing=("perfect", "nominal", "degraded"),
+                  map_error=("exact", "outdated", "wrong"))
+    trained = sensing_envelope(nav)
+    assert trained == SensingEnvelope(True, True, 30.0, 100.0, 0.25)
+    assert "GNSS up to urban canyon, outages to 30 s, lidar range from 100 m" in trained.describe()
+    env = AirEnvelope((-600.0, 4100.0), 8.0, ("none", "light", "moderate"))
+    why = {sc.name.split("-sensed-")[1]: scenario_outside(sc, env, trained) for sc in quick.scenarios
+           if sc.vehicle_name == "small_quad" and not sc.sensing.perfect}
+    assert why == {"m00-g0-l100": (), "m10-g0-l100": (), "m25-g0-l100": (),
+                   "m50-g0-l100": ("50 % of the buildings unmapped",),
+                   "m00-g1-l100": (), "m00-g2-l100": (), "m00-g3-l100": (), "m00-g4-l100": ("GNSS outages to 60 s",),
+                   "m00-g0-l020": ("lidar range 20 m",), "m00-g0-l040": ("lidar range 40 m",),
+                   "m00-g0-l060": ("lidar range 60 m",)}
+    only_nominal = sensing_envelope(replace(nav, sensing=("nominal",), map_error=("exact",)))
+    assert only_nominal == SensingEnvelope(True, False, 0.0, 100.0, 0.0)
+    assert only_nominal.outside("degraded", SensedFacts(True, 30.0, 100.0), 0.1) == (
+        "GNSS urban canyon", "GNSS outages to 30 s", "10 % of the buildings unmapped")
+    assert only_nominal.outside("perfect", None, 0.0) == ()
 
 
 def test_envelope_reasons() -> None:
