@@ -102,6 +102,7 @@ _PILOTS: dict = {}
 def fly(job: Job) -> dict:
     """Fly one episode; its deviations from the reference and its outcome."""
     from compare.flying.episode_loop import run_episode
+    from compare.flying.promise import scored_report
     from planners.classical_pilot import ClassicalConfig, ClassicalPilot
     from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
     from uam_fdm.air.wind import WindConditions, WindField, probe_heights_up_to
@@ -125,7 +126,7 @@ def fly(job: Job) -> dict:
                                      probe_heights_up_to(float(city.bounds_max_m[2])))
     t0 = time.perf_counter()
     traj = run_episode(world, pilot, task, wind, seed=job.seed + job.index)
-    rep = pilot.episode_report()
+    rep = scored_report(pilot, traj)  # its promise measured on the truth
     return {"job": dataclasses.asdict(job), "city_seed": city_seed, "outcome": traj.outcome,
             "deviations_m": np.asarray(pilot.stats.deviations_m, float),
             "reference_speeds_m_s": np.asarray(pilot.stats.reference_speeds_m_s, float),

@@ -143,8 +143,10 @@ class ClassicalStats:
     deviations_m: list[float] = field(default_factory=list)
     # the reference's speed at each decision, paired with `deviations_m` (the margin table bins by it)
     reference_speeds_m_s: list[float] = field(default_factory=list)
-    # the vehicle's clearance over the margin in force at its reference point, per decision (the promise)
-    clearance_over_margin: list[float] = field(default_factory=list)
+    # each decision's time and the margin in force at its reference point (the promise; the scorer measures the
+    # true clearance against it, `compare.flying.promise`)
+    promise_t_s: list[float] = field(default_factory=list)
+    promise_margin_m: list[float] = field(default_factory=list)
     planner_attempts: int = 0
     planner_step: str = ""
     planner_candidates: int = 0
@@ -350,7 +352,8 @@ class ClassicalPilot:
             planner_margin_m=m.planner_m if m else math.nan, mpc_margin_m=m.mpc_m if m else math.nan,
             margin_source=m.source if m else "", planner_margin_floor_m=m.floor_m if m else math.nan,
             planner_attempts=s.planner_attempts, planner_step=s.planner_step,
-            clearance_over_margin_min=min(s.clearance_over_margin, default=math.nan),
+            # measured on the truth by the scorer from `margins_in_force` (`compare.flying.promise`)
+            clearance_over_margin_min=math.nan,
             **self._sensing_report())
 
     def _sensing_report(self) -> dict[str, float]:
@@ -413,16 +416,19 @@ class ClassicalPilot:
         return RotorCommand(sol.rotor_speeds_rad_s)
 
     def _record_promise(self, obs: Observation, ref_pos: np.ndarray, ref_speed_m_s: float) -> None:
-        """Record the vehicle's sphere clearance (planning map) over the margin in force at its reference
-        point: M(reference speed), or a close start's or goal's own allowance inside its zone."""
-        world, margins = self._flying()
-        local = float(margins.by_speed.margin_m(ref_speed_m_s))
+        """Record the margin in force from this decision on, at its reference point: M(reference speed), or a
+        close start's or goal's own allowance inside its zone."""
+        local = float(self._flying()[1].by_speed.margin_m(ref_speed_m_s))
         for end, zone, allowed in self._promise_ends:
             if float(np.linalg.norm(ref_pos - end)) <= zone:
                 local = min(local, allowed)
-        clearance = self._known.planning_map().clearance_one(float(obs.x[0]), float(obs.x[1]), float(obs.x[2]),
-                                                            world.vehicle.collision_radius_m)
-        self.stats.clearance_over_margin.append(clearance / max(local, 0.05))
+        self.stats.promise_t_s.append(float(obs.t_s))
+        self.stats.promise_margin_m.append(local)
+
+    def margins_in_force(self) -> tuple[np.ndarray, np.ndarray]:
+        """The decisions' times (D,) [s] and the margin in force from each (D,) [m] over the episode flown since
+        `reset` (`uam_fdm.pilot.StatesMargins`): the scorer holds the true clearance to it."""
+        return np.asarray(self.stats.promise_t_s, float), np.asarray(self.stats.promise_margin_m, float)
 
     def _sense(self, obs: Observation) -> None:
         """Map the scans handed over with `obs` on its estimate; flag the path still to fly as blocked when a newly
@@ -434,7 +440,7 @@ class ClassicalPilot:
         self.stats.uncertainty_margin_m.append(self._extra_now)
         fresh = []
         for scan in obs.sensors.lidar:
-            # the scan is as old as the sensing latency, and so is the estimate it is placed on (`Observation`)
+            # placed on the pose estimated when it was taken (its stamp), as old as the scan
             t0 = time.perf_counter()
             update = sensed.integrate(scan, obs.x, sigma_m)
             self.stats.map_update_s.append(time.perf_counter() - t0)

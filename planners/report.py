@@ -36,9 +36,10 @@ class ClassicalReport:
             goal's zone) [m].
         planner_attempts: planning attempts at reset (`planners.ladder`; 1 = the first step found the
             path); planner_step: the step that found it ("" when none did).
-        clearance_over_margin_min: least, over the decisions, of the vehicle's sphere clearance (to
-            buildings, no-fly volumes and the ground) over the margin in force at its reference point
-            (the promise: >= 0.5) [-].
+        clearance_over_margin_min: least, over the flight's physics steps, of the vehicle's true sphere clearance
+            (to the true world's buildings and the ground) over the margin in force at its reference point at the
+            time (the promise: >= 0.5) [-]; measured by the scorer (`compare.flying.promise.scored_report`), NaN
+            as the pilot reports it.
         replans_blocked, replans_uncertainty: replans flying on sensors because a newly sensed obstacle came
             within the margin of the path still to fly, or because k σ of the estimate outgrew the margin planned
             with (NaN at `perfect` sensing: nothing is sensed).

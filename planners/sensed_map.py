@@ -151,12 +151,16 @@ class SensedMap:
         return tuple(int(i) for i in np.flatnonzero(self._cleared))
 
     def integrate(self, scan: LidarScan, x_est: np.ndarray, position_sigma_m: float = 0.0) -> ScanUpdate:
-        """Add one scan taken at the estimated state `x_est` (13 + n,) whose position is uncertain by
+        """Add one scan, placed on the pose the vehicle estimated when it was taken (`LidarScan.pose_estimate`), or
+        on the estimated state `x_est` (13 + n,) for a scan without one, whose position is uncertain by
         `position_sigma_m` (1 σ) [m]."""
         cfg, res = self.config, self.config.resolution_m
-        origin = np.asarray(x_est[0:3], float)
-        x6 = np.asarray(x_est[6:10], float)
-        rot = rotation_matrix(x6 / np.linalg.norm(x6))
+        pose = scan.pose_estimate
+        # a scan handed over a latency later is placed where the vehicle thought it was then: on the newer estimate
+        # its turn in between would put phantom returns metres off at the lidar's range
+        origin = np.asarray(x_est[0:3] if pose is None else pose[0:3], float)
+        q = np.asarray(x_est[6:10] if pose is None else pose[3:7], float)
+        rot = rotation_matrix(q / np.linalg.norm(q))
         dirs = np.asarray(scan.directions_body, float) @ rot.T
         ranges = np.asarray(scan.ranges_m, float)
         points = origin + dirs * ranges[:, None]

@@ -260,6 +260,18 @@ class ChoosesSensors(Protocol):
         ...
 
 
+@runtime_checkable
+class StatesMargins(Protocol):
+    """A pilot that states the clearance it keeps (optional): the margin in force from each of its decisions on.
+    The scorer measures the vehicle's true clearance against it (`compare.flying.promise`); the pilot never sees
+    that truth."""
+
+    def margins_in_force(self) -> tuple[np.ndarray, np.ndarray]:
+        """Over the episode flown since `reset`: its decisions' times (D,) [s] and the margin in force from each
+        (D,) [m], the clearance beyond its collision sphere it keeps to every obstacle there."""
+        ...
+
+
 def flown_sensing(pilot: object, scenario: SensingConfig) -> SensingConfig:
     """The sensors `pilot` flies with at the scenario's sensing `scenario`: its `sensing_flown` (`ChoosesSensors`)
     when it has one, else `scenario` itself."""

@@ -81,8 +81,8 @@ class EpisodeMetrics:
             speed, narrowing towards the start and goal) [m].
         planner_attempts: planning attempts at reset until a path was found (1: the first planner;
             more: the escalation ladder of `planners.ladder` climbed) [count].
-        clearance_over_margin_min: least, over the decisions, of the vehicle's clearance over the margin
-            in force at its reference point (the promise: >= 0.5) [-].
+        clearance_over_margin_min: least, over the physics steps, of the vehicle's true clearance over the margin
+            in force at its reference point (the promise: >= 0.5; `compare.flying.promise`) [-].
         vehicle_fingerprint: the vehicle's fingerprint ("" where the episode file did not record it). Rows of
             two vehicles that share a name but not a fingerprint are labelled apart (`label_vehicles`).
         The tracker columns (`TRACKER_METRICS`) are NaN for a pilot without a tracker (ppo) and, where an

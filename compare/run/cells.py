@@ -17,6 +17,7 @@ import numpy as np
 
 from compare.flying import pilots
 from compare.flying.episode_loop import Trajectory, run_episode
+from compare.flying.promise import scored_report
 from compare.flying.seeding import cell_seed
 from compare.results.difficulty import building_coverage
 from compare.results.metrics import episode_metrics
@@ -146,7 +147,8 @@ class CellRunner:
         pilot = self.pilot(c.pilot, sc)
         traj = run_episode(world, pilot, task, wind, agent_seed, pilot_name=c.pilot,
                            truth=self.truth(c.scenario, sensing_seed))
-        report = pilot.episode_report()  # e.g. what the classical pilot's tracker did (columns of metrics.csv)
+        # e.g. what the classical pilot's tracker did (columns of metrics.csv), its promise measured on the truth
+        report = scored_report(pilot, traj)
         key = EpisodeKey(sc.name, c.episode, c.pilot, c.seed)
         meta = EpisodeMeta(key=key, map_name=sc.city.name or sc.name, vehicle=sc.vehicle_name,
                            vehicle_fingerprint=sc.vehicle.fingerprint(),

@@ -1,6 +1,8 @@
 """The classical pilot's map of what it senses: unmapped obstacles found, prior parts seen through taken out."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -69,6 +71,21 @@ def test_an_estimate_off_in_height_does_not_raise_the_ground_into_obstacles():
     placed = _state(p + [0.0, 0.0, 0.6])
     assert not SensedMap(prior, MappingConfig(), VLP16.max_range_m).integrate(scan, placed, 0.25).changed
     assert SensedMap(prior, MappingConfig(), VLP16.max_range_m).integrate(scan, placed, 0.0).changed  # σ unstated
+
+
+def test_a_stamped_scan_is_placed_on_its_own_pose_not_on_the_newer_estimate():
+    """A scan taken before a yaw of 10 degrees and handed over after it: placed on the decision's estimate, the known
+    building's returns land metres beside it and are marked; placed on the scan's own stamp, nothing is."""
+    prior = BuildingMap([KNOWN], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(prior), np.random.default_rng(4))
+    p = np.array([100.0, 100.0, 20.0])
+    scan, _ = lidar.scan(0.0, p, np.eye(3))
+    turned = _state(p)
+    half = np.radians(10.0) / 2.0
+    turned[6:10] = (np.cos(half), 0.0, 0.0, np.sin(half))  # the vehicle yawed since the scan
+    stamped = replace(scan, pose_estimate=np.array([*p, 1.0, 0.0, 0.0, 0.0]))
+    assert SensedMap(prior, MappingConfig(), VLP16.max_range_m).integrate(scan, turned, 0.1).changed
+    assert not SensedMap(prior, MappingConfig(), VLP16.max_range_m).integrate(stamped, turned, 0.1).changed
 
 
 def test_coarser_columns_cover_every_voxel_in_fewer_boxes():
