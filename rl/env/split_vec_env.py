@@ -9,6 +9,11 @@ alone, the split gives exactly the transitions of `UAMNavVecEnv(n_envs, config, 
 number of processes.
 
 Generated cities only: a fixed set of episodes (`FixedEpisodes`) is dealt to slots by their index in one batch.
+
+Held-out evaluations split the same way (`fly_held_out`): each process flies its share of the episodes with the
+policy's weights, in an evaluation world of its own built as this process built its (the same cities, air and
+turbulence, from the same configuration); an episode's slot is seeded by its index, so the run is the one a single
+process flies (`rl.env.held_out`, tested).
 """
 from __future__ import annotations
 
@@ -22,6 +27,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from rl.env.gym_env import ACTION_SPACE, observation_space
+from rl.env.held_out import FlownEpisodes, PolicyWeights, fly_episodes, policy_pilot
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavWorld
 from rl.task.config import NavConfig
@@ -33,15 +39,28 @@ def shares(n_envs: int, processes: int) -> list[int]:
     return [base + (k < extra) for k in range(processes)]
 
 
+def evaluation_world(config: NavConfig, training: NavWorld) -> NavWorld:
+    """The world of a training's held-out evaluation on `config` (its `eval_config`): the training world's dynamics
+    and fields shared, its turbulence stacks reused where they are the same."""
+    return NavWorld(config, dynamics=training.dynamics, atmosphere=training.atmospheres, wind_from=training)
+
+
 def _serve(conn: Connection, n_envs: int, config: NavConfig, seed: int) -> None:
     """A worker process: one share of the slots, stepped on the main process's commands until "close"."""
     try:
         env = UAMNavVecEnv(n_envs, config, seed=seed)
+        held_out: NavWorld | None = None  # the evaluation's world, built at the first evaluation
         conn.send(("ready", None))
         while True:
             command, value = conn.recv()
             if command == "step":
                 conn.send(("ok", env.step(value)))
+            elif command == "evaluate":
+                eval_config, first, count, total, eval_seed, weights = value
+                if held_out is None or held_out.config != eval_config:
+                    held_out = evaluation_world(eval_config, env.world)
+                conn.send(("ok", fly_episodes(policy_pilot(weights, first, total), held_out, first, count,
+                                              eval_seed)))
             elif command == "reset":
                 conn.send(("ok", env.reset()))
             elif command == "difficulty":
@@ -150,6 +169,25 @@ class SplitVecEnv(VecEnv):
         done = np.concatenate([p[2] for p in parts])
         infos = [info for p in parts for info in p[3]]
         return obs, rew, done, infos
+
+    def fly_held_out(self, world: NavWorld, episodes: int, seed: int, weights: PolicyWeights) -> FlownEpisodes:
+        """Fly held-out episodes 0 .. episodes - 1 of `world` (`rl.env.held_out.fly_episodes`) with the policy
+        `weights`, each process its share (this one the first, in `world`; the others in worlds they build from
+        `world.config` as `evaluation_world` builds it, which `world` must have been built by).
+
+        Raises:
+            ValueError: fewer episodes than processes.
+            RuntimeError: a worker process failed (its traceback in the message).
+        """
+        processes = len(self._conns) + 1
+        if episodes < processes:
+            raise ValueError(f"{episodes} episodes cannot be shared by {processes} processes")
+        sizes = shares(episodes, processes)
+        firsts = np.cumsum([0] + sizes).tolist()
+        self._all("evaluate", [(world.config, first, size, episodes, seed, weights)
+                               for first, size in zip(firsts[1:-1], sizes[1:])])
+        own = fly_episodes(policy_pilot(weights, 0, episodes), world, 0, sizes[0], seed)  # the others fly theirs
+        return FlownEpisodes.joined([own] + [self._answer(conn) for conn in self._conns])
 
     def close(self) -> None:
         if self._closed:

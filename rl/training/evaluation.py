@@ -8,11 +8,12 @@ wind) for every pilot, whatever its decision rate, so pilots are compared on pai
 """
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from rl.env.held_out import BatchedPilot, FlownEpisodes, PolicyWeights, Progress, fly_episodes
+from rl.env.split_vec_env import SplitVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.pilots.potential_field import BatchedPotentialField, PotentialFieldConfig, gains_for
 from rl.task.air import AirDistribution
@@ -24,12 +25,6 @@ from uam_fdm.stats import wilson_interval
 VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
 POOLS = ("test", "validation")
 
-BatchedPilot = Callable[[np.ndarray, NavBatch], np.ndarray]
-"""A pilot flying a whole batch, for evaluation (not a `uam_fdm.pilot.Pilot`): (raw observations (N, obs),
-the batch) -> actions (N, 3) in [-1, 1]."""
-
-Progress = Callable[[int, int], object]
-"""Told how an evaluation goes: (episodes ended so far, episodes in all), each time more have ended."""
 
 
 @dataclass(frozen=True)
@@ -105,27 +100,33 @@ def evaluate(pilot: BatchedPilot, nav: NavConfig, episodes: int, seed: int = 0, 
             bounds its weights so that none is).
     """
     world = world or NavWorld(eval_config(nav, episodes, pool))
-    batch = NavBatch(world, episodes)
-    batch.city_of_slot = np.arange(episodes) % len(world.cities)
-    batch.seed([seed + i for i in range(episodes)])
-    batch.reset_slots(range(episodes))
-    obs = batch.observations.copy()
-    done = np.zeros(episodes, dtype=bool)
-    outcomes: list[str] = [""] * episodes
-    returns = np.zeros(episodes)
-    times = np.zeros(episodes)
-    while not done.all():
-        # an episode that ended stays where it ended: only those still flying fly (their numbers are the same)
-        obs, _, term, trunc, infos = batch.step(pilot(obs, batch), active=~done)
-        d = term | trunc
-        ended = np.flatnonzero(d & ~done)
-        for i in ended:
-            outcomes[i] = infos[i]["outcome"]
-            returns[i] = batch.episode_return[i]
-            times[i] = infos[i]["t_s"]
-        done |= d
-        if progress is not None and len(ended):
-            progress(int(done.sum()), episodes)
+    return _result(fly_episodes(pilot, world, 0, episodes, seed, progress), pool, seed)
+
+
+def evaluate_split(env: SplitVecEnv, weights: PolicyWeights, episodes: int, seed: int, pool: str,
+                   world: NavWorld) -> EvalResult:
+    """`evaluate` of the policy `weights` on `world`'s held-out tasks, the episodes shared by `env`'s processes
+    (`SplitVecEnv.fly_held_out`): the same episodes and numbers as one process flying them all.
+
+    Args:
+        env: the training's environment, whose worker processes fly their shares.
+        weights: the policy, as plain data.
+        episodes, seed, pool: as `evaluate`'s.
+        world: the evaluation world (`rl.env.split_vec_env.evaluation_world` of `env`'s world).
+
+    Raises:
+        ValueError: as `evaluate`; fewer episodes than processes.
+    """
+    return _result(env.fly_held_out(world, episodes, seed, weights), pool, seed)
+
+
+def _result(flown: FlownEpisodes, pool: str, seed: int) -> EvalResult:
+    """The outcomes as an `EvalResult` with Wilson intervals.
+
+    Raises:
+        ValueError: an episode's return or time is not finite (naming the metric).
+    """
+    outcomes, returns, times, episodes = list(flown.outcomes), flown.returns, flown.times_s, len(flown.outcomes)
     for key, values in (("mean_return", returns), ("mean_time_s", times)):
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:  # a mean of them would be inf or NaN, said by a NumPy warning at best

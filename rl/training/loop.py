@@ -30,7 +30,8 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.env.ground import TRAINING_LEGS, TRAINING_STREAM, VALIDATION_STREAM, TrainingGround
-from rl.env.split_vec_env import SplitVecEnv
+from rl.env.held_out import PolicyWeights
+from rl.env.split_vec_env import SplitVecEnv, evaluation_world
 from rl.env.vec_env import UAMNavVecEnv
 from rl.env.world import NavBatch, NavWorld
 from rl.policies.folder import CHECKPOINT_FILES, CHECKPOINTS, CURVE_COLUMNS, PolicyFolder
@@ -44,7 +45,7 @@ from rl.training.checkpoints import (
     save_vec_normalize,
 )
 from rl.training.config import TrainConfig
-from rl.training.evaluation import EvalResult, eval_config, evaluate
+from rl.training.evaluation import EvalResult, eval_config, evaluate, evaluate_split
 from rl.training.ppo import PRESETS, make_model, normalized_env
 from rl.training.recording import FlightRecorder
 from uam_fdm.episode import Outcome
@@ -101,9 +102,9 @@ def train(cfg: TrainConfig, out_dir: Path, resume: Path | None = None, progress:
         if remaining > 0:
             run.model.learn(total_timesteps=remaining, callback=_Periodic(run), progress_bar=progress,
                             reset_num_timesteps=resume is None, tb_log_name=f"ppo_{cfg.preset}")
+        final = run.evaluate(final=True)  # the last update's row waits for it (`update_ended`)
     finally:
-        run.base.close()  # a split batch's worker processes end here
-    final = run.evaluate(final=True)  # the last update's row waits for it (`update_ended`)
+        run.base.close()  # a split batch's worker processes end here, after they flew the last evaluation
     if remaining > 0:
         run.write_row(final)
     best_steps, kept = run.keep_best(final)
@@ -152,9 +153,8 @@ class _TrainingRun:
             self.base = UAMNavVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, world=world) \
                 if cfg.env_processes == 1 or world is not None else \
                 SplitVecEnv(cfg.n_envs, cfg.nav, seed=cfg.seed, processes=cfg.env_processes)
-            self.eval_world = NavWorld(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
-                                       dynamics=self.base.world.dynamics, atmosphere=self.base.world.atmospheres,
-                                       wind_from=self.base.world)
+            self.eval_world = evaluation_world(eval_config(cfg.nav, cfg.eval_episodes, pool="validation"),
+                                               self.base.world)
         else:
             assert legs is not None, "a ground comes with its legs (train)"
             log(f"building the batched environment ({cfg.n_envs} vehicles) on {len(legs[0].tasks)} training legs in "
@@ -240,8 +240,13 @@ class _TrainingRun:
         once, by the end of the run (`keep_best` and the caller)."""
         cfg, model = self.cfg, self.model
         self.record_flights()
-        res = evaluate(self.pilot, cfg.nav, cfg.eval_episodes, seed=cfg.seed + 10_000, pool="validation",
-                       world=self.eval_world)
+        seed = cfg.seed + 10_000
+        if isinstance(self.base, SplitVecEnv):  # the env's processes fly a share each
+            weights = PolicyWeights.of(model.policy.state_dict(), self.base.world.obs_size,
+                                       PRESETS[cfg.preset].network, ObsNorm.of(self.venv))
+            res = evaluate_split(self.base, weights, cfg.eval_episodes, seed, "validation", self.eval_world)
+        else:
+            res = evaluate(self.pilot, cfg.nav, cfg.eval_episodes, seed=seed, pool="validation", world=self.eval_world)
         if getattr(model, "_logger", None) is not None:  # no logger before the first learn() call
             model.logger.record("eval/success_rate", res.success_rate)
             model.logger.record("eval/collision_rate", res.collision_rate)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rl.env.held_out import BatchedPilot
 from rl.env.world import NavBatch, NavWorld, SlotAir
 from rl.policies.flights import (
     TASKS_FILE,
@@ -42,7 +43,7 @@ from rl.policies.flights import (
 )
 from rl.policies.reader import ObsNorm
 from rl.task.config import NavConfig
-from rl.training.evaluation import BatchedPilot, eval_config
+from rl.training.evaluation import eval_config
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.pilot import Task
 

@@ -58,3 +58,35 @@ def test_split_steps_exactly_as_one_batch():
 def test_a_process_count_that_cannot_hold_the_slots_is_refused(processes):
     with pytest.raises(ValueError, match=f"processes must be in .* got {processes}"):
         SplitVecEnv(3, replace(TASK, city_pool_size=1), processes=processes)
+
+
+def test_held_out_episodes_shared_by_processes_are_those_one_process_flies():
+    """An evaluation's episodes flown by two processes, a share each, end as when one process flies them all: the
+    same outcomes, returns and times, episode by episode; a share flown alone is that share of the whole."""
+    import torch
+
+    from rl.env.held_out import PolicyWeights, fly_episodes, policy_pilot
+    from rl.env.split_vec_env import evaluation_world
+    from rl.policies.folder import NetworkConfig
+    from rl.policies.network import ActorCritic
+    from rl.policies.reader import ObsNorm
+    from rl.training.evaluation import eval_config
+
+    split = SplitVecEnv(2, TASK, seed=3, processes=2)
+    try:
+        world = evaluation_world(eval_config(TASK, 7, "validation"), split.world)
+        torch.manual_seed(0)
+        n = world.obs_size
+        rng = np.random.default_rng(1)
+        norm = ObsNorm(rng.normal(0.0, 0.1, n), rng.uniform(0.5, 2.0, n), 100.0, 1e-8, 10.0)
+        weights = PolicyWeights.of(ActorCritic(n, NetworkConfig()).state_dict(), n, NetworkConfig(), norm)
+        one = fly_episodes(policy_pilot(weights), world, 0, 7, seed=5)
+        shared = split.fly_held_out(world, 7, 5, weights)
+        assert shared.outcomes == one.outcomes and len(set(one.times_s)) > 1
+        assert np.array_equal(shared.returns, one.returns) and np.array_equal(shared.times_s, one.times_s)
+        tail = fly_episodes(policy_pilot(weights, 4, 7), world, 4, 3, seed=5)
+        assert tail.outcomes == one.outcomes[4:] and np.array_equal(tail.returns, one.returns[4:])
+        with pytest.raises(ValueError, match="1 episodes cannot be shared by 2 processes"):
+            split.fly_held_out(world, 1, 5, weights)
+    finally:
+        split.close()
