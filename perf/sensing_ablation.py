@@ -16,6 +16,7 @@ paired difference in success or in collisions excludes zero in its favour. Then 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from collections.abc import Callable
@@ -30,7 +31,7 @@ from compare.results.stats import PairedCounts, newcombe_paired_interval
 from rl.env.world import NavWorld
 from rl.pilots.learned import Policy, load_policy
 from rl.task.config import NavConfig
-from rl.training.evaluation import EvalResult, eval_config, evaluate
+from rl.training.evaluation import EvalResult, eval_config, evaluate, rates_by_level
 from uam_fdm.episode import Outcome
 
 COLLISION_WEIGHT = 2.0  # the score's, as the training's selection (`TrainConfig.collision_weight`)
@@ -127,6 +128,14 @@ def main() -> None:
               f"[{c_lo:5.1%}, {c_hi:5.1%}] {timeouts:10.1%} {score(res):7.3f}  {note}")
     out["picked"] = str(args.arms[chosen])
     print(f"picked by the rule: {args.arms[chosen]}")
+    print("per sensing and map-error level (success / collisions, Wilson 95 %):")
+    for folder, res in zip(args.arms, results):
+        groups = rates_by_level(res)
+        out["arms"][str(folder)]["by_level"] = [dataclasses.asdict(g) for g in groups]
+        for g in groups:
+            print(f"  {str(folder):26s} {g.label:<20s} n {g.episodes:>4}  {g.success_rate:6.1%} "
+                  f"[{g.success_ci95[0]:5.1%}, {g.success_ci95[1]:5.1%}]  {g.collision_rate:5.1%} "
+                  f"[{g.collision_ci95[0]:5.1%}, {g.collision_ci95[1]:5.1%}]  {g.outcomes}")
     print(json.dumps(out))
 
 

@@ -180,6 +180,7 @@ def evaluate_policy(args: argparse.Namespace) -> int:
                     "paired": pairs})
         out.update({old: out[new] for old, new in OLD_JSON_KEYS.items()})
     out.update(_by_city_kind(results, nav))
+    out.update(_by_level(results))
     print(json_line(out))  # a kind of city that got no episodes has NaN rates: null here
     return 0
 
@@ -208,6 +209,23 @@ def _by_city_kind(results: dict[str, EvalResult], nav: NavConfig) -> dict[str, A
     if BASELINE in by_kind:  # its old key, as OLD_JSON_KEYS, until the next release
         by_kind["potential field"] = by_kind[BASELINE]
     return {"by_city_kind": by_kind}
+
+
+def _by_level(results: dict[str, EvalResult]) -> dict[str, Any]:
+    """Where the episodes drew several sensing or map-error levels: each pilot's rates per level (and pair of
+    levels), printed; their JSON entry."""
+    from rl.training.evaluation import rates_by_level
+
+    groups = {name: rates_by_level(res) for name, res in results.items()}
+    if not groups["ppo"]:
+        return {}
+    print("  by sensing and map-error level:")
+    for name, rows in groups.items():
+        for g in rows:
+            print(f"    {name:<5} {g.label:<20} {g.episodes:>4} episodes, success {g.success_rate:6.1%} "
+                  f"[{g.success_ci95[0]:.1%}, {g.success_ci95[1]:.1%}], collisions {g.collision_rate:5.1%} "
+                  f"[{g.collision_ci95[0]:.1%}, {g.collision_ci95[1]:.1%}]  {g.outcomes}")
+    return {"by_level": {name: [asdict(g) for g in rows] for name, rows in groups.items()}}
 
 
 def pool_cities(pool: str) -> int:

@@ -31,17 +31,19 @@ class FlownEpisodes:
 
     Attributes:
         outcomes: each episode's outcome; returns: (n,) episode returns; times_s: (n,) flight times [s].
+        levels: each episode's (sensing level, map-error level).
     """
 
     outcomes: tuple[str, ...]
     returns: np.ndarray
     times_s: np.ndarray
+    levels: tuple[tuple[str, str], ...]
 
     @staticmethod
     def joined(parts: Sequence[FlownEpisodes]) -> FlownEpisodes:
         """Consecutive shares as one run, in their order."""
         return FlownEpisodes(tuple(o for p in parts for o in p.outcomes), np.concatenate([p.returns for p in parts]),
-                             np.concatenate([p.times_s for p in parts]))
+                             np.concatenate([p.times_s for p in parts]), tuple(lv for p in parts for lv in p.levels))
 
 
 def fly_episodes(pilot: BatchedPilot, world: NavWorld, first: int, count: int, seed: int,
@@ -63,6 +65,7 @@ def fly_episodes(pilot: BatchedPilot, world: NavWorld, first: int, count: int, s
     obs = batch.observations.copy()
     done = np.zeros(count, dtype=bool)
     outcomes: list[str] = [""] * count
+    levels: list[tuple[str, str]] = [("", "")] * count
     returns = np.zeros(count)
     times = np.zeros(count)
     while not done.all():
@@ -72,12 +75,13 @@ def fly_episodes(pilot: BatchedPilot, world: NavWorld, first: int, count: int, s
         ended = np.flatnonzero(d & ~done)
         for i in ended:
             outcomes[i] = infos[i]["outcome"]
+            levels[i] = (infos[i]["sensing"], infos[i]["map_error"])
             returns[i] = batch.episode_return[i]
             times[i] = infos[i]["t_s"]
         done |= d
         if progress is not None and len(ended):
             progress(int(done.sum()), count)
-    return FlownEpisodes(tuple(outcomes), returns, times)
+    return FlownEpisodes(tuple(outcomes), returns, times, tuple(levels))
 
 
 @dataclass(frozen=True)

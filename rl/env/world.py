@@ -531,5 +531,8 @@ class NavBatch:
                 info["outcome"] = episode.OUTCOME_OF_CODE[int(code[i])]
                 info["is_success"] = bool(arrived[i])
                 info["city"] = w.cities[int(self.city[i])].name
+                level = int(self.sensing_level[i])
+                info["sensing"] = "perfect" if level < 0 else w.config.sensing[level]
+                info["map_error"] = w.maps.levels[int(self.map_level[i])]
             infos.append(info)
         return self._obs.copy(), reward.astype(np.float32), terminated, truncated, infos

@@ -8,6 +8,7 @@ wind) for every pilot, whatever its decision rate, so pilots are compared on pai
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -19,7 +20,9 @@ from rl.pilots.potential_field import BatchedPotentialField, PotentialFieldConfi
 from rl.task.air import AirDistribution
 from rl.task.cities import CityMixture
 from rl.task.config import NavConfig
+from uam_fdm.city.map_error import MAP_ERROR_LEVELS
 from uam_fdm.episode import Outcome
+from uam_fdm.sensing.specs import LEVELS as SENSING_LEVELS
 from uam_fdm.stats import wilson_interval
 
 VALIDATION_OFFSET = 50_000  # validation cities: eval seeds 1,050,000 on; test cities: 1,000,000 on
@@ -37,6 +40,7 @@ class EvalResult:
         mean_return: mean episode return; mean_time_s: mean flight time [s].
         per_episode: each episode's outcome, in episode order (for paired comparisons).
         pool: "test" or "validation"; seed: the evaluation seed.
+        per_episode_levels: each episode's (sensing level, map-error level), in episode order.
     """
 
     episodes: int
@@ -50,10 +54,12 @@ class EvalResult:
     per_episode: tuple[str, ...]
     pool: str
     seed: int
+    per_episode_levels: tuple[tuple[str, str], ...] = ()
 
     def as_dict(self) -> dict:
         d = asdict(self)
         d.pop("per_episode")
+        d.pop("per_episode_levels")
         return d
 
 
@@ -136,7 +142,7 @@ def _result(flown: FlownEpisodes, pool: str, seed: int) -> EvalResult:
     ns, nc = counts.get(Outcome.SUCCESS, 0), counts.get(Outcome.COLLISION, 0)
     return EvalResult(episodes, ns / episodes, nc / episodes, wilson_interval(ns, episodes),
                       wilson_interval(nc, episodes), counts, float(returns.mean()), float(times.mean()),
-                      tuple(outcomes), pool, int(seed))
+                      tuple(outcomes), pool, int(seed), flown.levels)
 
 
 @dataclass(frozen=True)
@@ -169,17 +175,41 @@ def rates_by_city_component(res: EvalResult, nav: NavConfig) -> tuple[GroupRates
         return ()
     seeds = nav.city_seeds()
     kinds = [nav.cities.component(seeds[i % len(seeds)]) for i in range(res.episodes)]
-    out = []
-    for k, dist in enumerate(nav.cities.components):
-        mine = [o for o, c in zip(res.per_episode, kinds, strict=True) if c == k]
-        n = len(mine)
-        ns, nc = mine.count(Outcome.SUCCESS), mine.count(Outcome.COLLISION)
-        label = (f"cities {dist.extent_m[0]:g}-{dist.extent_m[1]:g} m, streets {dist.street_width_m[0]:g}-"
-                 f"{dist.street_width_m[1]:g} m")
-        out.append(GroupRates(label, n, ns / n if n else float("nan"), wilson_interval(ns, n) if n else (0.0, 1.0),
-                              nc / n if n else float("nan"), wilson_interval(nc, n) if n else (0.0, 1.0),
-                              {o: mine.count(o) for o in sorted(set(mine))}))
+    return tuple(_group(f"cities {dist.extent_m[0]:g}-{dist.extent_m[1]:g} m, streets {dist.street_width_m[0]:g}-"
+                        f"{dist.street_width_m[1]:g} m",
+                        [o for o, c in zip(res.per_episode, kinds, strict=True) if c == k])
+                 for k, dist in enumerate(nav.cities.components))
+
+
+def rates_by_level(res: EvalResult) -> tuple[GroupRates, ...]:
+    """`res`'s outcomes per sensing level and per map-error level where it flew more than one of that axis, and per
+    pair of them where it flew more than one of each (labels "sensing nominal", "map wrong", "nominal / wrong", in
+    the presets' order); empty for an evaluation at one level of each."""
+    levels = res.per_episode_levels
+    order = {name: k for k, name in enumerate((*SENSING_LEVELS, *MAP_ERROR_LEVELS))}
+    sensing, maps = {lv[0] for lv in levels}, {lv[1] for lv in levels}
+    axes: list[tuple[str, Callable[[tuple[str, str]], tuple[str, ...]]]] = []
+    if len(sensing) > 1:
+        axes.append(("sensing {}", lambda lv: lv[:1]))
+    if len(maps) > 1:
+        axes.append(("map {}", lambda lv: lv[1:]))
+    if len(sensing) > 1 and len(maps) > 1:
+        axes.append(("{}", lambda lv: lv))
+    out: list[GroupRates] = []
+    for label, key in axes:
+        for value in sorted({key(lv) for lv in levels}, key=lambda v: [order.get(x, len(order)) for x in v]):
+            out.append(_group(label.format(" / ".join(value)),
+                              [o for o, lv in zip(res.per_episode, levels, strict=True) if key(lv) == value]))
     return tuple(out)
+
+
+def _group(label: str, outcomes: list[str]) -> GroupRates:
+    """The rates of one group's outcomes (NaN and the whole unit interval for an empty group)."""
+    n = len(outcomes)
+    ns, nc = outcomes.count(Outcome.SUCCESS), outcomes.count(Outcome.COLLISION)
+    return GroupRates(label, n, ns / n if n else float("nan"), wilson_interval(ns, n) if n else (0.0, 1.0),
+                      nc / n if n else float("nan"), wilson_interval(nc, n) if n else (0.0, 1.0),
+                      {o: outcomes.count(o) for o in sorted(set(outcomes))})
 
 
 def paired_counts(a: EvalResult, b: EvalResult) -> dict[str, int]:

@@ -66,3 +66,26 @@ def test_the_default_is_a_few_hundred_episodes_and_the_help_says_what_it_buys(ca
     text = " ".join(capsys.readouterr().out.split())
     assert f"default {DEFAULT_EPISODES}" in text and f"+/-{half:.1f} points at 50 % success" in text
     assert "apf" in text and "expert_*" in text
+
+
+def test_episodes_at_several_levels_are_counted_per_level(capsys: pytest.CaptureFixture, instant_evaluation: None,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A policy trained across sensing and map-error levels flies its episodes at each: the rates per level and pair
+    are printed and in the JSON line; an evaluation at one level of each has none."""
+    levels = (("nominal", "exact"), ("degraded", "wrong")) * 5
+
+    def at_levels(pilot, nav, episodes, seed=0, pool="test", world=None, progress=None) -> evaluation.EvalResult:
+        outcomes = ("success", "collision") * 5
+        return evaluation.EvalResult(10, 0.5, 0.5, (0.0, 1.0), (0.0, 1.0), {"collision": 5, "success": 5}, 0.0, 10.0,
+                                     outcomes, pool, seed, levels)
+
+    monkeypatch.setattr(evaluation, "evaluate", at_levels)
+    assert main(["evaluate-policy", "--episodes", "10", "--no-progress", "--no-baseline"]) == 0
+    out = capsys.readouterr().out
+    assert "by sensing and map-error level:" in out
+    line = next(ln for ln in out.splitlines() if ln.split()[:3] == ["ppo", "sensing", "degraded"])
+    assert "5 episodes, success   0.0% [0.0%, 43.4%], collisions 100.0%" in line
+    rows = {g["label"]: g for g in json.loads(out.splitlines()[-1])["by_level"]["ppo"]}
+    assert list(rows) == ["sensing nominal", "sensing degraded", "map exact", "map wrong", "nominal / exact",
+                          "degraded / wrong"]
+    assert rows["map exact"]["success_rate"] == 1.0 and rows["degraded / wrong"]["collision_rate"] == 1.0

@@ -83,6 +83,8 @@ def test_held_out_episodes_shared_by_processes_are_those_one_process_flies():
         one = fly_episodes(policy_pilot(weights), world, 0, 7, seed=5)
         shared = split.fly_held_out(world, 7, 5, weights)
         assert shared.outcomes == one.outcomes and len(set(one.times_s)) > 1
+        assert shared.levels == one.levels and {lv[0] for lv in one.levels} <= set(TASK.sensing)
+        assert len(set(one.levels)) > 1 and {lv[1] for lv in one.levels} <= set(TASK.map_error)
         assert np.array_equal(shared.returns, one.returns) and np.array_equal(shared.times_s, one.times_s)
         tail = fly_episodes(policy_pilot(weights, 4, 7), world, 4, 3, seed=5)
         assert tail.outcomes == one.outcomes[4:] and np.array_equal(tail.returns, one.returns[4:])

@@ -65,3 +65,24 @@ def test_an_idle_slot_stays_where_it_is(world):
     assert np.array_equal(b.x[0], x[0]) and b.t[0] == t[0] and b.t[1] > t[1]
     assert not (term[0] or trunc[0]) and "outcome" not in infos[0]
     assert b.episode_return[0] == ret[0]
+
+
+def test_rates_by_level_count_each_level_and_pair_in_the_presets_order() -> None:
+    from rl.training.evaluation import EvalResult, rates_by_level
+
+    levels = (("nominal", "wrong"), ("perfect", "exact"), ("nominal", "exact"), ("degraded", "wrong"),
+              ("nominal", "wrong"))
+    outcomes = ("success", "success", "collision", "timeout", "success")
+    res = EvalResult(5, 0.6, 0.2, (0.0, 1.0), (0.0, 1.0), {}, 0.0, 0.0, outcomes, "validation", 0, levels)
+    rows = {g.label: (g.episodes, g.success_rate, g.collision_rate, g.outcomes) for g in rates_by_level(res)}
+    assert list(rows) == ["sensing perfect", "sensing nominal", "sensing degraded", "map exact", "map wrong",
+                          "perfect / exact", "nominal / exact", "nominal / wrong", "degraded / wrong"]
+    assert rows["sensing nominal"] == (3, 2 / 3, 1 / 3, {"collision": 1, "success": 2})
+    assert rows["map wrong"] == (3, 2 / 3, 0.0, {"success": 2, "timeout": 1})
+    assert rows["degraded / wrong"] == (1, 0.0, 0.0, {"timeout": 1})
+    one_level = EvalResult(2, 1.0, 0.0, (0.0, 1.0), (0.0, 1.0), {}, 0.0, 0.0, ("success", "success"), "test", 0,
+                           (("perfect", "exact"), ("perfect", "exact")))
+    assert rates_by_level(one_level) == ()
+    only_maps = EvalResult(2, 1.0, 0.0, (0.0, 1.0), (0.0, 1.0), {}, 0.0, 0.0, ("success", "success"), "test", 0,
+                           (("nominal", "exact"), ("nominal", "outdated")))
+    assert [g.label for g in rates_by_level(only_maps)] == ["map exact", "map outdated"]
