@@ -204,7 +204,9 @@ class PriorRoofBank:
         if all(o[0] is self.perception for o in owners):  # the common case: one call
             return self.perception.roofs(p, h, np.array([o[1] for o in owners], dtype=np.int64))
         out = np.empty((len(slots), self.config.grid_cells ** 2))
-        for source in {id(o[0]): o[0] for o in owners}.values():
-            rows = np.array([k for k, o in enumerate(owners) if o[0] is source], dtype=np.intp)
-            out[rows] = source.roofs(p[rows], h[rows], np.array([owners[k][1] for k in rows.tolist()]))
+        groups: dict[int, tuple[Perception, list[int]]] = {}  # rows by source, in one pass (not one per source)
+        for k, (source, _) in enumerate(owners):
+            groups.setdefault(id(source), (source, []))[1].append(k)
+        for source, rows in groups.values():
+            out[rows] = source.roofs(p[rows], h[rows], np.array([owners[k][1] for k in rows]))
         return out
