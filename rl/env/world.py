@@ -84,6 +84,7 @@ class NavBatch:
         cfg = world.config
         nx = world.dynamics.layout.nx
         self.x = np.zeros((n, nx))
+        self.x_seen = np.zeros((n, nx))  # the state each slot's last decision acted on (`_seen`: the estimate's)
         self.xi = np.zeros((n, 3))
         self.t = np.zeros(n)
         self.city = np.zeros(n, dtype=np.int64)
@@ -91,6 +92,7 @@ class NavBatch:
         self.map_level = np.zeros(n, dtype=np.int64)  # each slot's map-error level: an index of world.maps.levels
         self.map_draw = np.zeros(n, dtype=np.int64)  # and its draw
         self._truth_maps: list[BuildingMap] = [world.cities[0]] * n  # each slot's truth (ground effect)
+        self.priors: list[BuildingMap] = [world.cities[0]] * n  # each slot's prior map: what a pilot is given
         # the truths' sensing, by geometry index (the cities' own sensors when no truth adds to its city)
         self._sensor: BoxSensor | TruthSensing = world.truth or world.clearance_sensor
         self._perception: Perception | TruthSensing = world.truth or world.perception
@@ -243,7 +245,7 @@ class NavBatch:
             self.atmospheres.assign(i, air.field)
         self.city[i] = ci
         self.geometry[i], self.map_level[i], self.map_draw[i] = draw.geometry, draw.level, draw.draw
-        self._truth_maps[i] = draw.truth
+        self._truth_maps[i], self.priors[i] = draw.truth, draw.prior
         self.lo[i], self.hi[i] = w.lo[ci], w.hi[ci]
         self.start[i], self.goal[i] = task.start_m, task.goal_m
         self.goal_radius[i], self.timeout[i], self.yaw[i] = task.goal_radius_m, task.timeout_s, task.start_yaw_rad
@@ -279,6 +281,7 @@ class NavBatch:
                 sensed = idx[self._sensing(idx)]
                 self.onboard.reset(sensed, self.x[sensed], self.geometry[sensed], self.air[sensed])
             x, route = self._seen(idx)
+            self.x_seen[idx] = x
             self.memory.start(idx, x[:, 0:3], self.goal[idx], route)
             self._observe(idx, x, route)
 
@@ -514,6 +517,7 @@ class NavBatch:
             reward += terms[k]
         m = self.memory
         x_seen, route_seen = self._seen(everyone)
+        self.x_seen[everyone] = x_seen
         m.record(everyone, act, route_seen, x_seen[:, 3:6])
         m.heading_rad[:] = goal_heading(x_seen[:, 0:3], self.goal, m.heading_rad)
         self._observe(everyone, x_seen, route_seen)

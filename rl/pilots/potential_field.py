@@ -87,6 +87,10 @@ class PotentialFieldConfig:
 class BatchedPotentialField:
     """The potential field flying a `NavBatch`: call it as `pilot(obs, batch) -> actions (N, 3)`.
 
+    As the comparison runner flies it (`PotentialFieldPilot`), it knows what a pilot is given: each slot's position as
+    its decision sees it (the navigation estimate below `perfect` sensing, `NavBatch.x_seen`) and its prior map (the
+    city, or the map-error draw the slot flies with, `NavBatch.priors`), never the truth it collides with.
+
     Args:
         batch: the batch it will fly (its cities give the sensor).
         gains: the pilot's gains.
@@ -96,12 +100,27 @@ class BatchedPotentialField:
         w = batch.world
         self.gains = gains
         self.sensor = BoxSensor(w.cities, gains.k_buildings, gains.range_m, w.vehicle.collision_radius_m)
+        self._drawn: dict[int, tuple[BuildingMap, BoxSensor]] = {}  # drawn priors' sensors, by the prior's id
 
     def __call__(self, obs: np.ndarray, batch: NavBatch) -> np.ndarray:
-        p = batch.x[:, 0:3]
+        p = batch.x_seen[:, 0:3]
+        cities = batch.world.cities
+        drawn = [i for i in range(batch.n) if batch.priors[i] is not cities[int(batch.city[i])]]
         r = self.sensor.query(p, batch.city)
-        v = self.gains.velocity(p, batch.goal, r.nearest_m, r.distance_m)
+        nearest, distance = r.nearest_m.copy(), r.distance_m.copy()
+        for i in drawn:  # a slot whose prior map is not its city senses its prior
+            q = self._prior_sensor(batch.priors[i], batch.world.vehicle.collision_radius_m).query(p[i:i + 1], _CITY)
+            nearest[i], distance[i] = q.nearest_m[0], q.distance_m[0]
+        v = self.gains.velocity(p, batch.goal, nearest, distance)
         return world_velocity_to_action(v, batch.memory.heading_rad)
+
+    def _prior_sensor(self, prior: BuildingMap, radius_m: float) -> BoxSensor:
+        """The sensor of a drawn prior map (built at its first query, kept while the prior is)."""
+        held = self._drawn.get(id(prior))
+        if held is None or held[0] is not prior:
+            held = self._drawn[id(prior)] = (prior, BoxSensor([prior], self.gains.k_buildings, self.gains.range_m,
+                                                              radius_m))
+        return held[1]
 
 
 _CITY = np.zeros(1, dtype=np.int64)

@@ -80,3 +80,36 @@ def test_gains_tuned_per_vehicle_are_read_from_their_table(tmp_path):
     tuned_gains.cache_clear()
     quad = load_vehicle("small_quad")
     assert gains_for(quad) == tuned_gains().get("small_quad", gains_for_task(task_for("small_quad").scales))
+
+
+def test_apf_on_its_sensors_and_a_wrong_map_flies_as_the_runner_flies_it():
+    """Below perfect sensing over a wrong map the batched field knows what the runner's pilot is given: its estimate
+    and the prior map (not the truth it collides with); the same true states at every decision, the same outcome."""
+    from rl.env.world import NavBatch
+    from uam_fdm.pilot import Truth
+    from uam_fdm.sensing.specs import sensing_preset
+
+    nav = replace(eval_config(NavConfig(), 3), sensing=("nominal",), map_error=("wrong",), map_error_draws=1)
+    base = NavWorld(replace(nav, decision_hz=nav.control_hz))
+    batch = NavBatch(base, 1)
+    batch.seed([3])
+    batch.reset_slots([0])
+    ci = int(batch.city[0])
+    draw = base.maps.draw(ci, int(batch.map_level[0]), int(batch.map_draw[0]))
+    assert draw.prior is not draw.truth and batch.priors[0] is draw.prior
+    task, wind, seed = batch.task(0), batch.wind_field(0), int(batch.sensing_seed[0])
+    field = BatchedPotentialField(batch, gains_for(base.vehicle))
+    obs, states, outcome = batch.observations.copy(), [], None
+    for _ in range(100_000):
+        obs, _, term, trunc, info = batch.step(field(obs, batch))
+        assert not np.array_equal(batch.x_seen[0, 0:3], batch.x[0, 0:3])  # it decides on the estimate
+        states.append(batch.x[0].copy())
+        if term[0] or trunc[0]:
+            outcome = info[0]["outcome"]
+            break
+    sensing = sensing_preset("nominal", base.vehicle.mass_kg)
+    given = World(base.vehicle, base.dynamics, draw.prior, batch.atmosphere(0), batch.turbulence(0), sensing=sensing)
+    traj = run_episode(given, PotentialFieldPilot(), task, wind, 0, truth=Truth(draw.truth, sensing, seed))
+    per_decision = base.dynamics.n_substeps
+    assert len(states) > 30 and traj.outcome == outcome
+    np.testing.assert_array_equal(traj.states[per_decision::per_decision], np.array(states))
