@@ -94,6 +94,10 @@ def _add_task_options(tr: argparse.ArgumentParser) -> None:
                          "4.0 km, no to moderate turbulence, steady wind to 8 m/s (small quad) or 12 m/s (UAM), drawn "
                          "per episode; the UAM also in cities at the shipped maps' scale (15-30 m streets), with goals "
                          "down to 15 m from the flight volume's side, observing that side (geofence)")
+    tr.add_argument("--exact-maps-at-perfect", action="store_true",
+                    help="an episode drawing perfect sensing flies its city's exact map (at perfect the env hands the "
+                         "policy the truth's senses, the comparison a sensorless pilot the prior map's: over a wrong "
+                         "map no comparison pilot meets the env's case); needs exact among --map-error")
     tr.add_argument("--route-refresh", type=float, default=None, metavar="SECONDS",
                     help="below perfect sensing, redraw the route the policy observes around the obstacles its "
                          "lidar sensed, checking every SECONDS of flight (a whole number of decisions; 0: the prior "
@@ -234,12 +238,16 @@ def _task(args: argparse.Namespace, defaults: TrainConfig, ground: TrainingGroun
     map_error = task.map_error if args.map_error is None else _levels("--map-error", args.map_error, "map_error", task)
     route = task.route if args.route_refresh is None else option(
         "--route-refresh", lambda v: _refresh_every(task, float(v)), str(args.route_refresh))
+    if args.exact_maps_at_perfect and "exact" not in map_error:
+        raise ValueError(f"--exact-maps-at-perfect with --map-error {','.join(map_error)}: the exact map must be "
+                         f"one of the levels (add exact)")
     check_output_dir(args.out, "--out")
     if args.out.is_dir() and any(args.out.iterdir()) and args.resume is None and not args.overwrite:
         raise ValueError(f"--out {args.out}: folder exists and is not empty (a policy there would be replaced; "
                          f"give another --out, --resume to continue its training, or --overwrite to replace it)")
     task = replace(task, city_pool_size=args.city_pool or task.city_pool_size, air=air, observe=observe,
-                   sensing=sensing, map_error=map_error, route=route)
+                   sensing=sensing, map_error=map_error, route=route,
+                   exact_maps_at_perfect=task.exact_maps_at_perfect or args.exact_maps_at_perfect)
     return task if ground is None else ground.task(task)
 
 

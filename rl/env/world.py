@@ -166,7 +166,11 @@ class NavBatch:
                                         difficulty=self.difficulty,
                                         max_vertical_speed_m_s=p.controller.max_vertical_speed_m_s, also=draw.prior)
             air = self._draw_air(rng, task)
-            self._place(int(i), ci, task, air, draw, self._draw_sensing(rng))
+            sensing = self._draw_sensing(rng)
+            if cfg.exact_maps_at_perfect and cfg.sensing[sensing[0]] == "perfect" and draw.prior is not draw.truth:
+                # the task is free in the drawn truth, which holds every building of the city: free in the city too
+                draw = w.maps.exact(ci)
+            self._place(int(i), ci, task, air, draw, sensing)
         self._begin(np.asarray(idx, dtype=np.int64))
 
     def place(self, episodes: Sequence[tuple[int, int, Task, SlotAir]],

@@ -107,9 +107,10 @@ class MapErrorBank:
         return MapDraw(level, draw, r.truth, r.prior, self._geometry.get((ci, level, draw), ci))
 
     def exact(self, ci: int) -> MapDraw:
-        """City ci as it stands (prior = truth), for episodes placed without a draw."""
+        """City ci as it stands (prior = truth), for episodes placed without a draw (at the `exact` level's index, or
+        the first level's in a bank without one)."""
         city = self.cities[ci]
-        return MapDraw(0, 0, city, city, ci)
+        return MapDraw(self.levels.index("exact") if "exact" in self.levels else 0, 0, city, city, ci)
 
 
 class TruthSensing:

@@ -54,6 +54,11 @@ class NavConfig:
             (`rl.sensing.truth`). ("exact",): every map is its city, as before the setting existed.
         map_error_draws: draws banked per city of each level that is not exact (each from its own seed, derived
             from the city seed and the draw index); an episode draws one uniformly.
+        exact_maps_at_perfect: an episode that draws `perfect` sensing flies its city's exact map whatever map-error
+            level it drew (the draws are made as without the setting, so every other episode is the same). At
+            `perfect` the env hands the pilot the truth's exact senses, while the comparison hands a pilot without
+            sensors the prior map's: over a map with error the two differ, and no pilot in the comparison meets the
+            env's case. Needs "exact" among `map_error`.
         sensing: the sensing levels (`uam_fdm.sensing.specs` presets) an episode draws from, uniformly: at
             `perfect` the pilot observes the true state and the truth's exact senses; at another level it observes
             its navigation estimate and its lidar (`learned_pilot_sensing`; `rl.env.onboard_slots`).
@@ -79,6 +84,7 @@ class NavConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     map_error: tuple[str, ...] = ("exact",)
     map_error_draws: int = 4
+    exact_maps_at_perfect: bool = False
     sensing: tuple[str, ...] = ("perfect",)
 
     def __post_init__(self) -> None:
@@ -92,6 +98,10 @@ class NavConfig:
         if not self.map_error or bad or len(set(self.map_error)) != len(self.map_error):
             raise ValueError(f"map_error must be distinct levels from {', '.join(MAP_ERROR_LEVELS)}, "
                              f"got {list(self.map_error)}")
+        if self.exact_maps_at_perfect is not False and (self.exact_maps_at_perfect is not True
+                                                         or "exact" not in self.map_error):
+            raise ValueError(f"exact_maps_at_perfect needs true or false and 'exact' among map_error, got "
+                             f"{self.exact_maps_at_perfect!r} with {list(self.map_error)}")
         if isinstance(self.map_error_draws, bool) or not isinstance(self.map_error_draws, int) \
                 or not 1 <= self.map_error_draws <= 1000:
             raise ValueError(f"map_error_draws must be an integer in [1, 1000], got {self.map_error_draws!r}")

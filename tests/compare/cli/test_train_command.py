@@ -144,6 +144,14 @@ def test_train_draws_the_sensing_and_map_error_levels_it_is_given(tmp_path: Path
     assert (nav.sensing, nav.map_error, nav.route.refresh_s) == (("perfect", "degraded"), ("exact", "wrong"), 1.0)
     config = json.loads((out / "config.json").read_text())["nav"]
     assert (config["sensing"], config["map_error"]) == (["perfect", "degraded"], ["exact", "wrong"])
+    assert config["exact_maps_at_perfect"] is False
+    kept = tmp_path / "kept"
+    assert main(["train", *QUICK, "--sensing", "perfect,degraded", "--map-error", "exact,wrong",
+                 "--exact-maps-at-perfect", "--out", str(kept)]) == 0
+    assert quick_training["cfg"].nav.exact_maps_at_perfect is True
+    assert json.loads((kept / "config.json").read_text())["nav"]["exact_maps_at_perfect"] is True
+    fails(["train", "--map-error", "outdated,wrong", "--exact-maps-at-perfect", "--out", str(tmp_path / "p")], capsys,
+          tmp_path, "--exact-maps-at-perfect with --map-error outdated,wrong", "add exact")
 
 
 @pytest.mark.parametrize(("argv", "expected"), [

@@ -184,3 +184,29 @@ def test_the_clearance_sensor_is_exact_for_a_raised_box():
     assert sensor.query(under, np.zeros(1, dtype=np.int64)).clearance_m[0] == 20.0 - 0.4
     one = sensor.query(pts[:1], np.zeros(1, dtype=np.int64))
     np.testing.assert_allclose(one.nearest_m[0], got.nearest_m[0], atol=1e-12)
+
+
+def test_perfect_sensing_can_be_kept_to_exact_maps_with_every_draw_as_before(mixed) -> None:
+    """With `exact_maps_at_perfect` an episode drawing `perfect` flies its city's exact map; every draw is made as
+    without it, so the tasks, air and sensing are the same and the sensed episodes keep their maps."""
+    cfg = replace(MIXED, sensing=("perfect", "nominal"))
+    plain_world = NavWorld(cfg, dynamics=mixed.dynamics, wind_from=mixed)
+    kept_world = NavWorld(replace(cfg, exact_maps_at_perfect=True), dynamics=mixed.dynamics, wind_from=mixed)
+    n = 24
+    plain, kept = NavBatch(plain_world, n), NavBatch(kept_world, n)
+    for b in (plain, kept):
+        b.seed(range(40, 40 + n))
+        b.reset_slots(range(n))
+    exact = kept_world.maps.levels.index("exact")
+    moved = 0
+    for i in range(n):
+        assert plain.task(i) == kept.task(i) and plain.sensing(i) == kept.sensing(i)
+        assert (plain.air[i], plain.sensing_seed[i]) == (kept.air[i], kept.sensing_seed[i])
+        if kept.sensing(i) == "perfect":
+            assert kept.map_level[i] == exact and kept.priors[i] is kept_world.cities[int(kept.city[i])]
+            moved += int(plain.map_level[i] != exact)
+        else:
+            assert (kept.map_level[i], kept.map_draw[i]) == (plain.map_level[i], plain.map_draw[i])
+    assert moved >= 3  # the draw met perfect sensing over a map with error, and the setting took it away
+    with pytest.raises(ValueError, match="exact_maps_at_perfect needs true or false and 'exact' among map_error"):
+        replace(cfg, map_error=("outdated", "wrong"), exact_maps_at_perfect=True)
