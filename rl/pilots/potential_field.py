@@ -105,12 +105,21 @@ class BatchedPotentialField:
     def __call__(self, obs: np.ndarray, batch: NavBatch) -> np.ndarray:
         p = batch.x_seen[:, 0:3]
         cities = batch.world.cities
-        drawn = [i for i in range(batch.n) if batch.priors[i] is not cities[int(batch.city[i])]]
-        r = self.sensor.query(p, batch.city)
-        nearest, distance = r.nearest_m.copy(), r.distance_m.copy()
-        for i in drawn:  # a slot whose prior map is not its city senses its prior
-            q = self._prior_sensor(batch.priors[i], batch.world.vehicle.collision_radius_m).query(p[i:i + 1], _CITY)
-            nearest[i], distance[i] = q.nearest_m[0], q.distance_m[0]
+        drawn = np.array([batch.priors[i] is not cities[int(batch.city[i])] for i in range(batch.n)], dtype=bool)
+        if not drawn.any():  # every slot's prior is its city: one query
+            r = self.sensor.query(p, batch.city)
+            nearest, distance = r.nearest_m, r.distance_m
+        else:
+            k = self.gains.k_buildings
+            nearest, distance = np.empty((batch.n, k, 3)), np.empty((batch.n, k))
+            own = np.flatnonzero(~drawn)
+            if len(own):
+                r = self.sensor.query(p[own], batch.city[own])
+                nearest[own], distance[own] = r.nearest_m, r.distance_m
+            for i in np.flatnonzero(drawn).tolist():  # a slot whose prior map is not its city senses its prior
+                q = self._prior_sensor(batch.priors[i], batch.world.vehicle.collision_radius_m).query(p[i:i + 1],
+                                                                                                      _CITY)
+                nearest[i], distance[i] = q.nearest_m[0], q.distance_m[0]
         v = self.gains.velocity(p, batch.goal, nearest, distance)
         return world_velocity_to_action(v, batch.memory.heading_rad)
 

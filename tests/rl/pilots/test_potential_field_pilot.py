@@ -113,3 +113,28 @@ def test_apf_on_its_sensors_and_a_wrong_map_flies_as_the_runner_flies_it():
     per_decision = base.dynamics.n_substeps
     assert len(states) > 30 and traj.outcome == outcome
     np.testing.assert_array_equal(traj.states[per_decision::per_decision], np.array(states))
+
+
+def test_a_batch_mixing_exact_and_drawn_priors_senses_each_slots_own():
+    """Slots on their city and slots on a drawn prior in one batch: each row is what the slot's own map gives."""
+    from rl.env.world import NavBatch
+    from rl.sensing.observation import world_velocity_to_action
+    from rl.sensing.sensor import BoxSensor
+
+    nav = replace(eval_config(NavConfig(), 6), map_error=("exact", "wrong"), map_error_draws=1)
+    base = NavWorld(replace(nav, decision_hz=nav.control_hz))
+    batch = NavBatch(base, 6)
+    batch.seed(range(10, 16))
+    batch.reset_slots(range(6))
+    drawn = [batch.priors[i] is not base.cities[int(batch.city[i])] for i in range(6)]
+    assert any(drawn) and not all(drawn)
+    gains = gains_for(base.vehicle)
+    got = BatchedPotentialField(batch, gains)(batch.observations.copy(), batch)
+    radius = base.vehicle.collision_radius_m
+    for i in range(6):
+        sensor = BoxSensor([batch.priors[i]], gains.k_buildings, gains.range_m, radius)
+        p = batch.x_seen[i:i + 1, 0:3]
+        r = sensor.query(p, np.zeros(1, dtype=np.int64))
+        v = gains.velocity(p, batch.goal[i:i + 1], r.nearest_m, r.distance_m)
+        np.testing.assert_allclose(got[i], world_velocity_to_action(v, batch.memory.heading_rad[i:i + 1])[0],
+                                   rtol=0, atol=1e-12)
