@@ -303,8 +303,9 @@ def measure_mpc(vehicle: str, solver: str, episode: MPCEpisode) -> dict:
     from uam_fdm.vehicle.model import hover_state, make_env
 
     p = load_vehicle(vehicle)
+    name, _, qp_solver = solver.partition(":")   # "rti:hpipm_conic": the RTI with another QP solver
     try:
-        mpc = MPCTracker(p, MPCConfig(solver=solver))
+        mpc = MPCTracker(p, MPCConfig(solver=name, qp_solver=qp_solver or None))
     except RuntimeError as exc:   # a solver plugin that cannot handle the problem: report, don't crash
         return {"vehicle": vehicle, "solver": solver, "episode": episode.name, "error": str(exc).splitlines()[-1][:120]}
     dyn = VehicleDynamics(p, physics_hz=500.0, control_hz=50.0)
@@ -334,7 +335,8 @@ def measure_mpc(vehicle: str, solver: str, episode: MPCEpisode) -> dict:
         if t1 > 3.0:
             errors.append(np.linalg.norm(x[:3] - _mpc_reference(episode.name, p.n_rotors, np.array([t1]))[0][0]))
     times_ms = 1e3 * np.array(times)
-    return {"vehicle": vehicle, "solver": mpc.solver_name, "episode": episode.name, "input_mode": mpc.input_mode,
+    return {"vehicle": vehicle, "solver": solver, "qp_solver": mpc.qp_solver, "episode": episode.name,
+            "input_mode": mpc.input_mode,
             "motor_lag": mpc.motor_lag, "backend": mpc.backend, "solve_ms_median": float(np.median(times_ms)),
             "solve_ms_p95": float(np.percentile(times_ms, 95)), "solve_ms_max": float(times_ms.max()),
             "iterations_median": float(np.median(iters)), "qp_iterations_median": float(np.median(qp_iters)),
@@ -362,7 +364,7 @@ def run_mpc_benchmark(vehicles: Sequence[str], solvers: Sequence[str]) -> list[d
     print("\nMPC, closed loop on the simulator (50 Hz decisions, 500 Hz physics, calm air; quad N = 15 x 50 ms, "
           "UAM N = 20 x 150 ms), warm solves; iterations: solver (QP median/p95 for rti); RMS error after 3 s; "
           "over: the wall episode's largest overshoot of its keep-out plane")
-    print(f"{'vehicle':16s} {'solver':8s} {'episode':7s} {'inputs':7s} {'lag':4s} {'median ms':>9s} {'p95 ms':>7s} "
+    print(f"{'vehicle':16s} {'solver':16s} {'episode':7s} {'inputs':7s} {'lag':4s} {'median ms':>9s} {'p95 ms':>7s} "
           f"{'max ms':>7s} {'iters':>9s} {'fail':>7s} {'RMS m':>7s} {'over m':>7s}")
     rows = []
     for vehicle in vehicles:
@@ -377,7 +379,7 @@ def run_mpc_benchmark(vehicles: Sequence[str], solvers: Sequence[str]) -> list[d
                 its = f"{r['iterations_median']:.0f}" + (f" ({r['qp_iterations_median']:.0f}/"
                                                          f"{r['qp_iterations_p95']:.0f})"
                                                          if r["qp_iterations_median"] >= 0 else "")
-                print(f"{vehicle:16s} {solver:8s} {episode.name:7s} {r['input_mode']:7s} {str(r['motor_lag'])[0]:4s} "
+                print(f"{vehicle:16s} {solver:16s} {episode.name:7s} {r['input_mode']:7s} {str(r['motor_lag'])[0]:4s} "
                       f"{r['solve_ms_median']:9.2f} {r['solve_ms_p95']:7.2f} {r['solve_ms_max']:7.1f} {its:>9s} "
                       f"{r['failures']:3d}/{r['solves']:<3d} {r['rms_error_m']:7.4f} {over}", flush=True)
     return rows
@@ -392,8 +394,9 @@ def _print_planning(res: dict) -> None:
               f"{f['path_efficiency']:10.3f} {f['path_efficiency_min']:8.3f} {f['min_clearance_m']:9.2f}")
 
 
-def mpc_figures(rows: list[dict], fast: str, reference: str = "ipopt") -> dict:
-    """The MPC figures of the JSON line: the fast solver's, and its ratios to the reference's on the same episodes."""
+def mpc_figures(rows: list[dict], fast: str, reference: str = "ipopt", others: Sequence[str] = ()) -> dict:
+    """The MPC figures of the JSON line: the fast solver's, its ratios to the reference's on the same
+    episodes, and its speed-up over each of `others` (e.g. "rti:hpipm_conic")."""
     out: dict = {"mpc_solver": fast, "mpc_reference_solver": reference}
     for vehicle, prefix in (("small_quad", "mpc"), ("uam_multicopter", "uam_mpc")):
         f, r = summarize_mpc(rows, vehicle, fast), summarize_mpc(rows, vehicle, reference)
@@ -411,6 +414,13 @@ def mpc_figures(rows: list[dict], fast: str, reference: str = "ipopt") -> dict:
                         f"{prefix}_speedup_vs_{reference}": r["solve_ms_median"] / f["solve_ms_median"],
                         f"{prefix}_rms_ratio_vs_{reference}": {e: f["rms_error_m"][e] / r["rms_error_m"][e]
                                                                 for e in f["rms_error_m"] if e in r["rms_error_m"]}})
+        for other in others:
+            o = summarize_mpc(rows, vehicle, other)
+            if o:
+                key = other.replace(":", "_")
+                out[f"{prefix}_speedup_vs_{key}"] = o["solve_ms_median"] / f["solve_ms_median"]
+                out[f"{prefix}_rms_ratio_vs_{key}"] = {e: f["rms_error_m"][e] / o["rms_error_m"][e]
+                                                       for e in f["rms_error_m"] if e in o["rms_error_m"]}
     return out
 
 
@@ -436,7 +446,9 @@ def main() -> None:
     ap.add_argument("--pilot-plans-only", action="store_true",
                     help="only the pilot's plans (plan time per plan for both vehicles)")
     ap.add_argument("--mpc-solver", default="rti", help="the fast MPC solver whose figures the JSON line reports")
-    ap.add_argument("--mpc-extra", default="", help="comma-separated further MPC solvers to measure (fatrop,sqpmethod)")
+    ap.add_argument("--mpc-extra", default="rti:hpipm_conic",
+                    help="comma-separated further MPC solvers to measure, SOLVER[:QP_SOLVER] (fatrop, sqpmethod, "
+                         "rti:hpipm_conic: the RTI with HPIPM through casadi.conic; '' for none)")
     args = ap.parse_args()
 
     params = load_vehicle(args.vehicle)
@@ -489,7 +501,8 @@ def main() -> None:
 
     solvers = list(dict.fromkeys(["ipopt", args.mpc_solver, *[s for s in args.mpc_extra.split(",") if s]]))
     rows = run_mpc_benchmark(["small_quad", "uam_multicopter"], solvers)
-    figures.update(mpc_figures(rows, args.mpc_solver))
+    others = [s for s in solvers if s not in ("ipopt", args.mpc_solver)]
+    figures.update(mpc_figures(rows, args.mpc_solver, others=others))
     figures["mpc_per_solver"] = {f"{v}/{s}": summarize_mpc(rows, v, s) for v in ("small_quad", "uam_multicopter")
                                  for s in solvers}
     _print_mpc_ratios(figures, args.mpc_solver, "ipopt")

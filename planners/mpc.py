@@ -50,6 +50,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from planners.hpipm_step import compile_with_driver
 from planners.mpc_ocp import MPCWeights, OcpLayout, PredictionModel, build_tracking_ocp, pack_parameters
 from planners.rti import QP_SOLVERS, GaussNewtonRTI, merit_data_function, qp_data_function
 from uam_fdm.vehicle.codegen import compile_source
@@ -77,8 +78,10 @@ class MPCConfig:
             perf/classical.py: quad 1.0 ms median, UAM 2.7-4.5 ms, 7x and 11-15x faster than
             Ipopt, tracking RMS within 3 % of Ipopt's, no failures),
             "ipopt" (the reference), "fatrop" or "sqpmethod" (module docstring; docs/planner.md).
-        qp_solver: QP solver of "rti" (one of `planners.rti.QP_SOLVERS`) or of "sqpmethod" ("qrqp";
-            "osqp"/"proxqp" need a convex QP); None: "hpipm" for rti, "qrqp" for sqpmethod.
+        qp_solver: QP solver of "rti" (one of `planners.rti.QP_SOLVERS`: "hpipm" is HPIPM called from C,
+            falling back to casadi.conic's plugin "hpipm_conic" when that cannot be built; `qp_solver`
+            tells which runs) or of "sqpmethod" ("qrqp"; "osqp"/"proxqp" need a convex QP); None:
+            "hpipm" for rti, "qrqp" for sqpmethod.
         max_iterations: NLP solver iteration cap per decision.
         rti_iterations: Gauss-Newton steps per decision of "rti" (1: the real-time iteration, a full
             step; more: steps damped by a line search, converging to the NLP's solution).
@@ -186,6 +189,14 @@ class MPCTracker:
         self.reset()
 
     @property
+    def qp_solver(self) -> str | None:
+        """The QP solver that runs: the RTI's ("hpipm" called from C, or a casadi.conic plugin when that
+        could not be built) or sqpmethod's; None for the interior-point NLP solvers."""
+        if isinstance(self._solver, GaussNewtonRTI):
+            return self._solver.qp_solver
+        return self._qp_solver if self.solver_name == "sqpmethod" else None
+
+    @property
     def input_mode(self) -> str:
         return self.model.input_mode
 
@@ -241,12 +252,18 @@ class MPCTracker:
         flags = (cfg.opt_level, "-march=native")
         if self.solver_name == "rti":
             functions = [qp_data_function(self.ocp), merit_data_function(self.ocp)]
-            backend = "vm"
+            backend, library = "vm", None
             if cfg.compiled is not False:
                 gen = ca.CodeGenerator(f"{tag}.c", {"with_header": False})
                 for f in functions:
                     gen.add(f)
-                lib = compile_source(gen.dump().encode(), tag, cache_dir, opt_flags=flags)
+                source = gen.dump().encode()
+                # HPIPM called from C needs its headers and libraries (the casadi wheel's); else the
+                # QP goes through casadi.conic (GaussNewtonRTI falls back and says so in qp_solver).
+                lib = compile_with_driver(source, tag, cache_dir, flags) if self._qp_solver == "hpipm" else None
+                library = lib
+                if lib is None:
+                    lib = compile_source(source, tag, cache_dir, opt_flags=flags)
                 if lib is not None:
                     functions, backend = [ca.external(f.name(), str(lib)) for f in functions], "compiled"
                 elif cfg.compiled:
@@ -254,7 +271,8 @@ class MPCTracker:
             if backend == "vm":
                 functions = [f.expand() for f in functions]
             qp_data, merit_data = functions
-            return GaussNewtonRTI(self.ocp, qp_data, merit_data, self._qp_solver, cfg.rti_iterations), backend
+            return GaussNewtonRTI(self.ocp, qp_data, merit_data, self._qp_solver, cfg.rti_iterations,
+                                  library=library), backend
         opts = self._nlp_options()
         nlp = self.ocp.nlp()
         if cfg.compiled is not False:

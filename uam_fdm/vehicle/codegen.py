@@ -84,8 +84,12 @@ class CompiledLibrary:
 
 
 def compile_source(source: bytes, name: str, cache_dir: Path | None = None,
-                   opt_flags: tuple[str, ...] = ("-O3", "-march=native")) -> Path | None:
+                   opt_flags: tuple[str, ...] = ("-O3", "-march=native"),
+                   link_args: tuple[str, ...] = ()) -> Path | None:
     """Compile C `source` into a shared library in the cache (or reuse the cached one).
+
+    `link_args` (include paths, libraries) follow the source on the command line, where a linker
+    that drops unused libraries still sees what the source needs.
 
     Returns:
         The library's path, or None when no compiler is available or compilation failed (logged).
@@ -97,7 +101,7 @@ def compile_source(source: bytes, name: str, cache_dir: Path | None = None,
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     flags = (*opt_flags, "-fPIC", "-shared")
     version = ca.__version__  # type: ignore[attr-defined]  # set in casadi/__init__.py, absent from its stubs
-    key = hashlib.sha256(source + repr((cc, flags, version)).encode()).hexdigest()[:20]
+    key = hashlib.sha256(source + repr((cc, flags, link_args, version)).encode()).hexdigest()[:20]
     lib_path = cache_dir / f"{name}_{key}.so"
     if lib_path.exists():
         return lib_path
@@ -106,7 +110,7 @@ def compile_source(source: bytes, name: str, cache_dir: Path | None = None,
         source_path = Path(tmp) / f"{name}.c"
         source_path.write_bytes(source)
         tmp_lib = cache_dir / f".{lib_path.name}.{os.getpid()}.tmp"
-        cmd = [*cc, *flags, str(source_path), "-o", str(tmp_lib), "-lm"]
+        cmd = [*cc, *flags, str(source_path), *link_args, "-o", str(tmp_lib), "-lm"]
         log.info("compiling %s (%d kB of C)", name, len(source) // 1024)
         try:
             result = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
