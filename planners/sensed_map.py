@@ -6,8 +6,13 @@ what the prior map predicts along the same beam (Embree, `uam_fdm.sensing.raycas
 * a return well short of the prior's surface (by more than `front_tolerance_m` plus 3 σ of the estimate's position)
   is something the prior lacks: its voxel is marked occupied in an OctoMap octree (log-odds, `octomap-python`);
 * a return well beyond a prior part's surface (by more than `through_tolerance_m` plus 3 σ of the estimate's
-  position) means the beam flew through that part: after `clear_beams` such beams the part is taken out of the
-  map (the survey has it where the world does not);
+  position) and outside that part (by as much) means the beam flew through it. A part is taken out of the map (the
+  survey has it where the world does not) after `clear_beams` beams crossed its core, the part shrunk by the
+  survey's stated accuracy (`core_inset_m` off its walls, `core_drop_m` off its roof), unless beams also end on it
+  (at least `confirm_ratio` of those through it). A building surveyed a few metres off or too tall stands in its
+  surveyed core; beams through the rest (an overhanging end, a roof surveyed too high) say where the survey is off,
+  not that the building is gone, and it stays as surveyed; a return beyond the surveyed face but inside the part
+  is its real face: it confirms it. A return on a part taken out is an obstacle like any unexplained one;
 * every `carve_stride`-th beam is also inserted whole (free space along it up to `carve_range_m`, its end
   occupied), so that voxels marked by noise or by an estimate since corrected are cleared as beams pass through.
 
@@ -45,7 +50,15 @@ class MappingConfig:
             an obstacle the prior lacks [m].
         through_tolerance_m: a return this much beyond a prior part's surface (plus 3 σ of the estimate's
             position) has passed through it [m].
-        clear_beams: beams passing through a prior part before it is taken out of the map.
+        clear_beams: beams crossing a prior part's core before it is taken out of the map.
+        core_inset_m, core_drop_m: a part's core is its footprint shrunk by `core_inset_m` and its roof lowered by
+            `core_drop_m` [m]: beyond the prior map's stated accuracy (the `wrong` preset shifts footprints by up
+            to 3 m and heights by up to 8 m, `uam_fdm.city.map_error`), so a real building surveyed off still
+            stands in its core. A part too small to have a core is never taken out.
+        confirm_ratio: a prior part is kept, whatever passed through it, while the beams ending on or in it (within
+            the tolerances) number at least this fraction of those through it: it stands, surveyed a little off.
+            Found on a tuning leg (docs/planner.md): two buildings of a `wrong` map, surveyed 1.7 m and 2.7 m off
+            (and one 7 m too tall), were taken out whole, and the quad flew into one.
         carve_stride: every this-many-th returned beam is inserted whole, clearing the free space along it.
         carve_range_m: free space is cleared along a beam up to this range [m].
         ground_band_m: returns below this height (plus 3 σ of the estimate's position) are the ground [m].
@@ -68,6 +81,9 @@ class MappingConfig:
     front_tolerance_m: float = 1.0
     through_tolerance_m: float = 1.0
     clear_beams: int = 20
+    confirm_ratio: float = 0.5
+    core_inset_m: float = 4.0
+    core_drop_m: float = 10.0
     carve_stride: int = 32
     carve_range_m: float = 20.0
     ground_band_m: float = 0.5
@@ -78,10 +94,12 @@ class MappingConfig:
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m", "column_m",
-                     "attach_m", "attach_height_m"):
+                     "attach_m", "attach_height_m", "core_inset_m", "core_drop_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"MappingConfig.{name} must be positive and finite, got {value!r}")
+        if not (math.isfinite(self.confirm_ratio) and self.confirm_ratio > 0.0):
+            raise ValueError(f"MappingConfig.confirm_ratio must be positive and finite, got {self.confirm_ratio!r}")
         if not (math.isfinite(self.open_above_m) and self.open_above_m >= 0.0):
             raise ValueError(f"MappingConfig.open_above_m must be >= 0 and finite, got {self.open_above_m!r}")
         voxels = self.column_m / self.resolution_m
@@ -91,6 +109,34 @@ class MappingConfig:
         if self.clear_beams < 1 or self.carve_stride < 1:
             raise ValueError(f"MappingConfig.clear_beams and carve_stride must be >= 1, got {self.clear_beams}, "
                              f"{self.carve_stride}")
+
+
+def part_halfspaces(parts: tuple[Building, ...] | tuple[object, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The convex parts' walls as half-planes and their vertical extents, padded to the most walls.
+
+    Returns:
+        planes (P, E, 3): per wall its outward unit normal (x, y) and offset c, inside where n·p <= c (padding walls
+            never bind); heights (P, 2): base and roof [m].
+    """
+    rings = [np.asarray(p.footprint_xy_m(), float) for p in parts]  # type: ignore[attr-defined]
+    n_walls = max((len(r) for r in rings), default=3)
+    planes = np.zeros((len(rings), n_walls, 3))
+    planes[:, :, 2] = np.inf  # padding: n·p - c = -inf
+    for k, ring in enumerate(rings):
+        if _signed_area(ring) < 0.0:
+            ring = ring[::-1]
+        edge = np.roll(ring, -1, axis=0) - ring
+        normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.linalg.norm(edge, axis=1)[:, None]  # outward (CCW)
+        planes[k, :len(ring), 0:2] = normal
+        planes[k, :len(ring), 2] = np.sum(normal * ring, axis=1)
+    heights = np.array([[getattr(p, "base_m", 0.0), p.height_m] for p in parts], float).reshape(-1, 2)  # type: ignore[attr-defined]
+    return planes, heights
+
+
+def _signed_area(ring: np.ndarray) -> float:
+    """Twice the signed area of a closed polygon (positive counter-clockwise)."""
+    x, y = ring[:, 0], ring[:, 1]
+    return float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
 def scaled_to_vehicle(config: MappingConfig, radius_m: float) -> MappingConfig:
@@ -139,8 +185,11 @@ class SensedMap:
         # per column (x, y voxel keys) the lowest the vehicle has flown over it [m]: the space above is free
         self._flown_over: dict[tuple[int, int], float] = {}
         self._caster = RayCaster(prior)
+        self._planes, self._heights = part_halfspaces(prior.buildings)
         self._tree = octomap.OcTree(config.resolution_m)
         self._through = np.zeros(len(prior.buildings), dtype=np.int64)
+        self._confirmed = np.zeros(len(prior.buildings), dtype=np.int64)  # beams ending on or in each part
+        self._through_core = np.zeros(len(prior.buildings), dtype=np.int64)  # beams through its core
         self._cleared = np.zeros(len(prior.buildings), dtype=bool)
         self._keys = np.zeros(0, dtype=np.int64)  # packed keys of the voxels ever marked unexplained, sorted
         self._fused: BuildingMap | None = prior
@@ -175,15 +224,27 @@ class SensedMap:
         above = points[:, 2] > cfg.ground_band_m + spread
         short = above & (ranges < expected - cfg.front_tolerance_m - spread)
         through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
+        if np.any(through):  # a return inside the part it passed is that part's real face, surveyed a little off
+            rows = np.flatnonzero(through)
+            inside = self._outside_m(points[rows], part[rows]) <= cfg.through_tolerance_m + spread
+            through[rows[inside]] = False
+        on_part = above & (part >= 0) & ~short & ~through  # ends on a prior part's surface, within the tolerances
+        n_parts = len(self._through)
+        if np.any(on_part):
+            self._confirmed += np.bincount(part[on_part], minlength=n_parts)
         cleared: list[int] = []
         if np.any(through):
-            counts = np.bincount(part[through], minlength=len(self._through))
-            self._through += counts
-            newly = (self._through >= cfg.clear_beams) & ~self._cleared
+            self._through += np.bincount(part[through], minlength=n_parts)
+            rows = np.flatnonzero(through)
+            core = self._crosses_core(origin, dirs[rows], ranges[rows], part[rows])
+            self._through_core += np.bincount(part[rows[core]], minlength=n_parts)
+            newly = ((self._through_core >= cfg.clear_beams) & (self._confirmed < cfg.confirm_ratio * self._through)
+                     & ~self._cleared)
             self._cleared |= newly
             cleared = [int(i) for i in np.flatnonzero(newly)]
-        # beams through a cleared part, or beyond every prior surface, end on something the map now lacks
-        unexplained = short | (above & through)
+        # beams through a part, or on a part taken out, end on something the map now lacks
+        on_cleared = on_part & self._cleared[np.maximum(part, 0)]
+        unexplained = short | (above & through) | on_cleared
         packed = np.unique(pack_keys(np.floor(points[unexplained] / res).astype(np.int64)))
         topmost = unexplained & (np.asarray(scan.directions_body, float)[:, 2] >= self._top_sin)
         if np.any(topmost):
@@ -199,6 +260,41 @@ class SensedMap:
         if len(fresh) or cleared:
             self._fused = None
         return ScanUpdate((unpack_keys(fresh) + 0.5) * res, tuple(cleared))
+
+    def _outside_m(self, points_m: np.ndarray, parts: np.ndarray) -> np.ndarray:
+        """How far each point (M, 3) [m] lies outside its prior part (M,): the largest of its distances beyond the
+        part's walls, roof and base planes (<= 0 inside; a lower bound of the distance outside, near a corner)."""
+        planes = self._planes[parts]  # (M, E, 3): outward normal (x, y) and offset per wall
+        walls = np.max(planes[:, :, 0] * points_m[:, 0:1] + planes[:, :, 1] * points_m[:, 1:2] - planes[:, :, 2],
+                       axis=1)
+        base, top = self._heights[parts, 0], self._heights[parts, 1]
+        return np.maximum(walls, np.maximum(points_m[:, 2] - top, base - points_m[:, 2]))
+
+    def _crosses_core(self, origin_m: np.ndarray, dirs: np.ndarray, ranges_m: np.ndarray,
+                      parts: np.ndarray) -> np.ndarray:
+        """Whether each beam (M,) from origin_m along dirs (M, 3), up to its return at ranges_m (M,) [m], crosses the
+        core of its prior part (M,) (`MappingConfig.core_inset_m`, `core_drop_m`): a slab test on the shrunk walls."""
+        cfg = self.config
+        planes = self._planes[parts]
+        n_d = planes[:, :, 0] * dirs[:, 0:1] + planes[:, :, 1] * dirs[:, 1:2]  # (M, E)
+        gap = planes[:, :, 2] - cfg.core_inset_m - (planes[:, :, 0] * origin_m[0] + planes[:, :, 1] * origin_m[1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = gap / n_d
+        # a wall the beam runs parallel to: inside it for every t, or for none
+        parallel = n_d == 0.0
+        t_in = np.where(n_d < 0.0, t, np.where(parallel & (gap < 0.0), np.inf, -np.inf))
+        t_out = np.where(n_d > 0.0, t, np.where(parallel & (gap < 0.0), -np.inf, np.inf))
+        lo = np.maximum(np.max(t_in, axis=1), 0.0)
+        hi = np.minimum(np.min(t_out, axis=1), ranges_m)
+        base, top = self._heights[parts, 0], self._heights[parts, 1] - cfg.core_drop_m
+        dz = dirs[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta, tb = (base - origin_m[2]) / dz, (top - origin_m[2]) / dz
+        flat = dz == 0.0
+        inside_z = (origin_m[2] >= base) & (origin_m[2] <= top)
+        z_lo = np.where(flat, np.where(inside_z, -np.inf, np.inf), np.minimum(ta, tb))
+        z_hi = np.where(flat, np.where(inside_z, np.inf, -np.inf), np.maximum(ta, tb))
+        return (np.maximum(lo, z_lo) < np.minimum(hi, z_hi)) & (top > base)
 
     def _fly_over(self, origin_m: np.ndarray, spread_m: float) -> None:
         """Record that the columns around the vehicle at `origin_m` (within `spread_m` plus a voxel) are free from a

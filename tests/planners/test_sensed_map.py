@@ -193,3 +193,50 @@ def test_columns_widen_to_a_large_vehicles_radius_in_whole_voxels():
     config = MappingConfig()
     assert scaled_to_vehicle(config, 0.42) == config  # a small quad keeps the configured columns
     assert scaled_to_vehicle(config, 6.0).column_m == 6.0 and scaled_to_vehicle(config, 6.7).column_m == 6.0
+
+
+def test_a_prior_part_surveyed_a_little_long_stays_though_beams_pass_its_overhang():
+    """The survey has a building 3 m longer than it stands: returns from the real end face lie 3 m beyond the
+    surveyed one but inside the surveyed part, and confirm it; a few beams pass through the overhang. It stays
+    (taken out whole, the pilot once flew into the real building). Without the ratio rule it would go."""
+    real = Building(4, (130.0, 100.0), (40.0, 12.0), 35.0)
+    surveyed = Building(4, (128.5, 100.0), (43.0, 12.0), 35.0)  # its -x end 3 m beyond the real one's
+    world = BuildingMap([real], LO, HI)
+    prior = BuildingMap([surveyed], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(3))
+    p = np.array([95.0, 92.0, 20.0])  # off the overhanging end: its beams cross the overhang and its faces
+    for cfg, kept in ((MappingConfig(), True), (MappingConfig(confirm_ratio=1e9, core_inset_m=1e-3), False)):
+        sensed = SensedMap(prior, cfg, VLP16.max_range_m)
+        for _ in range(4):
+            sensed.integrate(lidar.scan(0.0, p, np.eye(3))[0], _state(p), 0.1)
+        # beams did pass through the overhang; the many ending beyond the surveyed end face, on the real one inside
+        # the surveyed part, confirm it
+        assert cfg.clear_beams <= sensed._through[0] < 0.1 * sensed._confirmed[0]
+        assert (sensed.cleared_parts == ()) == kept
+        if kept:  # the real building is in the map the pilot plans on
+            inside = np.array([[112.0, 100.0, 10.0]])
+            assert sensed.fused().obstacle_clearance_m(inside)[0] <= 0.0
+
+
+def test_a_confirm_ratio_must_be_positive():
+    with pytest.raises(ValueError, match="confirm_ratio"):
+        MappingConfig(confirm_ratio=0.0)
+
+
+def test_a_prior_part_surveyed_too_tall_stays_though_beams_pass_over_the_real_roof():
+    """The survey has a building 12 m taller than it stands: seen from above its real roof, beams pass over that roof
+    roof through the surveyed top, and few end on its faces yet. It stays as surveyed (taken out, the pilot once lost
+    a real building this way); a phantom, seen through at every height, goes (first test)."""
+    real = Building(5, (160.0, 100.0), (20.0, 20.0), 30.0)
+    surveyed = Building(5, (160.0, 100.0), (20.0, 20.0), 42.0)
+    behind = Building(6, (190.0, 100.0), (6.0, 80.0), 70.0)  # returns the beams that pass over the real roof
+    world = BuildingMap([real, behind], LO, HI)
+    prior = BuildingMap([surveyed, behind], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(4))
+    p = np.array([120.0, 100.0, 45.0])
+    sensed = SensedMap(prior, MappingConfig(), VLP16.max_range_m)
+    for _ in range(3):
+        sensed.integrate(lidar.scan(0.0, p, np.eye(3))[0], _state(p), 0.1)
+    assert sensed._through[0] >= MappingConfig().clear_beams > sensed._through_core[0]
+    assert sensed.cleared_parts == ()
+    assert sensed.fused().obstacle_clearance_m(np.array([[160.0, 100.0, 20.0]]))[0] <= 0.0
