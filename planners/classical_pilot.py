@@ -519,6 +519,11 @@ class ClassicalPilot:
             np.linalg.norm(obs.x[0:3] - flown.sample(obs.t_s - self._t_ref0)[0])) > cfg.replan_error_m)
         brake = (braking_along(flown, obs.t_s - self._t_ref0, decel) if flown is not None and not off_path
                  else braking_reference(obs.x[0:3], obs.x[3:6], decel))
+        if flown is not None and not off_path and not self._free_in_known(brake.pos_m[-1]):
+            # the stop along the path ends in something sensed since (the MPC keeps the vehicle short of it): stop
+            # from where the vehicle is, or every retry would plan from inside it (a hold never ended, tuning leg
+            # 3200004/2 at nominal, wrong map)
+            brake = braking_reference(obs.x[0:3], obs.x[3:6], decel)
         start, lead_in, velocity = np.zeros(3), None, None
         if flying_on and flown is not None:
             # from where the reference will be, along its velocity there: a lead-in when it is moving
@@ -571,6 +576,13 @@ class ClassicalPilot:
             self._last_t = None
             self.last_solution = None
         self.reference, self._t_ref0 = now
+
+    def _free_in_known(self, point_m: np.ndarray) -> bool:
+        """Whether the vehicle's sphere at point_m (3,) [m] is clear of what the pilot knows now (as its planner
+        tests a start: the buildings, the ground and the no-fly volumes)."""
+        world, _ = self._flying()
+        x, y, z = (float(v) for v in np.asarray(point_m, float).reshape(3))
+        return self._known.planning_map().clearance_one(x, y, z, world.vehicle.collision_radius_m) > 0.0
 
     def _adopted(self) -> tuple:
         """The plan just made, to be flown once its start comes (`_pending`)."""

@@ -243,7 +243,9 @@ class SensedMap:
             self._cleared |= newly
             cleared = [int(i) for i in np.flatnonzero(newly)]
         # beams through a part, or on a part taken out, end on something the map now lacks
-        on_cleared = on_part & self._cleared[np.maximum(part, 0)]
+        on_cleared = np.zeros_like(on_part)
+        if self._cleared.any():
+            on_cleared[on_part] = self._cleared[part[on_part]]
         unexplained = short | (above & through) | on_cleared
         packed = np.unique(pack_keys(np.floor(points[unexplained] / res).astype(np.int64)))
         topmost = unexplained & (np.asarray(scan.directions_body, float)[:, 2] >= self._top_sin)

@@ -416,3 +416,22 @@ def test_a_wall_sensed_too_near_to_fly_on_makes_the_pilot_brake_and_plan_from_wh
     plan, new = pilot._pending[0], pilot._pending[1]
     assert np.allclose(plan.path_m[0], brake.pos_m[-1]) and np.linalg.norm(new.sample(0.0)[1]) < 1e-9  # from rest
     assert truth.clearance(new.pos_m, p.collision_radius_m).distance_m.min() > 0.5
+
+
+def test_a_stop_that_would_end_in_a_wall_sensed_since_plans_from_where_the_vehicle_is(vehicles, compiled_dynamics):
+    """A wall sensed within the stopping distance: the stop along the path ends inside it. The plan starts from a stop
+    from where the vehicle is (here at rest, as the MPC would have it, short of the wall), not from inside the wall:
+    before, every plan and retry started there, found no valid start and the pilot held until its time ran out
+    (tuning leg 3200004/2 at nominal, wrong map)."""
+    _, _, _, probe, straight, t, vel = _sensing_a_wall_under_way(vehicles, compiled_dynamics, 60.0)
+    x_now = float(straight.sample(t)[0][0])
+    stop_m = float(np.dot(vel, vel)) / (2.0 * probe._limits.max_accel_m_s2)
+    wall_x = x_now + stop_m  # the stop along the path ends in the middle of the 2 m wall
+    p, truth, cfg, pilot, _, t, _ = _sensing_a_wall_under_way(vehicles, compiled_dynamics, wall_x)
+    assert pilot.stats.replans_by_cause["blocked"] == 1
+    assert pilot.stats.hover_holds == 0 and pilot._pending is not None
+    plan, new = pilot._pending[0], pilot._pending[1]
+    assert abs(plan.path_m[0][0] - x_now) < 0.5  # from where the observation has the vehicle (hovering), 9 m short
+    # clear of what the pilot knows (the wall's unseen top is free to it: a path over it is replanned as the
+    # climb brings the rest of the face into view)
+    assert pilot._known.clearance(new.pos_m, p.collision_radius_m).distance_m.min() > 0.0
