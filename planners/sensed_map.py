@@ -28,13 +28,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import octomap
 from scipy.spatial import cKDTree
 
-from uam_fdm.city.buildings import Building, BuildingMap
+from uam_fdm.city.buildings import Building, BuildingMap, Obstacle
 from uam_fdm.sensing.lidar import LidarScan
 from uam_fdm.sensing.raycast import RayCaster
 from uam_fdm.vehicle.attitude import rotation_matrix
@@ -111,25 +112,26 @@ class MappingConfig:
                              f"{self.carve_stride}")
 
 
-def part_halfspaces(parts: tuple[Building, ...] | tuple[object, ...]) -> tuple[np.ndarray, np.ndarray]:
+def part_halfspaces(parts: Sequence[Obstacle]) -> tuple[np.ndarray, np.ndarray]:
     """The convex parts' walls as half-planes and their vertical extents, padded to the most walls.
 
     Returns:
         planes (P, E, 3): per wall its outward unit normal (x, y) and offset c, inside where n·p <= c (padding walls
             never bind); heights (P, 2): base and roof [m].
     """
-    rings = [np.asarray(p.footprint_xy_m(), float) for p in parts]  # type: ignore[attr-defined]
+    rings: list[np.ndarray] = [np.asarray(p.footprint_xy_m(), dtype=np.float64) for p in parts]
     n_walls = max((len(r) for r in rings), default=3)
     planes = np.zeros((len(rings), n_walls, 3))
     planes[:, :, 2] = np.inf  # padding: n·p - c = -inf
     for k, ring in enumerate(rings):
         if _signed_area(ring) < 0.0:
             ring = ring[::-1]
-        edge = np.roll(ring, -1, axis=0) - ring
+        edge: np.ndarray = np.roll(ring, -1, axis=0) - ring
         normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.linalg.norm(edge, axis=1)[:, None]  # outward (CCW)
         planes[k, :len(ring), 0:2] = normal
         planes[k, :len(ring), 2] = np.sum(normal * ring, axis=1)
-    heights = np.array([[getattr(p, "base_m", 0.0), p.height_m] for p in parts], float).reshape(-1, 2)  # type: ignore[attr-defined]
+    heights = np.array([[float(getattr(p, "base_m", 0.0)), float(p.height_m)] for p in parts],
+                       dtype=np.float64).reshape(-1, 2)
     return planes, heights
 
 
