@@ -75,8 +75,8 @@ class MPCConfig:
             spans the vehicle's attitude response (quad 0.05 s → 1 s; UAM 0.15 s → 3 s: with a 1 s
             horizon the UAM tilts hard and cannot recover its attitude within the horizon).
         solver: "rti" (default: the real-time iteration, chosen by measurement in
-            perf/classical.py: quad 1.0 ms median, UAM 2.7-4.5 ms, 7x and 11-15x faster than
-            Ipopt, tracking RMS within 3 % of Ipopt's, no failures),
+            perf/classical.py: quad 0.43 ms median, UAM 1.24 ms, 14.9x and 27.8x faster than
+            Ipopt, tracking RMS within 1 % of Ipopt's, no failures; docs/planner.md),
             "ipopt" (the reference), "fatrop" or "sqpmethod" (module docstring; docs/planner.md).
         qp_solver: QP solver of "rti" (one of `planners.rti.QP_SOLVERS`: "hpipm" is HPIPM called from C,
             falling back to casadi.conic's plugin "hpipm_conic" when that cannot be built; `qp_solver`

@@ -29,7 +29,7 @@ from planners.hpipm_step import HpipmOptions, HpipmStep
 from planners.mpc_ocp import TrackingOcp
 
 # HPIPM: a Riccati-based interior point for the stage structure (the default), called from C
-# ("hpipm") or through casadi.conic's plugin ("hpipm_conic": 2.1-2.4x slower per decision, data
+# ("hpipm") or through casadi.conic's plugin ("hpipm_conic": 2.0-2.5x slower per decision, data
 # included, docs/planner.md); qrqp (CasADi's sparse active set) and osqp (ADMM) solve the same QP more
 # slowly still (measured 25 ms and 6 ms against HPIPM's 1.4 ms through casadi.conic on the quad's QP,
 # VM, loaded machine). The wheel's fatrop QP interface failed on it (and prints).

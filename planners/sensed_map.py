@@ -119,13 +119,12 @@ def part_halfspaces(parts: Sequence[Obstacle]) -> tuple[np.ndarray, np.ndarray]:
         planes (P, E, 3): per wall its outward unit normal (x, y) and offset c, inside where n·p <= c (padding walls
             never bind); heights (P, 2): base and roof [m].
     """
+    # every part's footprint is counter-clockwise (`Building.footprint_xy_m`; a `Prism` is checked so)
     rings: list[np.ndarray] = [np.asarray(p.footprint_xy_m(), dtype=np.float64) for p in parts]
     n_walls = max((len(r) for r in rings), default=3)
     planes = np.zeros((len(rings), n_walls, 3))
     planes[:, :, 2] = np.inf  # padding: n·p - c = -inf
     for k, ring in enumerate(rings):
-        if _signed_area(ring) < 0.0:
-            ring = ring[::-1]
         edge: np.ndarray = np.roll(ring, -1, axis=0) - ring
         normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.linalg.norm(edge, axis=1)[:, None]  # outward (CCW)
         planes[k, :len(ring), 0:2] = normal
@@ -133,12 +132,6 @@ def part_halfspaces(parts: Sequence[Obstacle]) -> tuple[np.ndarray, np.ndarray]:
     heights = np.array([[float(getattr(p, "base_m", 0.0)), float(p.height_m)] for p in parts],
                        dtype=np.float64).reshape(-1, 2)
     return planes, heights
-
-
-def _signed_area(ring: np.ndarray) -> float:
-    """Twice the signed area of a closed polygon (positive counter-clockwise)."""
-    x, y = ring[:, 0], ring[:, 1]
-    return float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
 def scaled_to_vehicle(config: MappingConfig, radius_m: float) -> MappingConfig:
@@ -226,18 +219,18 @@ class SensedMap:
         above = points[:, 2] > cfg.ground_band_m + spread
         short = above & (ranges < expected - cfg.front_tolerance_m - spread)
         through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
-        if np.any(through):  # a return inside the part it passed is that part's real face, surveyed a little off
-            rows = np.flatnonzero(through)
+        rows = np.flatnonzero(through)
+        if len(rows):  # a return inside the part it passed is that part's real face, surveyed a little off
             inside = self._outside_m(points[rows], part[rows]) <= cfg.through_tolerance_m + spread
             through[rows[inside]] = False
+            rows = rows[~inside]
         on_part = above & (part >= 0) & ~short & ~through  # ends on a prior part's surface, within the tolerances
         n_parts = len(self._through)
         if np.any(on_part):
             self._confirmed += np.bincount(part[on_part], minlength=n_parts)
         cleared: list[int] = []
-        if np.any(through):
-            self._through += np.bincount(part[through], minlength=n_parts)
-            rows = np.flatnonzero(through)
+        if len(rows):
+            self._through += np.bincount(part[rows], minlength=n_parts)
             core = self._crosses_core(origin, dirs[rows], ranges[rows], part[rows])
             self._through_core += np.bincount(part[rows[core]], minlength=n_parts)
             newly = ((self._through_core >= cfg.clear_beams) & (self._confirmed < cfg.confirm_ratio * self._through)
