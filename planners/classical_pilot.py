@@ -734,17 +734,13 @@ class ClassicalPilot:
         offsets[:, k - 1] = required
         if k > 1 and len(obstacles.buildings) > 0:
             pts, dist, ids = obstacles.nearest_obstacles_batch(pred, k - 1, 0.0)
-            for stage in range(n_stages):
-                for j in range(k - 1):
-                    if ids[stage, j] < 0:
-                        continue
-                    away = pred[stage] - pts[stage, j]
-                    norm = np.linalg.norm(away)
-                    if norm < 1e-9:
-                        continue
-                    normal = away / norm * (1.0 if dist[stage, j] >= 0 else -1.0)
-                    normals[stage, j] = normal
-                    offsets[stage, j] = normal @ pts[stage, j] + required[stage]
+            away = pred[:, None, :] - pts  # (N, K-1, 3)
+            norm = np.sqrt(np.einsum("nkc,nkc->nk", away, away))
+            found = (ids >= 0) & (norm >= 1e-9)  # else: no obstacle, or a point on its surface (no direction)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                normal = away / norm[..., None] * np.where(dist >= 0, 1.0, -1.0)[..., None]
+            normals[:, :k - 1] = np.where(found[..., None], normal, 0.0)
+            offsets[:, :k - 1] = np.where(found, np.einsum("nkc,nkc->nk", normal, pts) + required[:, None], -1.0)
         return normals, offsets
 
     def _flying(self) -> tuple[World, Margins]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import octomap
 import pytest
 
 from planners.sensed_map import MappingConfig, SensedMap, column_boxes, grown_parts, pack_keys, unpack_keys
@@ -126,24 +127,44 @@ def test_bad_mapping_settings_are_named(bad):
 
 
 def test_voxels_beside_a_prior_part_grow_it_and_voxels_farther_off_stand_as_columns():
-    """A survey error (the building 2 m wider and 5 m taller than the prior has it) grows the prior part; an
-    obstacle 10 m off stays a column of its own."""
+    """A survey error (the building 2 m wider and 5 m taller than the prior has it: its face seen along the whole
+    side) grows the prior part; an obstacle 10 m off stays a column of its own."""
     part = Building(7, (50.0, 50.0), (10.0, 10.0), 20.0, yaw_rad=0.3)
     co, si = np.cos(0.3), np.sin(0.3)
-    beside = np.array([[50.0 + 6.5 * co, 50.0 + 6.5 * si, 24.5]])  # 1.5 m off its +x face, above its roof
+    along = np.arange(-4.5, 5.0, 1.0)
+    beside = np.column_stack([50.0 + 6.5 * co - along * si, 50.0 + 6.5 * si + along * co,
+                              np.full(along.size, 24.5)])  # 1.5 m off its +x face, above its roof
     apart = np.array([[50.0 + 16.5 * co, 50.0 + 16.5 * si, 10.5]])
     grown, attached = grown_parts((part,), np.vstack([beside, apart]), 1.0, 3.0, 10.0)
-    assert attached.tolist() == [True, False]
+    assert attached.tolist() == [True] * along.size + [False]
     g = grown[0]
     assert g.id == 7 and g.yaw_rad == part.yaw_rad and g.height_m == pytest.approx(25.0)
-    assert g.size_xy_m[0] > part.size_xy_m[0] and g.size_xy_m[1] == pytest.approx(part.size_xy_m[1] + 0.0, abs=0.8)
+    assert g.size_xy_m[0] == pytest.approx(12.0) and g.size_xy_m[1] == pytest.approx(part.size_xy_m[1], abs=0.8)
     bmap = BuildingMap(list(grown), LO, HI)
-    assert bmap.obstacle_clearance_m(beside)[0] <= 0.0 and bmap.obstacle_clearance_m(apart)[0] > 0.0
+    assert (bmap.obstacle_clearance_m(beside) <= 0.0).all() and bmap.obstacle_clearance_m(apart)[0] > 0.0
     # the part's own footprint is still covered
     assert bmap.obstacle_clearance_m(np.array([[50.0 - 4.9 * co, 50.0 - 4.9 * si, 19.0]]))[0] <= 0.0
     # far above its roof: not the part's (a crane's jib over it)
     _, attached = grown_parts((part,), np.array([[50.0, 50.0, 45.5]]), 1.0, 3.0, 10.0)
     assert not attached.any()
+
+
+def test_an_unmapped_neighbour_beside_a_long_side_does_not_swell_the_part():
+    """An unmapped building 2 m off a prior part's 40 m side, seen along 8 m of it, and taller: its voxels stand as
+    columns; the part keeps its footprint and height. Returns on the part's own roof still attach."""
+    part = Building(3, (0.0, 0.0), (40.0, 12.0), 20.0)
+    neighbour = np.array([[8.5 + k, 8.5, 27.5] for k in range(8)])  # 2.5 m off the north face, 7.5 m above the roof
+    roof = np.array([[0.5, 0.5, 21.5]])
+    grown, attached = grown_parts((part,), np.vstack([neighbour, roof]), 1.0, 3.0, 10.0)
+    assert attached.tolist() == [False] * len(neighbour) + [True]
+    assert grown[0].size_xy_m == pytest.approx((40.0, 12.0)) and grown[0].center_xy_m == pytest.approx((0.0, 0.0))
+    assert grown[0].height_m == pytest.approx(22.0)
+    # the same face seen along 24 of the 40 m (a building surveyed 2.5 m off): the part grows north to cover it
+    shifted = np.array([[-11.5 + k, 8.5, 17.5] for k in range(24)])
+    grown, attached = grown_parts((part,), shifted, 1.0, 3.0, 10.0)
+    assert attached.all() and grown[0].size_xy_m == pytest.approx((40.0, 15.0))
+    with pytest.raises(ValueError, match="attach_cover"):
+        MappingConfig(attach_cover=1.5)
 
 
 def test_what_the_highest_beam_hits_is_held_taller_by_a_bound_and_a_prior_part_keeps_its_height():
@@ -240,3 +261,38 @@ def test_a_prior_part_surveyed_too_tall_stays_though_beams_pass_over_the_real_ro
     assert sensed._through[0] >= MappingConfig().clear_beams > sensed._through_core[0]
     assert sensed.cleared_parts == ()
     assert sensed.fused().obstacle_clearance_m(np.array([[160.0, 100.0, 20.0]]))[0] <= 0.0
+
+
+def _held_by_search(sensed: SensedMap) -> np.ndarray:
+    """Every key the octree holds occupied, searched one by one (what `occupied_voxels_m` caches)."""
+    centres = (unpack_keys(sensed._keys) + 0.5) * sensed.config.resolution_m
+    held = []
+    for c in centres:
+        try:
+            held.append(sensed._tree.isNodeOccupied(sensed._tree.search(c)))
+        except octomap.NullPointerException:
+            held.append(False)
+    return centres[np.asarray(held, dtype=bool)]
+
+
+def test_the_occupied_voxels_searched_again_only_where_scans_reached_are_the_octrees():
+    """Voxels marked from an estimate 2.5 m off (in front of a face), then carved by scans on the right pose nearby,
+    and scans far off that change nothing there: after each, the cached answer is the one every key searched
+    gives."""
+    world = BuildingMap([KNOWN, UNMAPPED], LO, HI)
+    prior = BuildingMap([KNOWN], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(4))
+    sensed = SensedMap(prior, MappingConfig(carve_stride=4), VLP16.max_range_m)
+    poses = [(np.array([100.0, 112.0, 15.0]), np.array([100.0, 109.5, 15.0]))] * 2
+    poses += [(np.array([100.0, 112.0 - 0.5 * k, 15.0]),) * 2 for k in range(8)]
+    poses += [(np.array([20.0, 20.0, 15.0]),) * 2, (np.array([100.0, 110.0, 15.0]),) * 2]
+    counts = []
+    for k, (true, est) in enumerate(poses):
+        scan, _ = lidar.scan(0.0, true, np.eye(3))
+        sensed.integrate(replace(scan, pose_estimate=None), _state(est), 0.05)
+        if k % 2 == 1 or k == len(poses) - 1:
+            got = sensed.occupied_voxels_m()
+            want = _held_by_search(sensed)
+            assert np.array_equal(got, want)
+            counts.append(len(got))
+    assert max(counts) > counts[-1] > 0  # carving took some out: the cache was tested on a change
