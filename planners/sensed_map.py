@@ -196,9 +196,10 @@ class SensedMap:
         # beside each key: its centre [m] and whether the octree held it occupied when last searched; a key is
         # searched again only when a scan since may have changed it (`_stale`): a fuse searched all 55,000 keys of
         # a UAM leg (a third of the pilot's mapping time) where a scan reaches a few hundred
-        self._centres = np.zeros((0, 3))
-        self._held = np.zeros(0, dtype=bool)
-        self._owner = np.zeros(0, dtype=np.int64)  # the prior part each key may belong to (`part_owners`)
+        # kept in the order the keys were first marked (appended, not inserted: a copy of 55,000 centres per scan
+        # cost as much as the searches it saved); `_slot` (aligned with `_keys`) gives each key's row
+        self._slot = np.zeros(0, dtype=np.int64)
+        self._rows = _Rows()
         self._touched: list[np.ndarray] = []  # packed keys updated occupied since the last search
         self._carved_at: list[np.ndarray] = []  # origins [m] of the carves since the last search
         self._fused: BuildingMap | None = prior
@@ -271,11 +272,10 @@ class SensedMap:
         if len(fresh):  # sorted and new: an insertion, not a re-sort of the whole set
             at = np.searchsorted(self._keys, fresh)
             self._keys = np.insert(self._keys, at, fresh)
-            self._centres = np.insert(self._centres, at, (unpack_keys(fresh) + 0.5) * res, axis=0)
-            self._held = np.insert(self._held, at, False)
-            self._owner = np.insert(self._owner, at, self._owners((unpack_keys(fresh) + 0.5) * res))
+            centres = (unpack_keys(fresh) + 0.5) * res
+            self._slot = np.insert(self._slot, at, self._rows.append(centres, self._owners(centres)))
         if cleared:  # a part taken out owns nothing: the keys it owned may belong to a neighbour
-            self._owner = self._owners(self._centres)
+            self._rows.owner[:] = self._owners(self._rows.centres)
         if len(fresh) or cleared:
             self._fused = None
         return ScanUpdate((unpack_keys(fresh) + 0.5) * res, tuple(cleared))
@@ -334,32 +334,36 @@ class SensedMap:
                     self._flown_over[key] = free_from
 
     def occupied_voxels_m(self) -> np.ndarray:
-        """Centres (K, 3) [m] of the unexplained voxels the octree holds occupied now."""
+        """Centres (K, 3) [m] of the unexplained voxels the octree holds occupied now (in key order)."""
+        return self._rows.centres[self._held_slots()]
+
+    def _held_slots(self) -> np.ndarray:
+        """Rows of the keys the octree holds occupied now, in key order (the stale ones searched again)."""
         if not len(self._keys):
-            return np.zeros((0, 3))
-        stale = self._stale()
+            return np.zeros(0, dtype=np.int64)
+        held, centres, tree = self._rows.held, self._rows.centres, self._tree  # views: written through
         # one search per voxel (under a microsecond each); the binding's extractPointCloud builds a Python array per
         # leaf of the whole tree, a thousand times slower
-        for i in np.flatnonzero(stale).tolist():
+        for i in np.flatnonzero(self._stale()).tolist():
             try:
-                self._held[i] = self._tree.isNodeOccupied(self._tree.search(self._centres[i]))
+                held[i] = tree.isNodeOccupied(tree.search(centres[i]))
             except octomap.NullPointerException:  # never reached by a beam since, or pruned: unknown
-                self._held[i] = False
-        return self._centres[self._held]
+                held[i] = False
+        return self._slot[held[self._slot]]
 
     def _stale(self) -> np.ndarray:
-        """Which keys a scan since the last search may have changed (K,): those updated occupied, and those within a
+        """Which rows a scan since the last search may have changed: those updated occupied, and those within a
         carve's reach (`carve_range_m` and a voxel's diagonal) of where it was inserted from; then forgets both."""
-        stale = np.zeros(len(self._keys), dtype=bool)
+        centres = self._rows.centres
+        stale = np.zeros(len(centres), dtype=bool)
         if self._touched:
-            stale |= _members(np.unique(np.concatenate(self._touched)), self._keys)
+            stale[self._slot[_members(np.unique(np.concatenate(self._touched)), self._keys)]] = True
         if self._carved_at:
             origins = np.asarray(self._carved_at, float)
             centre = 0.5 * (origins.min(axis=0) + origins.max(axis=0))
             spread = 0.5 * float(np.linalg.norm(origins.max(axis=0) - origins.min(axis=0)))
             reach = self.config.carve_range_m + math.sqrt(3.0) * self.config.resolution_m + spread
-            near = np.einsum("ij,ij->i", self._centres - centre, self._centres - centre) <= reach * reach
-            stale |= near
+            stale |= np.einsum("ij,ij->i", centres - centre, centres - centre) <= reach * reach
         self._touched.clear()
         self._carved_at.clear()
         return stale
@@ -373,10 +377,11 @@ class SensedMap:
 
     def _fuse(self) -> BuildingMap:
         prior, res = self.prior, self.config.resolution_m
-        voxels = self.occupied_voxels_m()
+        held = self._held_slots()
+        voxels = self._rows.centres[held]
         cfg = self.config
         grown, attached = grown_parts(prior.buildings, voxels, res, cfg.attach_m, cfg.attach_height_m,
-                                      cfg.attach_cover, self._owner[self._held])
+                                      cfg.attach_cover, self._rows.owner[held])
         kept = tuple(p for p, gone in zip(grown, self._cleared, strict=True) if not gone)
         voxels = voxels[~attached]
         # a part the prior has keeps the prior's height above what was seen of it; only an obstacle the prior lacks
@@ -387,6 +392,39 @@ class SensedMap:
         first = int(max((p.id for p in prior.buildings), default=-1)) + 1
         sensed = column_boxes(voxels, cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m)
         return BuildingMap(kept + sensed, prior.bounds_min_m, prior.bounds_max_m, prior.no_fly, prior.name)
+
+
+class _Rows:
+    """Per marked voxel, in the order first marked: its centre [m], whether the octree held it occupied when last
+    searched, and the prior part it may belong to (`part_owners`); grown by doubling."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self._centres, self._held, self._owner = np.zeros((64, 3)), np.zeros(64, dtype=bool), np.zeros(64, np.int64)
+
+    @property
+    def centres(self) -> np.ndarray:
+        return self._centres[:self.n]
+
+    @property
+    def held(self) -> np.ndarray:
+        return self._held[:self.n]
+
+    @property
+    def owner(self) -> np.ndarray:
+        return self._owner[:self.n]
+
+    def append(self, centres_m: np.ndarray, owner: np.ndarray) -> np.ndarray:
+        """Add rows (not yet searched: not held); returns their indices."""
+        k = len(centres_m)
+        if self.n + k > len(self._held):
+            size = max(2 * len(self._held), self.n + k)
+            self._centres = np.resize(self._centres, (size, 3))
+            self._held, self._owner = np.resize(self._held, size), np.resize(self._owner, size)
+        new = np.arange(self.n, self.n + k)
+        self._centres[new], self._held[new], self._owner[new] = centres_m, False, owner
+        self.n += k
+        return new
 
 
 def part_owners(parts: Sequence[Obstacle], voxels_m: np.ndarray, resolution_m: float, attach_m: float,
