@@ -169,8 +169,57 @@ class PressureColumn:
 
     def pressure_altitude_m(self, z_m: np.ndarray) -> list[float]:
         """ISA pressure altitude [m] a standard altimeter reads at each true height z_m (M,) [m above the field]."""
-        pressure = map(math.exp, (self._log_p0 - _G_OVER_R * self.column(z_m)).tolist())
-        return [_ISA_SCALE_M * (1.0 - (p / ISA_SEA_LEVEL_PRESSURE_PA) ** ISA_EXPONENT) for p in pressure]
+        return _pressure_altitude_m(self._log_p0 - _G_OVER_R * self.column(z_m))
+
+
+def _pressure_altitude_m(log_p: np.ndarray) -> list[float]:
+    """ISA pressure altitudes [m] of static pressures given by their logarithms (M,) [ln Pa]: element by element with
+    `math`, as `Barometer` (NumPy's vectorised exp may differ in the last bit)."""
+    pressure = map(math.exp, log_p.tolist())
+    return [_ISA_SCALE_M * (1.0 - (p / ISA_SEA_LEVEL_PRESSURE_PA) ** ISA_EXPONENT) for p in pressure]
+
+
+class PressureColumns:
+    """Many days' `PressureColumn`s read in one call, each height in its own day's: tabulated on one grid of heights
+    (as the pool's atmospheres are), the tables are stacked and interpolated at once, bit for bit as `np.interp`
+    interpolates one (`column`); on different grids, day by day.
+
+    Args:
+        columns: one per day of the pool.
+    """
+
+    def __init__(self, columns: Sequence[PressureColumn]) -> None:
+        self.columns = list(columns)
+        z = self.columns[0]._z if self.columns else np.zeros(0)
+        self._stacked = len(z) >= 2 and all(np.array_equal(c._z, z) for c in self.columns)
+        if self._stacked:
+            self._z = z
+            self._inv_t = np.stack([c._inv_t for c in self.columns])
+            self._integral = np.stack([c._integral for c in self.columns])
+            self._log_p0 = np.array([c._log_p0 for c in self.columns])
+
+    def pressure_altitude_m(self, field: np.ndarray, z_m: np.ndarray) -> np.ndarray:
+        """ISA pressure altitude [m] at each true height z_m (M,) [m above the field] in day `field` (M,) (an index
+        of `columns`)."""
+        if not self._stacked:
+            out = np.empty(len(z_m))
+            for f in np.unique(field).tolist():
+                rows = np.flatnonzero(field == f)
+                out[rows] = self.columns[f].pressure_altitude_m(z_m[rows])
+            return out
+        z, n = self._z, len(self._z)
+        inv_t, integral = self._inv_t[field], self._integral[field]  # (M, n): the rows of the slots' days
+        rows = np.arange(len(z_m))
+        # np.interp's arithmetic (numpy/_core/src/multiarray/compiled_base.c): the interval by binary search, the
+        # table's value on a grid point, else slope * (x - x_j) + y_j
+        j = np.clip(np.searchsorted(z, z_m, side="right") - 1, 0, n - 2)
+        y0, y1 = integral[rows, j], integral[rows, j + 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inside = np.where(z_m == z[j], y0, (y1 - y0) / (z[j + 1] - z[j]) * (z_m - z[j]) + y0)
+        below = (z_m - z[0]) * inv_t[:, 0]
+        above = integral[:, -1] + (z_m - z[-1]) * inv_t[:, -1]
+        column = np.where(z_m <= z[0], below, np.where(z_m >= z[-1], above, inside))
+        return np.asarray(_pressure_altitude_m(self._log_p0[field] - _G_OVER_R * column))
 
 
 class BatchBarometer:
@@ -185,7 +234,7 @@ class BatchBarometer:
 
     def __init__(self, spec: BaroSpec, atmospheres: Sequence[Atmosphere], n: int, block: int = 256) -> None:
         self.spec = spec
-        self._columns = [PressureColumn(a) for a in atmospheres]
+        self._columns = PressureColumns([PressureColumn(a) for a in atmospheres])
         self._field = np.zeros(n, dtype=np.intp)
         self._home_m = np.zeros(n)  # the pressure altitude read at take-off height [m]
         self.offset_m = np.zeros(n)  # each slot's drift offset [m] (simulator side)
@@ -195,12 +244,12 @@ class BatchBarometer:
     @property
     def fields(self) -> int:
         """The number of atmospheres in the pool."""
-        return len(self._columns)
+        return len(self._columns.columns)
 
     def restart(self, i: int, rng: np.random.Generator, field: int, home_z_m: float) -> None:
         """Slot i's barometer in atmosphere `field` (an index of the pool), zeroed at home_z_m [m above the field]."""
         self._field[i] = field
-        self._home_m[i] = self._columns[field].pressure_altitude_m(np.array([float(home_z_m)]))[0]
+        self._home_m[i] = self._columns.columns[field].pressure_altitude_m(np.array([float(home_z_m)]))[0]
         self.offset_m[i] = 0.0
         self._t_last[i] = np.nan
         self._normals.restart(i, rng)
@@ -214,11 +263,7 @@ class BatchBarometer:
         offset = self.offset_m[slots] + self.spec.drift_m_rthz * root * w[:, 0]
         self.offset_m[slots] = offset
         self._t_last[slots] = t_s
-        altitude = np.empty(len(slots))
-        field = self._field[slots]
-        for f in np.unique(field):
-            rows = np.flatnonzero(field == f)
-            altitude[rows] = self._columns[f].pressure_altitude_m(z_m[rows])
+        altitude = self._columns.pressure_altitude_m(self._field[slots], np.asarray(z_m, float))
         return altitude - self._home_m[slots] + offset + self.spec.noise_m * w[:, 1]
 
 

@@ -8,11 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from uam_fdm.air.atmosphere import Atmosphere
+from uam_fdm.air.atmosphere import Atmosphere, AtmosphereConditions
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.sensing.baro import Barometer, pressure_altitude_m
 from uam_fdm.sensing.batch_onboard import BatchOnboard
-from uam_fdm.sensing.batch_sensors import PressureColumn, SlotStreams
+from uam_fdm.sensing.batch_sensors import PressureColumn, PressureColumns, SlotStreams
 from uam_fdm.sensing.gnss import line_of_sight_enu
 from uam_fdm.sensing.onboard import Onboard
 from uam_fdm.sensing.raycast import RayCaster
@@ -179,6 +179,24 @@ def test_the_pressure_column_is_the_barometers(air):
         baro = Barometer(MS5611, atmosphere, 0.0, np.random.default_rng(0))
         expected = [float(pressure_altitude_m(baro.pressure_pa(float(v)))) for v in z]
         assert PressureColumn(atmosphere).pressure_altitude_m(z) == expected
+
+
+def test_the_stacked_pressure_columns_read_each_day_as_its_own_column(air):
+    rng = np.random.default_rng(3)
+    z = np.concatenate([[-40.0, -1e-3, 0.0, 200.0, 350.0], rng.uniform(-50.0, 400.0, 200)])
+    z = np.concatenate([z, air[0].heights_m[1:4]])  # on the grid itself
+    field = rng.integers(0, len(air), len(z))
+    columns = [PressureColumn(a) for a in air]
+    stacked = PressureColumns(columns)
+    assert stacked._stacked  # the pool's days share one grid: read together
+    expected = [columns[f].pressure_altitude_m(np.array([v]))[0] for f, v in zip(field, z, strict=True)]
+    np.testing.assert_array_equal(stacked.pressure_altitude_m(field, z), expected)
+    taller = PressureColumn(Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=300.0))  # another grid
+    mixed = PressureColumns([*columns, taller])
+    assert not mixed._stacked
+    field[::3] = len(air)
+    expected = [mixed.columns[f].pressure_altitude_m(np.array([v]))[0] for f, v in zip(field, z, strict=True)]
+    np.testing.assert_array_equal(mixed.pressure_altitude_m(field, z), expected)
 
 
 def test_sigma_max_is_the_longest_axis_of_the_position_error(quad, air, flights):
