@@ -193,11 +193,11 @@ class SensedMap:
         self._through_core = np.zeros(len(prior.buildings), dtype=np.int64)  # beams through its core
         self._cleared = np.zeros(len(prior.buildings), dtype=bool)
         self._keys = np.zeros(0, dtype=np.int64)  # packed keys of the voxels ever marked unexplained, sorted
-        # beside each key: its centre [m] and whether the octree held it occupied when last searched; a key is
-        # searched again only when a scan since may have changed it (`_stale`): a fuse searched all 55,000 keys of
-        # a UAM leg (a third of the pilot's mapping time) where a scan reaches a few hundred
-        # kept in the order the keys were first marked (appended, not inserted: a copy of 55,000 centres per scan
-        # cost as much as the searches it saved); `_slot` (aligned with `_keys`) gives each key's row
+        # per key a row (`_Rows`, in the order first marked; `_slot`, aligned with `_keys`, gives each key's): its
+        # centre, whether the octree held it occupied when last searched, its prior part. A key is searched again
+        # only when a scan since may have changed it (`_stale`): searching all 55,000 keys of a UAM leg at every
+        # refresh cost a third of the pilot's mapping time. Rows are appended, not inserted: copying 55,000 centres
+        # per scan cost as much as the searches saved.
         self._slot = np.zeros(0, dtype=np.int64)
         self._rows = _Rows()
         self._touched: list[np.ndarray] = []  # packed keys updated occupied since the last search
