@@ -128,8 +128,13 @@ def main() -> None:
     if args.baseline not in ks:
         ks = sorted({*ks, args.baseline})
     jobs = [(k, s, m, max(0, args.legs)) for k in ks for s, m in LEVELS]
+    flown: dict[tuple[float, str, str, int], list[Leg]] = {}
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        flown = dict(zip(jobs, pool.map(_fly, jobs), strict=True))
+        for job, legs in zip(jobs, pool.map(_fly, jobs), strict=True):  # each share as it is done
+            flown[job] = legs
+            ok, hit = sum(g.success for g in legs), sum(g.collision for g in legs)
+            print(f"flown: k = {job[0]:g} at {job[1]} / {job[2]}: {ok}/{len(legs)} arrived, {hit} collisions",
+                  flush=True)
     by_k = {k: sorted((g for (kk, _, _, _), legs in flown.items() if kk == k for g in legs), key=lambda g: _key([g]))
             for k in ks}
     base = by_k[args.baseline]
