@@ -46,27 +46,25 @@ def tasks(spec: str) -> int:
     return sum(len(sc.episodes) for sc in resolve_scenarios(spec))
 
 
-def fly(spec: str, jobs: int, out: Path) -> float:
-    """Fly a set with the default pilots into `out`; its wall time [s]."""
-    cmd = [sys.executable, "-m", "compare", "run", spec, "--jobs", str(jobs), "--videos", "none", "--out", str(out),
-           "--no-progress"]
+def _timed(*args: str) -> float:
+    """Wall time [s] of `uam-compare ARGS` in a fresh interpreter; stops the script when it fails."""
+    cmd = [sys.executable, "-m", "compare", *args]
     t0 = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
     return wall
+
+
+def fly(spec: str, jobs: int, out: Path) -> float:
+    """Fly a set with the default pilots into `out`; its wall time [s]."""
+    return _timed("run", spec, "--jobs", str(jobs), "--videos", "none", "--out", str(out), "--no-progress")
 
 
 def report_time(run: Path) -> float:
     """Wall time [s] of rescoring a run folder and rebuilding its report and viewer (the end of a run)."""
-    cmd = [sys.executable, "-m", "compare", "report", str(run)]
-    t0 = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
-    return wall
+    return _timed("report", str(run))
 
 
 def breakdown(run: Path) -> dict[str, dict[str, float]]:

@@ -108,8 +108,9 @@ def _rate(n_yes: int, n: int) -> str:
     return f"{n_yes}/{n} {100 * n_yes / n:5.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]"
 
 
-def _key(legs: list[Leg]) -> tuple:
-    return tuple((g.vehicle, g.sensing, g.scenario, g.episode) for g in legs)
+def _key(g: Leg) -> tuple[str, str, str, int]:
+    """A leg's place, the same for every k: the legs of two k pair up in this order."""
+    return g.vehicle, g.sensing, g.scenario, g.episode
 
 
 def main() -> None:
@@ -135,7 +136,7 @@ def main() -> None:
             ok, hit = sum(g.success for g in legs), sum(g.collision for g in legs)
             print(f"flown: k = {job[0]:g} at {job[1]} / {job[2]}: {ok}/{len(legs)} arrived, {hit} collisions",
                   flush=True)
-    by_k = {k: sorted((g for (kk, _, _, _), legs in flown.items() if kk == k for g in legs), key=lambda g: _key([g]))
+    by_k = {k: sorted((g for (kk, _, _, _), legs in flown.items() if kk == k for g in legs), key=_key)
             for k in ks}
     base = by_k[args.baseline]
     arrived_all = np.all([[g.success for g in by_k[k]] for k in ks], axis=0)

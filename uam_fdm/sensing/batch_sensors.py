@@ -207,17 +207,15 @@ class PressureColumns:
                 rows = np.flatnonzero(field == f)
                 out[rows] = self.columns[f].pressure_altitude_m(z_m[rows])
             return out
-        z, n = self._z, len(self._z)
-        inv_t, integral = self._inv_t[field], self._integral[field]  # (M, n): the rows of the slots' days
-        rows = np.arange(len(z_m))
+        z, n, inv_t, integral = self._z, len(self._z), self._inv_t, self._integral
         # np.interp's arithmetic (numpy/_core/src/multiarray/compiled_base.c): the interval by binary search, the
-        # table's value on a grid point, else slope * (x - x_j) + y_j
+        # table's value on a grid point, else slope * (x - x_j) + y_j; only the entries each height reads
         j = np.clip(np.searchsorted(z, z_m, side="right") - 1, 0, n - 2)
-        y0, y1 = integral[rows, j], integral[rows, j + 1]
+        y0, y1 = integral[field, j], integral[field, j + 1]
         with np.errstate(invalid="ignore", divide="ignore"):
             inside = np.where(z_m == z[j], y0, (y1 - y0) / (z[j + 1] - z[j]) * (z_m - z[j]) + y0)
-        below = (z_m - z[0]) * inv_t[:, 0]
-        above = integral[:, -1] + (z_m - z[-1]) * inv_t[:, -1]
+        below = (z_m - z[0]) * inv_t[field, 0]
+        above = integral[field, -1] + (z_m - z[-1]) * inv_t[field, -1]
         column = np.where(z_m <= z[0], below, np.where(z_m >= z[-1], above, inside))
         return np.asarray(_pressure_altitude_m(self._log_p0[field] - _G_OVER_R * column))
 
