@@ -84,7 +84,8 @@ class ClassicalConfig:
             smaller budgets, so that they fit `replan_budget_s`).
         mapping: how scans are mapped (flying on sensors; columns widened to the vehicle's radius,
             `planners.sensed_map.scaled_to_vehicle`).
-        uncertainty_k: margins grow by this many σ of the estimate's position (its covariance's largest axis).
+        uncertainty_k: margins grow by this many σ of the estimate's position (its covariance's largest axis); 3 kept
+            against 2 and 4 on the tuning pool's legs (`perf/uncertainty_k.py`, docs/planner.md).
         uncertainty_replan_m: replan when k σ exceeds what the flown plan's margins took by this much [m].
         replan_budget_s: flight time a replan in flight takes (braking meanwhile) [s]; calibrated so that the
             in-flight ladder and the map refresh before it fit it on this machine (perf/mapping.py).
