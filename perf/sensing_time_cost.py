@@ -2,11 +2,11 @@
 
 Reads a run folder's metrics.csv (a run of `benchmark`, or any set with sensing levels), takes the classical
 pilot's (`rrt_mpc`) episodes on the exact map at a sensing level other than `perfect`, and flies each again with the
-same seed at `perfect` sensing (the truth handed through: the pilot of the issue's day, which planned once on the
-exact state and map). Paired per leg, over the legs both flights arrived on, it prints per vehicle and sensing level
-the mean flight time of each and their difference (sensed - perfect) with its 95 % percentile-bootstrap interval
-(the run summary's method and seed); the target is "not longer beyond the interval". It prints the legs only one
-of the two arrived on too.
+same seed at `perfect` sensing (the truth handed through: the privileged pilot, which plans once on the exact state
+and map, as before sensing existed). Paired per leg, over the legs both flights arrived on, it prints per vehicle
+and sensing level the mean flight time of each and their difference (sensed - perfect) with its 95 %
+percentile-bootstrap interval (the run summary's method and seed); the target is "not longer beyond the interval".
+It prints the legs only one of the two arrived on too.
 
     OMP_NUM_THREADS=1 python perf/sensing_time_cost.py RUN_DIR [--set benchmark] [--jobs 2]
 
@@ -16,7 +16,6 @@ Prints the table and, as its last line, one JSON object of the figures (per vehi
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -26,6 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
+from compare.cli.printout import json_line
 from compare.results.metrics import EpisodeMetrics, episode_metrics, read_metrics_csv
 from compare.results.stats import Bootstrap
 from compare.results.trajectory import SavedEpisode
@@ -82,10 +82,10 @@ def main() -> None:
           f"{'difference s [95 %]':>26s} {'only sensed':>11s} {'only perfect':>12s}")
     for key in sorted({(r.vehicle, r.sensing) for r in rows}):
         group: list[EpisodeMetrics] = [r for r in rows if (r.vehicle, r.sensing) == key]
-        both = [(r.time_s, perfect[(r.scenario, r.episode, r.seed)][1]) for r in group
-                if r.success and perfect[(r.scenario, r.episode, r.seed)][0]]
-        only_sensed = sum(r.success and not perfect[(r.scenario, r.episode, r.seed)][0] for r in group)
-        only_perfect = sum(not r.success and perfect[(r.scenario, r.episode, r.seed)][0] for r in group)
+        twin = [perfect[(r.scenario, r.episode, r.seed)] for r in group]  # each leg's flight at perfect sensing
+        both = [(r.time_s, t) for r, (ok, t) in zip(group, twin, strict=True) if r.success and ok]
+        only_sensed = sum(r.success and not ok for r, (ok, _) in zip(group, twin, strict=True))
+        only_perfect = sum(not r.success and ok for r, (ok, _) in zip(group, twin, strict=True))
         a = np.array([s for s, _ in both])
         b = np.array([p for _, p in both])
         mean, low, high = BOOTSTRAP.mean_ci(a - b)
@@ -101,9 +101,7 @@ def main() -> None:
         print(f"{key[0]:16s} {key[1]:9s} {len(both):6d} {fig['time_sensed_s_mean']:9.2f} "
               f"{fig['time_perfect_s_mean']:9.2f} {fig['time_diff_s_mean']:+9.2f} {interval:>16s} "
               f"{only_sensed:11d} {only_perfect:12d}")
-    clean = {k: {f: (None if isinstance(v, float) and v != v else v) for f, v in fig.items()}  # NaN as null
-             for k, fig in figures.items()}
-    print(json.dumps({"set": args.set, "pilot": PILOT, "by_vehicle_sensing": clean}))
+    print(json_line({"set": args.set, "pilot": PILOT, "by_vehicle_sensing": figures}))
 
 
 if __name__ == "__main__":
