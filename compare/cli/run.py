@@ -89,6 +89,10 @@ def _add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-error", choices=MAP_ERROR_LEVELS, default=None,
                         help="fly every scenario with this map error, in place of its own `map_error:` "
                              "(docs/sensing.md)")
+    parser.add_argument("--tier", type=parse_tier, action="append", default=[], metavar="SENSING/MAP_ERROR",
+                        help="fly only the scenarios at this sensing and map-error level, e.g. nominal/wrong (a "
+                             "benchmark set's cell, after --sensing and --map-error); repeat for more (default: "
+                             "every scenario)")
 
 
 def _add_pilot_options(parser: argparse.ArgumentParser) -> None:
@@ -101,6 +105,32 @@ def _add_pilot_options(parser: argparse.ArgumentParser) -> None:
                                     f"({','.join(PILOT_NAMES)}, plug-ins)")
     add_deprecated_alias(parser, "--method", one)
     add_deprecated_alias(parser, "--methods", some)
+
+
+def parse_tier(text: str) -> tuple[str, str]:
+    """--tier's value "SENSING/MAP_ERROR" as (sensing level, map-error level), both known levels."""
+    sensing, sep, map_error = text.partition("/")
+    if not sep or sensing not in SENSING_LEVELS or map_error not in MAP_ERROR_LEVELS:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected SENSING/MAP_ERROR with SENSING one of {', '.join(SENSING_LEVELS)} and MAP_ERROR "
+            f"one of {', '.join(MAP_ERROR_LEVELS)}, e.g. nominal/wrong")
+    return sensing, map_error
+
+
+def only_tiers(scenarios: Sequence[Scenario], tiers: Sequence[tuple[str, str]], spec: str) -> list[Scenario]:
+    """The scenarios flown at one of `tiers` ((sensing, map-error) levels); all of them when `tiers` is empty.
+
+    Raises:
+        ValueError: no scenario of `spec` is at any of them (naming the levels it has).
+    """
+    if not tiers:
+        return list(scenarios)
+    kept = [sc for sc in scenarios if (sc.sensing.level, sc.map_error.level) in set(tiers)]
+    if not kept:
+        there = sorted({f"{sc.sensing.level}/{sc.map_error.level}" for sc in scenarios})
+        raise ValueError(f"--tier {', '.join(f'{s}/{m}' for s, m in tiers)}: no scenario of {spec} is flown at it "
+                         f"(its levels: {', '.join(there)})")
+    return kept
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
@@ -132,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         check_empty_run_folder(out)
     scenarios = [with_levels(with_pilots(sc, tuple(args.pilot)), args.sensing, args.map_error)
                  for sc in _scenarios(args)]  # every file checked here
+    scenarios = only_tiers(scenarios, args.tier, args.scenario)
     opts = replace(opts, videos=resolve_videos(args.videos, scenarios))  # its default depends on the scenarios
     one_torch_thread()
     est = estimate_run(scenarios, opts)
