@@ -151,6 +151,7 @@ class ClassicalStats:
     planner_attempts: int = 0
     planner_step: str = ""
     planner_candidates: int = 0
+    planner_wall_caps: int = 0  # plans cut by the planner's wall-time cap (at reset and in flight)
     in_flight_replan_s: list[float] = field(default_factory=list)  # wall time of each replan flown through
     hover_holds: int = 0
     improvements_tried: int = 0  # searches for a faster plan while flying one found at the floor margin
@@ -300,6 +301,7 @@ class ClassicalPilot:
                                      time_available_s=time_left, diagnose=not in_flight)
         plan, self.ladder_result = found.plan, found
         self.stats.plan_time_s += found.plan_time_s
+        self.stats.planner_wall_caps += found.wall_caps
         if velocity_m_s is None:  # the plan at reset: which step of the ladder found it
             self.stats.planner_attempts, self.stats.planner_step = len(found.attempts), found.step_name
             self.stats.planner_candidates = len(found.candidates)
@@ -352,7 +354,7 @@ class ClassicalPilot:
             tracking_max_m=float(dev.max()) if dev.size else math.nan,
             planner_margin_m=m.planner_m if m else math.nan, mpc_margin_m=m.mpc_m if m else math.nan,
             margin_source=m.source if m else "", planner_margin_floor_m=m.floor_m if m else math.nan,
-            planner_attempts=s.planner_attempts, planner_step=s.planner_step,
+            planner_attempts=s.planner_attempts, planner_step=s.planner_step, planner_wall_caps=s.planner_wall_caps,
             # measured on the truth by the scorer from `margins_in_force` (`compare.flying.promise`)
             clearance_over_margin_min=math.nan,
             **self._sensing_report())

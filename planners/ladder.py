@@ -134,6 +134,8 @@ class LadderResult:
         candidates: every exact path found, over every step's seeds, in order.
         durations_s: the judge's flight time of each of `candidates` [s] (empty without a judge).
         plan_time_s: wall time of the whole ladder: every plan and every judgement [s].
+        wall_caps: plans cut short by the planner's wall-time cap (`PlanResult.wall_cap_hit`): 0 unless the machine
+            was too slow or too loaded for the iteration budgets, when the result depends on it.
     """
 
     plan: PlanResult
@@ -146,6 +148,7 @@ class LadderResult:
     candidates: tuple[PlanResult, ...] = ()
     durations_s: tuple[float, ...] = ()
     plan_time_s: float = 0.0
+    wall_caps: int = 0
 
     @property
     def ok(self) -> bool:
@@ -204,12 +207,13 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
     names: list[str] = []
     found: list[_Found] = []
     tried: set[tuple] = set()
+    caps = 0  # plans cut by the wall-time cap
 
     def result(best: _Found) -> LadderResult:
         return LadderResult(best.plan, best.step, ladder[best.step - 1].name, tuple(attempts), best.margin_m,
                             best.tapers, None, tuple(f.plan for f in found),
                             tuple(f.duration_s for f in found) if judge is not None else (),
-                            time.perf_counter() - t0)
+                            time.perf_counter() - t0, caps)
 
     for i, step in enumerate(ladder, start=1):
         algorithm = step.algorithm or config.algorithm
@@ -232,6 +236,7 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         if plans[0].ok or shared:
             plans += [plan_path(city, start_m, goal_m, radius_m, cfg, seed=seed + k * CANDIDATE_SEED_STRIDE,
                                 tapers=used) for k in range(1, step.candidates)]
+        caps += sum(p.wall_cap_hit for p in plans)
         mine = [p for p in plans if p.ok]
         attempts.append(mine[0] if mine else plans[0])
         names.append(step.name)
@@ -263,4 +268,4 @@ def plan_with_escalation(city: BuildingMap, start_m: Sequence[float] | np.ndarra
         last = dataclasses.replace(last, message=f"no path at the floor margin {floor:.2f} m in {len(attempts)} "
                                                  f"attempts ({summary}); {verdict}; last: {last.message}")
     return LadderResult(last, 0, "", tuple(attempts), float(config.safety_margin_m), tuple(tapers), reach,
-                        plan_time_s=time.perf_counter() - t0)
+                        plan_time_s=time.perf_counter() - t0, wall_caps=caps)

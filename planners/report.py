@@ -36,6 +36,9 @@ class ClassicalReport:
             goal's zone) [m].
         planner_attempts: planning attempts at reset (`planners.ladder`; 1 = the first step found the
             path); planner_step: the step that found it ("" when none did).
+        planner_wall_caps: plans cut short by the planner's wall-time cap over the episode (`planners.ladder`): 0
+            unless the machine was too slow or too loaded for the iteration budgets; then the episode may not repeat
+            on another machine or load.
         clearance_over_margin_min: least, over the flight's physics steps, of the vehicle's true sphere clearance
             (to the true world's buildings and the ground) over the margin in force at its reference point at the
             time (the promise: >= 0.5) [-]; measured by the scorer (`compare.flying.promise.scored_report`), NaN
@@ -73,6 +76,7 @@ class ClassicalReport:
     planner_margin_floor_m: float = math.nan
     planner_attempts: int | float = math.nan
     planner_step: str = ""
+    planner_wall_caps: int | float = math.nan
     clearance_over_margin_min: float = math.nan
     replans_blocked: int | float = math.nan
     replans_uncertainty: int | float = math.nan
@@ -129,6 +133,7 @@ class ClassicalReport:
             planner_margin_m=num("planner_margin_m"), mpc_margin_m=num("mpc_margin_m"),
             margin_source=str(data.get("margin_source") or ""), planner_margin_floor_m=num("planner_margin_floor_m"),
             planner_attempts=num("planner_attempts"), planner_step=str(data.get("planner_step") or ""),
+            planner_wall_caps=num("planner_wall_caps"),
             clearance_over_margin_min=num("clearance_over_margin_min"),
             **{name: num(name) for name in _SENSING_FIELDS})
 

@@ -75,7 +75,29 @@ def print_summary(run_dir: Path) -> None:
             print("  " + paired_success_line(pair, part.power))
     if any("no CI)" in line for line in printed):
         print(NO_INTERVAL_NOTE)
+    note = wall_cap_note(run_dir)
+    if note:
+        print(note)
     _print_files(run_dir)
+
+
+def wall_cap_note(run_dir: Path) -> str:
+    """A line naming each pilot whose episodes had plans cut by the planner's wall-time cap (metrics.csv
+    `planner_wall_caps`): those episodes depend on the machine's speed and load; "" when none had."""
+    path = run_dir / "metrics.csv"
+    if not path.is_file():
+        return ""
+    cut: dict[str, list[int]] = {}
+    for r in read_metrics_csv(path):
+        counts = cut.setdefault(r.method, [0, 0])
+        counts[0] += int(math.isfinite(r.planner_wall_caps) and r.planner_wall_caps > 0)
+        counts[1] += 1
+    named = [f"{pilot} {n} of {total}" for pilot, (n, total) in cut.items() if n]
+    if not named:
+        return ""
+    return (f"note: episodes with plans cut by the planner's wall-time cap ({', '.join(named)}; metrics.csv "
+            f"planner_wall_caps): this machine was too slow or too loaded for their iteration budgets, and they may "
+            f"not repeat on another machine or load")
 
 
 def _table(blocks: list[tuple[str, Summary]]) -> list[str]:

@@ -60,6 +60,7 @@ SUMMARY_ROWS: tuple[tuple[str, str, float, int], ...] = (
     ("mpc_margin_m", "MPC clearance margin [m]", 1.0, 2),
     ("planner_margin_floor_m", "planner clearance margin at rest [m]", 1.0, 2),
     ("planner_attempts", "planning attempts at reset", 1.0, 2),
+    ("planner_wall_caps", "plans cut by the planner's wall-time cap", 1.0, 2),
     ("clearance_over_margin_min", "min clearance / margin in force", 1.0, 2),
 )
 

@@ -32,7 +32,7 @@ CLEARANCE_THRESHOLDS_M = (2.0, 5.0)
 
 TRACKER_METRICS = ("mpc_solve_ms_median", "mpc_solve_ms_p95", "mpc_failures", "replans_tracking",
                    "replans_clearance", "tracking_rms_m", "tracking_max_m", "planner_margin_m", "mpc_margin_m",
-                   "planner_margin_floor_m", "planner_attempts", "clearance_over_margin_min")
+                   "planner_margin_floor_m", "planner_attempts", "planner_wall_caps", "clearance_over_margin_min")
 """The classical pilot's tracker columns (NaN for a pilot without a tracker, e.g. ppo): summarised per
 pilot like the rest, but not paired (there is nothing to pair them with). Older metrics.csv files
 without them read as NaN."""
@@ -81,6 +81,9 @@ class EpisodeMetrics:
             speed, narrowing towards the start and goal) [m].
         planner_attempts: planning attempts at reset until a path was found (1: the first planner;
             more: the escalation ladder of `planners.ladder` climbed) [count].
+        planner_wall_caps: plans cut short by the planner's wall-time cap, at reset and in flight [count]: 0 unless
+            the machine was too slow or too loaded for the iteration budgets; above 0 the episode may not repeat on
+            another machine or load.
         clearance_over_margin_min: least, over the physics steps, of the vehicle's true clearance over the margin
             in force at its reference point (the promise: >= 0.5; `compare.flying.promise`) [-].
         vehicle_fingerprint: the vehicle's fingerprint ("" where the episode file did not record it). Rows of
@@ -175,6 +178,7 @@ class EpisodeMetrics:
     cleared_prior_parts: float = math.nan
     improvements_tried: float = math.nan
     improvements_taken: float = math.nan
+    planner_wall_caps: float = math.nan  # last: the columns before keep their order
 
 
 COLUMNS = tuple(f.name for f in fields(EpisodeMetrics))
@@ -310,7 +314,7 @@ def _tracker_fields(report: PilotReport | None) -> dict[str, float]:
             "replans_clearance": float(r.replans_clearance), "tracking_rms_m": float(r.tracking_rms_m),
             "tracking_max_m": float(r.tracking_max_m), "planner_margin_m": float(r.planner_margin_m),
             "mpc_margin_m": float(r.mpc_margin_m), "planner_margin_floor_m": float(r.planner_margin_floor_m),
-            "planner_attempts": float(r.planner_attempts),
+            "planner_attempts": float(r.planner_attempts), "planner_wall_caps": float(r.planner_wall_caps),
             "clearance_over_margin_min": float(r.clearance_over_margin_min),
             **{name: float(getattr(r, name)) for name in MAPPING_METRICS}}
 

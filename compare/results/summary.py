@@ -627,6 +627,7 @@ _TABLE_COLUMNS: dict[str, tuple[str, Callable[[float], str]]] = {
     "mpc_margin_m": ("MPC margin [m]", _fixed(2)),
     "planner_margin_floor_m": ("planner margin at rest [m]", _fixed(2)),
     "planner_attempts": ("planning attempts", _fixed(2)),
+    "planner_wall_caps": ("plans cut by the wall-time cap", _fixed(2)),
     "clearance_over_margin_min": ("min clearance / local margin", _fixed(2)),
 }
 

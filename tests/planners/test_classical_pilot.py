@@ -165,7 +165,7 @@ def test_a_goal_inside_the_cruise_margin_but_reachable_is_reached(name, z, vehic
     report = scored_report(pilot, traj)
     assert traj.outcome == "success", traj.detail
     assert math.isnan(pilot.episode_report().clearance_over_margin_min)  # the pilot does not see the truth
-    assert report.planner_attempts == 3 and report.planner_step == LADDER[2].name
+    assert report.planner_attempts == 3 and report.planner_step == LADDER[2].name and report.planner_wall_caps == 0
     assert report.planner_margin_floor_m == 1.0 and report.planner_margin_m == 4.0
     assert traj.clearance_m.min() >= 0.5 and report.clearance_over_margin_min >= 0.5
     # in the alley (3 m beyond the sphere) the reference keeps to the speed whose margin fits: 6 m/s

@@ -181,3 +181,28 @@ def test_a_path_too_slow_for_the_time_left_climbs_on_and_the_fastest_is_flown():
     easy = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal),
                                 ladder=single, judge=_length_judge([]), time_available_s=found.durations_s[0])
     assert easy.step == 1 and len(easy.attempts) == 1
+
+
+def test_plans_cut_by_the_wall_cap_are_counted(monkeypatch: pytest.MonkeyPatch):
+    """Every plan the wall-time cap cut is counted (the episode may not repeat on another machine), whichever step
+    it belonged to and whether or not a later one found the path; none are counted when none were cut."""
+    import planners.ladder as ladder
+
+    city, start, goal = alley_city(R_QUAD)
+    real = ladder.plan_path
+    calls: list[int] = []
+
+    def second_capped(*args, **kwargs):
+        plan = real(*args, **kwargs)
+        calls.append(1)
+        return dataclasses.replace(plan, wall_cap_hit=True) if len(calls) == 2 else plan
+
+    plain = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert plain.ok and plain.wall_caps == 0
+    monkeypatch.setattr(ladder, "plan_path", second_capped)
+    found = plan_with_escalation(city, start, goal, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, goal))
+    assert found.ok and found.step == 3 and len(calls) > 2 and found.wall_caps == 1
+    calls[:] = [1]  # the next plan is cut
+    below = (0.0, 0.0, -5.0)  # an invalid goal: a failure reports its count too
+    failed = plan_with_escalation(city, start, below, R_QUAD, CONFIG, 0, MARGINS.floor_m, _tapers(start, below))
+    assert not failed.ok and len(calls) == 2 and failed.wall_caps == 1

@@ -115,7 +115,7 @@ TRACKER = {"mpc_solve_ms_median": 1.25, "mpc_solve_ms_p95": 2.5, "mpc_failures":
            "clearance_over_margin_min": 0.625, "replans_blocked": 1, "replans_uncertainty": 0, "hover_holds": 0,
            "replan_ms_median": 120.0, "replan_ms_p95": 300.0, "map_update_ms_median": 8.5,
            "uncertainty_margin_max_m": 0.875, "sensed_obstacles": 4, "cleared_prior_parts": 1,
-           "improvements_tried": 3, "improvements_taken": 1}
+           "improvements_tried": 3, "improvements_taken": 1, "planner_wall_caps": 1}
 
 
 def _save_with_extra(tmp_path, extra: dict, pilot: str = "rrt_mpc") -> SavedEpisode:
@@ -296,7 +296,7 @@ def test_csv_columns_are_the_contract_order():
         "est_nees_in_bounds", "unmapped_sensed", "unmapped_first_sensed_m_min", "unmapped_first_sensed_m_median",
         "replans_blocked", "replans_uncertainty", "hover_holds", "replan_ms_median", "replan_ms_p95",
         "map_update_ms_median", "uncertainty_margin_max_m", "sensed_obstacles", "cleared_prior_parts",
-        "improvements_tried", "improvements_taken")
+        "improvements_tried", "improvements_taken", "planner_wall_caps")
 
 
 def test_csv_round_trip_is_exact_and_sorted(tmp_path):
@@ -526,3 +526,17 @@ def test_pilots_table():
     assert ppo["plan time [s]"] == "n/a"
     # 9 successes: below MIN_INTERVAL_N, the mean and its n, no bootstrap interval
     assert ppo["time [s] (successes)"] == f"{np.mean([10.0 + e for e in range(10) if e != 3]):.1f} (n=9, no CI)"
+
+
+def test_a_run_whose_plans_hit_the_wall_cap_says_so(tmp_path):
+    """The run's printout names each pilot with episodes whose plans the wall-time cap cut (they may not repeat);
+    nothing when none had, or for a run without the column (NaN)."""
+    from compare.cli.printout import wall_cap_note
+
+    assert wall_cap_note(tmp_path) == ""  # no metrics.csv
+    clean = [row("rrt_mpc", 0, planner_wall_caps=0.0), row("ppo", 0), row("rrt_mpc", 1)]
+    write_metrics_csv(clean, tmp_path / "metrics.csv")
+    assert wall_cap_note(tmp_path) == ""
+    write_metrics_csv([*clean, row("rrt_mpc", 2, planner_wall_caps=3.0)], tmp_path / "metrics.csv")
+    note = wall_cap_note(tmp_path)
+    assert "rrt_mpc 1 of 3" in note and "ppo" not in note and "planner_wall_caps" in note
