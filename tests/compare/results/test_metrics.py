@@ -159,9 +159,12 @@ def test_tracker_columns_come_from_the_episode_report(tmp_path):
 
 def test_a_metrics_csv_without_the_tracker_columns_still_reads(tmp_path):
     lines = write_metrics_csv([row("rrt_mpc")], tmp_path / "new.csv").read_text().splitlines()
-    later = (*M.TRACKER_METRICS, "vehicle_fingerprint", "sensing", "map_error", *M.SENSING_METRICS, *M.MAPPING_METRICS)
+    # the columns older files lack are last, in the order they came (`planner_wall_caps` after the sensing ones)
+    tracker = tuple(m for m in M.TRACKER_METRICS if m != "planner_wall_caps")
+    later = (*tracker, "vehicle_fingerprint", "sensing", "map_error", *M.SENSING_METRICS, *M.MAPPING_METRICS,
+             "planner_wall_caps")
     n = len(COLUMNS) - len(later)
-    assert COLUMNS[n:] == later  # the columns older files lack are last
+    assert COLUMNS[n:] == later
     old = tmp_path / "old.csv"
     old.write_text("\n".join(",".join(line.split(",")[:n]) for line in lines) + "\n")
     (r,) = read_metrics_csv(old)
