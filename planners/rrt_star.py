@@ -60,7 +60,9 @@ class PlannerConfig:
             time budget of `time_budget_s` (not reproducible).  RRTConnect stops at its first
             solution either way.
         time_budget_s: with an iteration budget, the wall-time safety cap (reported in
-            `PlanResult.wall_cap_hit`); without one, the time budget [s].
+            `PlanResult.wall_cap_hit`); without one, the time budget [s]. A plan the cap cuts is another plan, and
+            an episode another episode, on a slower or busier machine: 30 s is a net that should never fire (the
+            pilot's slowest plan took 1.85 s on a busy machine; docs/planner.md, "After the round").
         safety_margin_m: clearance required beyond the vehicle's collision radius [m].
         goal_tolerance_m: OMPL's goal threshold [m]; the returned path always ends exactly at
             the goal when that last piece is free.
@@ -82,7 +84,7 @@ class PlannerConfig:
 
     algorithm: str = "informed_rrtstar"
     max_iterations: int | None = 0
-    time_budget_s: float = 5.0
+    time_budget_s: float = 30.0
     safety_margin_m: float = 1.0
     goal_tolerance_m: float = 0.5
     simplify: bool = True
