@@ -270,7 +270,8 @@ class ClassicalPilot:
         moving = 0.0 if velocity_m_s is None else float(np.linalg.norm(velocity_m_s))
         # the reference changes speed by at most the horizontal and vertical limits together
         accel = math.hypot(limits.max_accel_m_s2, limits.max_vertical_accel_m_s2)
-        ends = [(start, moving), (np.asarray(task.goal_m, float), 0.0)]
+        goal = self._goal_in_known(radius)
+        ends = [(start, moving), (goal, 0.0)]
         if lead_in is not None:
             ends.append((np.asarray(lead_in, float), moving))
         tapers = tuple(MarginTaper((float(p[0]), float(p[1]), float(p[2])), *by_speed.taper(accel, v0))
@@ -294,7 +295,7 @@ class ClassicalPilot:
             time_left, ladder = math.inf, cfg.in_flight_ladder
             if self._on_floor and not faster:  # the speed margins did not fit this route before: no budget on them
                 ladder = tuple(step for step in ladder if step.floor_margin) or ladder
-        found = plan_with_escalation(self._known, start, task.goal_m, radius, self._planner_cfg,
+        found = plan_with_escalation(self._known, start, goal, radius, self._planner_cfg,
                                      seed=(self._seed + sum(self.stats.replans_by_cause.values()) + self._retries
                                            + self.stats.improvements_tried),
                                      floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=ladder, judge=judge,
@@ -323,6 +324,29 @@ class ClassicalPilot:
             if zone > 0.0:
                 self._promise_ends.append((end, zone, r_e - radius))
         return True, "ok", ""
+
+    def _goal_in_known(self, radius_m: float) -> np.ndarray:
+        """Where to plan to (ENU m): the task's goal when the vehicle's sphere (`radius_m` [m]) is clear there in what
+        the pilot knows; else, the arrival being anywhere within the goal radius, the clearest point of that region's
+        inner part (`GOAL_REGION_FRACTION` of the radius, `goal_region_points`; a sensed wall's voxels and columns
+        stand up to a few metres proud of the real one and can swallow a goal beside it); the goal itself when no
+        point there is clear (the planner then says so)."""
+        task = self._task
+        goal = np.asarray(task.goal_m, float)
+        known = self._known.planning_map()
+        if known.clearance_one(float(goal[0]), float(goal[1]), float(goal[2]), radius_m) > 0.0:
+            return goal
+        points = goal_region_points(goal, GOAL_REGION_FRACTION * task.goal_radius_m)
+        points = points[known.in_bounds(points, radius_m)]
+        if not len(points):
+            return goal
+        clearance = known.clearance(points, radius_m).distance_m
+        best = int(np.argmax(clearance))
+        if clearance[best] <= 0.0:
+            return goal
+        log.info("the goal is inside what the pilot knows: planning to %s, %.1f m from it",
+                 np.round(points[best], 2).tolist(), float(np.linalg.norm(points[best] - goal)))
+        return points[best]
 
     def _reference(self, plan: PlanResult, limits: TimingLimits, margin_m: float,
                    tapers: tuple[MarginTaper, ...], velocity_m_s: np.ndarray | None) -> Reference:
@@ -760,6 +784,21 @@ class ClassicalPilot:
         s.mpc_solve_times_s.append(sol.solve_time_s)
         s.mpc_iterations.append(sol.iterations)
         s.mpc_statuses[sol.status] = s.mpc_statuses.get(sol.status, 0) + 1
+
+
+GOAL_REGION_FRACTION = 0.6
+"""A goal swallowed by what the pilot knows is replaced by a point within this fraction of the goal radius (the rest
+of the radius is left for tracking error at arrival)."""
+
+
+def goal_region_points(goal_m: np.ndarray, reach_m: float, shells: int = 4) -> np.ndarray:
+    """Candidate points around a goal (3,) [m], ENU: on `shells` spheres out to `reach_m` [m], each along the 26
+    directions to a cube's faces, edges and corners (nearest shell first, a fixed order): (26 * shells, 3)."""
+    steps = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)],
+                     dtype=float)
+    units = steps / np.linalg.norm(steps, axis=1)[:, None]
+    radii = reach_m * np.arange(1, shells + 1) / shells
+    return (np.asarray(goal_m, float)[None, None, :] + radii[:, None, None] * units[None, :, :]).reshape(-1, 3)
 
 
 def position_sigma_m(covariance: np.ndarray) -> float:

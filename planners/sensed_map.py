@@ -18,7 +18,8 @@ what the prior map predicts along the same beam (Embree, `uam_fdm.sensing.raycas
 
 Returns on the ground (below `ground_band_m` plus 3 σ) are left out: the prior knows the ground. `fused()` gives the
 map the pilot plans and tracks on: the prior parts not cleared, grown to cover the occupied voxels next to them (a
-survey's footprint and height errors, `grown_parts`), and the other occupied voxels as obstacles standing on the
+survey's footprint and height errors, `grown_parts`), their faces surveyed proud of what the beams found behind them
+moved in (`shrunk_parts`, `MappingConfig.face_returns`), and the other occupied voxels as obstacles standing on the
 ground (2.5-D columns of `column_m`, each as tall as its highest voxel, equal neighbouring columns merged into boxes;
 what lies above a column is taken as free, as all unseen space is, unless `open_above_m` holds an unmapped obstacle's
 column taller where the lidar's highest beam ended on it; a prior part's height stands above what was seen of it). It
@@ -79,6 +80,10 @@ class MappingConfig:
             the pilot replans. Measured on tuning legs (docs/planner.md): 10 m held the vehicle out of streets it
             could fly and, once its reference ran above such a column, inside an obstacle it could not plan out of;
             the flight volume's top (the earliest rule) closed whole districts seen from low down.
+        face_returns: a box part's wall (or roof) surveyed proud of the building is moved in to the real face once
+            this many returns landed on that face inside the surveyed part, to the least deep of them less 3 σ of the
+            estimate's position (`shrunk_parts`; the `wrong` preset shifts footprints by up to 3 m, which left a
+            surveyed face standing in the street); 0: parts keep their surveyed faces.
     """
 
     resolution_m: float = 1.0
@@ -96,6 +101,7 @@ class MappingConfig:
     attach_height_m: float = 10.0
     attach_cover: float = 0.5
     open_above_m: float = 0.0
+    face_returns: int = 5
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m", "column_m",
@@ -113,6 +119,8 @@ class MappingConfig:
         if abs(voxels - round(voxels)) > 1e-9 or round(voxels) < 1:
             raise ValueError(f"MappingConfig.column_m must be a whole number of voxels ({self.resolution_m} m), got "
                              f"{self.column_m!r}")
+        if self.face_returns < 0:
+            raise ValueError(f"MappingConfig.face_returns must be >= 0, got {self.face_returns!r}")
         if self.clear_beams < 1 or self.carve_stride < 1:
             raise ValueError(f"MappingConfig.clear_beams and carve_stride must be >= 1, got {self.clear_beams}, "
                              f"{self.carve_stride}")
@@ -192,6 +200,13 @@ class SensedMap:
         self._confirmed = np.zeros(len(prior.buildings), dtype=np.int64)  # beams ending on or in each part
         self._through_core = np.zeros(len(prior.buildings), dtype=np.int64)  # beams through its core
         self._cleared = np.zeros(len(prior.buildings), dtype=bool)
+        # per part, walls 0-3 (its footprint's edges) and roof (4): returns on the real face inside the surveyed
+        # part, and the least depth [m] of them behind the surveyed face (less 3 σ), for `shrunk_parts`
+        self._box_part = np.array([_ground_box(p) for p in prior.buildings], dtype=bool)
+        self._face_hits = np.zeros((len(prior.buildings), 5), dtype=np.int64)
+        self._face_depth = np.full((len(prior.buildings), 5), np.inf)
+        self._face_deepest = np.full((len(prior.buildings), 5), -np.inf)  # the deepest of them (plus 3 σ)
+        self._face_confirmed = np.zeros((len(prior.buildings), 5), dtype=np.int64)  # returns on the surveyed face
         self._keys = np.zeros(0, dtype=np.int64)  # packed keys of the voxels ever marked unexplained, sorted
         # per key a row (`_Rows`, in the order first marked; `_slot`, aligned with `_keys`, gives each key's): its
         # centre, whether the octree held it occupied when last searched, its prior part. A key is searched again
@@ -235,14 +250,23 @@ class SensedMap:
         short = above & (ranges < expected - cfg.front_tolerance_m - spread)
         through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
         rows = np.flatnonzero(through)
+        faces_moved = False
+        behind = np.zeros_like(through)  # returns on a part's real face, behind its surveyed one
         if len(rows):  # a return inside the part it passed is that part's real face, surveyed a little off
             inside = self._outside_m(points[rows], part[rows]) <= cfg.through_tolerance_m + spread
+            if cfg.face_returns and np.any(inside):
+                at = rows[inside]
+                faces_moved = self._note_faces(origin + dirs[at] * expected[at, None], points[at], part[at], spread)
+            behind[rows[inside]] = True
             through[rows[inside]] = False
             rows = rows[~inside]
         on_part = above & (part >= 0) & ~short & ~through  # ends on a prior part's surface, within the tolerances
         n_parts = len(self._through)
         if np.any(on_part):
             self._confirmed += np.bincount(part[on_part], minlength=n_parts)
+            on_face = on_part & ~behind
+            if cfg.face_returns and np.any(on_face):
+                faces_moved |= self._note_confirmed(points[on_face], part[on_face])
         cleared: list[int] = []
         if len(rows):
             self._through += np.bincount(part[rows], minlength=n_parts)
@@ -276,9 +300,58 @@ class SensedMap:
             self._slot = np.insert(self._slot, at, self._rows.append(centres, self._owners(centres)))
         if cleared:  # a part taken out owns nothing: the keys it owned may belong to a neighbour
             self._rows.owner[:] = self._owners(self._rows.centres)
-        if len(fresh) or cleared:
+        if len(fresh) or cleared or faces_moved:
             self._fused = None
         return ScanUpdate((unpack_keys(fresh) + 0.5) * res, tuple(cleared))
+
+    def _note_faces(self, entries_m: np.ndarray, points_m: np.ndarray, parts: np.ndarray, spread_m: float) -> bool:
+        """Count returns (M, 3) [m] that ended inside their prior part (M,) against the surveyed face their beam
+        entered it by (the one its entry point (M, 3) [m] lies on: a box part's walls and roof), keeping each face's
+        least depth of them behind it less `spread_m` [m]; True when a face's move (`face_moves_m`) changed."""
+        keep = self._box_part[parts]
+        j = parts[keep]
+        if not len(j):
+            return False
+        before = self.face_moves_m()
+        face = np.argmin(np.abs(self._face_depths(entries_m[keep], j)), axis=1)
+        depth = self._face_depths(points_m[keep], j)[np.arange(len(j)), face]
+        np.add.at(self._face_hits, (j, face), 1)
+        np.minimum.at(self._face_depth, (j, face), depth - spread_m)
+        np.maximum.at(self._face_deepest, (j, face), depth + spread_m)
+        return not np.array_equal(before, self.face_moves_m())
+
+    def _note_confirmed(self, points_m: np.ndarray, parts: np.ndarray) -> bool:
+        """Count returns (M, 3) [m] on their box part's (M,) surveyed surface against the face they lie on; True
+        when a face's move changed (a confirmed face stays where it was surveyed)."""
+        keep = self._box_part[parts]
+        j = parts[keep]
+        if not len(j):
+            return False
+        before = self.face_moves_m()
+        face = np.argmin(np.abs(self._face_depths(points_m[keep], j)), axis=1)
+        np.add.at(self._face_confirmed, (j, face), 1)
+        return not np.array_equal(before, self.face_moves_m())
+
+    def _face_depths(self, points_m: np.ndarray, parts: np.ndarray) -> np.ndarray:
+        """How far each point (M, 3) [m] lies behind each of its box part's (M,) walls 0-3 and roof (M, 5) [m]."""
+        planes = self._planes[parts][:, :4]
+        depth = np.empty((len(parts), 5))
+        depth[:, :4] = planes[:, :, 2] - (planes[:, :, 0] * points_m[:, 0:1] + planes[:, :, 1] * points_m[:, 1:2])
+        depth[:, 4] = self._heights[parts, 1] - points_m[:, 2]
+        return depth
+
+    def face_moves_m(self) -> np.ndarray:
+        """How far each prior part's walls 0-3 and roof (P, 5) are moved in [m] (`MappingConfig.face_returns`): to
+        the least deep return behind the face, once at least `face_returns` came, fewer returns confirmed the face
+        where it was surveyed than `confirm_ratio` of them, and they lie on one plane parallel to it (their depths
+        within `through_tolerance_m`): returns spread in depth entered by one face and ended on another (a roof
+        surveyed too high, seen through the top of a wall)."""
+        cfg = self.config
+        if cfg.face_returns == 0:
+            return np.zeros_like(self._face_depth)
+        move = ((self._face_hits >= cfg.face_returns) & (self._face_confirmed < cfg.confirm_ratio * self._face_hits)
+                & (self._face_deepest - self._face_depth <= cfg.through_tolerance_m))
+        return np.where(move, np.maximum(self._face_depth, 0.0), 0.0)
 
     def _owners(self, centres_m: np.ndarray) -> np.ndarray:
         cfg = self.config
@@ -380,8 +453,8 @@ class SensedMap:
         held = self._held_slots()
         voxels = self._rows.centres[held]
         cfg = self.config
-        grown, attached = grown_parts(prior.buildings, voxels, res, cfg.attach_m, cfg.attach_height_m,
-                                      cfg.attach_cover, self._rows.owner[held])
+        grown, attached = grown_parts(shrunk_parts(prior.buildings, self.face_moves_m()), voxels, res, cfg.attach_m,
+                                      cfg.attach_height_m, cfg.attach_cover, self._rows.owner[held])
         kept = tuple(p for p, gone in zip(grown, self._cleared, strict=True) if not gone)
         voxels = voxels[~attached]
         # a part the prior has keeps the prior's height above what was seen of it; only an obstacle the prior lacks
@@ -456,6 +529,48 @@ def part_owners(parts: Sequence[Obstacle], voxels_m: np.ndarray, resolution_m: f
         found = np.isfinite(gap[np.arange(len(best)), best])
         owner[a:a + chunk][found] = index[best[found]]
     return owner
+
+
+def _ground_box(part: Obstacle) -> bool:
+    """A box standing on the ground (a `Building` with a base of 0): the parts whose faces `shrunk_parts` moves."""
+    return isinstance(part, Building) and part.base_m <= 0.0
+
+
+_MIN_PART_M = 1.0  # a part moved in keeps at least this width, depth and height [m]
+
+
+def shrunk_parts(parts: Sequence[Obstacle], moves_m: np.ndarray) -> tuple:
+    """The parts with each ground-standing box's walls (its footprint's edges 0-3, counter-clockwise) and roof (4)
+    moved in by `moves_m` (P, 5) [m], each dimension kept at least 1 m; other parts as they are."""
+    out = list(parts)
+    for j in np.flatnonzero(np.any(moves_m > 0.0, axis=1)).tolist():
+        part = out[j]
+        if not _ground_box(part):
+            continue
+        ring = np.asarray(part.footprint_xy_m(), float)
+        edge = np.roll(ring, -1, axis=0) - ring
+        co, si = math.cos(part.yaw_rad), math.sin(part.yaw_rad)
+        # each edge's outward normal in the part's frame: +x, +y, -x or -y
+        nx, ny = edge[:, 1] * co - edge[:, 0] * si, -edge[:, 1] * si - edge[:, 0] * co
+        half = 0.5 * np.asarray(part.size_xy_m, float)
+        lo, hi = -half.copy(), half.copy()
+        for k in range(4):
+            axis = 0 if abs(nx[k]) >= abs(ny[k]) else 1
+            outward = nx[k] if axis == 0 else ny[k]
+            if outward > 0:
+                hi[axis] -= moves_m[j, k]
+            else:
+                lo[axis] += moves_m[j, k]
+        for axis in (0, 1):  # never thinner than the minimum, shrunk about what is left
+            if hi[axis] - lo[axis] < _MIN_PART_M:
+                mid = 0.5 * (lo[axis] + hi[axis])
+                lo[axis], hi[axis] = mid - 0.5 * _MIN_PART_M, mid + 0.5 * _MIN_PART_M
+        mx, my = 0.5 * (lo + hi)
+        centre = (float(part.center_xy_m[0] + mx * co - my * si), float(part.center_xy_m[1] + mx * si + my * co))
+        height = max(float(part.height_m) - float(moves_m[j, 4]), _MIN_PART_M)
+        out[j] = dataclasses.replace(part, center_xy_m=centre, size_xy_m=(float(hi[0] - lo[0]), float(hi[1] - lo[1])),
+                                     height_m=height)
+    return tuple(out)
 
 
 def grown_parts(parts: tuple, voxels_m: np.ndarray, resolution_m: float, attach_m: float, attach_height_m: float,

@@ -435,3 +435,23 @@ def test_a_stop_that_would_end_in_a_wall_sensed_since_plans_from_where_the_vehic
     # clear of what the pilot knows (the wall's unseen top is free to it: a path over it is replanned as the
     # climb brings the rest of the face into view)
     assert pilot._known.clearance(new.pos_m, p.collision_radius_m).distance_m.min() > 0.0
+
+
+def test_a_goal_swallowed_by_what_the_pilot_knows_is_replaced_by_a_clear_point_of_the_goal_region():
+    """Arrival counts anywhere within the goal radius; a sensed wall standing proud of the real one (quantised to
+    voxels and columns) can cover the goal itself (validation leg quad-016/8 held 5 m from it for 42 s). The pilot
+    plans to the clearest point within 0.6 of the radius; a goal clear in its map is kept as it is."""
+    from planners.classical_pilot import GOAL_REGION_FRACTION, goal_region_points
+
+    points = goal_region_points(np.array([10.0, 20.0, 30.0]), 1.8)
+    distances = np.linalg.norm(points - [10.0, 20.0, 30.0], axis=1)
+    assert points.shape == (104, 3) and np.allclose(distances[:26], 0.45) and np.allclose(distances[-26:], 1.8)
+    pilot = ClassicalPilot()
+    wall = Building(1, (52.0, 40.0), (4.0, 20.0), 30.0)  # its face at x = 50
+    pilot._known = BuildingMap([wall], np.zeros(3), np.array([100.0, 80.0, 40.0]))
+    for goal, kept in (((50.5, 40.0, 10.0), False), ((45.0, 40.0, 10.0), True)):
+        pilot._task = Task(start_m=(10.0, 40.0, 10.0), goal_m=goal, goal_radius_m=3.0)
+        chosen = pilot._goal_in_known(0.42)
+        assert np.array_equal(chosen, goal) == kept
+        assert pilot._known.clearance_one(*chosen, 0.42) > 0.0
+        assert np.linalg.norm(chosen - np.asarray(goal)) <= GOAL_REGION_FRACTION * 3.0 + 1e-9

@@ -263,6 +263,47 @@ def test_a_prior_part_surveyed_too_tall_stays_though_beams_pass_over_the_real_ro
     assert sensed.fused().obstacle_clearance_m(np.array([[160.0, 100.0, 20.0]]))[0] <= 0.0
 
 
+def test_a_surveyed_face_standing_proud_of_the_building_is_moved_in_to_it():
+    """The survey has a building 3 m off towards the vehicle (the `wrong` preset's shift): the returns on its real
+    face land 3 m behind the surveyed one, inside the part. The wall is moved in to them (less 3 sigma), so the
+    street in front is open again, and the real building stays whole; without the rule the surveyed face stands."""
+    real = Building(4, (130.0, 100.0), (20.0, 12.0), 30.0)
+    surveyed = Building(4, (127.0, 100.0), (20.0, 12.0), 30.0)  # its -x face 3 m proud of the real one
+    world, prior = BuildingMap([real], LO, HI), BuildingMap([surveyed], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(5))
+    p = np.array([95.0, 100.0, 15.0])
+    proud = np.array([[118.0, 100.0, 10.0]])  # between the surveyed and the real -x face
+    for cfg, moved in ((MappingConfig(), True), (MappingConfig(face_returns=0), False)):
+        sensed = SensedMap(prior, cfg, VLP16.max_range_m)
+        for _ in range(3):
+            sensed.integrate(lidar.scan(0.0, p, np.eye(3))[0], _state(p), 0.1)
+        fused = sensed.fused()
+        assert (fused.obstacle_clearance_m(proud)[0] > 0.0) == moved
+        inside_real = np.array([[120.05, 100.0, 10.0], [136.9, 105.9, 29.9], [130.0, 94.1, 0.5]])  # and surveyed
+        assert np.all(fused.obstacle_clearance_m(inside_real) <= 0.0)  # never cut into the building
+        moves = sensed.face_moves_m()[0]
+        if moved:  # only the -x wall, by the 3 m less 3 sigma and the range noise
+            assert np.count_nonzero(moves) == 1 and 2.5 <= moves.max() <= 3.0
+
+
+def test_beams_over_a_roof_surveyed_too_high_do_not_move_the_wall_they_entered_by():
+    """Seen from beside and above, beams enter a part surveyed 12 m too tall by the top of its wall and end on its
+    real roof at every depth behind that wall: no plane parallel to the wall explains them, and the wall, confirmed
+    lower down, stays where it was surveyed (moved in, it would cut the real building)."""
+    real = Building(5, (160.0, 100.0), (20.0, 20.0), 30.0)
+    surveyed = Building(5, (160.0, 100.0), (20.0, 20.0), 42.0)
+    known = Building(6, (120.0, 60.0), (10.0, 10.0), 40.0)
+    world, prior = BuildingMap([real, known], LO, HI), BuildingMap([surveyed, known], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(6))
+    sensed = SensedMap(prior, MappingConfig(), VLP16.max_range_m)
+    for p in (np.array([100.0, 100.0, 45.0]), np.array([160.0, 160.0, 48.0])):
+        for _ in range(3):
+            sensed.integrate(lidar.scan(0.0, p, np.eye(3))[0], _state(p), 0.1)
+    assert sensed._face_hits[0].sum() > 500  # many returns behind the surveyed walls
+    assert np.all(sensed.face_moves_m() == 0.0)
+    assert sensed.fused().buildings[0] == surveyed
+
+
 def _held_by_search(sensed: SensedMap) -> np.ndarray:
     """Every key the octree holds occupied, searched one by one (what `occupied_voxels_m` caches)."""
     centres = (unpack_keys(sensed._keys) + 0.5) * sensed.config.resolution_m
