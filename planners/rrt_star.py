@@ -462,8 +462,20 @@ def plan_path(city: BuildingMap, start_m: Sequence[float] | np.ndarray, goal_m: 
     lo = np.minimum(lo, np.minimum(start, goal))
     hi = np.maximum(hi, np.maximum(start, goal))
 
-    with _ompl_log_silenced():
-        solved = _solve(free, lo, hi, start, goal, config, int(seed))
+    if math.dist(start, goal) <= config.goal_tolerance_m:
+        # already at the goal (a replan from where the vehicle holds on it): OMPL's informed sampling raises when its
+        # foci coincide, and the one path is the straight piece
+        path = np.array([start, goal])
+        solved = _Solved(solve_time_s=0.0, progress=_Progress(first_time_s=0.0, first_iterations=0,
+                                                               first_cost=math.dist(start, goal)),
+                         status="Exact solution", exact=True, approximate=False, path=path, raw_path=path.copy(),
+                         ompl_clearance=math.nan, motion_checks=0, simplify_polls=0)
+    else:
+        try:
+            with _ompl_log_silenced():
+                solved = _solve(free, lo, hi, start, goal, config, int(seed))
+        except RuntimeError as e:  # OMPL's own failure is this query's failure, not the caller's crash
+            return _failed("no_solution", f"OMPL raised: {e}", t_start, common)
     result = _result(solved, free, goal, config, t_start, common)
     logger.debug("plan %s seed %d: %s, %.1f m, %d it, %.3f s", config.algorithm, seed, result.status,
                  result.length_m, result.iterations, result.plan_time_s)

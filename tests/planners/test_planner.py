@@ -195,6 +195,15 @@ def test_an_iteration_budget_plans_the_same_on_a_slower_machine(monkeypatch):
     np.testing.assert_array_equal(there.path_m, here.path_m)
 
 
+def test_a_plan_from_the_goal_itself_is_the_straight_piece_to_it():
+    """A replan from where the vehicle holds on its goal: InformedRRT*'s sampler raised on coinciding foci and ended
+    the validation cell quad-003/8 with an error; within the goal tolerance the path is the straight piece."""
+    goal = (20.0, 50.0, 10.0)
+    for start in (goal, (20.3, 50.0, 10.0)):
+        r = plan_path(gap_map(), start, goal, R_QUAD, PlannerConfig(max_iterations=2000), seed=0)
+        assert r.ok and r.iterations == 0 and np.array_equal(r.path_m[-1], goal) and r.length_m < 0.31
+
+
 def test_start_inside_the_margin_is_relaxed_not_rejected():
     city = wall_map()
     start = (50.0 + 0.1 + R_QUAD + 0.4, 40.0, 10.0)  # 0.4 m from the wall: collision-free, inside the 1 m margin
