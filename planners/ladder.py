@@ -100,10 +100,10 @@ LADDER: tuple[PlanStep, ...] = (
 )
 
 
-IN_FLIGHT_ITERATIONS = 2000
+IN_FLIGHT_ITERATIONS = 3000
 """The configured planner's iteration budget for a replan in flight: one seed (the reset's plan shares twice 5,000
-over two). Chosen on 91 in-flight queries of validation legs replayed at 1,000-3,000 (docs/planner.md, "The in-flight
-budget"): 2,000 finds 84 exact paths against 3,000's 85, 2.7 % longer on average, with a third fewer motion checks."""
+over two). 2,000 was tried (docs/planner.md, "After the round"): on replayed queries its paths were 2.7 % longer for a
+third fewer motion checks, but flown, validation legs it had arrived on collided or timed out."""
 
 # a replan in flight: the same steps with one seed each, the optimising planner's budget cut to fit the time the
 # vehicle brakes meanwhile, and the last one at twice the quick budget, not four times: a pilot that finds nothing

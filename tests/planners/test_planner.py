@@ -178,7 +178,7 @@ def test_unreachable_goal_and_wall_cap_are_statuses():
 
 def test_an_iteration_budget_plans_the_same_on_a_slower_machine(monkeypatch):
     """The wall-time cap is a safety net: a machine three times slower than this one (a clock that runs on 3 ms per
-    termination poll, so the in-flight budget "takes" over 6 s) plans the same path, uncut."""
+    termination poll, so the in-flight budget "takes" over 9 s) plans the same path, uncut."""
     import types
 
     import planners.rrt_star as rrt_star_module
@@ -190,7 +190,7 @@ def test_an_iteration_budget_plans_the_same_on_a_slower_machine(monkeypatch):
     slow = types.SimpleNamespace(perf_counter=lambda: 0.003 * next(ticks))
     monkeypatch.setattr(rrt_star_module, "time", slow)
     there = plan_path(gap_map(), (20, 50, 10), (80, 50, 10), R_QUAD, config, seed=4)
-    assert next(ticks) > 2000 and not there.wall_cap_hit  # over 6 s of its clock
+    assert next(ticks) > 3000 and not there.wall_cap_hit  # over 9 s of its clock
     assert here.ok and there.status == here.status and there.iterations == here.iterations
     np.testing.assert_array_equal(there.path_m, here.path_m)
 
