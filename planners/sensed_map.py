@@ -31,6 +31,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 import octomap
@@ -250,13 +251,13 @@ class SensedMap:
         short = above & (ranges < expected - cfg.front_tolerance_m - spread)
         through = (part >= 0) & (ranges > expected + cfg.through_tolerance_m + spread)
         rows = np.flatnonzero(through)
-        faces_moved = False
+        moves_before = self.face_moves_m() if cfg.face_returns else None
         behind = np.zeros_like(through)  # returns on a part's real face, behind its surveyed one
         if len(rows):  # a return inside the part it passed is that part's real face, surveyed a little off
             inside = self._outside_m(points[rows], part[rows]) <= cfg.through_tolerance_m + spread
             if cfg.face_returns and np.any(inside):
                 at = rows[inside]
-                faces_moved = self._note_faces(origin + dirs[at] * expected[at, None], points[at], part[at], spread)
+                self._note_faces(origin + dirs[at] * expected[at, None], points[at], part[at], spread)
             behind[rows[inside]] = True
             through[rows[inside]] = False
             rows = rows[~inside]
@@ -266,7 +267,7 @@ class SensedMap:
             self._confirmed += np.bincount(part[on_part], minlength=n_parts)
             on_face = on_part & ~behind
             if cfg.face_returns and np.any(on_face):
-                faces_moved |= self._note_confirmed(points[on_face], part[on_face])
+                self._note_confirmed(points[on_face], part[on_face])
         cleared: list[int] = []
         if len(rows):
             self._through += np.bincount(part[rows], minlength=n_parts)
@@ -300,37 +301,30 @@ class SensedMap:
             self._slot = np.insert(self._slot, at, self._rows.append(centres, self._owners(centres)))
         if cleared:  # a part taken out owns nothing: the keys it owned may belong to a neighbour
             self._rows.owner[:] = self._owners(self._rows.centres)
+        faces_moved = moves_before is not None and not np.array_equal(moves_before, self.face_moves_m())
         if len(fresh) or cleared or faces_moved:
             self._fused = None
         return ScanUpdate((unpack_keys(fresh) + 0.5) * res, tuple(cleared))
 
-    def _note_faces(self, entries_m: np.ndarray, points_m: np.ndarray, parts: np.ndarray, spread_m: float) -> bool:
+    def _note_faces(self, entries_m: np.ndarray, points_m: np.ndarray, parts: np.ndarray, spread_m: float) -> None:
         """Count returns (M, 3) [m] that ended inside their prior part (M,) against the surveyed face their beam
         entered it by (the one its entry point (M, 3) [m] lies on: a box part's walls and roof), keeping each face's
-        least depth of them behind it less `spread_m` [m]; True when a face's move (`face_moves_m`) changed."""
+        least depth of them behind it less `spread_m` [m] (and the deepest plus it)."""
         keep = self._box_part[parts]
         j = parts[keep]
-        if not len(j):
-            return False
-        before = self.face_moves_m()
         face = np.argmin(np.abs(self._face_depths(entries_m[keep], j)), axis=1)
         depth = self._face_depths(points_m[keep], j)[np.arange(len(j)), face]
         np.add.at(self._face_hits, (j, face), 1)
         np.minimum.at(self._face_depth, (j, face), depth - spread_m)
         np.maximum.at(self._face_deepest, (j, face), depth + spread_m)
-        return not np.array_equal(before, self.face_moves_m())
 
-    def _note_confirmed(self, points_m: np.ndarray, parts: np.ndarray) -> bool:
-        """Count returns (M, 3) [m] on their box part's (M,) surveyed surface against the face they lie on; True
-        when a face's move changed (a confirmed face stays where it was surveyed)."""
+    def _note_confirmed(self, points_m: np.ndarray, parts: np.ndarray) -> None:
+        """Count returns (M, 3) [m] on their box part's (M,) surveyed surface against the face they lie on (a
+        confirmed face stays where it was surveyed)."""
         keep = self._box_part[parts]
         j = parts[keep]
-        if not len(j):
-            return False
-        before = self.face_moves_m()
         face = np.argmin(np.abs(self._face_depths(points_m[keep], j)), axis=1)
         np.add.at(self._face_confirmed, (j, face), 1)
-        return not np.array_equal(before, self.face_moves_m())
 
     def _face_depths(self, points_m: np.ndarray, parts: np.ndarray) -> np.ndarray:
         """How far each point (M, 3) [m] lies behind each of its box part's (M,) walls 0-3 and roof (M, 5) [m]."""
@@ -509,7 +503,7 @@ def part_owners(parts: Sequence[Obstacle], voxels_m: np.ndarray, resolution_m: f
     height errors look like. Prisms, raised boxes and the parts `skip` (P,) marks are never owners."""
     v = np.asarray(voxels_m, float).reshape(-1, 3)
     owner = np.full(len(v), -1, dtype=np.int64)
-    sel = [(j, p) for j, p in enumerate(parts) if isinstance(p, Building) and p.base_m <= 0.0
+    sel = [(j, p) for j, p in enumerate(parts) if _ground_box(p)
            and (skip is None or not skip[j])]
     if not len(v) or not sel:
         return owner
@@ -531,7 +525,7 @@ def part_owners(parts: Sequence[Obstacle], voxels_m: np.ndarray, resolution_m: f
     return owner
 
 
-def _ground_box(part: Obstacle) -> bool:
+def _ground_box(part: Obstacle) -> TypeGuard[Building]:
     """A box standing on the ground (a `Building` with a base of 0): the parts whose faces `shrunk_parts` moves."""
     return isinstance(part, Building) and part.base_m <= 0.0
 
