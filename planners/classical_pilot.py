@@ -101,6 +101,12 @@ class ClassicalConfig:
             margin), try this often [s] for a faster one from where the reference will be after the replan budget,
             flying on meanwhile.
         improve_gain_s: such a plan replaces the flown one only when it arrives this much earlier [s].
+        in_flight_climb_weight: the in-flight planner's `PlannerConfig.climb_weight` (a metre climbed costs this many
+            metres flown level). A replan in flight takes the ladder's first path, not the fastest of several, and
+            the lidar sees only 15 degrees above the horizon: at length's weight the shortest path went over the top
+            of what was seen of a wall, the next scans saw more of it, and the vehicle climbed replan after replan
+            (validation legs quad-003/0, quad-031/6: time-outs; docs/planner.md). 4 is the small quad's ratio of level
+            to vertical speed; 1 plans for length as at reset.
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -127,6 +133,12 @@ class ClassicalConfig:
     uncertainty_check_s: float = 1.0
     improve_period_s: float = 4.0
     improve_gain_s: float = 1.0
+    in_flight_climb_weight: float = 4.0
+
+    def __post_init__(self) -> None:
+        w = self.in_flight_climb_weight
+        if not (isinstance(w, (int, float)) and math.isfinite(w) and w > 0.0):
+            raise ValueError(f"ClassicalConfig.in_flight_climb_weight must be positive and finite, got {w!r}")
 
 
 @dataclass
@@ -295,7 +307,9 @@ class ClassicalPilot:
             time_left, ladder = math.inf, cfg.in_flight_ladder
             if self._on_floor and not faster:  # the speed margins did not fit this route before: no budget on them
                 ladder = tuple(step for step in ladder if step.floor_margin) or ladder
-        found = plan_with_escalation(self._known, start, goal, radius, self._planner_cfg,
+        planner_cfg = (dataclasses.replace(self._planner_cfg, climb_weight=cfg.in_flight_climb_weight) if in_flight
+                       else self._planner_cfg)
+        found = plan_with_escalation(self._known, start, goal, radius, planner_cfg,
                                      seed=(self._seed + sum(self.stats.replans_by_cause.values()) + self._retries
                                            + self.stats.improvements_tried),
                                      floor_margin_m=by_speed.floor_m, tapers=tapers, ladder=ladder, judge=judge,

@@ -455,3 +455,34 @@ def test_a_goal_swallowed_by_what_the_pilot_knows_is_replaced_by_a_clear_point_o
         assert np.array_equal(chosen, goal) == kept
         assert pilot._known.clearance_one(*chosen, 0.42) > 0.0
         assert np.linalg.norm(chosen - np.asarray(goal)) <= GOAL_REGION_FRACTION * 3.0 + 1e-9
+
+
+@pytest.mark.parametrize("climb_weight, over", [(4.0, False), (1.0, True)])
+def test_in_flight_a_climb_costs_more_than_its_length_so_the_replan_goes_round_a_wall(climb_weight, over,
+                                                                                       vehicles, compiled_dynamics):
+    """A wall the prior lacks, 60 m wide and 22 m tall, across a leg flown at 10 m: planned for length (weight 1) the
+    replan goes over it; with the in-flight climb weight (a metre climbed costs 4 flown level) it goes round."""
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -45.0, 0.0), (160.0, 45.0, 50.0))
+    wall_m = 22.0
+    truth = BuildingMap([Building(7, (70.0, 0.0), (2.0, 60.0), wall_m)], *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
+    pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False,
+                                           in_flight_climb_weight=climb_weight))
+    assert pilot.reset(world, task, seed=3).ok
+    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
+    t = 3.0
+    pilot.act(_sensed_obs(pilot, p, t, lidar, pilot.reference.sample(t)[0]))
+    assert pilot.stats.replans_by_cause["blocked"] == 1
+    plan = pilot._pending[0] if pilot._pending is not None else pilot.plan
+    assert (float(plan.path_m[:, 2].max()) > wall_m) is over
+    assert (float(np.abs(plan.path_m[:, 1]).max()) > 30.0) is not over
+
+
+def test_the_in_flight_climb_weight_is_checked():
+    with pytest.raises(ValueError, match="in_flight_climb_weight"):
+        ClassicalConfig(in_flight_climb_weight=0.0)
