@@ -161,7 +161,8 @@ def check_resume(folder: Path, cfg: TrainConfig) -> None:
                          f"{CONFIG} gives {n_obs}")
     if src.curriculum.is_file():
         read_curriculum(src.curriculum)
-    trained_on = strict_json_loads(src.config_file.read_text()).get("scenario")
+    raw = strict_json_loads(src.config_file.read_text())
+    trained_on = raw.get("scenario")
     if trained_on != cfg.scenario:
         def said(scenario: Any) -> str:
             return "generated cities" if scenario is None else repr(scenario)[:200]
@@ -180,3 +181,7 @@ def check_resume(folder: Path, cfg: TrainConfig) -> None:
     if tuple(run_arch) != held_arch:
         raise ValueError(f"{where}: its network has layers of {list(held_arch)} units ({CONFIG}'s ppo.net_arch); "
                          f"this run's preset {cfg.preset!r} builds {list(run_arch)}")
+    seed = raw.get("seed")
+    if seed != cfg.seed:  # the model carries its seed, which the batched environment refuses once built
+        raise ValueError(f"{where}: trained with seed {str(seed)[:40]} ({CONFIG}'s seed); this run has seed "
+                         f"{cfg.seed} (give --seed {str(seed)[:40]})")

@@ -119,6 +119,15 @@ def test_resume_refuses_another_ground_than_the_policy_was_trained_on(tmp_path, 
     fails(_train(folder, tmp_path / "out"), capsys, tmp_path, "trained on 'elsewhere.yaml'", "config.json's scenario")
 
 
+def test_resume_refuses_another_seed_than_the_policy_was_trained_with(tmp_path, capsys, no_training):
+    """The model carries its seed into the resumed run; a run built with another would refuse it only after building
+    its environments (a minute of cities), or, unbatched, be seeded otherwise than its provenance says."""
+    folder = _resumable(tmp_path)
+    seed = json.loads((folder / "config.json").read_text(encoding="utf-8"))["seed"]
+    fails(_train(folder, tmp_path / "out", "--seed", str(seed + 1)), capsys, tmp_path, str(folder),
+          f"trained with seed {seed}", f"seed {seed + 1}", f"--seed {seed}")
+
+
 def test_a_given_policy_is_not_called_none_given(tmp_path):
     """A scenario's vehicle file reusing a preset's name with other parameters: the note says why the policy given
     with --policy does not fly it, not that none was given."""
