@@ -85,6 +85,10 @@ class MappingConfig:
             this many returns landed on that face inside the surveyed part, to the least deep of them less 3 σ of the
             estimate's position (`shrunk_parts`; the `wrong` preset shifts footprints by up to 3 m, which left a
             surveyed face standing in the street); 0: parts keep their surveyed faces.
+        column_fit_m: a sensed column's footprint is the extent of the returns that marked its voxels, snapped
+            outward to this grid [m] (it divides `column_m`), not its whole square: the squares of a wall at an
+            angle to the grid stood 2-3 m proud of it and closed streets the truth leaves open (validation legs
+            quad-020/6, quad-031/10; docs/planner.md). 0: whole squares.
     """
 
     resolution_m: float = 1.0
@@ -103,6 +107,7 @@ class MappingConfig:
     attach_cover: float = 0.5
     open_above_m: float = 0.0
     face_returns: int = 5
+    column_fit_m: float = 0.25
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "front_tolerance_m", "through_tolerance_m", "carve_range_m", "column_m",
@@ -120,6 +125,10 @@ class MappingConfig:
         if abs(voxels - round(voxels)) > 1e-9 or round(voxels) < 1:
             raise ValueError(f"MappingConfig.column_m must be a whole number of voxels ({self.resolution_m} m), got "
                              f"{self.column_m!r}")
+        fit = self.column_fit_m
+        steps = self.column_m / fit if math.isfinite(fit) and fit > 0.0 else 1.0
+        if not (math.isfinite(fit) and fit >= 0.0) or abs(steps - round(steps)) > 1e-9:
+            raise ValueError(f"MappingConfig.column_fit_m must be 0 or divide column_m ({self.column_m}), got {fit!r}")
         if self.face_returns < 0:
             raise ValueError(f"MappingConfig.face_returns must be >= 0, got {self.face_returns!r}")
         if self.clear_beams < 1 or self.carve_stride < 1:
@@ -299,6 +308,13 @@ class SensedMap:
             self._keys = np.insert(self._keys, at, fresh)
             centres = (unpack_keys(fresh) + 0.5) * res
             self._slot = np.insert(self._slot, at, self._rows.append(centres, self._owners(centres)))
+        if len(packed) and cfg.column_fit_m > 0.0:  # where in its voxel each return fell
+            marked = points[unexplained]
+            slot = self._slot[np.searchsorted(self._keys, pack_keys(np.floor(marked / res).astype(np.int64)))]
+            footprint = self._rows.footprint  # a view: written through
+            for axis in (0, 1):
+                np.minimum.at(footprint[:, axis], slot, marked[:, axis])
+                np.maximum.at(footprint[:, 2 + axis], slot, marked[:, axis])
         if cleared:  # a part taken out owns nothing: the keys it owned may belong to a neighbour
             self._rows.owner[:] = self._owners(self._rows.centres)
         faces_moved = moves_before is not None and not np.array_equal(moves_before, self.face_moves_m())
@@ -445,29 +461,34 @@ class SensedMap:
     def _fuse(self) -> BuildingMap:
         prior, res = self.prior, self.config.resolution_m
         held = self._held_slots()
-        voxels = self._rows.centres[held]
+        voxels, footprints = self._rows.centres[held], self._rows.footprint[held]
         cfg = self.config
         grown, attached = grown_parts(shrunk_parts(prior.buildings, self.face_moves_m()), voxels, res, cfg.attach_m,
                                       cfg.attach_height_m, cfg.attach_cover, self._rows.owner[held])
         kept = tuple(p for p, gone in zip(grown, self._cleared, strict=True) if not gone)
-        voxels = voxels[~attached]
+        voxels, footprints = voxels[~attached], footprints[~attached]
         # a part the prior has keeps the prior's height above what was seen of it; only an obstacle the prior lacks
         # is open above its highest return
         if len(voxels) and len(self._open_top) and cfg.open_above_m > 0.0:
             voxels = _open_columns(voxels, self._open_top, res, float(prior.bounds_max_m[2]), cfg.open_above_m,
                                    self._flown_over)
+            # a raised voxel adds height to its column, not footprint
+            footprints = np.vstack([footprints, np.full((len(voxels) - len(footprints), 4), np.nan)])
         first = int(max((p.id for p in prior.buildings), default=-1)) + 1
-        sensed = column_boxes(voxels, cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m)
+        sensed = column_boxes(voxels, cfg.column_m, first, prior.bounds_min_m, prior.bounds_max_m, footprints,
+                              cfg.column_fit_m)
         return BuildingMap(kept + sensed, prior.bounds_min_m, prior.bounds_max_m, prior.no_fly, prior.name)
 
 
 class _Rows:
     """Per marked voxel, in the order first marked: its centre [m], whether the octree held it occupied when last
-    searched, and the prior part it may belong to (`part_owners`); grown by doubling."""
+    searched, the prior part it may belong to (`part_owners`) and the horizontal extent of the returns that marked
+    it; grown by doubling."""
 
     def __init__(self) -> None:
         self.n = 0
         self._centres, self._held, self._owner = np.zeros((64, 3)), np.zeros(64, dtype=bool), np.zeros(64, np.int64)
+        self._footprint = np.zeros((64, 4))
 
     @property
     def centres(self) -> np.ndarray:
@@ -481,15 +502,21 @@ class _Rows:
     def owner(self) -> np.ndarray:
         return self._owner[:self.n]
 
+    @property
+    def footprint(self) -> np.ndarray:
+        """(x_lo, y_lo, x_hi, y_hi) [m] of the returns that marked each voxel (+inf, +inf, -inf, -inf: none yet)."""
+        return self._footprint[:self.n]
+
     def append(self, centres_m: np.ndarray, owner: np.ndarray) -> np.ndarray:
-        """Add rows (not yet searched: not held); returns their indices."""
+        """Add rows (not yet searched: not held; no returns on record); returns their indices."""
         k = len(centres_m)
         if self.n + k > len(self._held):
             size = max(2 * len(self._held), self.n + k)
-            self._centres = np.resize(self._centres, (size, 3))
+            self._centres, self._footprint = np.resize(self._centres, (size, 3)), np.resize(self._footprint, (size, 4))
             self._held, self._owner = np.resize(self._held, size), np.resize(self._owner, size)
         new = np.arange(self.n, self.n + k)
         self._centres[new], self._held[new], self._owner[new] = centres_m, False, owner
+        self._footprint[new] = (np.inf, np.inf, -np.inf, -np.inf)
         self.n += k
         return new
 
@@ -621,15 +648,20 @@ def grown_parts(parts: tuple, voxels_m: np.ndarray, resolution_m: float, attach_
     return tuple(out), attached
 
 
-def column_boxes(voxels_m: np.ndarray, column_m: float, first_id: int, lo_m: np.ndarray, hi_m: np.ndarray
-                 ) -> tuple[Building, ...]:
+def column_boxes(voxels_m: np.ndarray, column_m: float, first_id: int, lo_m: np.ndarray, hi_m: np.ndarray,
+                 footprints_m: np.ndarray | None = None, fit_m: float = 0.0) -> tuple[Building, ...]:
     """Occupied voxel centres (K, 3) [m] as boxes standing on the ground: each occupied column (a square of
     `column_m` in x, y, inside the bounds) as tall as its highest voxel's top, rounded up to whole `column_m` (a
     multiple of the voxel edge, so that the rounding never cuts a voxel);
-    runs of equal columns along x, then equal runs along y, merged into one box; ids from `first_id`, boxes ordered
-    by their cells. Only the cells seen are closed (a building seen from one side is a wall), never the space
-    between them."""
-    r = c = float(column_m)
+    runs of equal columns along x, then equal runs along y, merged into one box (touching: a column's footprint
+    reaching its cell's side); ids from `first_id`, boxes ordered by their cells. Only the cells seen are closed (a
+    building seen from one side is a wall), never the space between them.
+
+    `footprints_m` (K, 4): per voxel the (x_lo, y_lo, x_hi, y_hi) [m] of the returns that marked it (NaN: not
+    known); with `fit_m` > 0 a column's footprint is the union of its voxels' snapped outward to a grid of `fit_m`
+    (which divides `column_m`) inside its cell, not the whole cell: a wall at an angle to the grid stands as a
+    staircase of cells whose outer corners stood up to a column's diagonal off it."""
+    c = float(column_m)
     lo = np.asarray(lo_m, float)[0:2]
     n = np.maximum(np.ceil((np.asarray(hi_m, float)[0:2] - lo) / c).astype(np.int64), 1)
     v = np.asarray(voxels_m, float).reshape(-1, 3)
@@ -637,31 +669,53 @@ def column_boxes(voxels_m: np.ndarray, column_m: float, first_id: int, lo_m: np.
     inside = np.all((cells >= 0) & (cells < n), axis=1)
     if not np.any(inside):
         return ()
+    fitted = footprints_m is not None and fit_m > 0.0
+    q = float(fit_m) if fitted else c  # the footprint's grid [m]
+    per = int(round(c / q))  # grid steps per column
     column = cells[inside, 1] * n[0] + cells[inside, 0]  # row-major: by y, then x
-    level = np.floor(v[inside, 2] / r).astype(np.int64) + 1  # the voxel's top, in voxels
+    level = np.floor(v[inside, 2] / c).astype(np.int64) + 1  # the voxel's top, in columns
     order = np.argsort(column, kind="stable")
     column, level = column[order], level[order]
     first = np.flatnonzero(np.r_[True, column[1:] != column[:-1]])
-    column, level = column[first], np.maximum.reduceat(level, first)  # each column's top
-    cy, cx = np.divmod(column, n[0])
-    # runs of equal neighbouring columns along x
-    run_start = np.r_[True, (cy[1:] != cy[:-1]) | (cx[1:] != cx[:-1] + 1) | (level[1:] != level[:-1])]
-    starts = np.flatnonzero(run_start)
+    cy, cx = np.divmod(column[first], n[0])
+    top = np.maximum.reduceat(level, first)  # each column's top
+    # each column's footprint in grid steps from `lo`: its cell, or the snapped union of its voxels' returns
+    fx0, fy0, fx1, fy1 = cx * per, cy * per, (cx + 1) * per, (cy + 1) * per
+    if fitted:
+        assert footprints_m is not None
+        f = np.asarray(footprints_m, float).reshape(-1, 4)[inside][order]
+        known = np.all(np.isfinite(f), axis=1)
+        big = np.where(known[:, None], f, [np.inf, np.inf, -np.inf, -np.inf])
+        ux0, uy0 = np.minimum.reduceat(big[:, 0], first), np.minimum.reduceat(big[:, 1], first)
+        ux1, uy1 = np.maximum.reduceat(big[:, 2], first), np.maximum.reduceat(big[:, 3], first)
+        seen = np.isfinite(ux0)  # a column none of whose voxels has returns on record keeps its whole cell
+        with np.errstate(invalid="ignore"):
+            fx0 = np.where(seen, np.clip(np.floor((ux0 - lo[0]) / q), fx0, fx1 - 1), fx0).astype(np.int64)
+            fy0 = np.where(seen, np.clip(np.floor((uy0 - lo[1]) / q), fy0, fy1 - 1), fy0).astype(np.int64)
+            fx1 = np.where(seen, np.clip(np.ceil((ux1 - lo[0]) / q), fx0 + 1, fx1), fx1).astype(np.int64)
+            fy1 = np.where(seen, np.clip(np.ceil((uy1 - lo[1]) / q), fy0 + 1, fy1), fy1).astype(np.int64)
+    # runs of equal neighbouring columns along x that touch across their shared side
+    joins = ((cy[1:] == cy[:-1]) & (cx[1:] == cx[:-1] + 1) & (top[1:] == top[:-1]) & (fy0[1:] == fy0[:-1])
+             & (fy1[1:] == fy1[:-1]) & (fx1[:-1] == (cx[:-1] + 1) * per) & (fx0[1:] == cx[1:] * per))
+    starts = np.flatnonzero(np.r_[True, ~joins])
     ends = np.r_[starts[1:], len(cx)] - 1
-    x0, x1, ry, rl = cx[starts], cx[ends], cy[starts], level[starts]
-    # equal runs in consecutive rows merged into one rectangle
+    x0, x1, y0, y1, ry, rl = fx0[starts], fx1[ends], fy0[starts], fy1[starts], cy[starts], top[starts]
+    # equal runs in consecutive rows that touch across their shared side merged into one rectangle
     order = np.lexsort((ry, rl, x1, x0))
-    x0, x1, ry, rl = x0[order], x1[order], ry[order], rl[order]
-    rect_start = np.r_[True, (x0[1:] != x0[:-1]) | (x1[1:] != x1[:-1]) | (rl[1:] != rl[:-1]) | (ry[1:] != ry[:-1] + 1)]
-    starts = np.flatnonzero(rect_start)
+    x0, x1, y0, y1, ry, rl = x0[order], x1[order], y0[order], y1[order], ry[order], rl[order]
+    joins = ((x0[1:] == x0[:-1]) & (x1[1:] == x1[:-1]) & (rl[1:] == rl[:-1]) & (ry[1:] == ry[:-1] + 1)
+             & (y1[:-1] == (ry[:-1] + 1) * per) & (y0[1:] == ry[1:] * per))
+    starts = np.flatnonzero(np.r_[True, ~joins])
     ends = np.r_[starts[1:], len(x0)] - 1
-    rect = np.column_stack([x0[starts], x1[starts], ry[starts], ry[ends], rl[starts]])
+    rect = np.column_stack([x0[starts], x1[starts], y0[starts], y1[ends], rl[starts]])
     rect = rect[np.lexsort(rect.T[::-1])]
     out: list[Building] = []
-    for rx0, rx1, y0, y1, top in rect.tolist():
-        xa, xb = max(lo[0] + rx0 * c, float(lo_m[0])), min(lo[0] + (rx1 + 1) * c, float(hi_m[0]))
-        ya, yb = max(lo[1] + y0 * c, float(lo_m[1])), min(lo[1] + (y1 + 1) * c, float(hi_m[1]))
-        out.append(Building(first_id + len(out), (0.5 * (xa + xb), 0.5 * (ya + yb)), (xb - xa, yb - ya), top * r))
+    for rx0, rx1, ry0, ry1, h in rect.tolist():
+        xa, xb = max(lo[0] + rx0 * q, float(lo_m[0])), min(lo[0] + rx1 * q, float(hi_m[0]))
+        ya, yb = max(lo[1] + ry0 * q, float(lo_m[1])), min(lo[1] + ry1 * q, float(hi_m[1]))
+        if xb - xa <= 1e-9 or yb - ya <= 1e-9:  # returns beyond the flight volume, in its last cells' overhang
+            continue
+        out.append(Building(first_id + len(out), (0.5 * (xa + xb), 0.5 * (ya + yb)), (xb - xa, yb - ya), h * c))
     return tuple(out)
 
 

@@ -41,7 +41,7 @@ def test_an_unmapped_building_enters_the_fused_map_and_a_phantom_leaves_it():
     sensed, _ = _mapped()
     fused = sensed.fused()
     assert sensed.cleared_parts == (1,)  # PHANTOM: the prior's second part
-    probe_unmapped = np.array([[100.0, 125.5, 10.0]])  # just inside the unmapped building's face seen
+    probe_unmapped = np.array([[100.0, 125.1, 10.0]])  # just inside the unmapped building's face seen
     probe_phantom = np.array([[100.0, 70.0, 10.0]])
     assert fused.obstacle_clearance_m(probe_unmapped)[0] <= 0.0
     assert sensed.prior.obstacle_clearance_m(probe_unmapped)[0] > 0.0
@@ -114,13 +114,44 @@ def test_columns_merge_into_boxes_without_closing_the_space_between():
     assert [b.id for b in boxes] == [100, 101, 102]
 
 
+@pytest.mark.parametrize("fit_m, proud_m", [(0.25, 1.3), (0.0, 2.9)])
+def test_a_wall_at_an_angle_to_the_grid_stands_where_its_returns_fell(fit_m, proud_m):
+    """An unmapped building turned 30 degrees to the grid, seen from one side: every return is inside a sensed box,
+    and the boxes' outer corners stand at most `proud_m` off the wall: 1.3 m with footprints fitted to the returns
+    (1.23 m measured), over 2 m with whole squares (2.66 m: up to a 2 m square's diagonal and a voxel's)."""
+    wall = Building(2, (100.0, 140.0), (40.0, 10.0), 30.0, yaw_rad=np.radians(30.0))
+    world, prior = BuildingMap([wall], LO, HI), BuildingMap([], LO, HI)
+    lidar = Lidar(VLP16, RayCaster(world), np.random.default_rng(0))
+    sensed = SensedMap(prior, MappingConfig(column_fit_m=fit_m), VLP16.max_range_m)
+    p = np.array([100.0, 100.0, 20.0])
+    scan, _ = lidar.scan(0.0, p, np.eye(3))
+    sensed.integrate(scan, _state(p), 0.1)
+    boxes = sensed.fused().buildings
+    assert boxes
+    hits = p + scan.directions_body[np.isfinite(scan.ranges_m)] * scan.ranges_m[np.isfinite(scan.ranges_m), None]
+    hits = hits[hits[:, 2] > 1.0]
+    assert np.all(BuildingMap(boxes, LO, HI).obstacle_clearance_m(hits) <= 1e-9)
+    corners = np.array([[*c, 10.0] for b in boxes for c in b.footprint_xy_m()])
+    proud = world.obstacle_clearance_m(corners)
+    assert proud.max() <= proud_m
+    assert bool(proud.max() > 2.0) is (fit_m == 0.0)
+
+
+def test_returns_beyond_the_flight_volume_make_no_box():
+    """The last column of a volume 9 m wide overhangs it by 1 m (2 m columns): returns there are outside it."""
+    vox = np.array([[9.5, 1.5, 0.5], [7.5, 1.5, 0.5]])
+    footprints = np.array([[9.2, 1.2, 9.8, 1.8], [7.2, 1.2, 7.8, 1.8]])
+    boxes = column_boxes(vox, 2.0, 0, np.zeros(3), np.array([9.0, 9.0, 9.0]), footprints, 0.25)
+    assert [(b.center_xy_m, b.size_xy_m) for b in boxes] == [((7.5, 1.5), (1.0, 1.0))]
+
+
 def test_voxel_keys_pack_and_unpack():
     keys = np.array([[0, 0, 0], [-5, 7, 300], [1000, -1000, -3]])
     assert np.array_equal(unpack_keys(pack_keys(keys)), keys)
 
 
 @pytest.mark.parametrize("bad", [{"resolution_m": 0.0}, {"carve_stride": 0}, {"through_tolerance_m": float("nan")},
-                                 {"column_m": 1.5}])
+                                 {"column_m": 1.5}, {"column_fit_m": 0.3}, {"column_fit_m": -0.25}])
 def test_bad_mapping_settings_are_named(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         MappingConfig(**bad)
