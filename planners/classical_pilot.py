@@ -40,7 +40,7 @@ from planners.margins import (
 )
 from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.report import ClassicalReport
-from planners.rrt_star import PlannerConfig, PlanResult
+from planners.rrt_star import PlannerConfig, PlanResult, densify
 from planners.sensed_map import MappingConfig, SensedMap, scaled_to_vehicle
 from planners.timing import Reference, TimingLimits, braking_along, braking_reference, time_parameterize
 from uam_fdm.city.buildings import BuildingMap
@@ -52,6 +52,9 @@ REPLAN_CAUSES = ("tracking", "clearance", "blocked", "uncertainty")
 # the causes after which the path flown is still clear in what the pilot knows and the vehicle on it: it flies on
 # while the replan runs (a blocked path flies on only when the block lies beyond where it could stop then)
 _FLYING_ON = ("uncertainty", "improve")
+# a stop's path is tested this often [m]: closer than the thinnest sensed face (`MappingConfig.column_fit_m`) plus the
+# vehicle's sphere, so that no test skips across one
+_FREE_STEP_M = 0.25
 
 
 @dataclass(frozen=True)
@@ -560,10 +563,11 @@ class ClassicalPilot:
             np.linalg.norm(obs.x[0:3] - flown.sample(obs.t_s - self._t_ref0)[0])) > cfg.replan_error_m)
         brake = (braking_along(flown, obs.t_s - self._t_ref0, decel) if flown is not None and not off_path
                  else braking_reference(obs.x[0:3], obs.x[3:6], decel))
-        if flown is not None and not off_path and not self._free_in_known(brake.pos_m[-1]):
-            # the stop along the path ends in something sensed since (the MPC keeps the vehicle short of it): stop
-            # from where the vehicle is, or every retry would plan from inside it (a hold never ended, tuning leg
-            # 3200004/2 at nominal, wrong map)
+        if flown is not None and not off_path and not self._free_in_known(brake.pos_m):
+            # the stop along the path runs into something sensed since (the MPC keeps the vehicle short of it): stop
+            # from where the vehicle is, or every retry would plan from inside it or behind it (a hold never ended,
+            # tuning leg 3200004/2 at nominal, wrong map; a sensed face is as thin as its returns, so the stop's end
+            # alone can lie behind it)
             brake = braking_reference(obs.x[0:3], obs.x[3:6], decel)
         start, lead_in, velocity = np.zeros(3), None, None
         if flying_on and flown is not None:
@@ -618,12 +622,14 @@ class ClassicalPilot:
             self.last_solution = None
         self.reference, self._t_ref0 = now
 
-    def _free_in_known(self, point_m: np.ndarray) -> bool:
-        """Whether the vehicle's sphere at point_m (3,) [m] is clear of what the pilot knows now (as its planner
-        tests a start: the buildings, the ground and the no-fly volumes)."""
+    def _free_in_known(self, points_m: np.ndarray) -> bool:
+        """Whether the vehicle's sphere is clear of what the pilot knows now (as its planner tests a start: the
+        buildings, the ground and the no-fly volumes) all along the polyline through points_m (K, 3) [m], tested
+        every `_FREE_STEP_M`."""
         world, _ = self._flying()
-        x, y, z = (float(v) for v in np.asarray(point_m, float).reshape(3))
-        return self._known.planning_map().clearance_one(x, y, z, world.vehicle.collision_radius_m) > 0.0
+        points = densify(np.asarray(points_m, float).reshape(-1, 3), _FREE_STEP_M)
+        radius = world.vehicle.collision_radius_m
+        return bool(np.all(self._known.planning_map().clearance(points, radius).distance_m > 0.0))
 
     def _adopted(self) -> tuple:
         """The plan just made, to be flown once its start comes (`_pending`)."""

@@ -419,10 +419,10 @@ def test_a_wall_sensed_too_near_to_fly_on_makes_the_pilot_brake_and_plan_from_wh
 
 
 def test_a_stop_that_would_end_in_a_wall_sensed_since_plans_from_where_the_vehicle_is(vehicles, compiled_dynamics):
-    """A wall sensed within the stopping distance: the stop along the path ends inside it. The plan starts from a stop
-    from where the vehicle is (here at rest, as the MPC would have it, short of the wall), not from inside the wall:
-    before, every plan and retry started there, found no valid start and the pilot held until its time ran out
-    (tuning leg 3200004/2 at nominal, wrong map)."""
+    """A wall sensed within the stopping distance: the stop along the path ends inside the wall (behind the thin face
+    the pilot senses of it). The plan starts from a stop from where the vehicle is (here at rest, as the MPC would have
+    it, short of the wall), not from inside or behind the wall: before, every plan and retry started there, found no
+    valid start and the pilot held until its time ran out (tuning leg 3200004/2 at nominal, wrong map)."""
     _, _, _, probe, straight, t, vel = _sensing_a_wall_under_way(vehicles, compiled_dynamics, 60.0)
     x_now = float(straight.sample(t)[0][0])
     stop_m = float(np.dot(vel, vel)) / (2.0 * probe._limits.max_accel_m_s2)
