@@ -43,9 +43,16 @@ from planners.mpc import MPCConfig, MPCSolution, MPCTracker
 from planners.report import ClassicalReport
 from planners.rrt_star import PlannerConfig, PlanResult, densify
 from planners.sensed_map import MappingConfig, SensedMap, scaled_to_vehicle
-from planners.timing import Reference, TimingLimits, braking_along, braking_reference, time_parameterize
+from planners.timing import (
+    Reference,
+    TimingLimits,
+    braking_along,
+    braking_reference,
+    then_straight,
+    time_parameterize,
+)
 from uam_fdm.city.buildings import BuildingMap
-from uam_fdm.pilot import Observation, ResetInfo, RotorCommand, Task, World
+from uam_fdm.pilot import Actuation, Observation, ResetInfo, RotorCommand, Task, VelocityCommand, World
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +63,7 @@ _FLYING_ON = ("uncertainty", "improve")
 # a stop's path is tested this often [m]: closer than the thinnest sensed face (`MappingConfig.column_fit_m`) plus the
 # vehicle's sphere, so that no test skips across one
 _FREE_STEP_M = 0.25
+_HOLD_STEP_M = 1.0  # spacing of the points a hold may move to [m]
 
 
 @dataclass(frozen=True)
@@ -111,6 +119,12 @@ class ClassicalConfig:
             of what was seen of a wall, the next scans saw more of it, and the vehicle climbed replan after replan
             (validation legs quad-003/0, quad-031/6: time-outs; docs/planner.md). 4 is the small quad's ratio of level
             to vertical speed; 1 plans for length as at reset.
+        autopilot_gain_1_s: when the MPC fails with no previous plan to fall back on, the vehicle's velocity
+            autopilot is commanded the reference's velocity plus this gain [1/s] times the position error.
+        hold_search_m: holding where the MPC's margin at rest does not fit, the pilot moves to the nearest point that
+            keeps it straight above, or within this distance [m] around.
+        margin_recovery_m_s: the MPC's clearance half-spaces ask a vehicle inside its margin (a drifting estimate, a
+            newly sensed face) back out at this rate [m/s] over the horizon; inf: at once.
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -138,11 +152,18 @@ class ClassicalConfig:
     improve_period_s: float = 4.0
     improve_gain_s: float = 1.0
     in_flight_climb_weight: float = 4.0
+    autopilot_gain_1_s: float = 1.0
+    hold_search_m: float = 10.0
+    margin_recovery_m_s: float = 1.0
 
     def __post_init__(self) -> None:
-        w = self.in_flight_climb_weight
-        if not (isinstance(w, (int, float)) and math.isfinite(w) and w > 0.0):
-            raise ValueError(f"ClassicalConfig.in_flight_climb_weight must be positive and finite, got {w!r}")
+        for name in ("in_flight_climb_weight", "autopilot_gain_1_s", "hold_search_m"):
+            w = getattr(self, name)
+            if not (isinstance(w, (int, float)) and math.isfinite(w) and w > 0.0):
+                raise ValueError(f"ClassicalConfig.{name} must be positive and finite, got {w!r}")
+        r = self.margin_recovery_m_s
+        if not (isinstance(r, (int, float)) and not math.isnan(r) and r > 0.0):
+            raise ValueError(f"ClassicalConfig.margin_recovery_m_s must be positive (inf: at once), got {r!r}")
 
 
 @dataclass
@@ -172,6 +193,8 @@ class ClassicalStats:
     hover_holds: int = 0
     improvements_tried: int = 0  # searches for a faster plan while flying one found at the floor margin
     improvements_taken: int = 0
+    hold_moves: int = 0  # hold references that move to where the MPC's margin fits
+    autopilot_decisions: int = 0  # decisions handed to the vehicle's velocity autopilot (the MPC failed, no plan left)
     map_update_s: list[float] = field(default_factory=list)
     uncertainty_margin_m: list[float] = field(default_factory=list)
 
@@ -421,8 +444,10 @@ class ClassicalPilot:
             improvements_taken=s.improvements_taken)
 
     # -- flying ---------------------------------------------------------------------------------
-    def act(self, obs: Observation) -> RotorCommand:
-        """Track the reference with one MPC solve; hover in place if there is no plan."""
+    def act(self, obs: Observation) -> Actuation:
+        """Track the reference with one MPC solve; hover in place if there is no plan. When the solve fails and no
+        previous MPC plan covers now, the vehicle's velocity autopilot steers back onto the reference (hover trim
+        alone holds no vertical speed: validation leg quad-004/5 fell at 12 m/s on it)."""
         world = self._world
         if world is None:
             raise RuntimeError("act() before reset()")
@@ -458,7 +483,17 @@ class ClassicalPilot:
                         height_above_surface_m=height)
         self._last_t = obs.t_s
         self._record(sol)
+        if sol.hover_trim:
+            return self._autopilot_command(obs, ref_pos[0], ref_vel[0])
         return RotorCommand(sol.rotor_speeds_rad_s)
+
+    def _autopilot_command(self, obs: Observation, ref_pos_m: np.ndarray, ref_vel_m_s: np.ndarray) -> VelocityCommand:
+        """The reference's velocity plus `autopilot_gain_1_s` times the position error, for the vehicle's velocity
+        autopilot (world ENU, from the estimate; the autopilot saturates it to the vehicle's limits)."""
+        velocity = np.asarray(ref_vel_m_s, float) + self.config.autopilot_gain_1_s * (
+            np.asarray(ref_pos_m, float) - obs.x[0:3])
+        self.stats.autopilot_decisions += 1
+        return VelocityCommand(velocity, float(self._task.start_yaw_rad))
 
     def _record_promise(self, obs: Observation, ref_pos: np.ndarray, ref_speed_m_s: float) -> None:
         """Record the margin in force from this decision on, at its reference point: M(reference speed), or a
@@ -573,13 +608,13 @@ class ClassicalPilot:
         off_path = cause == "tracking" or (flown is not None and cfg.replan_error_m is not None and float(
             np.linalg.norm(obs.x[0:3] - flown.sample(obs.t_s - self._t_ref0)[0])) > cfg.replan_error_m)
         brake = (braking_along(flown, obs.t_s - self._t_ref0, decel) if flown is not None and not off_path
-                 else braking_reference(obs.x[0:3], obs.x[3:6], decel))
+                 else self._stop_from(obs))
         if flown is not None and not off_path and not self._free_in_known(brake.pos_m):
             # the stop along the path runs into something sensed since (the MPC keeps the vehicle short of it): stop
             # from where the vehicle is, or every retry would plan from inside it or behind it (a hold never ended,
             # tuning leg 3200004/2 at nominal, wrong map; a sensed face is as thin as its returns, so the stop's end
             # alone can lie behind it)
-            brake = braking_reference(obs.x[0:3], obs.x[3:6], decel)
+            brake = self._stop_from(obs)
         start, lead_in, velocity = np.zeros(3), None, None
         if flying_on and flown is not None:
             # from where the reference will be, along its velocity there: a lead-in when it is moving
@@ -626,12 +661,61 @@ class ClassicalPilot:
                 s.hover_holds += 1
                 log.info("no path in what the pilot knows at t = %.2f s (%s): holding", obs.t_s, detail)
             self._hold_retry_t = obs.t_s + cfg.hold_retry_s
-            now, flying_on = (brake, obs.t_s), False
+            now, flying_on = (self._hold_reference(brake), obs.t_s), False
         if not flying_on:  # braking (or holding) until the new plan's start: the MPC tracks the stop afresh
             self._tracker.reset()
             self._last_t = None
             self.last_solution = None
         self.reference, self._t_ref0 = now
+
+    def _rest_margin_m(self) -> float:
+        """The MPC's margin at rest [m], widened by k σ now: what its half-spaces keep from every obstacle and the
+        ground while the vehicle hovers."""
+        by_speed = self._base_margins.by_speed.widened(self._extra_now)
+        return float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
+
+    def _stop_from(self, obs: Observation) -> Reference:
+        """A straight stop from the vehicle's estimate, its descent ending no lower than the MPC keeps from the
+        ground (a vehicle falling off its reference stopped along its velocity below the ground: quad-004/5)."""
+        world, _ = self._flying()
+        return braking_reference(obs.x[0:3], obs.x[3:6], self._limits.max_accel_m_s2,
+                                 floor_z_m=world.vehicle.collision_radius_m + self._rest_margin_m())
+
+    def _hold_reference(self, brake: Reference) -> Reference:
+        """Where to hold for want of a path: where `brake` stops; or, when that is closer to what the pilot knows than
+        the MPC's margin at rest, the nearest point that keeps the margin, straight above (up to the map's top) or
+        within `hold_search_m` around, the straight move to it clear in what the pilot knows; moved to at the
+        vertical limits. Held in a gap narrower than twice the margin (grown with the estimate's σ) the MPC has no
+        feasible hover: in validation leg quad-004/5 its slack pulled the vehicle down until its solves failed."""
+        world, _ = self._flying()
+        known = self._known.planning_map()
+        radius, need = world.vehicle.collision_radius_m, self._rest_margin_m()
+        p = np.asarray(brake.pos_m[-1], float)
+        if float(known.clearance(p[None, :], radius).distance_m[0]) >= need:
+            return brake
+        reach, up = self.config.hold_search_m, np.array([0.0, 0.0, 1.0])
+        # straight above: clear as far as the line up is (one query along it)
+        rise = float(known.bounds_max_m[2]) - radius - need - p[2]
+        line = p + np.arange(0.0, max(rise, 0.0) + _FREE_STEP_M, _FREE_STEP_M)[:, None] * up
+        blocked = np.flatnonzero(known.clearance(line, radius).distance_m <= 0.0)
+        clear_to = float(line[blocked[0], 2]) if blocked.size else math.inf
+        column = p + np.arange(_HOLD_STEP_M, max(rise, 0.0) + 1e-9, _HOLD_STEP_M)[:, None] * up
+        column = column[column[:, 2] < clear_to]
+        column = column[known.clearance(column, radius).distance_m >= need]
+        # around: each straight move tested every `_FREE_STEP_M` (one query for all)
+        around = goal_region_points(p, reach, shells=max(int(round(reach / _HOLD_STEP_M)), 1))
+        around = around[known.in_bounds(around, radius + need)]
+        around = around[known.clearance(around, radius).distance_m >= need]
+        samples = int(math.ceil(reach / _FREE_STEP_M)) + 1
+        moves = p + np.linspace(0.0, 1.0, samples)[None, :, None] * (around - p)[:, None, :]
+        free = known.clearance(moves.reshape(-1, 3), radius).distance_m.reshape(len(around), samples) > 0.0
+        keeps = np.vstack([column, around[np.all(free, axis=1)]])
+        if not len(keeps):
+            return brake
+        # the nearest; of two as near, the higher (the sky is open there, to the GNSS too)
+        q = keeps[np.lexsort((-keeps[:, 2], np.linalg.norm(keeps - p, axis=1)))[0]]
+        self.stats.hold_moves += 1
+        return then_straight(brake, q, self._limits.max_vertical_speed_m_s, self._limits.max_vertical_accel_m_s2)
 
     def _free_in_known(self, points_m: np.ndarray) -> bool:
         """Whether the vehicle's sphere is clear of what the pilot knows now (as its planner tests a start: the
@@ -736,10 +820,10 @@ class ClassicalPilot:
                 log.info("tracking error %.1f m above %.1f m at t = %.2f s: replanning", error,
                          cfg.replan_error_m, obs.t_s)
                 return "tracking"
-        if (cfg.replan_on_clearance and self.last_solution is not None
+        points = self._predicted_positions()
+        if (cfg.replan_on_clearance and points is not None
                 and s.replans_by_cause["clearance"] < cfg.max_clearance_replans
                 and obs.t_s - self._last_replan_t >= cfg.replan_cooldown_s):
-            points = self.last_solution.predicted_states[1:, 0:3]
             clearances = self.predicted_clearances_m(points)
             # each predicted stage against the MPC margin at its reference speed when it was solved
             required = self._stage_mpc_margins[:len(points)]
@@ -777,14 +861,16 @@ class ClassicalPilot:
         """Clearance half-spaces (N, K, 3), (N, K) around the last prediction (or the reference).
 
         Rows: the K−1 nearest buildings or no-fly volumes, facing the vehicle through their nearest
-        points, and the ground; each offset by the collision radius plus the MPC's clearance margin.
+        points, and the ground; each offset by the collision radius plus the MPC's clearance margin, or, where the
+        vehicle is inside that now, by no more than it recovers at `margin_recovery_m_s` by the stage's time.
         """
         (world, _), mpc = self._flying(), self._tracker
         obstacles = self._known.planning_map()  # the no-fly volumes are kept at the same margin
         n_stages, k = mpc.horizon_steps, mpc.config.n_halfspaces
         if k == 0:
             return np.zeros((n_stages, 0, 3)), np.zeros((n_stages, 0))
-        pred = self.last_solution.predicted_states[1:, 0:3] if self.last_solution is not None else ref_pos[1:]
+        predicted = self._predicted_positions()
+        pred = predicted if predicted is not None else ref_pos[1:]
         required = world.vehicle.collision_radius_m + self._stage_mpc_margins  # (N,): by the stage's speed
         normals = np.zeros((n_stages, k, 3))
         offsets = np.full((n_stages, k), -1.0)
@@ -799,7 +885,22 @@ class ClassicalPilot:
                 normal = away / norm[..., None] * np.where(dist >= 0, 1.0, -1.0)[..., None]
             normals[:, :k - 1] = np.where(found[..., None], normal, 0.0)
             offsets[:, :k - 1] = np.where(found, np.einsum("nkc,nkc->nk", normal, pts) + required[:, None], -1.0)
+        # a half-space the vehicle is inside now asks it out at `margin_recovery_m_s`, not at once: asked at once, the
+        # slack's price outweighs every other term and the MPC tilts to its limit sideways, losing height (a hold in
+        # a gap narrower than the margin sank 19 m to the ground in quad-004/5)
+        t_k = mpc.step_s * np.arange(1, n_stages + 1)
+        now = np.einsum("nkc,c->nk", normals, np.asarray(obs.x[0:3], float))
+        offsets = np.minimum(offsets, now + self.config.margin_recovery_m_s * t_k[:, None])
         return normals, offsets
+
+    def _predicted_positions(self) -> np.ndarray | None:
+        """The last MPC solution's predicted positions at stages 1..N (N, 3) [m]; None when there is none, or when it
+        fell back to hover trim (no plan of its own: its prediction is no trajectory, and half-spaces built around it
+        were built around the map's origin, quad-004/5)."""
+        sol = self.last_solution
+        if sol is None or sol.hover_trim:
+            return None
+        return sol.predicted_states[1:, 0:3]
 
     def _flying(self) -> tuple[World, Margins]:
         """The episode's world and margins (both set by `reset`)."""

@@ -142,6 +142,8 @@ class MPCSolution:
         predicted_states: (N+1, 13) predicted [p, v, q, ω] (the previous plan's on fallback).
         max_slack_m: largest clearance slack used [m] (0 when every half-space holds).
         qp_iterations: iterations of the QP solver summed over the RTI's steps (-1 for NLP solvers).
+        hover_trim: a fallback with no previous plan covering now: the command is hover trim, which holds no
+            position or vertical speed (a pilot with a velocity autopilot under it may hand over to that instead).
     """
 
     rotor_speeds_rad_s: np.ndarray
@@ -153,6 +155,7 @@ class MPCSolution:
     predicted_states: np.ndarray
     max_slack_m: float
     qp_iterations: int = -1
+    hover_trim: bool = False
 
 
 class MPCTracker:
@@ -362,24 +365,24 @@ class MPCTracker:
             self._lam_x, self._lam_g = np.asarray(sol["lam_x"]).ravel(), np.asarray(sol["lam_g"]).ravel()
             self._plan_age_s = 0.0
             u = lay.inputs(w)[0].copy()
-            fallback = False
+            fallback = hover_trim = False
         else:
             self.n_failures += 1
             self._plan_age_s += elapsed_s
             fallback = True
-            u, status = self._fallback_input(u_hover, status)
+            u, status, hover_trim = self._fallback_input(u_hover, status)
         self._last_u = u
         pred = lay.states(self._w)[:, :13] if self._w is not None else np.zeros((lay.n_stages + 1, 13))
         slack = float(np.max(lay.slacks(self._w))) if self._w is not None else 0.0
         return MPCSolution(self.rotor_speeds(u), success, status, iterations, solve_time, fallback, pred,
-                           slack, qp_iterations)
+                           slack, qp_iterations, hover_trim)
 
-    def _fallback_input(self, u_hover: np.ndarray, status: str) -> tuple[np.ndarray, str]:
-        """The shifted previous plan's input while it still covers now, else hover trim."""
+    def _fallback_input(self, u_hover: np.ndarray, status: str) -> tuple[np.ndarray, str, bool]:
+        """The shifted previous plan's input while it still covers now, else hover trim; and whether hover trim."""
         if self._w is not None and self._plan_age_s < self.step_s * (self.horizon_steps - 1):
             k = int(self._plan_age_s / self.step_s)
-            return self.layout.inputs(self._w)[k].copy(), f"fallback_shifted({status})"
-        return u_hover.copy(), f"fallback_hover({status})"
+            return self.layout.inputs(self._w)[k].copy(), f"fallback_shifted({status})", False
+        return u_hover.copy(), f"fallback_hover({status})", True
 
 
 def _nlp_functions_c(solver: ca.Function) -> bytes:

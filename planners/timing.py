@@ -27,6 +27,7 @@ Frames: world ENU, metres, seconds.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import math
@@ -544,27 +545,39 @@ def time_parameterize(path_m: np.ndarray, limits: TimingLimits, city: BuildingMa
     return ref
 
 
-def braking_reference(position_m: np.ndarray, velocity_m_s: np.ndarray, decel_m_s2: float, step_s: float = 0.02
-                      ) -> Reference:
+def braking_reference(position_m: np.ndarray, velocity_m_s: np.ndarray, decel_m_s2: float, step_s: float = 0.02,
+                      floor_z_m: float = -math.inf) -> Reference:
     """A straight stop: from `position_m` (3,) at `velocity_m_s` (3,) world ENU, slowing at `decel_m_s2` [m/s²]
     along the velocity until at rest, then holding there (a hover). Its clearance is not checked (NaN): it is what
-    the vehicle flies while a replan runs, or holding when none succeeds."""
+    the vehicle flies while a replan runs, or holding when none succeeds.
+
+    A descent that would stop below `floor_z_m` [m] (the ground plus what must be kept from it) stops its vertical
+    speed harder, at v_z² / 2 (z - floor), to rest on the floor (at once when already below it); the horizontal speed
+    still slows at its share of `decel_m_s2`, so the two end at different times."""
     p0 = np.asarray(position_m, float).reshape(3)
     v0 = np.asarray(velocity_m_s, float).reshape(3)
     speed = float(np.linalg.norm(v0))
     if not (math.isfinite(decel_m_s2) and decel_m_s2 > 0.0):
         raise ValueError(f"decel_m_s2 must be positive and finite, got {decel_m_s2!r}")
-    stop_s = speed / decel_m_s2
+    # each axis slows at its share of the deceleration (a straight stop), the vertical one harder above a floor
+    decel = decel_m_s2 * np.abs(v0) / speed if speed > 0.0 else np.zeros(3)
+    if v0[2] < 0.0 and p0[2] - v0[2] ** 2 / (2.0 * decel[2]) < floor_z_m:
+        room = float(p0[2] - floor_z_m)
+        decel[2] = v0[2] ** 2 / (2.0 * room) if room > 0.0 else math.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stop_axis = np.where(decel > 0.0, np.abs(v0) / decel, 0.0)
+    stop_s = float(np.max(stop_axis))
     t = np.append(np.arange(0.0, stop_s, step_s), stop_s) if stop_s > 0.0 else np.zeros(1)
-    unit = v0 / speed if speed > 0.0 else np.zeros(3)
-    s_along = speed * t - 0.5 * decel_m_s2 * t * t
-    v_along = speed - decel_m_s2 * t
-    pos = p0 + s_along[:, None] * unit
-    vel = v_along[:, None] * unit
-    acc = np.broadcast_to(-decel_m_s2 * unit if speed > 0.0 else np.zeros(3), pos.shape).copy()
+    tau = np.minimum(t[:, None], stop_axis[None, :])  # (M, 3): each axis at rest after its own stop
+    sign = np.sign(v0)
+    finite = np.where(np.isfinite(decel), decel, 0.0)
+    pos = p0 + v0 * tau - 0.5 * sign * finite * tau * tau
+    vel = np.where(t[:, None] < stop_axis[None, :], v0 - sign * finite * tau, 0.0)
+    acc = np.where(t[:, None] < stop_axis[None, :], -sign * finite, 0.0)
     acc[-1] = 0.0
+    length = float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1))) if len(pos) > 1 else 0.0
     return Reference(t_s=_frozen(t), pos_m=_frozen(pos), vel_m_s=_frozen(vel), acc_m_s2=_frozen(acc),
-                     duration_s=float(stop_s), status="ok", length_m=float(s_along[-1]), min_clearance_m=math.nan,
+                     duration_s=float(stop_s), status="ok", length_m=length, min_clearance_m=math.nan,
                      required_clearance_m=math.nan, refinements=0, stops=1)
 
 
@@ -594,6 +607,40 @@ def braking_along(reference: Reference, t_s: float, decel_m_s2: float, step_s: f
     return Reference(t_s=_frozen(t), pos_m=_frozen(p), vel_m_s=_frozen(v[:, None] * unit), acc_m_s2=_frozen(acc),
                      duration_s=float(t[-1]), status="ok", length_m=float(s[-1] - s0), min_clearance_m=math.nan,
                      required_clearance_m=math.nan, refinements=0, stops=1)
+
+
+def then_straight(reference: Reference, point_m: np.ndarray, max_speed_m_s: float, accel_m_s2: float,
+                  step_s: float = 0.02) -> Reference:
+    """`reference`, then from its end at rest a straight move to `point_m` (3,) [m] world ENU, accelerating and
+    slowing at `accel_m_s2` [m/s²] up to `max_speed_m_s` [m/s] (rest to rest), holding there. Clearance not checked
+    (NaN), as `braking_reference`'s."""
+    if not all(math.isfinite(x) and x > 0.0 for x in (max_speed_m_s, accel_m_s2)):
+        raise ValueError(f"max_speed_m_s and accel_m_s2 must be positive and finite, got {max_speed_m_s!r}, "
+                         f"{accel_m_s2!r}")
+    start = np.asarray(reference.pos_m[-1], float)
+    span = np.asarray(point_m, float).reshape(3) - start
+    d = float(np.linalg.norm(span))
+    if d <= 0.0:
+        return reference
+    unit = span / d
+    t_acc = min(max_speed_m_s / accel_m_s2, math.sqrt(d / accel_m_s2))  # trapezoid, or a triangle when short
+    v_top = accel_m_s2 * t_acc
+    t_cruise = (d - v_top * t_acc) / v_top
+    total = 2.0 * t_acc + t_cruise
+    t = np.append(np.arange(step_s, total, step_s), total)
+    t1, t2 = np.minimum(t, t_acc), np.clip(t - t_acc - t_cruise, 0.0, t_acc)
+    s_along = 0.5 * accel_m_s2 * t1 ** 2 + v_top * np.clip(t - t_acc, 0.0, t_cruise) + v_top * t2 \
+        - 0.5 * accel_m_s2 * t2 ** 2
+    v_along = np.where(t < t_acc, accel_m_s2 * t, np.where(t < t_acc + t_cruise, v_top, v_top - accel_m_s2 * t2))
+    a_along = np.where(t < t_acc, accel_m_s2, np.where(t < t_acc + t_cruise, 0.0, -accel_m_s2))
+    a_along[-1], v_along[-1] = 0.0, 0.0
+    return dataclasses.replace(
+        reference, t_s=_frozen(np.append(reference.t_s, reference.duration_s + t)),
+        pos_m=_frozen(np.vstack([reference.pos_m, start + s_along[:, None] * unit])),
+        vel_m_s=_frozen(np.vstack([reference.vel_m_s, v_along[:, None] * unit])),
+        acc_m_s2=_frozen(np.vstack([reference.acc_m_s2, a_along[:, None] * unit])),
+        duration_s=float(reference.duration_s + total), length_m=float(reference.length_m + d),
+        min_clearance_m=math.nan, required_clearance_m=math.nan, stops=reference.stops + 1)
 
 
 def _at_rest(p: np.ndarray, city: BuildingMap, radius_m: float, margin_m: float) -> Reference:

@@ -1,6 +1,7 @@
 """The plan-and-track pilot flies a small three-building map to the goal without collision."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -118,6 +119,32 @@ def test_a_predicted_clearance_violation_replans_from_the_current_state(vehicles
     assert report.plan_time_s == pilot.stats.plan_time_s and report.replan_time_s < report.plan_time_s
     assert report.mpc_solves == 5 and report.planner_margin_m == 1.0 and report.mpc_margin_m == 0.5
     assert np.isfinite(report.mpc_solve_ms_median) and report.tracking_max_m >= report.tracking_rms_m >= 0.0
+
+
+@pytest.mark.parametrize("rate", [1.0, math.inf])
+def test_a_vehicle_inside_the_mpc_margin_is_asked_out_at_the_recovery_rate(rate, vehicles, compiled_dynamics):
+    """The half-space of a wall the vehicle is inside the margin of starts where the vehicle is and moves out at
+    `margin_recovery_m_s` until it reaches the margin; half-spaces it keeps are as they were (inf: all at once)."""
+    p = vehicles["small_quad"]
+    world = _wall_world(p, compiled_dynamics["small_quad"])
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=30.0)
+    pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, margin_recovery_m_s=rate))
+    assert pilot.reset(world, task, seed=3).ok
+    x = hover_state(p, (30.0, 2.5, 10.0))  # 0.5 m from the face at y = 3: inside radius + MPC margin (0.92 m)
+    n = pilot._tracker.horizon_steps
+    ref = np.tile(x[0:3], (n + 1, 1))
+    normals, offsets = pilot._halfspaces(Observation(0.0, x), ref)
+    wall = int(np.argmax(normals[0, :, 1] < -0.99))  # facing away from the wall: -y
+    required = p.collision_radius_m + pilot._stage_mpc_margins
+    margin_offset = -(3.0 - required)  # -y >= -(3 - required): y <= 3 - required
+    t_k = pilot._tracker.step_s * np.arange(1, n + 1)
+    np.testing.assert_allclose(offsets[:, wall], np.minimum(margin_offset, -2.5 + rate * t_k), atol=1e-9)
+    if math.isfinite(rate):
+        assert offsets[0, wall] < margin_offset[0]  # relaxed at first...
+    assert np.any(np.isclose(offsets[:, wall], margin_offset))  # ...the margin itself within the horizon (or at once)
+    np.testing.assert_allclose(offsets[:, -1], required)  # the ground, kept: as it was
+    with pytest.raises(ValueError, match="margin_recovery_m_s"):
+        ClassicalConfig(margin_recovery_m_s=0.0)
 
 
 def test_margins_follow_the_forecast_turbulence_and_density(vehicles, compiled_dynamics):
@@ -289,13 +316,103 @@ def test_no_path_in_what_it_knows_makes_the_pilot_hold(vehicles, compiled_dynami
     assert pilot.reset(world, task, seed=3).ok
     lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
     pilot.act(_sensed_obs(pilot, p, 0.0, lidar, np.array(task.start_m)))
-    assert pilot.stats.hover_holds == 1 and pilot._pending is None
+    assert pilot.stats.hover_holds == 1 and pilot._pending is None and pilot.stats.hold_moves == 0
     hold = pilot.reference
     assert np.allclose(hold.sample(100.0)[1], 0.0)  # at rest: a hover where the braking ends
     pilot.act(_sensed_obs(pilot, p, 0.5, lidar, np.array(task.start_m)))
     assert pilot.stats.hover_holds == 1  # still the same hold; the retry waits for hold_retry_s
     pilot.act(_sensed_obs(pilot, p, 1.0, lidar, np.array(task.start_m)))
     assert pilot.stats.hover_holds == 1 and len(pilot.stats.in_flight_replan_s) == 2  # retried, still no path
+
+
+def test_a_hold_in_a_gap_narrower_than_the_margin_moves_to_the_nearest_point_where_it_fits(vehicles,
+                                                                                          compiled_dynamics):
+    """A hold where the braking ends in a slot narrower than twice the MPC's margin at rest (no hover keeps it there)
+    moves straight to the nearest point that keeps the margin: up, out of a long slot; along it, out of a short one
+    under a roof; and nowhere out of a closed one, or in open space."""
+    from planners.timing import braking_reference
+
+    p = vehicles["small_quad"]
+    r = p.collision_radius_m
+    bounds = ((-10.0, -40.0, 0.0), (100.0, 40.0, 40.0))
+    half = r + 1.3  # the walls' centres: faces r + 0.3 m from the slot's middle
+
+    def slot(x: float, y: float, length: float) -> list[Building]:
+        return [Building(1, (x, y + side), (length, 2.0), 15.0) for side in (-half, half)]
+
+    long_slot = slot(40.0, 20.0, 30.0)
+    roofed = [*slot(80.0, 20.0, 4.0), Building(2, (80.0, 20.0), (6.0, 8.0), 18.0, base_m=16.0)]
+    closed = [*slot(80.0, -20.0, 4.0), Building(3, (80.0, -20.0), (6.0, 8.0), 18.0, base_m=16.0),
+              *[Building(4, (80.0 + side, -20.0), (2.0, 8.0), 18.0) for side in (-3.0, 3.0)]]
+    city = BuildingMap([*long_slot, *roofed, *closed], *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], city)
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False))
+    assert pilot.reset(world, task, seed=3).ok
+    need = pilot._rest_margin_m()
+    assert need > 0.3  # a slot leaves a hover at its middle 0.3 m
+
+    def moved(at: tuple[float, float, float]) -> np.ndarray:
+        brake = braking_reference(np.array([at[0] - 1.0, at[1], at[2] - 1.0]), np.array([1.0, 0.0, 1.0]), 0.5 ** 0.5)
+        assert np.allclose(brake.pos_m[-1], at)
+        hold = pilot._hold_reference(brake)
+        end, v_end, _ = hold.sample(100.0)
+        assert np.allclose(v_end, 0.0) and np.allclose(hold.sample(brake.duration_s)[0], at)  # the braking first
+        assert np.abs(hold.vel_m_s[brake.pos_m.shape[0]:]).max(initial=0.0) <= \
+            pilot._limits.max_vertical_speed_m_s + 1e-9
+        # a straight move, clear of the city; the margin kept where it ends
+        assert city.clearance(np.asarray(hold.pos_m), r).distance_m.min() > 0.0
+        assert float(city.clearance(end[None, :], r).distance_m[0]) >= need
+        return end - np.asarray(at)
+
+    up = moved((39.0, 20.0, 9.0))
+    assert np.allclose(up[0:2], 0.0) and 15.0 + r + need - 9.0 <= up[2] <= 15.0 + r + need - 9.0 + 1.0
+    out = moved((80.0, 20.0, 10.0))  # the roof 6 m up blocks the climb; 2 m along the slot its end
+    assert abs(out[0]) > 2.0 and np.linalg.norm(out) <= pilot.config.hold_search_m
+    assert pilot.stats.hold_moves == 2
+    for at in ((20.0, 0.0, 10.0), (80.0, -20.0, 10.0)):  # open space; a closed slot
+        brake = braking_reference(np.array(at), np.zeros(3), 1.0)
+        assert pilot._hold_reference(brake) is brake
+    assert pilot.stats.hold_moves == 2
+
+
+def test_a_failed_solve_with_no_plan_left_hands_the_vehicle_to_its_velocity_autopilot(vehicles, compiled_dynamics,
+                                                                                     monkeypatch):
+    """Hover trim holds no vertical speed: when the MPC falls back to it, the pilot commands the vehicle's velocity
+    autopilot back onto the reference instead."""
+    from uam_fdm.pilot import RotorCommand, VelocityCommand
+
+    p = vehicles["small_quad"]
+    world = _wall_world(p, compiled_dynamics["small_quad"])
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=30.0)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False, autopilot_gain_1_s=0.5)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    x = hover_state(p, (0.0, 0.0, 12.0))
+    x[3:6] = (0.0, 0.0, -6.0)  # 2 m above the reference, falling
+    assert isinstance(pilot.act(Observation(0.0, x)), RotorCommand)
+    solved = pilot.last_solution
+    monkeypatch.setattr(pilot._tracker, "solve", lambda *a, **k: dataclasses.replace(
+        solved, success=False, fallback=True, status="fallback_hover(test)", hover_trim=True))
+    act = pilot.act(Observation(0.02, x))
+    assert isinstance(act, VelocityCommand) and pilot.stats.autopilot_decisions == 1
+    ref_pos, ref_vel, _ = pilot.reference.sample(0.02 - pilot._t_ref0)
+    assert np.allclose(act.velocity_enu_m_s, ref_vel + 0.5 * (ref_pos - x[0:3]))
+    assert act.velocity_enu_m_s[2] == pytest.approx(-1.0, abs=0.05) and act.yaw_rad == task.start_yaw_rad
+    # hover trim predicts nothing (its states are zeros): the next half-spaces are built around the reference, as
+    # with no solution at all, not around the map's origin
+    assert pilot._predicted_positions() is None
+    horizon = pilot.reference.sample_horizon(0.04 - pilot._t_ref0, pilot._tracker.step_s,
+                                             pilot._tracker.horizon_steps + 1)[0]
+    after_trim = pilot._halfspaces(Observation(0.04, x), horizon)
+    pilot.last_solution = None
+    for got, want in zip(after_trim, pilot._halfspaces(Observation(0.04, x), horizon), strict=True):
+        np.testing.assert_allclose(got, want)
+    monkeypatch.setattr(pilot._tracker, "solve", lambda *a, **k: dataclasses.replace(
+        solved, success=False, fallback=True, status="fallback_shifted(test)", hover_trim=False))
+    assert isinstance(pilot.act(Observation(0.04, x)), RotorCommand)  # the previous plan's input still covers now
+    with pytest.raises(ValueError, match="autopilot_gain_1_s"):
+        ClassicalConfig(autopilot_gain_1_s=0.0)
 
 
 def _sensing_world(p, dynamics, prior: BuildingMap) -> World:

@@ -91,9 +91,31 @@ def test_failed_solve_falls_back_and_is_counted(vehicles):
     n = mpc.config.horizon_steps
     far = np.tile([40.0, 0.0, 30.0], (n + 1, 1))
     sol = mpc.solve(x, far, np.zeros((n + 1, 3)), 0.0, 1.0)
-    assert not sol.success and sol.fallback and sol.status.startswith("fallback_hover")
+    assert not sol.success and sol.fallback and sol.status.startswith("fallback_hover") and sol.hover_trim
     np.testing.assert_allclose(sol.rotor_speeds_rad_s, p.hover_rotor_speeds_rad_s(1.0))
     assert mpc.n_failures == 1 and mpc.n_solves == 1
+
+
+def test_a_failed_solve_flies_the_previous_plan_while_it_covers_now_then_hover_trim(vehicles, trackers,
+                                                                                   monkeypatch):
+    p, mpc = vehicles["small_quad"], trackers["small_quad"]["rti"]
+    mpc.reset()
+    n = mpc.config.horizon_steps
+    x = hover_state(p, (0.0, 0.0, 30.0))
+    ahead = np.tile([3.0, 0.0, 31.0], (n + 1, 1))
+    planned = mpc.solve(x, ahead, np.zeros((n + 1, 3)), 0.0, 1.0)
+    assert planned.success and not planned.hover_trim
+
+    def fails(**_: object) -> None:
+        raise RuntimeError("a solver that raises")
+
+    monkeypatch.setattr(mpc, "_solver", fails)
+    shifted = mpc.solve(x, ahead, np.zeros((n + 1, 3)), 0.0, 1.0, elapsed_s=mpc.step_s)
+    assert shifted.fallback and shifted.status.startswith("fallback_shifted") and not shifted.hover_trim
+    late = mpc.solve(x, ahead, np.zeros((n + 1, 3)), 0.0, 1.0, elapsed_s=mpc.step_s * n)  # past the plan's cover
+    assert late.fallback and late.status.startswith("fallback_hover") and late.hover_trim
+    monkeypatch.undo()
+    mpc.reset()
 
 
 @pytest.mark.parametrize("solver", ["rti", "ipopt"])

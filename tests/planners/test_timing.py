@@ -243,6 +243,48 @@ def test_a_braking_reference_stops_along_the_velocity_and_holds():
         braking_reference(np.zeros(3), np.ones(3), 0.0)
 
 
+def test_a_descent_stops_on_the_floor_not_below_it():
+    """A stop whose straight line would end below the floor slows its descent harder, to rest on the floor, while the
+    horizontal speed slows as before; already below the floor the descent stops at once."""
+    from planners.timing import braking_reference
+
+    p0, v0 = np.array([0.0, 0.0, 15.0]), np.array([3.0, 0.0, -8.0])
+    free = braking_reference(p0, v0, 4.0)
+    assert free.sample(100.0)[0][2] < 10.0  # 9.1 m along the velocity: below a floor at 10 m
+    held = braking_reference(p0, v0, 4.0, floor_z_m=10.0)
+    assert held.pos_m[:, 2].min() == pytest.approx(10.0) and held.sample(100.0)[0][2] == pytest.approx(10.0)
+    assert np.allclose(held.sample(100.0)[0][0:2], free.sample(100.0)[0][0:2])  # the horizontal stop unchanged
+    assert held.duration_s == pytest.approx(free.duration_s)
+    assert np.allclose(held.sample(100.0)[1], 0.0) and np.all(np.diff(held.pos_m[:, 2]) <= 1e-12)
+    assert held.acc_m_s2[0][2] == pytest.approx(64.0 / 10.0)  # v_z² / 2 (z - floor)
+    high = braking_reference(p0, v0, 4.0, floor_z_m=0.0)  # far above the floor: the straight stop
+    assert np.allclose(high.pos_m, free.pos_m) and np.allclose(high.vel_m_s, free.vel_m_s)
+    below = braking_reference(np.array([0.0, 0.0, 8.0]), v0, 4.0, floor_z_m=10.0)
+    assert np.all(below.pos_m[:, 2] == 8.0) and np.all(below.vel_m_s[1:, 2] == 0.0)
+    climbing = braking_reference(p0, -v0, 4.0, floor_z_m=20.0)  # moving up: the floor does not bind
+    assert np.allclose(climbing.pos_m, braking_reference(p0, -v0, 4.0).pos_m)
+
+
+def test_then_straight_moves_rest_to_rest_within_the_limits():
+    from planners.timing import braking_reference, then_straight
+
+    brake = braking_reference(np.array([0.0, 0.0, 10.0]), np.array([2.0, 0.0, 0.0]), 2.0)
+    up = then_straight(brake, brake.pos_m[-1] + (0.0, 0.0, 12.0), 2.0, 1.0)
+    # a trapezoid: 2 s to 2 m/s (2 m), 8 m at 2 m/s (4 s), 2 s to rest (2 m)
+    assert up.duration_s == pytest.approx(brake.duration_s + 8.0)
+    assert np.allclose(up.sample(brake.duration_s)[0], brake.pos_m[-1])  # continuous at the join
+    end, v_end, _ = up.sample(100.0)
+    assert np.allclose(end, brake.pos_m[-1] + (0.0, 0.0, 12.0)) and np.allclose(v_end, 0.0)
+    assert np.abs(up.vel_m_s[:, 2]).max() == pytest.approx(2.0)
+    assert np.all(np.diff(up.t_s) > 0.0) and up.length_m == pytest.approx(brake.length_m + 12.0)
+    short = then_straight(brake, brake.pos_m[-1] + (0.0, 0.0, 1.0), 2.0, 1.0)  # a triangle: 1 s up, 1 s down
+    assert short.duration_s == pytest.approx(brake.duration_s + 2.0)
+    assert np.abs(short.vel_m_s[:, 2]).max() == pytest.approx(1.0, abs=0.03)
+    assert then_straight(brake, brake.pos_m[-1], 2.0, 1.0) is brake
+    with pytest.raises(ValueError, match="max_speed_m_s"):
+        then_straight(brake, np.zeros(3), 0.0, 1.0)
+
+
 def test_braking_along_a_curve_stays_on_it_and_stops():
     """The stop while a replan runs follows the flown curve (an L-turn here), slowing at the given rate from the
     reference's speed at that time, and holds at rest; a stop past the curve's end holds at the end."""
