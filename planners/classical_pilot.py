@@ -123,8 +123,9 @@ class ClassicalConfig:
             autopilot is commanded the reference's velocity plus this gain [1/s] times the position error.
         hold_search_m: holding where the MPC's margin at rest does not fit, the pilot moves to the nearest point that
             keeps it straight above, or within this distance [m] around.
-        margin_recovery_m_s: the MPC's clearance half-spaces ask a vehicle inside its margin (a drifting estimate, a
-            newly sensed face) back out at this rate [m/s] over the horizon; inf: at once.
+        margin_recovery_m_s: on sensors, the MPC's clearance half-spaces ask a vehicle inside its margin (a drifting
+            estimate, a newly sensed face) back out at this rate [m/s] over the horizon; inf: at once (as always at
+            `perfect` sensing, the privileged reference).
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -861,8 +862,9 @@ class ClassicalPilot:
         """Clearance half-spaces (N, K, 3), (N, K) around the last prediction (or the reference).
 
         Rows: the K−1 nearest buildings or no-fly volumes, facing the vehicle through their nearest
-        points, and the ground; each offset by the collision radius plus the MPC's clearance margin, or, where the
-        vehicle is inside that now, by no more than it recovers at `margin_recovery_m_s` by the stage's time.
+        points, and the ground; each offset by the collision radius plus the MPC's clearance margin, or, on sensors
+        where the vehicle is inside that now, by no more than it recovers at `margin_recovery_m_s` by the stage's
+        time.
         """
         (world, _), mpc = self._flying(), self._tracker
         obstacles = self._known.planning_map()  # the no-fly volumes are kept at the same margin
@@ -885,9 +887,11 @@ class ClassicalPilot:
                 normal = away / norm[..., None] * np.where(dist >= 0, 1.0, -1.0)[..., None]
             normals[:, :k - 1] = np.where(found[..., None], normal, 0.0)
             offsets[:, :k - 1] = np.where(found, np.einsum("nkc,nkc->nk", normal, pts) + required[:, None], -1.0)
-        # a half-space the vehicle is inside now asks it out at `margin_recovery_m_s`, not at once: asked at once, the
-        # slack's price outweighs every other term and the MPC tilts to its limit sideways, losing height (a hold in
-        # a gap narrower than the margin sank 19 m to the ground in quad-004/5)
+        if self._sensed is None:  # the privileged reference, as it was
+            return normals, offsets
+        # on sensors, a half-space the vehicle is inside now asks it out at `margin_recovery_m_s`, not at once: asked
+        # at once, the slack's price outweighs every other term and the MPC tilts to its limit sideways, losing
+        # height (a hold in a gap narrower than the margin sank 19 m to the ground in quad-004/5)
         t_k = mpc.step_s * np.arange(1, n_stages + 1)
         now = np.einsum("nkc,c->nk", normals, np.asarray(obs.x[0:3], float))
         offsets = np.minimum(offsets, now + self.config.margin_recovery_m_s * t_k[:, None])

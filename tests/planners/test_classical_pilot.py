@@ -121,25 +121,30 @@ def test_a_predicted_clearance_violation_replans_from_the_current_state(vehicles
     assert np.isfinite(report.mpc_solve_ms_median) and report.tracking_max_m >= report.tracking_rms_m >= 0.0
 
 
-@pytest.mark.parametrize("rate", [1.0, math.inf])
-def test_a_vehicle_inside_the_mpc_margin_is_asked_out_at_the_recovery_rate(rate, vehicles, compiled_dynamics):
-    """The half-space of a wall the vehicle is inside the margin of starts where the vehicle is and moves out at
-    `margin_recovery_m_s` until it reaches the margin; half-spaces it keeps are as they were (inf: all at once)."""
+@pytest.mark.parametrize("rate, sensing", [(1.0, True), (math.inf, True), (1.0, False)])
+def test_a_vehicle_inside_the_mpc_margin_is_asked_out_at_the_recovery_rate(rate, sensing, vehicles,
+                                                                           compiled_dynamics):
+    """On sensors, the half-space of a wall the vehicle is inside the margin of starts where the vehicle is and moves
+    out at `margin_recovery_m_s` until it reaches the margin; half-spaces it keeps are as they were (inf: all at once,
+    as at `perfect` sensing, the privileged reference)."""
     p = vehicles["small_quad"]
     world = _wall_world(p, compiled_dynamics["small_quad"])
+    if sensing:
+        world = _sensing_world(p, compiled_dynamics["small_quad"], world.city)
     task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(60.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=30.0)
     pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, margin_recovery_m_s=rate))
     assert pilot.reset(world, task, seed=3).ok
-    x = hover_state(p, (30.0, 2.5, 10.0))  # 0.5 m from the face at y = 3: inside radius + MPC margin (0.92 m)
+    required = p.collision_radius_m + pilot._stage_mpc_margins  # at rest: the same at every stage
+    y = 3.0 - required[0] + 0.4  # 0.4 m inside radius + the MPC's margin from the face at y = 3
+    x = hover_state(p, (30.0, y, 10.0))
     n = pilot._tracker.horizon_steps
-    ref = np.tile(x[0:3], (n + 1, 1))
-    normals, offsets = pilot._halfspaces(Observation(0.0, x), ref)
+    normals, offsets = pilot._halfspaces(Observation(0.0, x), np.tile(x[0:3], (n + 1, 1)))
     wall = int(np.argmax(normals[0, :, 1] < -0.99))  # facing away from the wall: -y
-    required = p.collision_radius_m + pilot._stage_mpc_margins
     margin_offset = -(3.0 - required)  # -y >= -(3 - required): y <= 3 - required
     t_k = pilot._tracker.step_s * np.arange(1, n + 1)
-    np.testing.assert_allclose(offsets[:, wall], np.minimum(margin_offset, -2.5 + rate * t_k), atol=1e-9)
-    if math.isfinite(rate):
+    want = np.minimum(margin_offset, -y + rate * t_k) if sensing else margin_offset
+    np.testing.assert_allclose(offsets[:, wall], want, atol=1e-9)
+    if sensing and math.isfinite(rate):
         assert offsets[0, wall] < margin_offset[0]  # relaxed at first...
     assert np.any(np.isclose(offsets[:, wall], margin_offset))  # ...the margin itself within the horizon (or at once)
     np.testing.assert_allclose(offsets[:, -1], required)  # the ground, kept: as it was
