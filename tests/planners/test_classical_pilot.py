@@ -418,6 +418,8 @@ def test_a_failed_solve_with_no_plan_left_hands_the_vehicle_to_its_velocity_auto
     assert isinstance(pilot.act(Observation(0.04, x)), RotorCommand)  # the previous plan's input still covers now
     with pytest.raises(ValueError, match="autopilot_gain_1_s"):
         ClassicalConfig(autopilot_gain_1_s=0.0)
+    with pytest.raises(ValueError, match="see_reaction_s"):
+        ClassicalConfig(see_reaction_s=-0.1)
 
 
 def _sensing_world(p, dynamics, prior: BuildingMap) -> World:
@@ -425,6 +427,58 @@ def _sensing_world(p, dynamics, prior: BuildingMap) -> World:
 
     return World(p, dynamics, prior, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
                  sensing=sensing_preset("nominal", p.mass_kg))
+
+
+@pytest.mark.parametrize("see", [True, False])
+def test_the_reference_clock_slows_to_stop_short_of_the_path_hidden_round_a_corner(see, vehicles, compiled_dynamics):
+    """Flying a plan east at 8 m/s past a block's corner, beyond which it turns north out of sight: 5 m before the
+    corner the reference's clock slows so that the vehicle, reacting and braking, stops short of the first point it
+    cannot see with its margin at rest; 25 m before it, it runs at full rate; the clock advances at its rate."""
+    from planners.timing import Reference
+    from planners.visibility import stopping_speed_m_s
+
+    p = vehicles["small_quad"]
+    block = Building(0, (24.0, 11.0), (8.0, 18.0), 30.0)  # its south-east corner at (28, 2)
+    world = _sensing_world(p, compiled_dynamics["small_quad"],
+                           BuildingMap([block], (-10.0, -30.0, 0.0), (80.0, 60.0, 50.0)))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(30.0, 20.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, see_to_stop=see))
+    assert pilot.reset(world, task, seed=3).ok
+    speed = 8.0
+    east = np.column_stack([np.arange(0.0, 30.0, 0.1), np.zeros(300), np.full(300, 10.0)])
+    north = np.column_stack([np.full(200, 30.0), np.arange(0.0, 20.0, 0.1), np.full(200, 10.0)])
+    path = np.vstack([east, north[1:]])
+    t = np.arange(len(path)) * 0.1 / speed
+    vel = np.vstack([np.tile([speed, 0.0, 0.0], (300, 1)), np.tile([0.0, speed, 0.0], (199, 1))])
+    pilot.reference = Reference(t_s=t, pos_m=path, vel_m_s=vel, acc_m_s2=np.zeros_like(path), duration_s=float(t[-1]),
+                                status="ok", length_m=49.9, min_clearance_m=1.0, required_clearance_m=1.0,
+                                refinements=0, stops=0)
+    by_speed = pilot._base_margins.by_speed
+    keep = p.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
+    decel, reaction = pilot._limits.max_accel_m_s2, pilot.config.see_reaction_s
+
+    def run_at(x: float, dt: float = 0.0) -> float:
+        at = x / speed
+        pilot._t_ref0, pilot._clock_t, pilot._scale = 0.0, at - dt, 1.0
+        state = hover_state(p, (x, 0.0, 10.0))
+        state[3:6] = (speed, 0.0, 0.0)
+        pilot._run_clock(Observation(at, state, covariance=np.eye(16) * 0.01))
+        return pilot._scale
+
+    assert run_at(5.0) == 1.0  # 25 m before the corner: the stop fits in what it sees
+    near = run_at(25.0)
+    if not see:
+        assert near == 1.0
+        return
+    # from (25, 0) the line of sight grazing the corner (28, 2) shows the north leg up to y = 2 * 5 / 3
+    seen = 5.0 + 2.0 * 5.0 / 3.0
+    assert stopping_speed_m_s(seen - 0.8 - keep, decel, reaction) <= near * speed
+    assert near * speed <= stopping_speed_m_s(seen - keep, decel, reaction) < speed
+    # the clock ran at that rate for the 0.5 s before the next decision
+    pilot._run_clock(Observation(25.0 / speed + 0.5, hover_state(p, (25.0 + 0.5 * near * speed, 0.0, 10.0)),
+                                 covariance=np.eye(16) * 0.01))
+    assert 25.0 / speed + 0.5 - pilot._t_ref0 == pytest.approx(25.0 / speed + 0.5 * near)
+    assert pilot.stats.clock_scale_min <= near
 
 
 def _sensing_a_wall_under_way(vehicles, compiled_dynamics, wall_x_m: float):

@@ -1,0 +1,50 @@
+"""How far along its path a vehicle can see, and the speed from which it can still stop within that.
+
+A pilot on a map it knows to be incomplete takes unseen space as free (the planner must, or it could plan nothing);
+it flies safely there only at a speed from which it can stop inside what it has in sight: a face hidden behind a
+building it has sensed comes into view only as the path rounds the corner. Frames: world ENU metres.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from uam_fdm.sensing.raycast import RayCaster
+
+_NEAR_M = 1.0  # points this close to the eye are taken as seen (a ray from inside the sphere's own margin)
+
+
+def visible_arc_m(eye_m: np.ndarray, path_m: np.ndarray, caster: RayCaster, max_range_m: float) -> float:
+    """Arc length [m] along `path_m` (K, 3) from its first point to its last point before the first one hidden from
+    `eye_m` (3,): a point is hidden when the straight line of sight to it meets the caster's map or is longer than
+    `max_range_m` [m]. inf when no point is hidden."""
+    path = np.asarray(path_m, float).reshape(-1, 3)
+    eye = np.asarray(eye_m, float).reshape(3)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    ray = path - eye
+    dist = np.linalg.norm(ray, axis=1)
+    far = dist > max_range_m
+    look = (dist > _NEAR_M) & ~far
+    hidden = far.copy()
+    if np.any(look):
+        # unnormalised directions: a range of 1 is the point itself (stopped just short, not at the point's surface)
+        hidden[look] = caster.hits_any(eye, ray[look], 1.0 - 1e-4)
+    first = np.flatnonzero(hidden)
+    if first.size == 0:
+        return math.inf
+    return float(arc[first[0] - 1]) if first[0] > 0 else 0.0
+
+
+def stopping_speed_m_s(distance_m: float, decel_m_s2: float, reaction_s: float) -> float:
+    """The largest speed [m/s] from which a vehicle that flies on for `reaction_s` [s] and then brakes at
+    `decel_m_s2` [m/s²] comes to rest within `distance_m` [m]: v t + v² / 2a = d. inf for an infinite distance, 0 for
+    none."""
+    if not (decel_m_s2 > 0.0 and reaction_s >= 0.0):
+        raise ValueError(f"decel_m_s2 must be positive and reaction_s non-negative, got {decel_m_s2!r}, "
+                         f"{reaction_s!r}")
+    if math.isinf(distance_m):
+        return math.inf
+    d = max(float(distance_m), 0.0)
+    at = decel_m_s2 * reaction_s
+    return -at + math.sqrt(at * at + 2.0 * decel_m_s2 * d)
