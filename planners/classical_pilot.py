@@ -723,11 +723,11 @@ class ClassicalPilot:
             horizon = max(min(self.reference.duration_s - t_ref, 2.0 * speed / decel + reaction + 1.0), 0.0)
             path, _, _ = self.reference.sample_horizon(t_ref, _SEE_STEP_S, int(math.ceil(horizon / _SEE_STEP_S)) + 1)
             assert world.sensing is not None
-            arc = visible_arc_m(eye, path, self._line_of_sight(), world.sensing.lidar.max_range_m)
-            # the stop keeps the collision radius and the MPC's margin at rest (no k σ: what comes into view is
-            # placed on the same estimate as the vehicle)
+            # the stop, and the tube that must be in sight around the path, keep the collision radius and the MPC's
+            # margin at rest (no k σ: what comes into view is placed on the same estimate as the vehicle)
             by_speed = self._base_margins.by_speed
             keep = world.vehicle.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
+            arc = visible_arc_m(eye, path, self._line_of_sight(), world.sensing.lidar.max_range_m, keep)
             target = min(1.0, stopping_speed_m_s(arc - keep, decel, reaction) / speed)
         rise = dt * self._limits.max_accel_m_s2 / max(speed, 1.0)
         self._scale = float(min(target, self._scale + rise))

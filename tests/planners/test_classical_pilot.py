@@ -470,10 +470,11 @@ def test_the_reference_clock_slows_to_stop_short_of_the_path_hidden_round_a_corn
     if not see:
         assert near == 1.0
         return
-    # from (25, 0) the line of sight grazing the corner (28, 2) shows the north leg up to y = 2 * 5 / 3
+    # from (25, 0) the line of sight grazing the corner (28, 2) shows the north leg's centre up to y = 2 * 5 / 3; the
+    # tube around it (`keep` across) is hidden sooner, but not before the corner's own side of it (x = 30 - keep)
     seen = 5.0 + 2.0 * 5.0 / 3.0
-    assert stopping_speed_m_s(seen - 0.8 - keep, decel, reaction) <= near * speed
-    assert near * speed <= stopping_speed_m_s(seen - keep, decel, reaction) < speed
+    assert 0.0 < near * speed <= stopping_speed_m_s(seen - keep, decel, reaction) < speed
+    assert stopping_speed_m_s(5.0 - keep - 0.8 - keep, decel, reaction) <= near * speed
     # the clock ran at that rate for the 0.5 s before the next decision
     pilot._run_clock(Observation(25.0 / speed + 0.5, hover_state(p, (25.0 + 0.5 * near * speed, 0.0, 10.0)),
                                  covariance=np.eye(16) * 0.01))
