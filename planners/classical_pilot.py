@@ -51,10 +51,11 @@ from planners.timing import (
     then_straight,
     time_parameterize,
 )
-from planners.visibility import stopping_speed_m_s, visible_arc_m
+from planners.visibility import arc_in_sight_m, in_sight, stopping_speed_m_s
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Actuation, Observation, ResetInfo, RotorCommand, Task, VelocityCommand, World
 from uam_fdm.sensing.raycast import RayCaster
+from uam_fdm.vehicle.attitude import rotation_matrix
 
 log = logging.getLogger(__name__)
 
@@ -130,10 +131,11 @@ class ClassicalConfig:
             estimate, a newly sensed face) back out at this rate [m/s] over the horizon; inf: at once (as always at
             `perfect` sensing, the privileged reference).
         see_to_stop: on sensors, fly a plan no faster than lets the vehicle stop, with its margin at rest, short of
-            the first point of the path still to fly that it cannot see (a line of sight through what it knows, or
-            beyond the lidar's range): the reference's clock slows (`planners.visibility`). An unmapped face hidden
-            behind a building the pilot had sensed came into view 0.2 s of reference ahead at 9.5 m/s (validation
-            leg quad-030/11, a collision).
+            the first point of the path still to fly that has not yet been in its lidar's sight (a line of sight
+            through what it knows, within the lidar's range and, on the estimated attitude, its fan; remembered for
+            the reference flown): the reference's clock slows (`planners.visibility`). Tilted 24-36 degrees at
+            9.5 m/s, the quad's body-fixed lidar never looked at the unmapped face its path passed 0.4 m from
+            (validation leg quad-030/11, a collision).
         see_reaction_s: the time [s] between a face coming into view and the vehicle braking for it (a scan, its
             latency and a decision).
     """
@@ -304,6 +306,7 @@ class ClassicalPilot:
         # the reference's clock (`see_to_stop`): it runs at `_scale` of real time from `_clock_t` on
         self._scale, self._clock_t, self._braking = 1.0, 0.0, False
         self._caster: tuple[BuildingMap, RayCaster] | None = None  # lines of sight through the map known
+        self._seen: tuple[Reference, np.ndarray, np.ndarray] | None = None  # what of the reference has been in sight
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         self._stage_mpc_margins = np.full(self._tracker.horizon_steps, self.margins.mpc_m)
         self._relaxed_ends: list[tuple[np.ndarray, float]] = []
@@ -720,18 +723,34 @@ class ClassicalPilot:
                 return  # the estimate inside what it knows: every line of sight is blocked; the MPC takes it out
             decel, reaction = self._limits.max_accel_m_s2, self.config.see_reaction_s
             # ahead, as far as the reference needs to stop from its speed here (and at most to its end)
-            horizon = max(min(self.reference.duration_s - t_ref, 2.0 * speed / decel + reaction + 1.0), 0.0)
-            path, _, _ = self.reference.sample_horizon(t_ref, _SEE_STEP_S, int(math.ceil(horizon / _SEE_STEP_S)) + 1)
-            assert world.sensing is not None
-            # the stop, and the tube that must be in sight around the path, keep the collision radius and the MPC's
-            # margin at rest (no k σ: what comes into view is placed on the same estimate as the vehicle)
+            horizon = 2.0 * speed / decel + reaction + 1.0
+            path, seen = self._seen_along(self.reference)
+            first = min(int(t_ref / _SEE_STEP_S), len(path) - 1)
+            last = min(int(math.ceil((t_ref + horizon) / _SEE_STEP_S)), len(path) - 1)
+            ahead = slice(first, last + 1)
+            # the stop, and the tube that must have been in sight round the path, keep the collision radius and the
+            # MPC's margin at rest (no k σ: what comes into view is placed on the same estimate as the vehicle)
             by_speed = self._base_margins.by_speed
             keep = world.vehicle.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
-            arc = visible_arc_m(eye, path, self._line_of_sight(), world.sensing.lidar.max_range_m, keep)
-            target = min(1.0, stopping_speed_m_s(arc - keep, decel, reaction) / speed)
+            assert world.sensing is not None
+            lidar = world.sensing.lidar
+            q = np.asarray(obs.x[6:10], float)
+            seen[ahead] |= in_sight(eye, path[ahead], self._line_of_sight(), lidar.max_range_m, keep,
+                                    rotation_matrix(q / np.linalg.norm(q)), lidar.vertical_fov_deg)
+            target = min(1.0, stopping_speed_m_s(arc_in_sight_m(path[ahead], seen[ahead]) - keep, decel, reaction)
+                         / speed)
         rise = dt * self._limits.max_accel_m_s2 / max(speed, 1.0)
         self._scale = float(min(target, self._scale + rise))
         self.stats.clock_scale_min = min(self.stats.clock_scale_min, self._scale)
+
+    def _seen_along(self, reference: Reference) -> tuple[np.ndarray, np.ndarray]:
+        """The points of `reference` every `_SEE_STEP_S` of its time (K, 3) [m] and whether each has been in sight
+        (K,) (a mask written through; started afresh for each new reference)."""
+        if self._seen is None or self._seen[0] is not reference:
+            n = int(math.ceil(reference.duration_s / _SEE_STEP_S)) + 1
+            path, _, _ = reference.sample_horizon(0.0, _SEE_STEP_S, n)
+            self._seen = (reference, path, np.zeros(n, dtype=bool))
+        return self._seen[1], self._seen[2]
 
     def _line_of_sight(self) -> RayCaster:
         """A ray caster over the map the pilot knows now (rebuilt when the fused map changes)."""

@@ -2,7 +2,9 @@
 
 A pilot on a map it knows to be incomplete takes unseen space as free (the planner must, or it could plan nothing);
 it flies safely there only at a speed from which it can stop inside what it has in sight: a face hidden behind a
-building it has sensed comes into view only as the path rounds the corner. Frames: world ENU metres.
+building it has sensed comes into view only as the path rounds the corner, and a lidar fixed to a body tilted
+forward at cruise looks below the horizon ahead (the small quad at 9.5 m/s: 24-36 degrees). Frames: world ENU
+metres.
 """
 from __future__ import annotations
 
@@ -13,32 +15,52 @@ import numpy as np
 from uam_fdm.sensing.raycast import RayCaster
 
 _NEAR_M = 1.0  # points this close to the eye are taken as seen (a ray from inside the sphere's own margin)
+_STEEP = math.sin(math.radians(45.0))  # a path steeper than 45 degrees is not asked to be in the sensor's fan
 
 
-def visible_arc_m(eye_m: np.ndarray, path_m: np.ndarray, caster: RayCaster, max_range_m: float,
-                  tube_m: float = 0.0) -> float:
-    """Arc length [m] along `path_m` (K, 3) from its first point to its last point before the first one hidden from
-    `eye_m` (3,); inf when no point is hidden. A point is hidden when the straight line of sight to it, or to any of
-    the 8 points around it at `tube_m` [m] across the path (its sides, above, below and between), meets the caster's
-    map or is longer than `max_range_m` [m]: a face beside the path, hidden behind a corner that was seen, hides
-    the side of the tube the vehicle flies in, not the path's centre line."""
+def in_sight(eye_m: np.ndarray, path_m: np.ndarray, caster: RayCaster, max_range_m: float, tube_m: float = 0.0,
+             body_to_world: np.ndarray | None = None, fov_deg: tuple[float, float] | None = None,
+             steep: float = _STEEP) -> np.ndarray:
+    """Which points of a path (K, 3) are in sight from `eye_m` (3,): (K,) bool. A point is in sight when the straight
+    line of sight to it, and to each of the 8 points round it at `tube_m` [m] across the path (a face beside the
+    path hides the side of the tube the vehicle flies in, not the path's centre line), misses the caster's map and
+    is at most `max_range_m` [m] long, and, given the sensor's orientation `body_to_world` (3, 3) and its fan's
+    elevations `fov_deg` (lowest, highest) in that frame [deg], the point itself lies inside the fan. Where the
+    path climbs or sinks steeper than `steep` (the sine of its slope) the fan is not asked for: no fan level in the
+    body looks straight up, and a climb would never be in sight."""
     path = np.asarray(path_m, float).reshape(-1, 3)
     eye = np.asarray(eye_m, float).reshape(3)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
     points = path[:, None, :]
     if tube_m > 0.0 and len(path) > 1:
         points = path[:, None, :] + tube_m * _ring(path)  # (K, 9, 3): the centre and 8 around it
     ray = points - eye
     dist = np.linalg.norm(ray, axis=2)
-    far = dist > max_range_m
-    look = (dist > _NEAR_M) & ~far
-    hidden = far.copy()
+    hidden = dist > max_range_m
+    if body_to_world is not None and fov_deg is not None:  # the fan is asked of the centre line (the tube's width
+        # subtends more than the fan near the eye)
+        centre, reach = ray[:, 0, :], dist[:, 0]
+        sine = centre @ np.asarray(body_to_world, float)[:, 2] / np.maximum(reach, 1e-12)
+        elevation = np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
+        tangent = np.gradient(path, axis=0) if len(path) > 1 else np.zeros_like(path)
+        slope = np.abs(tangent[:, 2]) / np.maximum(np.linalg.norm(tangent, axis=1), 1e-12)
+        outside = ((elevation < fov_deg[0]) | (elevation > fov_deg[1])) & (slope < steep) & (reach > _NEAR_M)
+        hidden |= outside[:, None]
+    look = (dist > _NEAR_M) & ~hidden
     if np.any(look):
         # unnormalised directions: a range of 1 is the point itself (stopped just short, not at the point's surface)
         hidden[look] = caster.hits_any(eye, ray[look], 1.0 - 1e-4)
-    first = np.flatnonzero(np.any(hidden, axis=1))
+    hidden &= dist > _NEAR_M
+    return ~np.any(hidden, axis=1)
+
+
+def arc_in_sight_m(path_m: np.ndarray, seen: np.ndarray) -> float:
+    """Arc length [m] along a path (K, 3) from its first point to its last point before the first not `seen` (K,);
+    inf when every point is."""
+    path = np.asarray(path_m, float).reshape(-1, 3)
+    first = np.flatnonzero(~np.asarray(seen, bool))
     if first.size == 0:
         return math.inf
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
     return float(arc[first[0] - 1]) if first[0] > 0 else 0.0
 
 

@@ -482,6 +482,45 @@ def test_the_reference_clock_slows_to_stop_short_of_the_path_hidden_round_a_corn
     assert pilot.stats.clock_scale_min <= near
 
 
+def test_what_was_in_sight_of_the_reference_stays_seen_while_the_tilted_lidar_looks_down(vehicles, compiled_dynamics):
+    """Tilted 30 degrees nose down at 8 m/s, the quad's +-15 degree lidar does not look at the level path ahead: a
+    pilot that has not seen it slows right down; one that saw it while level, 5 m before, flies on at full rate."""
+    from planners.timing import Reference
+
+    p = vehicles["small_quad"]
+    open_city = BuildingMap([], (-10.0, -30.0, 0.0), (120.0, 30.0, 50.0))
+    world = _sensing_world(p, compiled_dynamics["small_quad"], open_city)
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(100.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    speed = 8.0
+    path = np.column_stack([np.arange(0.0, 100.0, 0.1), np.zeros(1000), np.full(1000, 10.0)])
+    t = np.arange(1000) * 0.1 / speed
+    reference = Reference(t_s=t, pos_m=path, vel_m_s=np.tile([speed, 0.0, 0.0], (1000, 1)),
+                          acc_m_s2=np.zeros_like(path), duration_s=float(t[-1]), status="ok", length_m=99.9,
+                          min_clearance_m=10.0, required_clearance_m=1.0, refinements=0, stops=0)
+    tilt = math.radians(30.0)
+    nose_down = np.array([math.cos(tilt / 2.0), 0.0, math.sin(tilt / 2.0), 0.0])
+
+    def scale_at(pilot: ClassicalPilot, x: float, attitude: np.ndarray) -> float:
+        at = x / speed
+        pilot._t_ref0, pilot._clock_t, pilot._scale = 0.0, at, 1.0
+        state = hover_state(p, (x, 0.0, 10.0))
+        state[3:6], state[6:10] = (speed, 0.0, 0.0), attitude
+        pilot._run_clock(Observation(at, state, covariance=np.eye(16) * 0.01))
+        return pilot._scale
+
+    fresh = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None))
+    assert fresh.reset(world, task, seed=3).ok
+    fresh.reference = reference
+    assert scale_at(fresh, 10.0, nose_down) < 0.5
+    looked = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None))
+    assert looked.reset(world, task, seed=3).ok
+    looked.reference = reference
+    assert scale_at(looked, 5.0, np.array([1.0, 0.0, 0.0, 0.0])) == 1.0  # level: the path ahead in sight
+    assert scale_at(looked, 10.0, nose_down) == 1.0  # remembered
+    looked.reference = dataclasses.replace(reference)  # a new reference: nothing of it seen yet
+    assert scale_at(looked, 10.0, nose_down) < 0.5
+
+
 def _sensing_a_wall_under_way(vehicles, compiled_dynamics, wall_x_m: float):
     """A small quad 4 s into a straight 140 m leg (at speed by then) senses a wall the prior lacks across its line at
     x = `wall_x_m`: (params, truth, config, pilot after that decision, the reference it flew, t, its velocity)."""

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from planners.visibility import stopping_speed_m_s, visible_arc_m
+from planners.visibility import arc_in_sight_m, in_sight, stopping_speed_m_s
 from uam_fdm.city.buildings import Building, BuildingMap
 from uam_fdm.sensing.raycast import RayCaster
 
@@ -22,22 +22,48 @@ def _l_path(step_m: float = 0.25) -> np.ndarray:
     return np.vstack([east, north])
 
 
-def test_the_visible_arc_ends_where_the_block_hides_the_path():
+def _arc(eye, path, caster, max_range_m, tube_m=0.0, **fan) -> float:
+    return arc_in_sight_m(path, in_sight(eye, path, caster, max_range_m, tube_m, **fan))
+
+
+def test_the_arc_in_sight_ends_where_the_block_hides_the_path():
     caster = RayCaster(BuildingMap([BLOCK], *BOUNDS), ground=False)
     path = _l_path()
     eye = path[0]
-    arc = visible_arc_m(eye, path, caster, 100.0)
+    arc = _arc(eye, path, caster, 100.0)
     # from (0, 0): the north leg is in sight up to y = 2 * 30 / 28 (the line of sight grazes the corner (28, 2))
     assert 30.0 + 2.0 <= arc <= 30.0 + 2.0 * 30.0 / 28.0 + 0.25
-    assert visible_arc_m(eye, path, RayCaster(BuildingMap([], *BOUNDS), ground=False), 100.0) == math.inf
-    assert visible_arc_m(eye, path, caster, 20.0) == pytest.approx(20.0)  # the lidar's range ends it sooner
+    assert _arc(eye, path, RayCaster(BuildingMap([], *BOUNDS), ground=False), 100.0) == math.inf
+    assert _arc(eye, path, caster, 20.0) == pytest.approx(20.0)  # the lidar's range ends it sooner
     # seen from inside the bend (east of the block's face) the whole leg is in sight
-    assert visible_arc_m(np.array([30.0, 0.0, 10.0]), path[120:], caster, 100.0) == math.inf
-    assert visible_arc_m(eye, path[:1], caster, 100.0) == math.inf
+    assert _arc(np.array([30.0, 0.0, 10.0]), path[120:], caster, 100.0) == math.inf
+    assert _arc(eye, path[:1], caster, 100.0) == math.inf
     # the tube 1 m round the path: hidden no later than its centre line
-    tube = visible_arc_m(eye, path, caster, 100.0, tube_m=1.0)
+    tube = _arc(eye, path, caster, 100.0, tube_m=1.0)
     assert 30.0 - 1.0 <= tube <= arc
-    assert visible_arc_m(eye, path[:100], caster, 100.0, tube_m=1.0) == math.inf  # the east leg's tube is in sight
+    assert _arc(eye, path[:100], caster, 100.0, tube_m=1.0) == math.inf  # the east leg's tube is in sight
+
+
+def test_a_fan_fixed_to_a_body_tilted_forward_does_not_see_the_level_path_ahead():
+    """A +-15 degree fan on a body pitched 30 degrees nose down (flying east) looks 45 to 15 degrees below the horizon
+    ahead: the level path ahead is out of it beyond the first metre; level, the fan sees it; a climb steeper than
+    45 degrees is not asked to be in the fan."""
+    caster = RayCaster(BuildingMap([], *BOUNDS), ground=False)
+    path = _l_path()[:120]  # east, level, 30 m
+    pitch = math.radians(30.0)  # nose down: the body's x axis points east and below the horizon
+    nose_down = np.array([[math.cos(pitch), 0.0, math.sin(pitch)], [0.0, 1.0, 0.0],
+                          [-math.sin(pitch), 0.0, math.cos(pitch)]])
+    fan = (-15.0, 15.0)
+    tilted = in_sight(path[0], path, caster, 100.0, body_to_world=nose_down, fov_deg=fan)
+    assert not tilted[8:].any() and tilted[:4].all()  # beyond 1 m nothing; within it, taken as seen
+    assert in_sight(path[0], path, caster, 100.0, body_to_world=np.eye(3), fov_deg=fan).all()
+    climb = np.column_stack([np.zeros(40), np.zeros(40), 10.0 + np.arange(40) * 0.5])  # straight up
+    assert in_sight(climb[0], climb, caster, 100.0, body_to_world=nose_down, fov_deg=fan).all()
+    # rolled 90 degrees about the direction of flight the fan stands vertical, and still holds the path ahead
+    rolled = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    assert in_sight(path[0], path, caster, 100.0, body_to_world=rolled, fov_deg=fan).all()
+    assert arc_in_sight_m(path, tilted) == pytest.approx(float(np.linalg.norm(path[np.argmin(tilted)] - path[0]))
+                                                         - 0.25)
 
 
 def test_the_stopping_speed_reacts_then_brakes_within_the_distance():
