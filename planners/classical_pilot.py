@@ -703,45 +703,53 @@ class ClassicalPilot:
         return (self._clock_t - self._t_ref0) + self._scale * (t_s - self._clock_t)
 
     def _run_clock(self, obs: Observation) -> None:
-        """Advance the reference's clock to `obs.t_s` and set its rate from now on (`see_to_stop`): the ratio of the
-        speed from which the vehicle stops short of the first point of the path still to fly it cannot see, with its
-        margin at rest, to the reference's speed; at most 1; rising no faster than the acceleration limit allows."""
+        """Advance the reference's clock to `obs.t_s` and set its rate from now on (`see_to_stop`): `_clock_target`,
+        approached no faster than the acceleration limit allows either way (slowing at once left the UAM metres past
+        a reference that had stopped: a tracking replan in validation leg uam-003/0)."""
         dt = obs.t_s - self._clock_t
         self._t_ref0 += (1.0 - self._scale) * dt  # it ran at `_scale` since `_clock_t`
         self._clock_t = obs.t_s
         if self._sensed is None or not self.config.see_to_stop or self._braking or self.reference is None:
             self._scale = 1.0
             return
+        speed = float(np.linalg.norm(self.reference.sample(obs.t_s - self._t_ref0)[1]))
+        target = self._clock_target(obs)
+        if target is None:
+            return
+        step = dt * self._limits.max_accel_m_s2 / max(speed, 1.0)
+        self._scale = float(np.clip(target, self._scale - step, self._scale + step))
+        self.stats.clock_scale_min = min(self.stats.clock_scale_min, self._scale)
+
+    def _clock_target(self, obs: Observation) -> float | None:
+        """The rate for the reference's clock at `obs`: the ratio of the speed from which the vehicle stops, with its
+        margin at rest, short of the first point of the path still to fly that has not been in sight (marking what
+        is in sight now), to the reference's speed; at most 1. None where the estimate lies inside what the pilot
+        knows (every line of sight is blocked there; the MPC takes it out)."""
         world, _ = self._flying()
+        assert self.reference is not None and world.sensing is not None
         t_ref = obs.t_s - self._t_ref0
         speed = float(np.linalg.norm(self.reference.sample(t_ref)[1]))
         if speed < 1e-6:
-            target = 1.0  # at rest: nothing to slow
-        else:
-            eye = np.asarray(obs.x[0:3], float)
-            if float(self._known.clearance(eye[None, :], 0.0).distance_m[0]) <= 0.0:
-                return  # the estimate inside what it knows: every line of sight is blocked; the MPC takes it out
-            decel, reaction = self._limits.max_accel_m_s2, self.config.see_reaction_s
-            # ahead, as far as the reference needs to stop from its speed here (and at most to its end)
-            horizon = 2.0 * speed / decel + reaction + 1.0
-            path, seen = self._seen_along(self.reference)
-            first = min(int(t_ref / _SEE_STEP_S), len(path) - 1)
-            last = min(int(math.ceil((t_ref + horizon) / _SEE_STEP_S)), len(path) - 1)
-            ahead = slice(first, last + 1)
-            # the stop, and the tube that must have been in sight round the path, keep the collision radius and the
-            # MPC's margin at rest (no k σ: what comes into view is placed on the same estimate as the vehicle)
-            by_speed = self._base_margins.by_speed
-            keep = world.vehicle.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
-            assert world.sensing is not None
-            lidar = world.sensing.lidar
-            q = np.asarray(obs.x[6:10], float)
-            seen[ahead] |= in_sight(eye, path[ahead], self._line_of_sight(), lidar.max_range_m, keep,
-                                    rotation_matrix(q / np.linalg.norm(q)), lidar.vertical_fov_deg)
-            target = min(1.0, stopping_speed_m_s(arc_in_sight_m(path[ahead], seen[ahead]) - keep, decel, reaction)
-                         / speed)
-        rise = dt * self._limits.max_accel_m_s2 / max(speed, 1.0)
-        self._scale = float(min(target, self._scale + rise))
-        self.stats.clock_scale_min = min(self.stats.clock_scale_min, self._scale)
+            return 1.0  # at rest: nothing to slow
+        eye = np.asarray(obs.x[0:3], float)
+        if float(self._known.clearance(eye[None, :], 0.0).distance_m[0]) <= 0.0:
+            return None
+        decel, reaction = self._limits.max_accel_m_s2, self.config.see_reaction_s
+        # ahead, as far as the reference needs to stop from its speed here (and at most to its end)
+        horizon = 2.0 * speed / decel + reaction + 1.0
+        path, seen = self._seen_along(self.reference)
+        first = min(int(t_ref / _SEE_STEP_S), len(path) - 1)
+        last = min(int(math.ceil((t_ref + horizon) / _SEE_STEP_S)), len(path) - 1)
+        ahead = slice(first, last + 1)
+        # the stop, and the tube that must have been in sight round the path, keep the collision radius and the
+        # MPC's margin at rest (no k σ: what comes into view is placed on the same estimate as the vehicle)
+        by_speed = self._base_margins.by_speed
+        keep = world.vehicle.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
+        lidar = world.sensing.lidar
+        q = np.asarray(obs.x[6:10], float)
+        seen[ahead] |= in_sight(eye, path[ahead], self._line_of_sight(), lidar.max_range_m, keep,
+                                rotation_matrix(q / np.linalg.norm(q)), lidar.vertical_fov_deg)
+        return min(1.0, stopping_speed_m_s(arc_in_sight_m(path[ahead], seen[ahead]) - keep, decel, reaction) / speed)
 
     def _seen_along(self, reference: Reference) -> tuple[np.ndarray, np.ndarray]:
         """The points of `reference` every `_SEE_STEP_S` of its time (K, 3) [m] and whether each has been in sight

@@ -457,9 +457,9 @@ def test_the_reference_clock_slows_to_stop_short_of_the_path_hidden_round_a_corn
     keep = p.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
     decel, reaction = pilot._limits.max_accel_m_s2, pilot.config.see_reaction_s
 
-    def run_at(x: float, dt: float = 0.0) -> float:
+    def run_at(x: float, dt: float = 10.0) -> float:  # long enough since the last decision to reach the target
         at = x / speed
-        pilot._t_ref0, pilot._clock_t, pilot._scale = 0.0, at - dt, 1.0
+        pilot._t_ref0, pilot._clock_t, pilot._scale = 0.0, at - dt, 1.0  # at rate 1 the clock stands at `at`
         state = hover_state(p, (x, 0.0, 10.0))
         state[3:6] = (speed, 0.0, 0.0)
         pilot._run_clock(Observation(at, state, covariance=np.eye(16) * 0.01))
@@ -475,11 +475,16 @@ def test_the_reference_clock_slows_to_stop_short_of_the_path_hidden_round_a_corn
     seen = 5.0 + 2.0 * 5.0 / 3.0
     assert 0.0 < near * speed <= stopping_speed_m_s(seen - keep, decel, reaction) < speed
     assert stopping_speed_m_s(5.0 - keep - 0.8 - keep, decel, reaction) <= near * speed
-    # the clock ran at that rate for the 0.5 s before the next decision
-    pilot._run_clock(Observation(25.0 / speed + 0.5, hover_state(p, (25.0 + 0.5 * near * speed, 0.0, 10.0)),
+    # the clock ran at that rate for the 0.02 s before the next decision, and its rate changes no faster than the
+    # acceleration limit: from 1, 0.02 s after the last decision, by at most 0.02 a / v
+    pilot._run_clock(Observation(25.0 / speed + 0.02, hover_state(p, (25.0 + 0.02 * near * speed, 0.0, 10.0)),
                                  covariance=np.eye(16) * 0.01))
-    assert 25.0 / speed + 0.5 - pilot._t_ref0 == pytest.approx(25.0 / speed + 0.5 * near)
+    assert 25.0 / speed + 0.02 - pilot._t_ref0 == pytest.approx(25.0 / speed + 0.02 * near)
     assert pilot.stats.clock_scale_min <= near
+    pilot._scale, pilot._clock_t = 1.0, pilot._clock_t - 0.02
+    pilot._run_clock(Observation(pilot._clock_t + 0.02, hover_state(p, (25.0, 0.0, 10.0)),
+                                 covariance=np.eye(16) * 0.01))
+    assert pilot._scale == pytest.approx(1.0 - 0.02 * decel / speed)
 
 
 def test_what_was_in_sight_of_the_reference_stays_seen_while_the_tilted_lidar_looks_down(vehicles, compiled_dynamics):
@@ -501,12 +506,12 @@ def test_what_was_in_sight_of_the_reference_stays_seen_while_the_tilted_lidar_lo
     nose_down = np.array([math.cos(tilt / 2.0), 0.0, math.sin(tilt / 2.0), 0.0])
 
     def scale_at(pilot: ClassicalPilot, x: float, attitude: np.ndarray) -> float:
-        at = x / speed
-        pilot._t_ref0, pilot._clock_t, pilot._scale = 0.0, at, 1.0
+        pilot._t_ref0 = 0.0
         state = hover_state(p, (x, 0.0, 10.0))
         state[3:6], state[6:10] = (speed, 0.0, 0.0), attitude
-        pilot._run_clock(Observation(at, state, covariance=np.eye(16) * 0.01))
-        return pilot._scale
+        target = pilot._clock_target(Observation(x / speed, state, covariance=np.eye(16) * 0.01))
+        assert target is not None
+        return target
 
     fresh = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None))
     assert fresh.reset(world, task, seed=3).ok
