@@ -133,9 +133,7 @@ class ClassicalConfig:
         see_to_stop: on sensors, fly a plan no faster than lets the vehicle stop, with its margin at rest, short of
             the first point of the path still to fly that has not yet been in its lidar's sight (a line of sight
             through what it knows, within the lidar's range and, on the estimated attitude, its fan; remembered for
-            the reference flown): the reference's clock slows (`planners.visibility`). Tilted 24-36 degrees at
-            9.5 m/s, the quad's body-fixed lidar never looked at the unmapped face its path passed 0.4 m from
-            (validation leg quad-030/11, a collision).
+            the reference flown): the reference's clock slows (`planners.visibility`; docs/planner.md).
         see_reaction_s: the time [s] between a face coming into view and the vehicle braking for it (a scan, its
             latency and a decision).
     """

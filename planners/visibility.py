@@ -15,24 +15,26 @@ import numpy as np
 from uam_fdm.sensing.raycast import RayCaster
 
 _NEAR_M = 1.0  # points this close to the eye are taken as seen (a ray from inside the sphere's own margin)
-_STEEP = math.sin(math.radians(45.0))  # a path steeper than 45 degrees is not asked to be in the sensor's fan
+_SURFACE_M = 0.02  # a tube point cut at a known face stands this far in front of it [m]
 
 
 def in_sight(eye_m: np.ndarray, path_m: np.ndarray, caster: RayCaster, max_range_m: float, tube_m: float = 0.0,
-             body_to_world: np.ndarray | None = None, fov_deg: tuple[float, float] | None = None,
-             steep: float = _STEEP) -> np.ndarray:
+             body_to_world: np.ndarray | None = None, fov_deg: tuple[float, float] | None = None) -> np.ndarray:
     """Which points of a path (K, 3) are in sight from `eye_m` (3,): (K,) bool. A point is in sight when the straight
     line of sight to it, and to each of the 8 points round it at `tube_m` [m] across the path (a face beside the
     path hides the side of the tube the vehicle flies in, not the path's centre line), misses the caster's map and
     is at most `max_range_m` [m] long, and, given the sensor's orientation `body_to_world` (3, 3) and its fan's
-    elevations `fov_deg` (lowest, highest) in that frame [deg], the point itself lies inside the fan. Where the
-    path climbs or sinks steeper than `steep` (the sine of its slope) the fan is not asked for: no fan level in the
-    body looks straight up, and a climb would never be in sight."""
+    elevations `fov_deg` (lowest, highest) in that frame [deg], the point itself lies inside the fan wherever a
+    level sensor's fan would hold it (its elevation above the horizon within `fov_deg`): the fan is asked where the
+    attitude flown turns it away from what level flight would see (a quad tilted forward at cruise looks below the
+    path ahead), not of a climb or descent steeper than the fan, which no attitude a multirotor flies would bring
+    into it (a vehicle at rest on a climbing path would wait for ever).
+    """
     path = np.asarray(path_m, float).reshape(-1, 3)
     eye = np.asarray(eye_m, float).reshape(3)
     points = path[:, None, :]
     if tube_m > 0.0 and len(path) > 1:
-        points = path[:, None, :] + tube_m * _ring(path)  # (K, 9, 3): the centre and 8 around it
+        points = path[:, None, :] + _tube_reach_m(path, caster, tube_m)  # (K, 9, 3): the centre and 8 around it
     ray = points - eye
     dist = np.linalg.norm(ray, axis=2)
     hidden = dist > max_range_m
@@ -41,9 +43,9 @@ def in_sight(eye_m: np.ndarray, path_m: np.ndarray, caster: RayCaster, max_range
         centre, reach = ray[:, 0, :], dist[:, 0]
         sine = centre @ np.asarray(body_to_world, float)[:, 2] / np.maximum(reach, 1e-12)
         elevation = np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
-        tangent = np.gradient(path, axis=0) if len(path) > 1 else np.zeros_like(path)
-        slope = np.abs(tangent[:, 2]) / np.maximum(np.linalg.norm(tangent, axis=1), 1e-12)
-        outside = ((elevation < fov_deg[0]) | (elevation > fov_deg[1])) & (slope < steep) & (reach > _NEAR_M)
+        level = np.degrees(np.arcsin(np.clip(centre[:, 2] / np.maximum(reach, 1e-12), -1.0, 1.0)))
+        in_level_fan = (level >= fov_deg[0]) & (level <= fov_deg[1])
+        outside = ((elevation < fov_deg[0]) | (elevation > fov_deg[1])) & in_level_fan & (reach > _NEAR_M)
         hidden |= outside[:, None]
     look = (dist > _NEAR_M) & ~hidden
     if np.any(look):
@@ -62,6 +64,24 @@ def arc_in_sight_m(path_m: np.ndarray, seen: np.ndarray) -> float:
         return math.inf
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
     return float(arc[first[0] - 1]) if first[0] > 0 else 0.0
+
+
+def _tube_reach_m(path: np.ndarray, caster: RayCaster, tube_m: float) -> np.ndarray:
+    """Offsets (K, 9, 3) [m] from each point of a path (K, 3) to the tube's edge round it (`_ring` at `tube_m`),
+    each cut short of the first known surface across the path: where the path passes nearer than `tube_m` to a face
+    the map has, what lies beyond that face is known, not unseen (a tube point inside a wall is never in sight,
+    and a reference that starts beside one would never run)."""
+    ring = _ring(path)
+    across = ring[:, 1:, :].reshape(-1, 3)
+    moving = np.linalg.norm(across, axis=1) > 0.0
+    reach = np.full(len(across), tube_m)
+    if np.any(moving):
+        origins = np.repeat(path, 8, axis=0)[moving]
+        hit, _ = caster.first_hits(origins, across[moving], tube_m)
+        # just short of the surface (Embree's float32 places it to ~1e-4 m): the line of sight must reach it
+        reach[moving] = np.where(np.isfinite(hit), np.maximum(hit - _SURFACE_M, 0.0), tube_m)
+    ring[:, 1:, :] *= reach.reshape(-1, 8, 1)
+    return ring
 
 
 def _ring(path: np.ndarray) -> np.ndarray:

@@ -44,10 +44,24 @@ def test_the_arc_in_sight_ends_where_the_block_hides_the_path():
     assert _arc(eye, path[:100], caster, 100.0, tube_m=1.0) == math.inf  # the east leg's tube is in sight
 
 
+def test_the_tube_beside_a_known_face_ends_at_the_face():
+    """A path 0.5 m from a known wall with a tube of 1 m: the tube's points beyond the face are known (the wall),
+    not unseen; the path is in sight along the wall, as it would be without the tube, and a block across the path
+    still hides what lies behind it."""
+    wall = Building(0, (15.0, 1.5), (30.0, 2.0), 30.0)  # its south face at y = 0.5, the path along y = 0
+    caster = RayCaster(BuildingMap([wall], *BOUNDS), ground=False)
+    path = _l_path()[:120]
+    eye = path[0] + np.array([0.0, -0.2, 0.0])
+    assert _arc(eye, path, caster, 100.0, tube_m=1.0) == math.inf
+    across = Building(1, (20.0, 0.0), (1.0, 6.0), 30.0)  # a slab across the path at x = 19.5..20.5
+    blocked = RayCaster(BuildingMap([wall, across], *BOUNDS), ground=False)
+    assert 18.0 <= _arc(eye, path, blocked, 100.0, tube_m=1.0) <= 19.5
+
+
 def test_a_fan_fixed_to_a_body_tilted_forward_does_not_see_the_level_path_ahead():
     """A +-15 degree fan on a body pitched 30 degrees nose down (flying east) looks 45 to 15 degrees below the horizon
     ahead: the level path ahead is out of it beyond the first metre; level, the fan sees it; a climb steeper than
-    45 degrees is not asked to be in the fan."""
+    the fan is not asked to be in it."""
     caster = RayCaster(BuildingMap([], *BOUNDS), ground=False)
     path = _l_path()[:120]  # east, level, 30 m
     pitch = math.radians(30.0)  # nose down: the body's x axis points east and below the horizon
@@ -59,6 +73,13 @@ def test_a_fan_fixed_to_a_body_tilted_forward_does_not_see_the_level_path_ahead(
     assert in_sight(path[0], path, caster, 100.0, body_to_world=np.eye(3), fov_deg=fan).all()
     climb = np.column_stack([np.zeros(40), np.zeros(40), 10.0 + np.arange(40) * 0.5])  # straight up
     assert in_sight(climb[0], climb, caster, 100.0, body_to_world=nose_down, fov_deg=fan).all()
+    # at rest and level below a path climbing at 35 degrees: above the fan of any attitude flown, not asked of it
+    # (asked, the vehicle would wait for ever)
+    slope = math.radians(35.0)
+    steady = np.column_stack([np.arange(40) * 0.5 * math.cos(slope), np.zeros(40), 10.0 + np.arange(40) * 0.5
+                              * math.sin(slope)])
+    assert in_sight(steady[0] - np.array([0.0, 0.0, 0.5]), steady, caster, 100.0, body_to_world=np.eye(3),
+                    fov_deg=fan).all()
     # rolled 90 degrees about the direction of flight the fan stands vertical, and still holds the path ahead
     rolled = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
     assert in_sight(path[0], path, caster, 100.0, body_to_world=rolled, fov_deg=fan).all()
