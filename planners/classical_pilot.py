@@ -51,8 +51,11 @@ from planners.timing import (
     then_straight,
     time_parameterize,
 )
+from planners.visibility import arc_in_sight_m, in_sight, stopping_speed_m_s
 from uam_fdm.city.buildings import BuildingMap
 from uam_fdm.pilot import Actuation, Observation, ResetInfo, RotorCommand, Task, VelocityCommand, World
+from uam_fdm.sensing.raycast import RayCaster
+from uam_fdm.vehicle.attitude import rotation_matrix
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +67,7 @@ _FLYING_ON = ("uncertainty", "improve")
 # vehicle's sphere, so that no test skips across one
 _FREE_STEP_M = 0.25
 _HOLD_STEP_M = 1.0  # spacing of the points a hold may move to [m]
+_SEE_STEP_S = 0.1  # spacing in reference time of the points of the path ahead tested for a line of sight [s]
 
 
 @dataclass(frozen=True)
@@ -126,6 +130,12 @@ class ClassicalConfig:
         margin_recovery_m_s: on sensors, the MPC's clearance half-spaces ask a vehicle inside its margin (a drifting
             estimate, a newly sensed face) back out at this rate [m/s] over the horizon; inf: at once (as always at
             `perfect` sensing, the privileged reference).
+        see_to_stop: on sensors, fly a plan no faster than lets the vehicle stop, with its margin at rest, short of
+            the first point of the path still to fly that has not yet been in its lidar's sight (a line of sight
+            through what it knows, within the lidar's range and, on the estimated attitude, its fan; remembered for
+            the reference flown): the reference's clock slows (`planners.visibility`; docs/planner.md).
+        see_reaction_s: the time [s] between a face coming into view and the vehicle braking for it (a scan, its
+            latency and a decision).
     """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -156,12 +166,18 @@ class ClassicalConfig:
     autopilot_gain_1_s: float = 1.0
     hold_search_m: float = 10.0
     margin_recovery_m_s: float = 1.0
+    see_to_stop: bool = True
+    see_reaction_s: float = 0.2
 
     def __post_init__(self) -> None:
         for name in ("in_flight_climb_weight", "autopilot_gain_1_s", "hold_search_m"):
             w = getattr(self, name)
             if not (isinstance(w, (int, float)) and math.isfinite(w) and w > 0.0):
                 raise ValueError(f"ClassicalConfig.{name} must be positive and finite, got {w!r}")
+        if not (isinstance(self.see_reaction_s, (int, float)) and math.isfinite(self.see_reaction_s)
+                and self.see_reaction_s >= 0.0):
+            raise ValueError(f"ClassicalConfig.see_reaction_s must be non-negative and finite, got "
+                             f"{self.see_reaction_s!r}")
         r = self.margin_recovery_m_s
         if not (isinstance(r, (int, float)) and not math.isnan(r) and r > 0.0):
             raise ValueError(f"ClassicalConfig.margin_recovery_m_s must be positive (inf: at once), got {r!r}")
@@ -195,6 +211,7 @@ class ClassicalStats:
     improvements_tried: int = 0  # searches for a faster plan while flying one found at the floor margin
     improvements_taken: int = 0
     hold_moves: int = 0  # hold references that move to where the MPC's margin fits
+    clock_scale_min: float = 1.0  # the slowest the reference's clock ran (`see_to_stop`)
     autopilot_decisions: int = 0  # decisions handed to the vehicle's velocity autopilot (the MPC failed, no plan left)
     map_update_s: list[float] = field(default_factory=list)
     uncertainty_margin_m: list[float] = field(default_factory=list)
@@ -284,6 +301,10 @@ class ClassicalPilot:
         self._tried_t = 0.0  # the last plan's time (reset or in flight): improvements are spaced from it
         self._tapers: tuple[MarginTaper, ...] = ()
         self._map_dirty, self._fused_t = False, -math.inf
+        # the reference's clock (`see_to_stop`): it runs at `_scale` of real time from `_clock_t` on
+        self._scale, self._clock_t, self._braking = 1.0, 0.0, False
+        self._caster: tuple[BuildingMap, RayCaster] | None = None  # lines of sight through the map known
+        self._seen: tuple[Reference, np.ndarray, np.ndarray] | None = None  # what of the reference has been in sight
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
         self._stage_mpc_margins = np.full(self._tracker.horizon_steps, self.margins.mpc_m)
         self._relaxed_ends: list[tuple[np.ndarray, float]] = []
@@ -462,15 +483,19 @@ class ClassicalPilot:
             (self.plan, self.reference, self._t_ref0, self._relaxed_ends, self._promise_ends,
              self._tapers) = self._pending
             self._pending = None
+            self._scale, self._clock_t, self._braking = 1.0, obs.t_s, False
             self._tracker.reset()
             self._last_t = None
             self.last_solution = None  # its prediction belonged to the braking
+        self._run_clock(obs)
         if self._hold_retry_t <= obs.t_s:
             self._replan_in_flight(obs, None)
         else:
             self._maybe_replan(obs, self.reference)
         n_stages, h = mpc.horizon_steps, mpc.step_s
-        ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h, n_stages + 1)
+        # the reference as its clock runs: positions along it at `_scale` of its time, velocities scaled alike
+        ref_pos, ref_vel, _ = self.reference.sample_horizon(obs.t_s - self._t_ref0, h * self._scale, n_stages + 1)
+        ref_vel = ref_vel * self._scale
         # the MPC's margin at each stage follows the reference's speed there (and the estimate's σ now)
         by_speed = self._flying()[1].by_speed if self._sensed is None else \
             self._base_margins.by_speed.widened(self._extra_now)
@@ -602,7 +627,7 @@ class ClassicalPilot:
         t_switch = obs.t_s + cfg.replan_budget_s
         flown, decel = self.reference, self._limits.max_accel_m_s2
         flying_on = flown is not None and (cause in _FLYING_ON or (
-            cause == "blocked" and self._stops_short_of_block(flown, t_switch - self._t_ref0)))
+            cause == "blocked" and self._stops_short_of_block(flown, self._ref_t(t_switch))))
         self._blocked_ref_t = math.inf
         # stop along the path flown (clear in what the pilot knew), not straight along the velocity; but a vehicle far
         # off its reference (a tracking cause) stops from where it is, not from where the reference would have it
@@ -619,9 +644,10 @@ class ClassicalPilot:
         start, lead_in, velocity = np.zeros(3), None, None
         if flying_on and flown is not None:
             # from where the reference will be, along its velocity there: a lead-in when it is moving
-            p_b, v_b, _ = flown.sample(t_switch - self._t_ref0)
-            start, lead_in, fits = self._lead_in(np.asarray(p_b, float), np.asarray(v_b, float), decel)
-            velocity = np.asarray(v_b, float)
+            p_b, v_b, _ = flown.sample(self._ref_t(t_switch))
+            v_b = self._scale * np.asarray(v_b, float)  # as fast as its clock runs
+            start, lead_in, fits = self._lead_in(np.asarray(p_b, float), v_b, decel)
+            velocity = v_b
             if not fits:  # no room to start along its velocity: no new plan could be flown from there at speed
                 if improving:
                     return
@@ -664,10 +690,79 @@ class ClassicalPilot:
             self._hold_retry_t = obs.t_s + cfg.hold_retry_s
             now, flying_on = (self._hold_reference(brake), obs.t_s), False
         if not flying_on:  # braking (or holding) until the new plan's start: the MPC tracks the stop afresh
+            self._scale, self._clock_t, self._braking = 1.0, obs.t_s, True
             self._tracker.reset()
             self._last_t = None
             self.last_solution = None
         self.reference, self._t_ref0 = now
+
+    def _ref_t(self, t_s: float) -> float:
+        """The flown reference's time [s] at time `t_s` [s], its clock running on at its present rate."""
+        return (self._clock_t - self._t_ref0) + self._scale * (t_s - self._clock_t)
+
+    def _run_clock(self, obs: Observation) -> None:
+        """Advance the reference's clock to `obs.t_s` and set its rate from now on (`see_to_stop`): `_clock_target`,
+        approached no faster than the acceleration limit allows either way (slowing at once left the UAM metres past
+        a reference that had stopped: a tracking replan in validation leg uam-003/0)."""
+        dt = obs.t_s - self._clock_t
+        self._t_ref0 += (1.0 - self._scale) * dt  # it ran at `_scale` since `_clock_t`
+        self._clock_t = obs.t_s
+        if self._sensed is None or not self.config.see_to_stop or self._braking or self.reference is None:
+            self._scale = 1.0
+            return
+        speed = float(np.linalg.norm(self.reference.sample(obs.t_s - self._t_ref0)[1]))
+        target = self._clock_target(obs)
+        if target is None:
+            return
+        step = dt * self._limits.max_accel_m_s2 / max(speed, 1.0)
+        self._scale = float(np.clip(target, self._scale - step, self._scale + step))
+        self.stats.clock_scale_min = min(self.stats.clock_scale_min, self._scale)
+
+    def _clock_target(self, obs: Observation) -> float | None:
+        """The rate for the reference's clock at `obs`: the ratio of the speed from which the vehicle stops, with its
+        margin at rest, short of the first point of the path still to fly that has not been in sight (marking what
+        is in sight now), to the reference's speed; at most 1. None where the estimate lies inside what the pilot
+        knows (every line of sight is blocked there; the MPC takes it out)."""
+        world, _ = self._flying()
+        assert self.reference is not None and world.sensing is not None
+        t_ref = obs.t_s - self._t_ref0
+        speed = float(np.linalg.norm(self.reference.sample(t_ref)[1]))
+        if speed < 1e-6:
+            return 1.0  # at rest: nothing to slow
+        eye = np.asarray(obs.x[0:3], float)
+        if float(self._known.clearance(eye[None, :], 0.0).distance_m[0]) <= 0.0:
+            return None
+        decel, reaction = self._limits.max_accel_m_s2, self.config.see_reaction_s
+        # ahead, as far as the reference needs to stop from its speed here (and at most to its end)
+        horizon = 2.0 * speed / decel + reaction + 1.0
+        path, seen = self._seen_along(self.reference)
+        first = min(int(t_ref / _SEE_STEP_S), len(path) - 1)
+        last = min(int(math.ceil((t_ref + horizon) / _SEE_STEP_S)), len(path) - 1)
+        ahead = slice(first, last + 1)
+        # the stop, and the tube that must have been in sight round the path, keep the collision radius and the
+        # MPC's margin at rest (no k σ: what comes into view is placed on the same estimate as the vehicle)
+        by_speed = self._base_margins.by_speed
+        keep = world.vehicle.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
+        lidar = world.sensing.lidar
+        q = np.asarray(obs.x[6:10], float)
+        seen[ahead] |= in_sight(eye, path[ahead], self._line_of_sight(), lidar.max_range_m, keep,
+                                rotation_matrix(q / np.linalg.norm(q)), lidar.vertical_fov_deg)
+        return min(1.0, stopping_speed_m_s(arc_in_sight_m(path[ahead], seen[ahead]) - keep, decel, reaction) / speed)
+
+    def _seen_along(self, reference: Reference) -> tuple[np.ndarray, np.ndarray]:
+        """The points of `reference` every `_SEE_STEP_S` of its time (K, 3) [m] and whether each has been in sight
+        (K,) (a mask written through; started afresh for each new reference)."""
+        if self._seen is None or self._seen[0] is not reference:
+            n = int(math.ceil(reference.duration_s / _SEE_STEP_S)) + 1
+            path, _, _ = reference.sample_horizon(0.0, _SEE_STEP_S, n)
+            self._seen = (reference, path, np.zeros(n, dtype=bool))
+        return self._seen[1], self._seen[2]
+
+    def _line_of_sight(self) -> RayCaster:
+        """A ray caster over the map the pilot knows now (rebuilt when the fused map changes)."""
+        if self._caster is None or self._caster[0] is not self._known:
+            self._caster = (self._known, RayCaster(self._known, ground=False))
+        return self._caster[1]
 
     def _rest_margin_m(self) -> float:
         """The MPC's margin at rest [m], widened by k σ now: what its half-spaces keep from every obstacle and the

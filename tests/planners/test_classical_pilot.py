@@ -418,6 +418,8 @@ def test_a_failed_solve_with_no_plan_left_hands_the_vehicle_to_its_velocity_auto
     assert isinstance(pilot.act(Observation(0.04, x)), RotorCommand)  # the previous plan's input still covers now
     with pytest.raises(ValueError, match="autopilot_gain_1_s"):
         ClassicalConfig(autopilot_gain_1_s=0.0)
+    with pytest.raises(ValueError, match="see_reaction_s"):
+        ClassicalConfig(see_reaction_s=-0.1)
 
 
 def _sensing_world(p, dynamics, prior: BuildingMap) -> World:
@@ -425,6 +427,103 @@ def _sensing_world(p, dynamics, prior: BuildingMap) -> World:
 
     return World(p, dynamics, prior, Atmosphere.from_jsbsim(AtmosphereConditions(), z_max_m=100.0), "none",
                  sensing=sensing_preset("nominal", p.mass_kg))
+
+
+@pytest.mark.parametrize("see", [True, False])
+def test_the_reference_clock_slows_to_stop_short_of_the_path_hidden_round_a_corner(see, vehicles, compiled_dynamics):
+    """Flying a plan east at 8 m/s past a block's corner, beyond which it turns north out of sight: 5 m before the
+    corner the reference's clock slows so that the vehicle, reacting and braking, stops short of the first point it
+    cannot see with its margin at rest; 25 m before it, it runs at full rate; the clock advances at its rate."""
+    from planners.timing import Reference
+    from planners.visibility import stopping_speed_m_s
+
+    p = vehicles["small_quad"]
+    block = Building(0, (24.0, 11.0), (8.0, 18.0), 30.0)  # its south-east corner at (28, 2)
+    world = _sensing_world(p, compiled_dynamics["small_quad"],
+                           BuildingMap([block], (-10.0, -30.0, 0.0), (80.0, 60.0, 50.0)))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(30.0, 20.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    pilot = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None, see_to_stop=see))
+    assert pilot.reset(world, task, seed=3).ok
+    speed = 8.0
+    east = np.column_stack([np.arange(0.0, 30.0, 0.1), np.zeros(300), np.full(300, 10.0)])
+    north = np.column_stack([np.full(200, 30.0), np.arange(0.0, 20.0, 0.1), np.full(200, 10.0)])
+    path = np.vstack([east, north[1:]])
+    t = np.arange(len(path)) * 0.1 / speed
+    vel = np.vstack([np.tile([speed, 0.0, 0.0], (300, 1)), np.tile([0.0, speed, 0.0], (199, 1))])
+    pilot.reference = Reference(t_s=t, pos_m=path, vel_m_s=vel, acc_m_s2=np.zeros_like(path), duration_s=float(t[-1]),
+                                status="ok", length_m=49.9, min_clearance_m=1.0, required_clearance_m=1.0,
+                                refinements=0, stops=0)
+    by_speed = pilot._base_margins.by_speed
+    keep = p.collision_radius_m + float(by_speed.mpc_fraction * by_speed.margin_m(0.0))
+    decel, reaction = pilot._limits.max_accel_m_s2, pilot.config.see_reaction_s
+
+    def run_at(x: float, dt: float = 10.0) -> float:  # long enough since the last decision to reach the target
+        at = x / speed
+        pilot._t_ref0, pilot._clock_t, pilot._scale = 0.0, at - dt, 1.0  # at rate 1 the clock stands at `at`
+        state = hover_state(p, (x, 0.0, 10.0))
+        state[3:6] = (speed, 0.0, 0.0)
+        pilot._run_clock(Observation(at, state, covariance=np.eye(16) * 0.01))
+        return pilot._scale
+
+    assert run_at(5.0) == 1.0  # 25 m before the corner: the stop fits in what it sees
+    near = run_at(25.0)
+    if not see:
+        assert near == 1.0
+        return
+    # from (25, 0) the line of sight grazing the corner (28, 2) shows the north leg's centre up to y = 2 * 5 / 3; the
+    # tube around it (`keep` across) is hidden sooner, but not before the corner's own side of it (x = 30 - keep)
+    seen = 5.0 + 2.0 * 5.0 / 3.0
+    assert 0.0 < near * speed <= stopping_speed_m_s(seen - keep, decel, reaction) < speed
+    assert stopping_speed_m_s(5.0 - keep - 0.8 - keep, decel, reaction) <= near * speed
+    # the clock ran at that rate for the 0.02 s before the next decision, and its rate changes no faster than the
+    # acceleration limit: from 1, 0.02 s after the last decision, by at most 0.02 a / v
+    pilot._run_clock(Observation(25.0 / speed + 0.02, hover_state(p, (25.0 + 0.02 * near * speed, 0.0, 10.0)),
+                                 covariance=np.eye(16) * 0.01))
+    assert 25.0 / speed + 0.02 - pilot._t_ref0 == pytest.approx(25.0 / speed + 0.02 * near)
+    assert pilot.stats.clock_scale_min <= near
+    pilot._scale, pilot._clock_t = 1.0, pilot._clock_t - 0.02
+    pilot._run_clock(Observation(pilot._clock_t + 0.02, hover_state(p, (25.0, 0.0, 10.0)),
+                                 covariance=np.eye(16) * 0.01))
+    assert pilot._scale == pytest.approx(1.0 - 0.02 * decel / speed)
+
+
+def test_what_was_in_sight_of_the_reference_stays_seen_while_the_tilted_lidar_looks_down(vehicles, compiled_dynamics):
+    """Tilted 30 degrees nose down at 8 m/s, the quad's +-15 degree lidar does not look at the level path ahead: a
+    pilot that has not seen it slows right down; one that saw it while level, 5 m before, flies on at full rate."""
+    from planners.timing import Reference
+
+    p = vehicles["small_quad"]
+    open_city = BuildingMap([], (-10.0, -30.0, 0.0), (120.0, 30.0, 50.0))
+    world = _sensing_world(p, compiled_dynamics["small_quad"], open_city)
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(100.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=60.0)
+    speed = 8.0
+    path = np.column_stack([np.arange(0.0, 100.0, 0.1), np.zeros(1000), np.full(1000, 10.0)])
+    t = np.arange(1000) * 0.1 / speed
+    reference = Reference(t_s=t, pos_m=path, vel_m_s=np.tile([speed, 0.0, 0.0], (1000, 1)),
+                          acc_m_s2=np.zeros_like(path), duration_s=float(t[-1]), status="ok", length_m=99.9,
+                          min_clearance_m=10.0, required_clearance_m=1.0, refinements=0, stops=0)
+    tilt = math.radians(30.0)
+    nose_down = np.array([math.cos(tilt / 2.0), 0.0, math.sin(tilt / 2.0), 0.0])
+
+    def scale_at(pilot: ClassicalPilot, x: float, attitude: np.ndarray) -> float:
+        pilot._t_ref0 = 0.0
+        state = hover_state(p, (x, 0.0, 10.0))
+        state[3:6], state[6:10] = (speed, 0.0, 0.0), attitude
+        target = pilot._clock_target(Observation(x / speed, state, covariance=np.eye(16) * 0.01))
+        assert target is not None
+        return target
+
+    fresh = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None))
+    assert fresh.reset(world, task, seed=3).ok
+    fresh.reference = reference
+    assert scale_at(fresh, 10.0, nose_down) < 0.5
+    looked = ClassicalPilot(ClassicalConfig(margin_rule=None, replan_error_m=None))
+    assert looked.reset(world, task, seed=3).ok
+    looked.reference = reference
+    assert scale_at(looked, 5.0, np.array([1.0, 0.0, 0.0, 0.0])) == 1.0  # level: the path ahead in sight
+    assert scale_at(looked, 10.0, nose_down) == 1.0  # remembered
+    looked.reference = dataclasses.replace(reference)  # a new reference: nothing of it seen yet
+    assert scale_at(looked, 10.0, nose_down) < 0.5
 
 
 def _sensing_a_wall_under_way(vehicles, compiled_dynamics, wall_x_m: float):

@@ -16,6 +16,7 @@ centimetres of range noise do not need it.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import Any
@@ -53,6 +54,16 @@ def part_mesh(part: Building | Prism) -> tuple[np.ndarray, np.ndarray]:
     return verts, np.vstack(tris)
 
 
+@functools.lru_cache(maxsize=16384)
+def _shared_part_mesh(part: Building | Prism) -> tuple[np.ndarray, np.ndarray]:
+    """`part_mesh`, read-only and kept for equal parts: a pilot's fused map changes by a few sensed columns between
+    scans, and its line-of-sight caster is rebuilt from every part each time."""
+    verts, tris = part_mesh(part)
+    verts.setflags(write=False)
+    tris.setflags(write=False)
+    return verts, tris
+
+
 def city_mesh(city: BuildingMap, *, ground: bool = True, ground_margin_m: float = 2000.0
               ) -> tuple[np.ndarray, np.ndarray]:
     """All of a city's parts (and the ground) as one triangle mesh: vertices (V, 3) ENU metres, triangles (T, 3)."""
@@ -68,7 +79,7 @@ def _city_mesh_parts(city: BuildingMap, ground: bool, ground_margin_m: float
     owner: list[np.ndarray] = []
     n = 0
     for i, part in enumerate(city.buildings):
-        v, t = part_mesh(part)
+        v, t = _shared_part_mesh(part)
         verts.append(v)
         tris.append(t + n)
         owner.append(np.full(len(t), i, dtype=np.int64))
