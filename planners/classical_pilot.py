@@ -303,6 +303,7 @@ class ClassicalPilot:
         self._map_dirty, self._fused_t = False, -math.inf
         # the reference's clock (`see_to_stop`): it runs at `_scale` of real time from `_clock_t` on
         self._scale, self._clock_t, self._braking = 1.0, 0.0, False
+        self._ref_speed = 0.0  # the reference's speed [m/s] where `_clock_target` last looked
         self._caster: tuple[BuildingMap, RayCaster] | None = None  # lines of sight through the map known
         self._seen: tuple[Reference, np.ndarray, np.ndarray] | None = None  # what of the reference has been in sight
         self._planner_cfg = dataclasses.replace(self.config.planner, safety_margin_m=self.margins.planner_m)
@@ -702,19 +703,17 @@ class ClassicalPilot:
 
     def _run_clock(self, obs: Observation) -> None:
         """Advance the reference's clock to `obs.t_s` and set its rate from now on (`see_to_stop`): `_clock_target`,
-        approached no faster than the acceleration limit allows either way (slowing at once left the UAM metres past
-        a reference that had stopped: a tracking replan in validation leg uam-003/0)."""
+        approached no faster than the acceleration limit allows either way (docs/planner.md)."""
         dt = obs.t_s - self._clock_t
         self._t_ref0 += (1.0 - self._scale) * dt  # it ran at `_scale` since `_clock_t`
         self._clock_t = obs.t_s
         if self._sensed is None or not self.config.see_to_stop or self._braking or self.reference is None:
             self._scale = 1.0
             return
-        speed = float(np.linalg.norm(self.reference.sample(obs.t_s - self._t_ref0)[1]))
         target = self._clock_target(obs)
         if target is None:
             return
-        step = dt * self._limits.max_accel_m_s2 / max(speed, 1.0)
+        step = dt * self._limits.max_accel_m_s2 / max(self._ref_speed, 1.0)
         self._scale = float(np.clip(target, self._scale - step, self._scale + step))
         self.stats.clock_scale_min = min(self.stats.clock_scale_min, self._scale)
 
@@ -726,7 +725,7 @@ class ClassicalPilot:
         world, _ = self._flying()
         assert self.reference is not None and world.sensing is not None
         t_ref = obs.t_s - self._t_ref0
-        speed = float(np.linalg.norm(self.reference.sample(t_ref)[1]))
+        speed = self._ref_speed = float(np.linalg.norm(self.reference.sample(t_ref)[1]))  # also the rate's step's
         if speed < 1e-6:
             return 1.0  # at rest: nothing to slow
         eye = np.asarray(obs.x[0:3], float)
