@@ -13,7 +13,17 @@ from synthetic_run import trajectory
 
 
 @pytest.fixture
-def synthetic_flying(monkeypatch: pytest.MonkeyPatch) -> None:
+def no_report(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`run` scores its episodes (metrics.csv, summary.json) without building the PDF report and the viewer (fast).
+
+    `run` finalizes through `campaign._finalize` under the folder's lock it already holds, not through `finalize`:
+    `test_no_report_fixture_builds_no_report` keeps this patch from going stale unnoticed."""
+    finalize = compare.run.campaign._finalize
+    monkeypatch.setattr(compare.run.campaign, "_finalize", lambda run_dir, report=True: finalize(run_dir, False))
+
+
+@pytest.fixture
+def synthetic_flying(monkeypatch: pytest.MonkeyPatch, no_report: None) -> None:
     """`run` flies each cell as a short synthetic flight and scores it without report or viewer (fast)."""
     def fly(self: compare.run.cells.CellRunner, c: compare.run.cells.Cell) -> Path:
         sc = self.scenarios[c.scenario]
@@ -23,6 +33,4 @@ def synthetic_flying(monkeypatch: pytest.MonkeyPatch) -> None:
                            1e4, "success", 0.0, "synthetic")
         return write_part(part_path(self.out_dir, key),
                           self.stored(c, meta, trajectory(200, 10.0, 0.0, 1.0, "success", 0)))
-    finalize = compare.run.campaign.finalize
     monkeypatch.setattr(compare.run.cells.CellRunner, "run", fly)
-    monkeypatch.setattr(compare.run.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))

@@ -37,14 +37,12 @@ FAULTS = {"raise": "fault_pilots:RaisingPilot", "exit": "fault_pilots:ExitingPil
 
 
 @pytest.fixture
-def faults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+def faults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, no_report: None) -> Path:
     """The folder whose files arm the fault pilots (inherited by worker processes); the run scores without
     building the PDF report and the viewer (fast)."""
     folder = tmp_path / "faults"
     folder.mkdir()
     monkeypatch.setenv("FAULT_DIR", str(folder))
-    finalize = compare.run.campaign.finalize
-    monkeypatch.setattr(compare.run.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))
     return folder
 
 

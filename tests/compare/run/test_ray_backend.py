@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-import compare.run.campaign
 from compare.cli import main
 from compare.results.episodes import open_episodes
 from compare.results.failures import FailureKind, read_failures
@@ -26,12 +25,10 @@ def _rows(out: Path) -> list[dict]:
 
 
 def test_ray_gives_the_local_metrics_and_records_faults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                        capsys: pytest.CaptureFixture) -> None:
+                                                        capsys: pytest.CaptureFixture, no_report: None) -> None:
     faults = tmp_path / "faults"
     faults.mkdir()
     monkeypatch.setenv("FAULT_DIR", str(faults))  # the local Ray instance starts from this environment
-    finalize = compare.run.campaign.finalize
-    monkeypatch.setattr(compare.run.campaign, "finalize", lambda run_dir, report=True: finalize(run_dir, report=False))
     common = ["--no-progress", "--videos", "none"]
     local = tmp_path / "local"
     assert main(["run", str(TINY), "--out", str(local), *common]) == 0
