@@ -1,6 +1,8 @@
 """Fixtures shared by the comparison's tests."""
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 
 import pytest
@@ -12,14 +14,32 @@ from compare.results.trajectory import EpisodeMeta
 from synthetic_run import trajectory
 
 
-@pytest.fixture
-def no_report(monkeypatch: pytest.MonkeyPatch) -> None:
-    """`run` scores its episodes (metrics.csv, summary.json) without building the PDF report and the viewer (fast).
+def _score_only(mp: pytest.MonkeyPatch) -> None:
+    """Patch `run` to score its episodes without building the report and the viewer: what `no_report` and
+    `scoring_only` do.
 
     `run` finalizes through `campaign._finalize` under the folder's lock it already holds, not through `finalize`:
     `test_no_report_fixture_builds_no_report` keeps this patch from going stale unnoticed."""
     finalize = compare.run.campaign._finalize
-    monkeypatch.setattr(compare.run.campaign, "_finalize", lambda run_dir, report=True: finalize(run_dir, False))
+    mp.setattr(compare.run.campaign, "_finalize", lambda run_dir, report=True: finalize(run_dir, False))
+
+
+@pytest.fixture
+def no_report(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`run` scores its episodes (metrics.csv, summary.json) without building the PDF report and the viewer (fast)."""
+    _score_only(monkeypatch)
+
+
+@pytest.fixture(scope="session")
+def scoring_only() -> Callable[[], AbstractContextManager[None]]:
+    """`no_report` for a fixture of a module or a session, which cannot take a test's fixture: `with scoring_only():
+    main(["run", ...])` scores that run without building the PDF report and the viewer (fast), and no other."""
+    @contextmanager
+    def only() -> Iterator[None]:
+        with pytest.MonkeyPatch.context() as mp:
+            _score_only(mp)
+            yield
+    return only
 
 
 @pytest.fixture

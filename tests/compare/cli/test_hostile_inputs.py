@@ -12,6 +12,8 @@ import re
 import shutil
 import sys
 import threading
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 import pytest
@@ -325,7 +327,7 @@ class InfVelocity(PotentialFieldPilot):
 
 
 def test_an_unflyable_command_fails_the_cell_as_a_pilot_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                             capsys: pytest.CaptureFixture) -> None:
+                                                             capsys: pytest.CaptureFixture, no_report: None) -> None:
     (tmp_path / "nan_pilots_i32.py").write_text(NAN_PILOTS)
     monkeypatch.syspath_prepend(str(tmp_path))
     out = tmp_path / "run"
@@ -477,10 +479,13 @@ def test_a_killed_holder_leaves_no_lock_behind(tmp_path: Path) -> None:
 
 # ---- a run folder's data never chooses a path; a lock never follows a link ---------------------------------------
 @pytest.fixture(scope="module")
-def flown_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A real run of the tiny scenario by the potential field (quick), its episodes in the run store."""
+def flown_run(tmp_path_factory: pytest.TempPathFactory,
+              scoring_only: Callable[[], AbstractContextManager[None]]) -> Path:
+    """A real run of the tiny scenario by the potential field (quick), its episodes in the run store (scored, no
+    report or viewer)."""
     out = tmp_path_factory.mktemp("flown") / "run"
-    assert main([*FLY_APF, "--out", str(out)]) == 0
+    with scoring_only():
+        assert main([*FLY_APF, "--out", str(out)]) == 0
     assert (out / "store" / "episodes.parquet").exists()
     return out
 

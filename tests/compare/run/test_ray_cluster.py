@@ -90,7 +90,7 @@ def _stored(out: Path) -> tuple[list[dict], list[list]]:
     return rows, samples
 
 
-def test_a_two_node_cluster_flies_what_a_local_run_flies(tmp_path: Path) -> None:
+def test_a_two_node_cluster_flies_what_a_local_run_flies(tmp_path: Path, no_report: None) -> None:
     root = Path(__file__).resolve().parents[3]
     # Ray >= 2.5x turns token authentication on for `ray start`; this private test cluster opts out, so the run
     # (this process) connects as a driver of a cluster without tokens
