@@ -114,8 +114,9 @@ class ClassicalConfig:
             fly is measured against the widened margin at most this often [s]; it is replanned only when it no
             longer keeps it (a path with room to spare needs no new plan).
         improve_period_s: flying a plan found at the floor margin (slow wherever it passes closer than a speed's
-            margin), try this often [s] for a faster one from where the reference will be after the replan budget,
-            flying on meanwhile.
+            margin), or one made for a k σ that has since fallen by `uncertainty_replan_m` (an outage ended), try
+            this often [s] for a faster one from where the reference will be after the replan budget, flying on
+            meanwhile.
         improve_gain_s: such a plan replaces the flown one only when it arrives this much earlier [s].
         in_flight_climb_weight: the in-flight planner's `PlannerConfig.climb_weight` (a metre climbed costs this many
             metres flown level). A replan in flight takes the ladder's first path, not the fastest of several, and
@@ -208,7 +209,7 @@ class ClassicalStats:
     planner_wall_caps: int = 0  # plans cut by the planner's wall-time cap (at reset and in flight)
     in_flight_replan_s: list[float] = field(default_factory=list)  # wall time of each replan flown through
     hover_holds: int = 0
-    improvements_tried: int = 0  # searches for a faster plan while flying one found at the floor margin
+    improvements_tried: int = 0  # searches for a faster plan (flying one found at the floor margin, or k σ eased)
     improvements_taken: int = 0
     hold_moves: int = 0  # hold references that move to where the MPC's margin fits
     clock_scale_min: float = 1.0  # the slowest the reference's clock ran (`see_to_stop`)
@@ -319,10 +320,11 @@ class ClassicalPilot:
               in_flight: bool = False, lead_in: np.ndarray | None = None, faster: bool = False
               ) -> tuple[bool, str, str]:
         """Plan from `start` (ENU m) at `t_start` [s] moving at `velocity_m_s` (None: at rest) to the task's goal
-        with the ladder (in flight: `in_flight_ladder`, no climbing on for time, no reachability search on a
-        failure); on success the plan and its reference become the pilot's. `lead_in` (3,): the vehicle is there at
-        `t_start` and the path runs straight from it to `start` (where braking along its velocity would stop it),
-        so that the reference starts along the velocity. `faster`: in flight, look for a plan at the speed margins
+        with the ladder (in flight: `in_flight_ladder`, no reachability search on a failure; as at reset, a step
+        whose path would not arrive within `time_fraction` of the time left does not end the climb); on success the
+        plan and its reference become the pilot's. `lead_in` (3,): the vehicle is there at `t_start` and the path
+        runs straight from it to `start` (where braking along its velocity would stop it), so that the reference
+        starts along the velocity. `faster`: in flight, look for a plan at the speed margins
         even when the flown plan needed the floor margin. Returns (ok, status, detail)."""
         world, margins = self._flying()
         task, cfg = self._task, self.config
@@ -353,8 +355,8 @@ class ClassicalPilot:
 
         time_left = cfg.time_fraction * (task.timeout_s - t_start)
         ladder = cfg.ladder
-        if in_flight:  # the budget allows no climbing on for a faster path
-            time_left, ladder = math.inf, cfg.in_flight_ladder
+        if in_flight:  # the ladder climbs on only for a path that arrives in time: one that cannot is no plan
+            ladder = cfg.in_flight_ladder
             if self._on_floor and not faster:  # the speed margins did not fit this route before: no budget on them
                 ladder = tuple(step for step in ladder if step.floor_margin) or ladder
         planner_cfg = (dataclasses.replace(self._planner_cfg, climb_weight=cfg.in_flight_climb_weight) if in_flight
@@ -928,7 +930,10 @@ class ClassicalPilot:
                 log.info("predicted clearance %.2f m below the MPC margin %.2f m at t = %.2f s: replanning",
                          clearances[i], required[i], obs.t_s)
                 return "clearance"
-        if (self._sensed is not None and self._on_floor and obs.t_s - self._tried_t >= cfg.improve_period_s
+        # a faster plan may exist where the flown one was found at the floor margin, or with a wider uncertainty
+        # margin than k σ asks now (a GNSS outage ended: the streets it closed may be open again)
+        eased = self._extra_now < self._planned_extra_m - cfg.uncertainty_replan_m
+        if (self._sensed is not None and (self._on_floor or eased) and obs.t_s - self._tried_t >= cfg.improve_period_s
                 and reference.duration_s - t_ref > cfg.improve_period_s):
             return "improve"
         return None

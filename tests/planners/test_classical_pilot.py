@@ -623,6 +623,66 @@ def test_a_plan_found_at_the_floor_margin_looks_for_a_faster_one_while_flying_on
     assert sum(pilot.stats.replans_by_cause.values()) == 0
 
 
+def test_a_plan_made_for_a_wider_uncertainty_looks_for_a_faster_one_once_it_has_eased(vehicles, compiled_dynamics):
+    """A plan made while k σ was wide (a GNSS outage: the margin closed streets) is flown on once k σ has fallen
+    `uncertainty_replan_m` below what it took, and every `improve_period_s` the pilot searches for a faster one, as on
+    a plan found at the floor margin; in open air the straight line it flies is the fastest, so it keeps it."""
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+
+    p = vehicles["small_quad"]
+    city = BuildingMap([], (-10.0, -40.0, 0.0), (160.0, 40.0, 50.0))
+    world = _sensing_world(p, compiled_dynamics["small_quad"], city)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
+    lidar = Lidar(world.sensing.lidar, RayCaster(city), np.random.default_rng(0))
+    for wider_m, tries in ((cfg.uncertainty_replan_m + 1.0, 1), (0.0, 0)):
+        pilot = ClassicalPilot(cfg)
+        assert pilot.reset(world, task, seed=3).ok and not pilot._on_floor
+        # as if planned during an outage (k σ then) that has ended since; the observations' σ is 0.1 m
+        pilot._planned_extra_m = cfg.uncertainty_k * 0.1 + wider_m
+        flown = pilot.reference
+        for t in (cfg.improve_period_s - 0.1, cfg.improve_period_s):
+            pilot.act(_sensed_obs(pilot, p, t, lidar, flown.sample(t)[0]))
+        assert pilot.stats.improvements_tried == tries and pilot.stats.improvements_taken == 0
+        assert pilot.reference is flown and pilot._pending is None
+        assert sum(pilot.stats.replans_by_cause.values()) == 0
+
+
+def test_a_replan_in_flight_asks_the_ladder_for_a_path_that_arrives_in_time(vehicles, compiled_dynamics,
+                                                                           monkeypatch):
+    """In flight the ladder climbs on past a step whose path cannot arrive within `time_fraction` of the time left
+    (from the new plan's start), as at reset; before, it flew the first path found, however slow (a UAM climbing over
+    towers at 2 m/s until its time ran out while a street path at the floor margin fitted)."""
+    import planners.classical_pilot as cp
+    from uam_fdm.sensing.lidar import Lidar
+    from uam_fdm.sensing.raycast import RayCaster
+
+    asked = []
+    ladder = cp.plan_with_escalation
+
+    def spy(*args, **kwargs):
+        asked.append(kwargs["time_available_s"])
+        return ladder(*args, **kwargs)
+
+    monkeypatch.setattr(cp, "plan_with_escalation", spy)
+    p = vehicles["small_quad"]
+    bounds = ((-10.0, -45.0, 0.0), (160.0, 45.0, 50.0))
+    truth = BuildingMap([Building(7, (70.0, 0.0), (2.0, 60.0), 22.0)], *bounds)
+    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
+    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
+    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
+    pilot = ClassicalPilot(cfg)
+    assert pilot.reset(world, task, seed=3).ok
+    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
+    t = 3.0
+    pilot.act(_sensed_obs(pilot, p, t, lidar, pilot.reference.sample(t)[0]))
+    assert pilot.stats.replans_by_cause["blocked"] == 1 and pilot._pending is not None
+    t_switch = pilot._pending[2]
+    assert asked[0] == pytest.approx(cfg.time_fraction * task.timeout_s)  # at reset
+    assert asked[-1] == pytest.approx(cfg.time_fraction * (task.timeout_s - t_switch))
+
+
 def test_a_wall_sensed_too_near_to_fly_on_makes_the_pilot_brake_and_plan_from_where_it_stops(vehicles,
                                                                                            compiled_dynamics):
     """The wall lies 30 m ahead of a vehicle at 9.6 m/s: it brakes along its path, and the new plan starts at rest
