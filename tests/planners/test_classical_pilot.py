@@ -655,8 +655,6 @@ def test_a_replan_in_flight_asks_the_ladder_for_a_path_that_arrives_in_time(vehi
     (from the new plan's start), as at reset; before, it flew the first path found, however slow (a UAM climbing over
     towers at 2 m/s until its time ran out while a street path at the floor margin fitted)."""
     import planners.classical_pilot as cp
-    from uam_fdm.sensing.lidar import Lidar
-    from uam_fdm.sensing.raycast import RayCaster
 
     asked = []
     ladder = cp.plan_with_escalation
@@ -666,17 +664,8 @@ def test_a_replan_in_flight_asks_the_ladder_for_a_path_that_arrives_in_time(vehi
         return ladder(*args, **kwargs)
 
     monkeypatch.setattr(cp, "plan_with_escalation", spy)
-    p = vehicles["small_quad"]
-    bounds = ((-10.0, -45.0, 0.0), (160.0, 45.0, 50.0))
-    truth = BuildingMap([Building(7, (70.0, 0.0), (2.0, 60.0), 22.0)], *bounds)
-    world = _sensing_world(p, compiled_dynamics["small_quad"], BuildingMap([], *bounds))
-    task = Task(start_m=(0.0, 0.0, 10.0), goal_m=(140.0, 0.0, 10.0), goal_radius_m=2.0, timeout_s=90.0)
-    cfg = ClassicalConfig(margin_rule=None, replan_error_m=None, replan_on_clearance=False)
-    pilot = ClassicalPilot(cfg)
-    assert pilot.reset(world, task, seed=3).ok
-    lidar = Lidar(world.sensing.lidar, RayCaster(truth), np.random.default_rng(0))
-    t = 3.0
-    pilot.act(_sensed_obs(pilot, p, t, lidar, pilot.reference.sample(t)[0]))
+    _, _, cfg, pilot, _, _, _ = _sensing_a_wall_under_way(vehicles, compiled_dynamics, 60.0)
+    task = pilot._task
     assert pilot.stats.replans_by_cause["blocked"] == 1 and pilot._pending is not None
     t_switch = pilot._pending[2]
     assert asked[0] == pytest.approx(cfg.time_fraction * task.timeout_s)  # at reset
