@@ -119,7 +119,7 @@ class ClassicalConfig:
             meanwhile.
         improve_gain_s: such a plan replaces the flown one only when it arrives this much earlier [s].
         in_flight_climb_weight: the in-flight planner's `PlannerConfig.climb_weight` (a metre climbed costs this many
-            metres flown level). A replan in flight takes the ladder's first path, not the fastest of several, and
+            metres flown level). A replan in flight takes each step's one path, not the fastest of several, and
             the lidar sees only 15 degrees above the horizon: at length's weight the shortest path went over the top
             of what was seen of a wall, the next scans saw more of it, and the vehicle climbed replan after replan
             (validation legs quad-003/0, quad-031/6: time-outs; docs/planner.md). 4 is the small quad's ratio of level
@@ -324,8 +324,8 @@ class ClassicalPilot:
         whose path would not arrive within `time_fraction` of the time left does not end the climb); on success the
         plan and its reference become the pilot's. `lead_in` (3,): the vehicle is there at `t_start` and the path
         runs straight from it to `start` (where braking along its velocity would stop it), so that the reference
-        starts along the velocity. `faster`: in flight, look for a plan at the speed margins
-        even when the flown plan needed the floor margin. Returns (ok, status, detail)."""
+        starts along the velocity. `faster`: in flight, look for a plan at the speed margins even when the flown
+        plan needed the floor margin. Returns (ok, status, detail)."""
         world, margins = self._flying()
         task, cfg = self._task, self.config
         radius = world.vehicle.collision_radius_m
@@ -355,7 +355,8 @@ class ClassicalPilot:
 
         time_left = cfg.time_fraction * (task.timeout_s - t_start)
         ladder = cfg.ladder
-        if in_flight:  # the ladder climbs on only for a path that arrives in time: one that cannot is no plan
+        if in_flight:  # as at reset, a path that would arrive late does not end the climb (the fastest is flown
+            # when none arrives in time)
             ladder = cfg.in_flight_ladder
             if self._on_floor and not faster:  # the speed margins did not fit this route before: no budget on them
                 ladder = tuple(step for step in ladder if step.floor_margin) or ladder
